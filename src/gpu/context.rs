@@ -1,0 +1,262 @@
+//! Device context: adapter choice, features, limits.
+
+use std::sync::Arc;
+
+use super::kernels::KernelRegistry;
+use crate::error::{Error, Result};
+
+/// Optional features the crate uses when the adapter offers them.
+pub const WANTED_FEATURES: wgpu::Features = wgpu::Features::SHADER_F16
+    .union(wgpu::Features::SUBGROUP)
+    .union(wgpu::Features::TIMESTAMP_QUERY)
+    .union(wgpu::Features::TIMESTAMP_QUERY_INSIDE_ENCODERS)
+    .union(wgpu::Features::TIMESTAMP_QUERY_INSIDE_PASSES);
+
+/// Broad class of the chosen adapter, in order of preference.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord)]
+pub enum AdapterKind {
+    /// A discrete GPU.
+    Discrete,
+    /// An integrated GPU.
+    Integrated,
+    /// A virtual GPU.
+    Virtual,
+    /// Unknown kind.
+    Other,
+    /// A software rasteriser such as Mesa lavapipe.
+    Cpu,
+}
+
+impl From<wgpu::DeviceType> for AdapterKind {
+    fn from(t: wgpu::DeviceType) -> Self {
+        match t {
+            wgpu::DeviceType::DiscreteGpu => AdapterKind::Discrete,
+            wgpu::DeviceType::IntegratedGpu => AdapterKind::Integrated,
+            wgpu::DeviceType::VirtualGpu => AdapterKind::Virtual,
+            wgpu::DeviceType::Cpu => AdapterKind::Cpu,
+            wgpu::DeviceType::Other => AdapterKind::Other,
+        }
+    }
+}
+
+/// How to pick the adapter. The defaults honour `WGPU_BACKEND` and `WGPU_ADAPTER_NAME`.
+#[derive(Debug, Clone, Default)]
+pub struct GpuOptions {
+    /// Substring (case-insensitive) of the adapter name; falls back to `WGPU_ADAPTER_NAME`.
+    pub adapter_name: Option<String>,
+    /// Backends to consider; falls back to `WGPU_BACKEND`, then all.
+    pub backends: Option<wgpu::Backends>,
+}
+
+/// A wgpu device with the crate's kernel registry.
+///
+/// Create one with [`Gpu::new`] (the crate picks the adapter) or wrap a device you
+/// already own with [`Gpu::from_device`].
+#[derive(Clone)]
+pub struct Gpu {
+    /// The device.
+    pub device: wgpu::Device,
+    /// Its queue.
+    pub queue: wgpu::Queue,
+    /// Adapter information (name, driver, backend).
+    pub info: wgpu::AdapterInfo,
+    /// Compiled kernels, shared by clones.
+    pub kernels: Arc<KernelRegistry>,
+}
+
+impl std::fmt::Debug for Gpu {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("Gpu").field("adapter", &self.info.name).finish()
+    }
+}
+
+impl Gpu {
+    /// Picks the best adapter (discrete > integrated > CPU), honouring `WGPU_BACKEND` and
+    /// `WGPU_ADAPTER_NAME`, and creates a device with the adapter's real limits and the
+    /// optional features in [`WANTED_FEATURES`] it offers.
+    pub fn new() -> Result<Self> {
+        Self::with_options(&GpuOptions::default())
+    }
+
+    /// Like [`Gpu::new`] with explicit options.
+    pub fn with_options(opts: &GpuOptions) -> Result<Self> {
+        pollster::block_on(Self::new_async(opts))
+    }
+
+    async fn new_async(opts: &GpuOptions) -> Result<Self> {
+        let backends = opts
+            .backends
+            .or_else(wgpu::Backends::from_env)
+            .unwrap_or(wgpu::Backends::all());
+        // Native backends first; GL only when nothing else exists (its probing is noisy
+        // and its compute support limited).
+        let primary = backends & wgpu::Backends::PRIMARY;
+        let mut last_err = None;
+        for set in [primary, backends] {
+            if set.is_empty() {
+                continue;
+            }
+            let mut desc = wgpu::InstanceDescriptor::new_without_display_handle();
+            desc.backends = set;
+            let instance = wgpu::Instance::new(desc);
+            match Self::pick_adapter(&instance, set, opts).await {
+                Ok(adapter) => return Self::from_adapter(&adapter).await,
+                Err(e) => last_err = Some(e),
+            }
+            if set == backends {
+                break;
+            }
+        }
+        Err(last_err.unwrap_or(Error::NoAdapter {
+            detail: String::new(),
+        }))
+    }
+
+    /// Chooses among `instance`'s adapters as [`Gpu::new`] does.
+    pub async fn pick_adapter(
+        instance: &wgpu::Instance,
+        backends: wgpu::Backends,
+        opts: &GpuOptions,
+    ) -> Result<wgpu::Adapter> {
+        let wanted_name = opts
+            .adapter_name
+            .clone()
+            .or_else(|| std::env::var("WGPU_ADAPTER_NAME").ok())
+            .map(|s| s.to_lowercase());
+        let adapters = instance.enumerate_adapters(backends).await;
+        let available: Vec<String> = adapters
+            .iter()
+            .map(|a| {
+                let i = a.get_info();
+                format!("{} ({:?}, {:?})", i.name, i.backend, i.device_type)
+            })
+            .collect();
+        let rank = |a: &wgpu::Adapter| {
+            let i = a.get_info();
+            let backend_rank = match i.backend {
+                wgpu::Backend::Vulkan | wgpu::Backend::Metal | wgpu::Backend::Dx12 => 0,
+                _ => 1,
+            };
+            (AdapterKind::from(i.device_type), backend_rank)
+        };
+        let best = adapters
+            .into_iter()
+            .filter(|a| match &wanted_name {
+                Some(n) => a.get_info().name.to_lowercase().contains(n),
+                None => true,
+            })
+            .min_by_key(rank);
+        best.ok_or_else(|| Error::NoAdapter {
+            detail: match (&wanted_name, available.is_empty()) {
+                (Some(n), false) => format!(
+                    " matching WGPU_ADAPTER_NAME '{n}' (available: {})",
+                    available.join(", ")
+                ),
+                (Some(n), true) => format!(" (asked for '{n}', none available)"),
+                (None, _) => format!(" for backends {backends:?}"),
+            },
+        })
+    }
+
+    /// Creates the device on a chosen adapter.
+    pub async fn from_adapter(adapter: &wgpu::Adapter) -> Result<Self> {
+        let info = adapter.get_info();
+        let features = adapter.features() & WANTED_FEATURES;
+        let (device, queue) = adapter
+            .request_device(&wgpu::DeviceDescriptor {
+                label: Some("subpixel.device"),
+                required_features: features,
+                required_limits: adapter.limits(),
+                experimental_features: wgpu::ExperimentalFeatures::disabled(),
+                memory_hints: wgpu::MemoryHints::Performance,
+                trace: wgpu::Trace::Off,
+            })
+            .await
+            .map_err(|source| Error::RequestDevice {
+                adapter: info.name.clone(),
+                source,
+            })?;
+        Ok(Self::from_device(&device, &queue, info))
+    }
+
+    /// Wraps a device the caller already owns (the embedding route).
+    pub fn from_device(device: &wgpu::Device, queue: &wgpu::Queue, info: wgpu::AdapterInfo) -> Self {
+        Self {
+            device: device.clone(),
+            queue: queue.clone(),
+            kernels: Arc::new(KernelRegistry::new(device)),
+            info,
+        }
+    }
+
+    /// Broad class of the adapter.
+    pub fn kind(&self) -> AdapterKind {
+        self.info.device_type.into()
+    }
+
+    /// Whether the device was created with `feature`.
+    pub fn has(&self, feature: wgpu::Features) -> bool {
+        self.device.features().contains(feature)
+    }
+
+    /// Errors unless the device has `feature`.
+    pub fn require(&self, feature: wgpu::Features, what: &str) -> Result<()> {
+        if self.has(feature) {
+            Ok(())
+        } else {
+            Err(Error::MissingFeature {
+                what: what.to_string(),
+                feature,
+                adapter: self.info.name.clone(),
+            })
+        }
+    }
+
+    /// One line naming the adapter, its backend and driver.
+    pub fn describe(&self) -> String {
+        format!(
+            "{} ({:?}, {:?}, driver {} {})",
+            self.info.name, self.info.backend, self.info.device_type, self.info.driver, self.info.driver_info
+        )
+    }
+
+    /// Blocks until all submitted work is done.
+    pub fn wait(&self) -> Result<()> {
+        self.device
+            .poll(wgpu::PollType::wait_indefinitely())
+            .map(|_| ())
+            .map_err(|e| Error::Readback(e.to_string()))
+    }
+
+    /// Copies `size` bytes of `buffer` (which needs `COPY_SRC`) back to the CPU.
+    pub fn read_buffer(&self, buffer: &wgpu::Buffer, offset: u64, size: u64) -> Result<Vec<u8>> {
+        let staging = self.device.create_buffer(&wgpu::BufferDescriptor {
+            label: Some("subpixel.readback"),
+            size,
+            usage: wgpu::BufferUsages::MAP_READ | wgpu::BufferUsages::COPY_DST,
+            mapped_at_creation: false,
+        });
+        let mut enc = self
+            .device
+            .create_command_encoder(&wgpu::CommandEncoderDescriptor {
+                label: Some("subpixel.readback"),
+            });
+        enc.copy_buffer_to_buffer(buffer, offset, &staging, 0, size);
+        self.queue.submit([enc.finish()]);
+        let slice = staging.slice(..);
+        let (tx, rx) = std::sync::mpsc::channel();
+        slice.map_async(wgpu::MapMode::Read, move |r| {
+            let _ = tx.send(r);
+        });
+        self.wait()?;
+        rx.recv()
+            .map_err(|e| Error::Readback(e.to_string()))?
+            .map_err(|e| Error::Readback(e.to_string()))?;
+        let data = slice
+            .get_mapped_range()
+            .map_err(|e| Error::Readback(e.to_string()))?
+            .to_vec();
+        staging.unmap();
+        Ok(data)
+    }
+}

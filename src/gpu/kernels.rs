@@ -1,0 +1,344 @@
+//! The kernel registry: every WGSL file embedded once, validated with naga, and its
+//! compute pipelines cached per specialisation (WGSL `override` constants).
+//!
+//! Calling convention shared by every kernel: `@group(0) @binding(0)` is a uniform
+//! block of parameters (when the kernel has one), followed by storage buffers at
+//! bindings 1, 2, ... in the order the kernel's Rust wrapper passes them.
+
+use std::collections::HashMap;
+use std::sync::{Arc, Mutex};
+
+use crate::error::{Error, Result};
+
+/// One embedded WGSL file.
+#[derive(Debug, Clone, Copy)]
+pub struct KernelSource {
+    /// Name: the path under `wgsl/` without extension, e.g. `nn/conv3x3`.
+    pub name: &'static str,
+    /// WGSL text.
+    pub source: &'static str,
+}
+
+macro_rules! kernel {
+    ($name:literal) => {
+        KernelSource {
+            name: $name,
+            source: include_str!(concat!(env!("CARGO_MANIFEST_DIR"), "/wgsl/", $name, ".wgsl")),
+        }
+    };
+}
+
+/// Every WGSL kernel of the crate.
+pub const KERNELS: &[KernelSource] = &[
+    kernel!("nn/conv3x3"),
+    kernel!("nn/pool2x2"),
+    kernel!("nn/upsample2x"),
+    kernel!("nn/tfa_blend"),
+    kernel!("nn/warp"),
+    kernel!("nn/demodulate"),
+    kernel!("nn/remodulate"),
+];
+
+/// Looks a kernel up by name.
+pub fn kernel_source(name: &str) -> Result<&'static KernelSource> {
+    KERNELS
+        .iter()
+        .find(|k| k.name == name)
+        .ok_or_else(|| Error::Kernel {
+            kernel: name.to_string(),
+            message: "no such kernel is embedded in the crate".into(),
+        })
+}
+
+/// Parses and validates WGSL with naga (all capabilities the crate may request).
+pub fn validate_wgsl(name: &str, source: &str) -> Result<naga::Module> {
+    let module = naga::front::wgsl::parse_str(source).map_err(|e| Error::Kernel {
+        kernel: name.to_string(),
+        message: format!("WGSL parse error:\n{}", e.emit_to_string(source)),
+    })?;
+    let mut validator = naga::valid::Validator::new(
+        naga::valid::ValidationFlags::all(),
+        naga::valid::Capabilities::all(),
+    );
+    validator.validate(&module).map_err(|e| Error::Kernel {
+        kernel: name.to_string(),
+        message: format!("WGSL validation error:\n{}", e.emit_to_string(source)),
+    })?;
+    Ok(module)
+}
+
+/// Values of a kernel's WGSL `override` constants.
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct Specialisation(pub Vec<(&'static str, f64)>);
+
+impl Specialisation {
+    /// No overrides.
+    pub fn none() -> Self {
+        Self(Vec::new())
+    }
+    fn key(&self) -> Vec<(&'static str, u64)> {
+        let mut k: Vec<_> = self.0.iter().map(|(n, v)| (*n, v.to_bits())).collect();
+        k.sort();
+        k
+    }
+}
+
+type PipelineKey = (&'static str, Vec<(&'static str, u64)>);
+
+/// Compiled shader modules and pipelines of one device.
+pub struct KernelRegistry {
+    device: wgpu::Device,
+    modules: Mutex<HashMap<&'static str, Arc<wgpu::ShaderModule>>>,
+    pipelines: Mutex<HashMap<PipelineKey, Arc<wgpu::ComputePipeline>>>,
+}
+
+impl KernelRegistry {
+    /// An empty registry; modules compile on first use.
+    pub fn new(device: &wgpu::Device) -> Self {
+        Self {
+            device: device.clone(),
+            modules: Mutex::new(HashMap::new()),
+            pipelines: Mutex::new(HashMap::new()),
+        }
+    }
+
+    fn module(&self, k: &'static KernelSource) -> Result<Arc<wgpu::ShaderModule>> {
+        if let Some(m) = self.modules.lock().unwrap().get(k.name) {
+            return Ok(m.clone());
+        }
+        validate_wgsl(k.name, k.source)?;
+        let scope = self.device.push_error_scope(wgpu::ErrorFilter::Validation);
+        let module = self.device.create_shader_module(wgpu::ShaderModuleDescriptor {
+            label: Some(&format!("subpixel.{}", k.name)),
+            source: wgpu::ShaderSource::Wgsl(k.source.into()),
+        });
+        if let Some(e) = pollster::block_on(scope.pop()) {
+            return Err(Error::Kernel {
+                kernel: k.name.to_string(),
+                message: format!("shader module creation failed: {e}"),
+            });
+        }
+        let module = Arc::new(module);
+        self.modules.lock().unwrap().insert(k.name, module.clone());
+        Ok(module)
+    }
+
+    /// The compute pipeline of kernel `name` (entry point `main`) under `spec`, cached.
+    pub fn pipeline(&self, name: &str, spec: &Specialisation) -> Result<Arc<wgpu::ComputePipeline>> {
+        let k = kernel_source(name)?;
+        let key = (k.name, spec.key());
+        if let Some(p) = self.pipelines.lock().unwrap().get(&key) {
+            return Ok(p.clone());
+        }
+        let module = self.module(k)?;
+        let scope = self.device.push_error_scope(wgpu::ErrorFilter::Validation);
+        let pipeline = self
+            .device
+            .create_compute_pipeline(&wgpu::ComputePipelineDescriptor {
+                label: Some(&format!("subpixel.{}", k.name)),
+                layout: None,
+                module: &module,
+                entry_point: Some("main"),
+                compilation_options: wgpu::PipelineCompilationOptions {
+                    constants: &spec.0,
+                    zero_initialize_workgroup_memory: false,
+                },
+                cache: None,
+            });
+        if let Some(e) = pollster::block_on(scope.pop()) {
+            return Err(Error::Kernel {
+                kernel: k.name.to_string(),
+                message: format!("pipeline creation failed (specialisation {:?}): {e}", spec.0),
+            });
+        }
+        let pipeline = Arc::new(pipeline);
+        self.pipelines.lock().unwrap().insert(key, pipeline.clone());
+        Ok(pipeline)
+    }
+
+    /// Builds a ready-to-record dispatch: pipeline, bind group (uniform `params` at binding 0
+    /// when non-empty, then `buffers` at bindings 1..), and the workgroup counts.
+    pub fn dispatch(
+        &self,
+        name: &str,
+        spec: &Specialisation,
+        params: &[u8],
+        buffers: &[&wgpu::Buffer],
+        groups: [u32; 3],
+    ) -> Result<Dispatch> {
+        let limit = self.device.limits().max_compute_workgroups_per_dimension;
+        if groups.contains(&0) {
+            return Err(Error::Kernel {
+                kernel: name.to_string(),
+                message: format!("zero-sized dispatch {groups:?}"),
+            });
+        }
+        if groups.iter().any(|&g| g > limit) {
+            return Err(Error::Kernel {
+                kernel: name.to_string(),
+                message: format!(
+                    "dispatch {groups:?} exceeds the adapter's {limit} workgroups per dimension"
+                ),
+            });
+        }
+        let max_binding = self.device.limits().max_storage_buffer_binding_size;
+        for (i, b) in buffers.iter().enumerate() {
+            if b.size() > max_binding {
+                return Err(Error::Kernel {
+                    kernel: name.to_string(),
+                    message: format!(
+                        "binding {} is {} bytes, more than the adapter's storage binding limit of {max_binding}",
+                        i + 1,
+                        b.size()
+                    ),
+                });
+            }
+        }
+        let pipeline = self.pipeline(name, spec)?;
+        let uniform = (!params.is_empty()).then(|| {
+            use wgpu::util::DeviceExt;
+            self.device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
+                label: Some(&format!("subpixel.{name}.params")),
+                contents: params,
+                usage: wgpu::BufferUsages::UNIFORM,
+            })
+        });
+        let mut entries = Vec::new();
+        if let Some(u) = &uniform {
+            entries.push(wgpu::BindGroupEntry {
+                binding: 0,
+                resource: u.as_entire_binding(),
+            });
+        }
+        for (i, b) in buffers.iter().enumerate() {
+            entries.push(wgpu::BindGroupEntry {
+                binding: i as u32 + 1,
+                resource: b.as_entire_binding(),
+            });
+        }
+        let scope = self.device.push_error_scope(wgpu::ErrorFilter::Validation);
+        let bind_group = self.device.create_bind_group(&wgpu::BindGroupDescriptor {
+            label: Some(&format!("subpixel.{name}")),
+            layout: &pipeline.get_bind_group_layout(0),
+            entries: &entries,
+        });
+        if let Some(e) = pollster::block_on(scope.pop()) {
+            return Err(Error::Kernel {
+                kernel: name.to_string(),
+                message: format!("bind group does not match the kernel: {e}"),
+            });
+        }
+        Ok(Dispatch {
+            kernel: kernel_source(name)?.name,
+            pipeline,
+            bind_group,
+            groups,
+            _uniform: uniform,
+        })
+    }
+}
+
+/// A kernel invocation with its resources bound, recorded into a compute pass as often as
+/// needed (the denoiser builds its dispatches once per resolution and replays them).
+#[derive(Debug)]
+pub struct Dispatch {
+    /// Kernel name.
+    pub kernel: &'static str,
+    pipeline: Arc<wgpu::ComputePipeline>,
+    bind_group: wgpu::BindGroup,
+    /// Workgroup counts.
+    pub groups: [u32; 3],
+    _uniform: Option<wgpu::Buffer>,
+}
+
+impl Dispatch {
+    /// Records the dispatch into `pass`.
+    pub fn record(&self, pass: &mut wgpu::ComputePass<'_>) {
+        pass.set_pipeline(&self.pipeline);
+        pass.set_bind_group(0, &self.bind_group, &[]);
+        pass.dispatch_workgroups(self.groups[0], self.groups[1], self.groups[2]);
+    }
+
+    /// Records the dispatch in its own compute pass on `encoder`, labelled by the kernel.
+    pub fn encode(&self, encoder: &mut wgpu::CommandEncoder) {
+        let mut pass = encoder.begin_compute_pass(&wgpu::ComputePassDescriptor {
+            label: Some(self.kernel),
+            timestamp_writes: None,
+        });
+        self.record(&mut pass);
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Every embedded WGSL file parses and validates with naga; no GPU needed.
+    #[test]
+    fn every_kernel_validates_with_naga() {
+        for k in KERNELS {
+            let module = validate_wgsl(k.name, k.source).unwrap_or_else(|e| panic!("{e}"));
+            assert!(
+                module.entry_points.iter().any(|e| e.name == "main"),
+                "kernel {} has no `main` entry point",
+                k.name
+            );
+        }
+    }
+
+    /// Every `.wgsl` file under `wgsl/` is registered, so none escapes validation.
+    #[test]
+    fn every_wgsl_file_is_registered() {
+        fn walk(dir: &std::path::Path, root: &std::path::Path, out: &mut Vec<String>) {
+            for e in std::fs::read_dir(dir).unwrap() {
+                let p = e.unwrap().path();
+                if p.is_dir() {
+                    walk(&p, root, out);
+                } else if p.extension().is_some_and(|x| x == "wgsl") {
+                    let rel = p.strip_prefix(root).unwrap().with_extension("");
+                    out.push(rel.to_string_lossy().replace('\\', "/"));
+                }
+            }
+        }
+        let root = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("wgsl");
+        let mut files = Vec::new();
+        walk(&root, &root, &mut files);
+        for f in files {
+            assert!(kernel_source(&f).is_ok(), "wgsl/{f}.wgsl is not in KERNELS");
+        }
+    }
+
+    #[test]
+    fn unknown_kernel_is_a_named_error() {
+        let e = kernel_source("nn/nope").unwrap_err().to_string();
+        assert!(e.contains("nn/nope"), "{e}");
+    }
+
+    #[test]
+    fn broken_wgsl_error_names_the_kernel() {
+        let e = validate_wgsl("nn/broken", "fn main( {").unwrap_err().to_string();
+        assert!(e.contains("nn/broken") && e.contains("parse"), "{e}");
+    }
+
+    /// The uniform `Params` struct of every kernel has the same size in WGSL (naga's
+    /// layout) as in Rust.
+    #[test]
+    fn param_struct_sizes_match_naga() {
+        for (name, rust_size) in crate::nn::ops::PARAM_SIZES {
+            let k = kernel_source(name).unwrap();
+            let module = validate_wgsl(k.name, k.source).unwrap();
+            let mut layouter = naga::proc::Layouter::default();
+            layouter.update(module.to_ctx()).unwrap();
+            let (_, var) = module
+                .global_variables
+                .iter()
+                .find(|(_, v)| v.space == naga::AddressSpace::Uniform)
+                .unwrap_or_else(|| panic!("{name} has no uniform block"));
+            let size = layouter[var.ty].size as usize;
+            assert_eq!(
+                size, *rust_size,
+                "kernel {name}: WGSL Params is {size} bytes, Rust {rust_size}"
+            );
+        }
+    }
+}

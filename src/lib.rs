@@ -1,0 +1,16 @@
+//! # subpixel
+//!
+//! Real-time path tracing at a quarter sample per pixel, reconstructed by the SSR neural
+//! denoiser ("High-Quality Real-Time Rendering Using Subpixel Sampling Reconstruction"),
+//! with every kernel hand-written in WGSL on wgpu.
+//!
+//! - [`gpu`]: device context, kernel registry, timestamp profiler.
+//! - [`nn`]: GPU tensors, the network kernels and their CPU references.
+
+#![warn(missing_docs)]
+
+pub mod error;
+pub mod gpu;
+pub mod nn;
+
+pub use error::{Error, Result};

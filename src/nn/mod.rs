@@ -1,0 +1,14 @@
+//! Neural-network building blocks: GPU tensors, the WGSL op wrappers and their scalar
+//! CPU references.
+//!
+//! Tensors are single images in NHWC layout with channels padded to a multiple of 4 and
+//! stored as `array<vec4<f32>>`; padding channels are zero. The storage type is a
+//! property of [`Tensor`] ([`DType`]) so an f16 path can be added behind `SHADER_F16`
+//! without changing callers.
+
+pub mod ops;
+pub mod reference;
+mod tensor;
+
+pub use reference::HostTensor;
+pub use tensor::{DType, Tensor};

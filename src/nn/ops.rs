@@ -1,0 +1,571 @@
+//! Thin Rust wrappers of the `wgsl/nn` kernels. Each checks shapes, packs its parameters
+//! and returns a [`Dispatch`] that can be recorded any number of times.
+
+use bytemuck::{Pod, Zeroable};
+
+use super::Tensor;
+use super::tensor::padded;
+use crate::error::{Error, Result};
+use crate::gpu::{Dispatch, Gpu, Specialisation};
+
+/// Activation applied after a convolution.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum Activation {
+    /// Identity.
+    None,
+    /// `max(x, 0)`.
+    Relu,
+    /// `x` if `x >= 0` else `slope * x`.
+    LeakyRelu(f32),
+}
+
+impl Activation {
+    /// Applies the activation to one value.
+    pub fn apply(self, v: f32) -> f32 {
+        match self {
+            Activation::None => v,
+            Activation::Relu => v.max(0.0),
+            Activation::LeakyRelu(s) => {
+                if v >= 0.0 {
+                    v
+                } else {
+                    s * v
+                }
+            }
+        }
+    }
+    fn code(self) -> (u32, f32) {
+        match self {
+            Activation::None => (0, 0.0),
+            Activation::Relu => (1, 0.0),
+            Activation::LeakyRelu(s) => (2, s),
+        }
+    }
+}
+
+/// 2x2 pooling mode.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum PoolMode {
+    /// Maximum of the window.
+    Max,
+    /// Mean of the window.
+    Average,
+}
+
+/// 2x upsampling mode.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum UpsampleMode {
+    /// Nearest neighbour.
+    Nearest,
+    /// Bilinear, PyTorch `align_corners=False`.
+    Bilinear,
+}
+
+const WG: u32 = 8;
+
+fn groups_2d(w: u32, h: u32, z: u32) -> [u32; 3] {
+    [w.div_ceil(WG), h.div_ceil(WG), z]
+}
+
+fn check_size(op: &str, what: &str, t: &Tensor, w: u32, h: u32) -> Result<()> {
+    if (t.width, t.height) != (w, h) {
+        return Err(Error::shape(
+            op,
+            format!("{what} is {}x{}, expected {w}x{h}", t.width, t.height),
+        ));
+    }
+    Ok(())
+}
+
+fn check_channels(op: &str, what: &str, t: &Tensor, c: u32) -> Result<()> {
+    if t.channels != c {
+        return Err(Error::shape(
+            op,
+            format!("{what} has {} channels, expected {c}", t.channels),
+        ));
+    }
+    Ok(())
+}
+
+fn check_min_channels(op: &str, what: &str, t: &Tensor, c: u32) -> Result<()> {
+    if t.channels < c {
+        return Err(Error::shape(
+            op,
+            format!("{what} has {} channels, expected at least {c}", t.channels),
+        ));
+    }
+    Ok(())
+}
+
+fn distinct(op: &str, out: &Tensor, inputs: &[&Tensor]) -> Result<()> {
+    if inputs.iter().any(|i| i.buffer == out.buffer) {
+        return Err(Error::shape(
+            op,
+            "the output tensor is also an input (in-place is not supported)",
+        ));
+    }
+    Ok(())
+}
+
+// ---------------------------------------------------------------------------------------
+// conv3x3
+
+#[repr(C)]
+#[derive(Clone, Copy, Pod, Zeroable)]
+struct ConvParams {
+    width: u32,
+    height: u32,
+    n_inputs: u32,
+    cout4: u32,
+    cin4: [u32; 4],
+    cin4_total: u32,
+    act: u32,
+    slope: f32,
+    _pad: u32,
+}
+
+/// Output channels one conv3x3 invocation computes (4 vec4s).
+const CONV_COUT_BLOCK: u32 = 16;
+
+/// A 3x3 convolution layer (stride 1, zero padding, bias, activation) whose weights are
+/// packed for a given split of its input channels over up to 4 tensors.
+#[derive(Debug)]
+pub struct Conv3x3 {
+    /// Layer name (for errors).
+    pub name: String,
+    /// Logical channels of each input tensor, in concatenation order.
+    pub input_channels: Vec<u32>,
+    /// Output channels.
+    pub cout: u32,
+    /// Activation.
+    pub act: Activation,
+    weights: wgpu::Buffer,
+    bias: wgpu::Buffer,
+}
+
+impl Conv3x3 {
+    /// Packs OIHW `weight` (`[cout][sum(input_channels)][3][3]`) and `bias` (`[cout]`) and
+    /// uploads them.
+    pub fn new(
+        gpu: &Gpu,
+        name: &str,
+        weight: &[f32],
+        bias: &[f32],
+        input_channels: &[u32],
+        cout: u32,
+        act: Activation,
+    ) -> Result<Self> {
+        let packed = Self::pack(name, weight, bias, input_channels, cout)?;
+        use wgpu::util::DeviceExt;
+        let mk = |label: &str, data: &[f32]| {
+            gpu.device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
+                label: Some(&format!("subpixel.{name}.{label}")),
+                contents: bytemuck::cast_slice(data),
+                usage: wgpu::BufferUsages::STORAGE,
+            })
+        };
+        Ok(Self {
+            name: name.to_string(),
+            input_channels: input_channels.to_vec(),
+            cout,
+            act,
+            weights: mk("weight", &packed.0),
+            bias: mk("bias", &packed.1),
+        })
+    }
+
+    /// Packs weights into the kernel layout `[tap][ci4][co4][4 columns][4 rows]` and pads
+    /// the bias to a multiple of 4. Returns `(weights, bias)`.
+    pub fn pack(
+        name: &str,
+        weight: &[f32],
+        bias: &[f32],
+        input_channels: &[u32],
+        cout: u32,
+    ) -> Result<(Vec<f32>, Vec<f32>)> {
+        let op = format!("conv3x3 '{name}'");
+        if input_channels.is_empty() || input_channels.len() > 4 || input_channels.contains(&0) {
+            return Err(Error::shape(
+                &op,
+                format!("takes 1 to 4 non-empty inputs, got channel split {input_channels:?}"),
+            ));
+        }
+        if cout == 0 {
+            return Err(Error::shape(&op, "cout must be > 0"));
+        }
+        let cin: u32 = input_channels.iter().sum();
+        let expect = (cout * cin * 9) as usize;
+        if weight.len() != expect {
+            return Err(Error::shape(
+                &op,
+                format!(
+                    "weight has {} values, expected [{cout}, {cin}, 3, 3] = {expect}",
+                    weight.len()
+                ),
+            ));
+        }
+        if bias.len() != cout as usize {
+            return Err(Error::shape(
+                &op,
+                format!("bias has {} values, expected {cout}", bias.len()),
+            ));
+        }
+        let cin_p: u32 = input_channels.iter().map(|&c| padded(c)).sum();
+        let cout_p = padded(cout);
+        let mut packed = vec![0.0f32; (9 * cin_p * cout_p) as usize];
+        let mut base_logical = 0;
+        let mut base_padded = 0;
+        for &c in input_channels {
+            for ci in 0..c {
+                let li = base_logical + ci; // logical input channel (PyTorch index)
+                let pi = base_padded + ci; // padded slot
+                for co in 0..cout {
+                    for tap in 0..9 {
+                        let wv = weight[((co * cin + li) * 9 + tap) as usize];
+                        // [tap][ci4][co4][col k = pi%4][row = co%4]
+                        let idx = ((((tap * (cin_p / 4) + pi / 4) * (cout_p / 4) + co / 4) * 4 + pi % 4) * 4
+                            + co % 4) as usize;
+                        packed[idx] = wv;
+                    }
+                }
+            }
+            base_logical += c;
+            base_padded += padded(c);
+        }
+        let mut b = bias.to_vec();
+        b.resize(cout_p as usize, 0.0);
+        Ok((packed, b))
+    }
+
+    /// FLOPs per output pixel (multiply and add counted separately).
+    pub fn flops_per_pixel(&self) -> u64 {
+        18 * self.input_channels.iter().sum::<u32>() as u64 * self.cout as u64
+    }
+
+    /// Binds `inputs` (in concatenation order) and `out`.
+    pub fn bind(&self, gpu: &Gpu, inputs: &[&Tensor], out: &Tensor) -> Result<Dispatch> {
+        let op = format!("conv3x3 '{}'", self.name);
+        let got: Vec<u32> = inputs.iter().map(|t| t.channels).collect();
+        if got != self.input_channels {
+            return Err(Error::shape(
+                &op,
+                format!("input channels {got:?}, expected {:?}", self.input_channels),
+            ));
+        }
+        let (w, h) = (out.width, out.height);
+        for (i, t) in inputs.iter().enumerate() {
+            check_size(&op, &format!("input {i}"), t, w, h)?;
+        }
+        check_channels(&op, "output", out, self.cout)?;
+        distinct(&op, out, inputs)?;
+        let mut cin4 = [0u32; 4];
+        for (i, t) in inputs.iter().enumerate() {
+            cin4[i] = t.c4();
+        }
+        let (act, slope) = self.act.code();
+        let params = ConvParams {
+            width: w,
+            height: h,
+            n_inputs: inputs.len() as u32,
+            cout4: out.c4(),
+            cin4,
+            cin4_total: cin4.iter().sum(),
+            act,
+            slope,
+            _pad: 0,
+        };
+        let mut bufs: Vec<&wgpu::Buffer> = inputs.iter().map(|t| &t.buffer).collect();
+        while bufs.len() < 4 {
+            bufs.push(&inputs[0].buffer);
+        }
+        bufs.extend([&self.weights, &self.bias, &out.buffer]);
+        gpu.kernels.dispatch(
+            "nn/conv3x3",
+            &Specialisation::none(),
+            bytemuck::bytes_of(&params),
+            &bufs,
+            groups_2d(w, h, padded(self.cout).div_ceil(CONV_COUT_BLOCK)),
+        )
+    }
+}
+
+// ---------------------------------------------------------------------------------------
+// pooling and upsampling
+
+#[repr(C)]
+#[derive(Clone, Copy, Pod, Zeroable)]
+struct ResampleParams {
+    in_w: u32,
+    in_h: u32,
+    out_w: u32,
+    out_h: u32,
+    c4: u32,
+    mode: u32,
+    _pad: [u32; 2],
+}
+
+/// 2x2 pooling of `input` into `out` (`ceil(w/2) x ceil(h/2)`, same channels).
+pub fn pool2x2(gpu: &Gpu, mode: PoolMode, input: &Tensor, out: &Tensor) -> Result<Dispatch> {
+    let op = "pool2x2";
+    check_size(
+        op,
+        "output",
+        out,
+        input.width.div_ceil(2),
+        input.height.div_ceil(2),
+    )?;
+    check_channels(op, "output", out, input.channels)?;
+    distinct(op, out, &[input])?;
+    let params = ResampleParams {
+        in_w: input.width,
+        in_h: input.height,
+        out_w: out.width,
+        out_h: out.height,
+        c4: input.c4(),
+        mode: match mode {
+            PoolMode::Max => 0,
+            PoolMode::Average => 1,
+        },
+        _pad: [0; 2],
+    };
+    gpu.kernels.dispatch(
+        "nn/pool2x2",
+        &Specialisation::none(),
+        bytemuck::bytes_of(&params),
+        &[&input.buffer, &out.buffer],
+        groups_2d(out.width, out.height, 1),
+    )
+}
+
+/// 2x upsampling of `input` into `out`, whose size must be within 2x of the input
+/// (`2w-1..=2w` by `2h-1..=2h`, so padded odd sizes work).
+pub fn upsample2x(gpu: &Gpu, mode: UpsampleMode, input: &Tensor, out: &Tensor) -> Result<Dispatch> {
+    let op = "upsample2x";
+    if out.width.div_ceil(2) != input.width || out.height.div_ceil(2) != input.height {
+        return Err(Error::shape(
+            op,
+            format!(
+                "output {}x{} is not a 2x upsampling of input {}x{}",
+                out.width, out.height, input.width, input.height
+            ),
+        ));
+    }
+    check_channels(op, "output", out, input.channels)?;
+    distinct(op, out, &[input])?;
+    let params = ResampleParams {
+        in_w: input.width,
+        in_h: input.height,
+        out_w: out.width,
+        out_h: out.height,
+        c4: input.c4(),
+        mode: match mode {
+            UpsampleMode::Nearest => 0,
+            UpsampleMode::Bilinear => 1,
+        },
+        _pad: [0; 2],
+    };
+    gpu.kernels.dispatch(
+        "nn/upsample2x",
+        &Specialisation::none(),
+        bytemuck::bytes_of(&params),
+        &[&input.buffer, &out.buffer],
+        groups_2d(out.width, out.height, 1),
+    )
+}
+
+// ---------------------------------------------------------------------------------------
+// TFA blend
+
+#[repr(C)]
+#[derive(Clone, Copy, Pod, Zeroable)]
+struct BlendParams {
+    width: u32,
+    height: u32,
+    k4: u32,
+    c4: u32,
+}
+
+/// Tensors of one TFA blend.
+#[derive(Debug, Clone, Copy)]
+pub struct TfaBlend<'a> {
+    /// Reference features R (K ch).
+    pub r: &'a Tensor,
+    /// Embedding of the current features (K ch).
+    pub e_cur: &'a Tensor,
+    /// Embedding of the warped history (K ch).
+    pub e_prev: &'a Tensor,
+    /// Current features (C ch).
+    pub cur: &'a Tensor,
+    /// Warped history (C ch).
+    pub prev: &'a Tensor,
+    /// History validity (channel 0).
+    pub valid: &'a Tensor,
+    /// Blended output (C ch).
+    pub out: &'a Tensor,
+    /// Per-pixel (beta, alpha, s_cur, s_prev) (4 ch).
+    pub weights: &'a Tensor,
+}
+
+/// Per-pixel dot-product scores, 2-way softmax and blend (DESIGN §4 TFA).
+pub fn tfa_blend(gpu: &Gpu, t: TfaBlend<'_>) -> Result<Dispatch> {
+    let op = "tfa_blend";
+    let (w, h) = (t.cur.width, t.cur.height);
+    for (n, x) in [
+        ("R", t.r),
+        ("E_cur", t.e_cur),
+        ("E_prev", t.e_prev),
+        ("prev", t.prev),
+        ("valid", t.valid),
+        ("out", t.out),
+        ("weights", t.weights),
+    ] {
+        check_size(op, n, x, w, h)?;
+    }
+    check_channels(op, "E_cur", t.e_cur, t.r.channels)?;
+    check_channels(op, "E_prev", t.e_prev, t.r.channels)?;
+    check_channels(op, "prev", t.prev, t.cur.channels)?;
+    check_channels(op, "out", t.out, t.cur.channels)?;
+    check_channels(op, "weights", t.weights, 4)?;
+    check_min_channels(op, "valid", t.valid, 1)?;
+    let ins = [t.r, t.e_cur, t.e_prev, t.cur, t.prev, t.valid];
+    distinct(op, t.out, &ins)?;
+    distinct(op, t.weights, &ins)?;
+    let params = BlendParams {
+        width: w,
+        height: h,
+        k4: t.r.c4(),
+        c4: t.cur.c4(),
+    };
+    if t.valid.c4() != 1 {
+        return Err(Error::shape(op, "valid must have at most 4 channels"));
+    }
+    gpu.kernels.dispatch(
+        "nn/tfa_blend",
+        &Specialisation::none(),
+        bytemuck::bytes_of(&params),
+        &[
+            &t.r.buffer,
+            &t.e_cur.buffer,
+            &t.e_prev.buffer,
+            &t.cur.buffer,
+            &t.prev.buffer,
+            &t.valid.buffer,
+            &t.out.buffer,
+            &t.weights.buffer,
+        ],
+        groups_2d(w, h, 1),
+    )
+}
+
+// ---------------------------------------------------------------------------------------
+// warp
+
+#[repr(C)]
+#[derive(Clone, Copy, Pod, Zeroable)]
+struct WarpParams {
+    width: u32,
+    height: u32,
+    c4: u32,
+    motion_c4: u32,
+}
+
+/// Bilinear backward warp of `src` by `motion` (channels 0, 1 in pixels) into `out`, with
+/// validity in channel 0 of `valid`.
+pub fn warp(gpu: &Gpu, src: &Tensor, motion: &Tensor, out: &Tensor, valid: &Tensor) -> Result<Dispatch> {
+    let op = "warp";
+    let (w, h) = (src.width, src.height);
+    check_size(op, "motion", motion, w, h)?;
+    check_size(op, "out", out, w, h)?;
+    check_size(op, "valid", valid, w, h)?;
+    check_min_channels(op, "motion", motion, 2)?;
+    check_channels(op, "out", out, src.channels)?;
+    if valid.c4() != 1 {
+        return Err(Error::shape(op, "valid must have 1 to 4 channels"));
+    }
+    distinct(op, out, &[src, motion])?;
+    distinct(op, valid, &[src, motion, out])?;
+    let params = WarpParams {
+        width: w,
+        height: h,
+        c4: src.c4(),
+        motion_c4: motion.c4(),
+    };
+    gpu.kernels.dispatch(
+        "nn/warp",
+        &Specialisation::none(),
+        bytemuck::bytes_of(&params),
+        &[&src.buffer, &motion.buffer, &out.buffer, &valid.buffer],
+        groups_2d(w, h, 1),
+    )
+}
+
+// ---------------------------------------------------------------------------------------
+// demodulation
+
+#[repr(C)]
+#[derive(Clone, Copy, Pod, Zeroable)]
+struct ModParams {
+    width: u32,
+    height: u32,
+    a_c4: u32,
+    b_c4: u32,
+}
+
+fn modulation(gpu: &Gpu, kernel: &str, a: &Tensor, albedo: &Tensor, out: &Tensor) -> Result<Dispatch> {
+    let (w, h) = (a.width, a.height);
+    check_min_channels(kernel, "input", a, 3)?;
+    check_min_channels(kernel, "albedo", albedo, 3)?;
+    check_size(kernel, "albedo", albedo, w, h)?;
+    check_size(kernel, "out", out, w, h)?;
+    check_channels(kernel, "out", out, 3)?;
+    distinct(kernel, out, &[a, albedo])?;
+    let params = ModParams {
+        width: w,
+        height: h,
+        a_c4: a.c4(),
+        b_c4: albedo.c4(),
+    };
+    gpu.kernels.dispatch(
+        kernel,
+        &Specialisation::none(),
+        bytemuck::bytes_of(&params),
+        &[&a.buffer, &albedo.buffer, &out.buffer],
+        groups_2d(w, h, 1),
+    )
+}
+
+/// `out = ln(1 + color / (albedo + 0.00316))` over the first 3 channels.
+pub fn demodulate(gpu: &Gpu, color: &Tensor, albedo: &Tensor, out: &Tensor) -> Result<Dispatch> {
+    modulation(gpu, "nn/demodulate", color, albedo, out)
+}
+
+/// `out = max(exp(o) - 1, 0) * (albedo + 0.00316)` over the first 3 channels.
+pub fn remodulate(gpu: &Gpu, o: &Tensor, albedo: &Tensor, out: &Tensor) -> Result<Dispatch> {
+    modulation(gpu, "nn/remodulate", o, albedo, out)
+}
+
+/// Encodes `dispatches` (each in its own pass) and submits them; returns when done.
+pub fn run(gpu: &Gpu, dispatches: &[&Dispatch]) -> Result<()> {
+    let mut enc = gpu
+        .device
+        .create_command_encoder(&wgpu::CommandEncoderDescriptor {
+            label: Some("subpixel.nn.run"),
+        });
+    for d in dispatches {
+        d.encode(&mut enc);
+    }
+    gpu.queue.submit([enc.finish()]);
+    gpu.wait()
+}
+
+/// Size in bytes of each kernel's uniform `Params` as the Rust side lays it out, for the
+/// test that compares them with naga's layout.
+pub const PARAM_SIZES: &[(&str, usize)] = &[
+    ("nn/conv3x3", std::mem::size_of::<ConvParams>()),
+    ("nn/pool2x2", std::mem::size_of::<ResampleParams>()),
+    ("nn/upsample2x", std::mem::size_of::<ResampleParams>()),
+    ("nn/tfa_blend", std::mem::size_of::<BlendParams>()),
+    ("nn/warp", std::mem::size_of::<WarpParams>()),
+    ("nn/demodulate", std::mem::size_of::<ModParams>()),
+    ("nn/remodulate", std::mem::size_of::<ModParams>()),
+];

@@ -1,0 +1,294 @@
+//! Scalar CPU references of every `wgsl/nn` kernel, written for clarity, not speed.
+//! The GPU kernels are tested against these.
+
+use super::ops::{Activation, PoolMode, UpsampleMode};
+
+/// An image in host memory, `height x width x channels`, row-major HWC, unpadded.
+#[derive(Debug, Clone, PartialEq)]
+pub struct HostTensor {
+    /// Width.
+    pub width: u32,
+    /// Height.
+    pub height: u32,
+    /// Channels.
+    pub channels: u32,
+    /// `height * width * channels` values.
+    pub data: Vec<f32>,
+}
+
+impl HostTensor {
+    /// A zero tensor.
+    pub fn zeros(width: u32, height: u32, channels: u32) -> Self {
+        Self {
+            width,
+            height,
+            channels,
+            data: vec![0.0; (width * height * channels) as usize],
+        }
+    }
+
+    /// Wraps `data` (HWC); panics if the length does not match (a programming error).
+    pub fn from_vec(width: u32, height: u32, channels: u32, data: Vec<f32>) -> Self {
+        assert_eq!(
+            data.len(),
+            (width * height * channels) as usize,
+            "HostTensor size"
+        );
+        Self {
+            width,
+            height,
+            channels,
+            data,
+        }
+    }
+
+    /// Builds a tensor from a function of (x, y, c).
+    pub fn from_fn(width: u32, height: u32, channels: u32, f: impl Fn(u32, u32, u32) -> f32) -> Self {
+        let mut t = Self::zeros(width, height, channels);
+        for y in 0..height {
+            for x in 0..width {
+                for c in 0..channels {
+                    t.set(x, y, c, f(x, y, c));
+                }
+            }
+        }
+        t
+    }
+
+    fn idx(&self, x: u32, y: u32, c: u32) -> usize {
+        ((y * self.width + x) * self.channels + c) as usize
+    }
+
+    /// Value at (x, y, c).
+    pub fn at(&self, x: u32, y: u32, c: u32) -> f32 {
+        self.data[self.idx(x, y, c)]
+    }
+
+    /// Sets (x, y, c).
+    pub fn set(&mut self, x: u32, y: u32, c: u32, v: f32) {
+        let i = self.idx(x, y, c);
+        self.data[i] = v;
+    }
+
+    /// Zero-padded channels as stored on the GPU.
+    pub fn to_padded(&self) -> Vec<f32> {
+        let cp = super::tensor::padded(self.channels) as usize;
+        let c = self.channels as usize;
+        let mut out = vec![0.0; self.width as usize * self.height as usize * cp];
+        for (i, px) in self.data.chunks(c).enumerate() {
+            out[i * cp..i * cp + c].copy_from_slice(px);
+        }
+        out
+    }
+
+    /// Drops channel padding.
+    pub fn from_padded(width: u32, height: u32, channels: u32, data: &[f32]) -> Self {
+        let cp = super::tensor::padded(channels) as usize;
+        let c = channels as usize;
+        let n = width as usize * height as usize;
+        let mut out = Vec::with_capacity(n * c);
+        for i in 0..n {
+            out.extend_from_slice(&data[i * cp..i * cp + c]);
+        }
+        Self::from_vec(width, height, channels, out)
+    }
+
+    /// Channels `range` of every pixel as a new tensor.
+    pub fn slice_channels(&self, start: u32, count: u32) -> Self {
+        Self::from_fn(self.width, self.height, count, |x, y, c| self.at(x, y, start + c))
+    }
+
+    /// Concatenation along channels.
+    pub fn concat(parts: &[&HostTensor]) -> Self {
+        let (w, h) = (parts[0].width, parts[0].height);
+        let total: u32 = parts.iter().map(|p| p.channels).sum();
+        let mut out = Self::zeros(w, h, total);
+        for y in 0..h {
+            for x in 0..w {
+                let mut c0 = 0;
+                for p in parts {
+                    for c in 0..p.channels {
+                        out.set(x, y, c0 + c, p.at(x, y, c));
+                    }
+                    c0 += p.channels;
+                }
+            }
+        }
+        out
+    }
+
+    /// Largest absolute value (NaN counts as infinite).
+    pub fn max_abs(&self) -> f32 {
+        self.data.iter().fold(
+            0.0f32,
+            |m, v| {
+                if v.is_nan() { f32::INFINITY } else { m.max(v.abs()) }
+            },
+        )
+    }
+}
+
+/// 3x3 convolution over the channel concatenation of `inputs`, zero padding.
+/// `weight` is OIHW `[cout][cin][3][3]` with cin the total logical input channels.
+pub fn conv3x3(
+    inputs: &[&HostTensor],
+    weight: &[f32],
+    bias: &[f32],
+    cout: u32,
+    act: Activation,
+) -> HostTensor {
+    let x = HostTensor::concat(inputs);
+    let (w, h, cin) = (x.width as i32, x.height as i32, x.channels as usize);
+    let mut out = HostTensor::zeros(x.width, x.height, cout);
+    for oy in 0..h {
+        for ox in 0..w {
+            for co in 0..cout as usize {
+                let mut acc = bias[co] as f64;
+                for ky in 0..3i32 {
+                    for kx in 0..3i32 {
+                        let (ix, iy) = (ox + kx - 1, oy + ky - 1);
+                        if ix < 0 || iy < 0 || ix >= w || iy >= h {
+                            continue;
+                        }
+                        for ci in 0..cin {
+                            let wv = weight[((co * cin + ci) * 3 + ky as usize) * 3 + kx as usize];
+                            acc += wv as f64 * x.at(ix as u32, iy as u32, ci as u32) as f64;
+                        }
+                    }
+                }
+                out.set(ox as u32, oy as u32, co as u32, act.apply(acc as f32));
+            }
+        }
+    }
+    out
+}
+
+/// Output size of 2x2 pooling: `ceil(n / 2)`.
+pub fn pooled(n: u32) -> u32 {
+    n.div_ceil(2)
+}
+
+/// 2x2 pooling; windows are clipped to the input and averages taken over what is inside.
+pub fn pool2x2(x: &HostTensor, mode: PoolMode) -> HostTensor {
+    HostTensor::from_fn(pooled(x.width), pooled(x.height), x.channels, |ox, oy, c| {
+        let mut vals = Vec::new();
+        for y in 2 * oy..(2 * oy + 2).min(x.height) {
+            for xx in 2 * ox..(2 * ox + 2).min(x.width) {
+                vals.push(x.at(xx, y, c));
+            }
+        }
+        match mode {
+            PoolMode::Max => vals.iter().cloned().fold(f32::NEG_INFINITY, f32::max),
+            PoolMode::Average => vals.iter().sum::<f32>() / vals.len() as f32,
+        }
+    })
+}
+
+/// 2x upsampling to `out_w x out_h` (PyTorch `align_corners=False` for bilinear).
+pub fn upsample2x(x: &HostTensor, mode: UpsampleMode, out_w: u32, out_h: u32) -> HostTensor {
+    HostTensor::from_fn(out_w, out_h, x.channels, |ox, oy, c| match mode {
+        UpsampleMode::Nearest => x.at((ox / 2).min(x.width - 1), (oy / 2).min(x.height - 1), c),
+        UpsampleMode::Bilinear => {
+            let src = |o: u32, n: u32| {
+                let f = ((o as f32 + 0.5) * 0.5 - 0.5).max(0.0);
+                let i0 = (f.floor() as u32).min(n - 1);
+                let i1 = (i0 + 1).min(n - 1);
+                (i0, i1, f - i0 as f32)
+            };
+            let (x0, x1, tx) = src(ox, x.width);
+            let (y0, y1, ty) = src(oy, x.height);
+            let top = x.at(x0, y0, c) * (1.0 - tx) + x.at(x1, y0, c) * tx;
+            let bot = x.at(x0, y1, c) * (1.0 - tx) + x.at(x1, y1, c) * tx;
+            top * (1.0 - ty) + bot * ty
+        }
+    })
+}
+
+/// Backward bilinear warp at `pos + motion`; returns (warped, validity).
+pub fn warp(src: &HostTensor, motion: &HostTensor) -> (HostTensor, HostTensor) {
+    let (w, h) = (src.width, src.height);
+    let mut out = HostTensor::zeros(w, h, src.channels);
+    let mut valid = HostTensor::zeros(w, h, 1);
+    for y in 0..h {
+        for x in 0..w {
+            let (mx, my) = (motion.at(x, y, 0), motion.at(x, y, 1));
+            let (px, py) = (x as f32 + 0.5 + mx, y as f32 + 0.5 + my);
+            let ok =
+                mx.is_finite() && my.is_finite() && px >= 0.0 && py >= 0.0 && px < w as f32 && py < h as f32;
+            if !ok {
+                continue;
+            }
+            valid.set(x, y, 0, 1.0);
+            let (sx, sy) = (px - 0.5, py - 0.5);
+            let (fx, fy) = (sx.floor(), sy.floor());
+            let (tx, ty) = (sx - fx, sy - fy);
+            let cl = |v: f32, n: u32| v.clamp(0.0, (n - 1) as f32) as u32;
+            let (x0, x1, y0, y1) = (cl(fx, w), cl(fx + 1.0, w), cl(fy, h), cl(fy + 1.0, h));
+            for c in 0..src.channels {
+                let top = src.at(x0, y0, c) * (1.0 - tx) + src.at(x1, y0, c) * tx;
+                let bot = src.at(x0, y1, c) * (1.0 - tx) + src.at(x1, y1, c) * tx;
+                out.set(x, y, c, top * (1.0 - ty) + bot * ty);
+            }
+        }
+    }
+    (out, valid)
+}
+
+/// TFA blend: returns (blended, weights = (beta, alpha, s_cur, s_prev)).
+pub fn tfa_blend(
+    r: &HostTensor,
+    e_cur: &HostTensor,
+    e_prev: &HostTensor,
+    cur: &HostTensor,
+    prev: &HostTensor,
+    valid: &HostTensor,
+) -> (HostTensor, HostTensor) {
+    let (w, h) = (cur.width, cur.height);
+    let mut out = HostTensor::zeros(w, h, cur.channels);
+    let mut weights = HostTensor::zeros(w, h, 4);
+    for y in 0..h {
+        for x in 0..w {
+            let (mut sc, mut sp) = (0.0f64, 0.0f64);
+            for k in 0..r.channels {
+                sc += e_cur.at(x, y, k) as f64 * r.at(x, y, k) as f64;
+                sp += e_prev.at(x, y, k) as f64 * r.at(x, y, k) as f64;
+            }
+            let (beta, alpha) = if valid.at(x, y, 0) > 0.5 {
+                let m = sc.max(sp);
+                let (a, b) = ((sp - m).exp(), (sc - m).exp());
+                (b / (a + b), a / (a + b))
+            } else {
+                (1.0, 0.0)
+            };
+            for c in 0..cur.channels {
+                let v = alpha * prev.at(x, y, c) as f64 + beta * cur.at(x, y, c) as f64;
+                out.set(x, y, c, v as f32);
+            }
+            for (c, v) in [beta, alpha, sc, sp].into_iter().enumerate() {
+                weights.set(x, y, c as u32, v as f32);
+            }
+        }
+    }
+    (out, weights)
+}
+
+/// The demodulation epsilon of DESIGN §3.
+pub const ALBEDO_EPS: f32 = 0.00316;
+
+fn clean(v: f32) -> f32 {
+    if v.is_finite() && v >= 0.0 { v } else { 0.0 }
+}
+
+/// `ln(1 + color / (albedo + eps))` on the first 3 channels.
+pub fn demodulate(color: &HostTensor, albedo: &HostTensor) -> HostTensor {
+    HostTensor::from_fn(color.width, color.height, 3, |x, y, c| {
+        (1.0 + clean(color.at(x, y, c)) / (clean(albedo.at(x, y, c)) + ALBEDO_EPS)).ln()
+    })
+}
+
+/// `max(exp(o) - 1, 0) * (albedo + eps)` on the first 3 channels.
+pub fn remodulate(o: &HostTensor, albedo: &HostTensor) -> HostTensor {
+    HostTensor::from_fn(o.width, o.height, 3, |x, y, c| {
+        (o.at(x, y, c).exp() - 1.0).max(0.0) * (albedo.at(x, y, c).max(0.0) + ALBEDO_EPS)
+    })
+}

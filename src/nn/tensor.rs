@@ -1,0 +1,130 @@
+//! GPU tensors.
+
+use super::HostTensor;
+use crate::error::{Error, Result};
+use crate::gpu::Gpu;
+
+/// Storage type of a tensor's elements.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum DType {
+    /// 32-bit float, `array<vec4<f32>>`.
+    F32,
+}
+
+impl DType {
+    /// Bytes per element.
+    pub fn size(self) -> u64 {
+        match self {
+            DType::F32 => 4,
+        }
+    }
+}
+
+/// A `height x width x channels` image on the GPU, NHWC, channels padded to a multiple of 4.
+#[derive(Debug)]
+pub struct Tensor {
+    /// Storage buffer (`STORAGE | COPY_SRC | COPY_DST`).
+    pub buffer: wgpu::Buffer,
+    /// Width in pixels.
+    pub width: u32,
+    /// Height in pixels.
+    pub height: u32,
+    /// Logical channel count.
+    pub channels: u32,
+    /// Element type.
+    pub dtype: DType,
+}
+
+/// Channels rounded up to a multiple of 4.
+pub fn padded(c: u32) -> u32 {
+    c.div_ceil(4) * 4
+}
+
+impl Tensor {
+    /// A zero-filled tensor.
+    pub fn new(gpu: &Gpu, label: &str, width: u32, height: u32, channels: u32) -> Result<Self> {
+        if width == 0 || height == 0 || channels == 0 {
+            return Err(Error::shape(
+                label,
+                format!("tensor of size {width}x{height}x{channels}: every dimension must be > 0"),
+            ));
+        }
+        let dtype = DType::F32;
+        let size = width as u64 * height as u64 * padded(channels) as u64 * dtype.size();
+        let max = gpu.device.limits().max_buffer_size;
+        if size > max {
+            return Err(Error::shape(
+                label,
+                format!("{width}x{height}x{channels} needs {size} bytes, more than the adapter's {max}"),
+            ));
+        }
+        let buffer = gpu.device.create_buffer(&wgpu::BufferDescriptor {
+            label: Some(&format!("subpixel.{label}")),
+            size,
+            usage: wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_SRC | wgpu::BufferUsages::COPY_DST,
+            mapped_at_creation: false,
+        });
+        Ok(Self {
+            buffer,
+            width,
+            height,
+            channels,
+            dtype,
+        })
+    }
+
+    /// Uploads a host tensor (padding its channels).
+    pub fn from_host(gpu: &Gpu, label: &str, host: &HostTensor) -> Result<Self> {
+        let t = Self::new(gpu, label, host.width, host.height, host.channels)?;
+        t.write(gpu, host)?;
+        Ok(t)
+    }
+
+    /// Overwrites the contents with `host`, which must have the same shape.
+    pub fn write(&self, gpu: &Gpu, host: &HostTensor) -> Result<()> {
+        if (host.width, host.height, host.channels) != (self.width, self.height, self.channels) {
+            return Err(Error::shape(
+                "tensor upload",
+                format!(
+                    "expected {}x{}x{}, got {}x{}x{}",
+                    self.width, self.height, self.channels, host.width, host.height, host.channels
+                ),
+            ));
+        }
+        gpu.queue
+            .write_buffer(&self.buffer, 0, bytemuck::cast_slice(&host.to_padded()));
+        Ok(())
+    }
+
+    /// Downloads the tensor (logical channels only).
+    pub fn read(&self, gpu: &Gpu) -> Result<HostTensor> {
+        let bytes = gpu.read_buffer(&self.buffer, 0, self.buffer.size())?;
+        let data: &[f32] = bytemuck::cast_slice(&bytes);
+        Ok(HostTensor::from_padded(
+            self.width,
+            self.height,
+            self.channels,
+            data,
+        ))
+    }
+
+    /// Padded channel count / 4 (vec4s per pixel).
+    pub fn c4(&self) -> u32 {
+        padded(self.channels) / 4
+    }
+
+    /// Number of pixels.
+    pub fn pixels(&self) -> u64 {
+        self.width as u64 * self.height as u64
+    }
+
+    /// `(width, height, channels)`.
+    pub fn shape(&self) -> (u32, u32, u32) {
+        (self.width, self.height, self.channels)
+    }
+
+    /// Bytes of storage.
+    pub fn bytes(&self) -> u64 {
+        self.buffer.size()
+    }
+}

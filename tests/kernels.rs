@@ -1,0 +1,412 @@
+//! GPU vs CPU-reference parity of every `wgsl/nn` kernel on random data at odd sizes and
+//! channel counts, plus property tests. Runs on any adapter, including a CPU Vulkan driver.
+
+mod common;
+
+use common::*;
+use subpixel::nn::ops::{self, Activation, Conv3x3, PoolMode, TfaBlend, UpsampleMode};
+use subpixel::nn::{HostTensor, Tensor, reference};
+
+fn up(gpu: &subpixel::gpu::Gpu, name: &str, t: &HostTensor) -> Tensor {
+    Tensor::from_host(gpu, name, t).unwrap()
+}
+
+fn run_conv(inputs: &[HostTensor], cout: u32, act: Activation, seed: u64) -> (HostTensor, HostTensor) {
+    let g = gpu();
+    let split: Vec<u32> = inputs.iter().map(|t| t.channels).collect();
+    let cin: u32 = split.iter().sum();
+    let weight = random_vec(seed, (cout * cin * 9) as usize, -0.5, 0.5);
+    let bias = random_vec(seed + 1, cout as usize, -0.5, 0.5);
+    let conv = Conv3x3::new(&g, "test", &weight, &bias, &split, cout, act).unwrap();
+    let gins: Vec<Tensor> = inputs.iter().map(|t| up(&g, "in", t)).collect();
+    let out = Tensor::new(&g, "out", inputs[0].width, inputs[0].height, cout).unwrap();
+    let refs: Vec<&Tensor> = gins.iter().collect();
+    ops::run(&g, &[&conv.bind(&g, &refs, &out).unwrap()]).unwrap();
+    let hin: Vec<&HostTensor> = inputs.iter().collect();
+    (
+        out.read(&g).unwrap(),
+        reference::conv3x3(&hin, &weight, &bias, cout, act),
+    )
+}
+
+#[test]
+fn conv3x3_matches_reference() {
+    let mut seed = 0;
+    for &(w, h) in SIZES {
+        for &c in CHANNELS {
+            for (cout, act) in [
+                (c, Activation::Relu),
+                (3, Activation::None),
+                (17, Activation::LeakyRelu(0.1)),
+            ] {
+                seed += 10;
+                let x = random(seed, w, h, c, -1.0, 1.0);
+                let (g, r) = run_conv(&[x], cout, act, seed);
+                assert_close(&format!("conv3x3 {w}x{h} {c}->{cout} {act:?}"), &g, &r, REDUCTION);
+            }
+        }
+    }
+}
+
+#[test]
+fn conv3x3_concatenates_up_to_four_inputs() {
+    for (i, split) in [vec![3, 1], vec![15, 4, 15, 3], vec![13, 32, 3], vec![4, 4, 4, 4]]
+        .into_iter()
+        .enumerate()
+    {
+        for &(w, h) in &[(7u32, 5u32), (33, 17)] {
+            let inputs: Vec<HostTensor> = split
+                .iter()
+                .enumerate()
+                .map(|(k, &c)| random(100 + k as u64, w, h, c, -1.0, 1.0))
+                .collect();
+            let (g, r) = run_conv(&inputs, 16, Activation::Relu, 7 + i as u64);
+            assert_close(&format!("conv3x3 concat {split:?} {w}x{h}"), &g, &r, REDUCTION);
+        }
+    }
+}
+
+#[test]
+fn conv3x3_identity_copies_input() {
+    let g = gpu();
+    for &c in CHANNELS {
+        let x = random(3, 33, 17, c, -2.0, 2.0);
+        let mut weight = vec![0.0; (c * c * 9) as usize];
+        for i in 0..c {
+            weight[((i * c + i) * 9 + 4) as usize] = 1.0; // centre tap
+        }
+        let conv = Conv3x3::new(
+            &g,
+            "identity",
+            &weight,
+            &vec![0.0; c as usize],
+            &[c],
+            c,
+            Activation::None,
+        )
+        .unwrap();
+        let t = up(&g, "x", &x);
+        let out = Tensor::new(&g, "out", 33, 17, c).unwrap();
+        ops::run(&g, &[&conv.bind(&g, &[&t], &out).unwrap()]).unwrap();
+        assert_close(&format!("identity conv c={c}"), &out.read(&g).unwrap(), &x, EXACT);
+    }
+}
+
+#[test]
+fn conv3x3_rejects_bad_shapes_with_named_errors() {
+    let g = gpu();
+    let w9 = vec![0.0; 4 * 3 * 9];
+    let e = Conv3x3::new(&g, "enc1.0", &w9[..10], &[0.0; 4], &[3], 4, Activation::None).unwrap_err();
+    assert!(
+        e.to_string().contains("enc1.0") && e.to_string().contains("[4, 3, 3, 3]"),
+        "{e}"
+    );
+    let conv = Conv3x3::new(&g, "enc1.0", &w9, &[0.0; 4], &[3], 4, Activation::None).unwrap();
+    let x4 = Tensor::new(&g, "x", 8, 8, 4).unwrap();
+    let out = Tensor::new(&g, "out", 8, 8, 4).unwrap();
+    let e = conv.bind(&g, &[&x4], &out).unwrap_err().to_string();
+    assert!(
+        e.contains("enc1.0") && e.contains("[4]") && e.contains("[3]"),
+        "{e}"
+    );
+    let x3 = Tensor::new(&g, "x", 8, 7, 3).unwrap();
+    let e = conv.bind(&g, &[&x3], &out).unwrap_err().to_string();
+    assert!(e.contains("8x7") && e.contains("8x8"), "{e}");
+    let e = Tensor::new(&g, "empty", 0, 8, 3).unwrap_err().to_string();
+    assert!(e.contains("0x8x3"), "{e}");
+    let e = Conv3x3::new(&g, "five", &[], &[], &[1, 1, 1, 1, 1], 1, Activation::None).unwrap_err();
+    assert!(e.to_string().contains("1 to 4"), "{e}");
+}
+
+#[test]
+fn pooling_matches_reference_and_keeps_constants() {
+    let g = gpu();
+    for &(w, h) in SIZES {
+        for &c in CHANNELS {
+            let x = random(w as u64 * 31 + c as u64, w, h, c, -1.0, 1.0);
+            let t = up(&g, "x", &x);
+            for mode in [PoolMode::Max, PoolMode::Average] {
+                let out = Tensor::new(&g, "out", w.div_ceil(2), h.div_ceil(2), c).unwrap();
+                ops::run(&g, &[&ops::pool2x2(&g, mode, &t, &out).unwrap()]).unwrap();
+                let tol = if mode == PoolMode::Max { EXACT } else { ELEMENTWISE };
+                assert_close(
+                    &format!("pool {mode:?} {w}x{h}x{c}"),
+                    &out.read(&g).unwrap(),
+                    &reference::pool2x2(&x, mode),
+                    tol,
+                );
+                let k = up(&g, "k", &HostTensor::from_fn(w, h, c, |_, _, _| 0.375));
+                ops::run(&g, &[&ops::pool2x2(&g, mode, &k, &out).unwrap()]).unwrap();
+                let konst = HostTensor::from_fn(w.div_ceil(2), h.div_ceil(2), c, |_, _, _| 0.375);
+                assert_close(
+                    &format!("pool constant {mode:?} {w}x{h}"),
+                    &out.read(&g).unwrap(),
+                    &konst,
+                    EXACT,
+                );
+            }
+        }
+    }
+}
+
+#[test]
+fn upsampling_matches_reference_and_keeps_constants() {
+    let g = gpu();
+    for &(w, h) in SIZES {
+        for &c in CHANNELS {
+            let x = random(w as u64 * 17 + c as u64, w, h, c, -1.0, 1.0);
+            let t = up(&g, "x", &x);
+            for mode in [UpsampleMode::Nearest, UpsampleMode::Bilinear] {
+                for (ow, oh) in [(2 * w, 2 * h), (2 * w - 1, 2 * h - 1)] {
+                    let out = Tensor::new(&g, "out", ow, oh, c).unwrap();
+                    ops::run(&g, &[&ops::upsample2x(&g, mode, &t, &out).unwrap()]).unwrap();
+                    let tol = if mode == UpsampleMode::Nearest {
+                        EXACT
+                    } else {
+                        ELEMENTWISE
+                    };
+                    assert_close(
+                        &format!("upsample {mode:?} {w}x{h}x{c} -> {ow}x{oh}"),
+                        &out.read(&g).unwrap(),
+                        &reference::upsample2x(&x, mode, ow, oh),
+                        tol,
+                    );
+                }
+                let k = up(&g, "k", &HostTensor::from_fn(w, h, c, |_, _, _| -1.25));
+                let out = Tensor::new(&g, "out", 2 * w, 2 * h, c).unwrap();
+                ops::run(&g, &[&ops::upsample2x(&g, mode, &k, &out).unwrap()]).unwrap();
+                let konst = HostTensor::from_fn(2 * w, 2 * h, c, |_, _, _| -1.25);
+                assert_close(
+                    &format!("upsample constant {mode:?}"),
+                    &out.read(&g).unwrap(),
+                    &konst,
+                    EXACT,
+                );
+            }
+        }
+    }
+    let out = Tensor::new(&g, "out", 10, 10, 3).unwrap();
+    let small = Tensor::new(&g, "in", 4, 4, 3).unwrap();
+    let e = ops::upsample2x(&g, UpsampleMode::Bilinear, &small, &out)
+        .unwrap_err()
+        .to_string();
+    assert!(
+        e.contains("upsample2x") && e.contains("10x10") && e.contains("4x4"),
+        "{e}"
+    );
+}
+
+/// Random motion: mostly small, some off screen, some zero, one NaN.
+fn random_motion(seed: u64, w: u32, h: u32) -> HostTensor {
+    let m = random(seed, w, h, 2, -3.0, 3.0);
+    let big = random(seed + 1, w, h, 2, -2.0 * w.max(h) as f32, 2.0 * w.max(h) as f32);
+    let mut out = HostTensor::from_fn(w, h, 2, |x, y, c| match (x + 3 * y) % 5 {
+        0 => 0.0,
+        1 => big.at(x, y, c),
+        _ => m.at(x, y, c),
+    });
+    if w * h > 4 {
+        out.set(1, 0, 0, f32::NAN);
+    }
+    out
+}
+
+#[test]
+fn warp_matches_reference() {
+    let g = gpu();
+    for &(w, h) in SIZES {
+        for &c in CHANNELS {
+            let x = random(c as u64 + w as u64, w, h, c, -1.0, 1.0);
+            let mv = random_motion(w as u64 * 7 + c as u64, w, h);
+            let (tx, tm) = (up(&g, "x", &x), up(&g, "motion", &mv));
+            let out = Tensor::new(&g, "out", w, h, c).unwrap();
+            let valid = Tensor::new(&g, "valid", w, h, 1).unwrap();
+            ops::run(&g, &[&ops::warp(&g, &tx, &tm, &out, &valid).unwrap()]).unwrap();
+            let (ro, rv) = reference::warp(&x, &mv);
+            assert_close(
+                &format!("warp valid {w}x{h}"),
+                &valid.read(&g).unwrap(),
+                &rv,
+                EXACT,
+            );
+            assert_close(
+                &format!("warp {w}x{h}x{c}"),
+                &out.read(&g).unwrap(),
+                &ro,
+                ELEMENTWISE,
+            );
+        }
+    }
+}
+
+#[test]
+fn warp_zero_motion_is_identity_and_off_screen_is_invalid() {
+    let g = gpu();
+    let (w, h) = (33, 17);
+    let x = random(5, w, h, 13, -1.0, 1.0);
+    let tx = up(&g, "x", &x);
+    let out = Tensor::new(&g, "out", w, h, 13).unwrap();
+    let valid = Tensor::new(&g, "valid", w, h, 1).unwrap();
+    let zero = up(&g, "motion", &HostTensor::zeros(w, h, 2));
+    ops::run(&g, &[&ops::warp(&g, &tx, &zero, &out, &valid).unwrap()]).unwrap();
+    assert_close("zero-motion warp", &out.read(&g).unwrap(), &x, EXACT);
+    assert!(valid.read(&g).unwrap().data.iter().all(|&v| v == 1.0));
+    // Everything moves one full screen to the left: all invalid, all zero.
+    let off = up(
+        &g,
+        "motion",
+        &HostTensor::from_fn(w, h, 2, |_, _, c| if c == 0 { -(w as f32) } else { 0.0 }),
+    );
+    ops::run(&g, &[&ops::warp(&g, &tx, &off, &out, &valid).unwrap()]).unwrap();
+    assert!(valid.read(&g).unwrap().data.iter().all(|&v| v == 0.0));
+    assert!(out.read(&g).unwrap().data.iter().all(|&v| v == 0.0));
+    // A half-pixel shift right averages two neighbours.
+    let half = up(
+        &g,
+        "motion",
+        &HostTensor::from_fn(w, h, 2, |_, _, c| if c == 0 { 0.5 } else { 0.0 }),
+    );
+    ops::run(&g, &[&ops::warp(&g, &tx, &half, &out, &valid).unwrap()]).unwrap();
+    let o = out.read(&g).unwrap();
+    for y in 0..h {
+        for xx in 0..w - 1 {
+            let want = 0.5 * (x.at(xx, y, 2) + x.at(xx + 1, y, 2));
+            assert!((o.at(xx, y, 2) - want).abs() < 1e-6);
+        }
+    }
+}
+
+#[test]
+fn tfa_blend_matches_reference_and_weights_sum_to_one() {
+    let g = gpu();
+    for &(w, h) in SIZES {
+        for &c in CHANNELS {
+            let k = 8;
+            let seed = w as u64 * 13 + c as u64;
+            let hr = random(seed, w, h, k, -1.0, 1.0);
+            let hec = random(seed + 1, w, h, k, -2.0, 2.0);
+            let hep = random(seed + 2, w, h, k, -2.0, 2.0);
+            let hcur = random(seed + 3, w, h, c, -1.0, 1.0);
+            let hprev = random(seed + 4, w, h, c, -1.0, 1.0);
+            let hvalid = HostTensor::from_fn(w, h, 1, |x, y, _| ((x + y) % 3 != 0) as u32 as f32);
+            let ts: Vec<Tensor> = [&hr, &hec, &hep, &hcur, &hprev, &hvalid]
+                .iter()
+                .map(|t| up(&g, "t", t))
+                .collect();
+            let out = Tensor::new(&g, "out", w, h, c).unwrap();
+            let wts = Tensor::new(&g, "weights", w, h, 4).unwrap();
+            let d = ops::tfa_blend(
+                &g,
+                TfaBlend {
+                    r: &ts[0],
+                    e_cur: &ts[1],
+                    e_prev: &ts[2],
+                    cur: &ts[3],
+                    prev: &ts[4],
+                    valid: &ts[5],
+                    out: &out,
+                    weights: &wts,
+                },
+            )
+            .unwrap();
+            ops::run(&g, &[&d]).unwrap();
+            let (ro, rw) = reference::tfa_blend(&hr, &hec, &hep, &hcur, &hprev, &hvalid);
+            let gw = wts.read(&g).unwrap();
+            assert_close(&format!("tfa weights {w}x{h}"), &gw, &rw, ELEMENTWISE);
+            assert_close(
+                &format!("tfa blend {w}x{h}x{c}"),
+                &out.read(&g).unwrap(),
+                &ro,
+                ELEMENTWISE,
+            );
+            for y in 0..h {
+                for x in 0..w {
+                    let (beta, alpha) = (gw.at(x, y, 0), gw.at(x, y, 1));
+                    assert!((alpha + beta - 1.0).abs() < 1e-6, "weights sum {}", alpha + beta);
+                    assert!((0.0..=1.0).contains(&alpha));
+                    if hvalid.at(x, y, 0) == 0.0 {
+                        assert_eq!(alpha, 0.0, "invalid history must get weight 0");
+                    }
+                }
+            }
+        }
+    }
+}
+
+#[test]
+fn demodulate_and_remodulate_match_reference_and_invert() {
+    let g = gpu();
+    for &(w, h) in SIZES {
+        for &c in CHANNELS {
+            let mut color = random(w as u64 + 3 * c as u64, w, h, c, 0.0, 50.0);
+            color.data[0] = f32::NAN;
+            if color.data.len() > 2 {
+                color.data[1] = f32::INFINITY;
+                color.data[2] = -1.0;
+            }
+            let albedo = random(w as u64 + 5, w, h, c, 0.0, 1.0);
+            let (tc, ta) = (up(&g, "color", &color), up(&g, "albedo", &albedo));
+            let e = Tensor::new(&g, "e", w, h, 3).unwrap();
+            let back = Tensor::new(&g, "back", w, h, 3).unwrap();
+            ops::run(
+                &g,
+                &[
+                    &ops::demodulate(&g, &tc, &ta, &e).unwrap(),
+                    &ops::remodulate(&g, &e, &ta, &back).unwrap(),
+                ],
+            )
+            .unwrap();
+            let re = reference::demodulate(&color, &albedo);
+            let ge = e.read(&g).unwrap();
+            assert!(ge.data.iter().all(|v| v.is_finite()), "NaN/Inf must be sanitised");
+            assert_close(&format!("demodulate {w}x{h}x{c}"), &ge, &re, ELEMENTWISE);
+            let gb = back.read(&g).unwrap();
+            assert_close(
+                &format!("remodulate {w}x{h}x{c}"),
+                &gb,
+                &reference::remodulate(&re, &albedo),
+                ELEMENTWISE,
+            );
+            // remodulate(demodulate(x)) == x for finite non-negative colour
+            let clean = HostTensor::from_fn(w, h, 3, |x, y, ch| {
+                let v = color.at(x, y, ch);
+                if v.is_finite() && v >= 0.0 { v } else { 0.0 }
+            });
+            assert_close(
+                "demod/remod round trip",
+                &gb,
+                &clean,
+                Tol { abs: 1e-4, rel: 1e-4 },
+            );
+        }
+    }
+}
+
+#[test]
+fn zero_sized_and_oversized_dispatches_are_errors() {
+    let g = gpu();
+    let e = g
+        .kernels
+        .dispatch("nn/pool2x2", &Default::default(), &[0u8; 32], &[], [0, 1, 1])
+        .unwrap_err()
+        .to_string();
+    assert!(e.contains("nn/pool2x2") && e.contains("zero-sized"), "{e}");
+    let big = g.device.limits().max_compute_workgroups_per_dimension + 1;
+    let e = g
+        .kernels
+        .dispatch("nn/pool2x2", &Default::default(), &[0u8; 32], &[], [big, 1, 1])
+        .unwrap_err()
+        .to_string();
+    assert!(e.contains("exceeds"), "{e}");
+}
+
+#[test]
+fn large_images_fit_the_dispatch_limits() {
+    // 2048x1024 needs 2D dispatch: 256 x 128 workgroups. Only checks the dispatch is
+    // accepted (building it), not running it, to keep the CPU adapter fast.
+    let g = gpu();
+    let x = Tensor::new(&g, "x", 2048, 1024, 4).unwrap();
+    let out = Tensor::new(&g, "out", 1024, 512, 4).unwrap();
+    let d = ops::pool2x2(&g, PoolMode::Max, &x, &out).unwrap();
+    assert_eq!(d.groups, [128, 64, 1]);
+}

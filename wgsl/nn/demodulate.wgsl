@@ -1,0 +1,35 @@
+// Demodulation + log (DESIGN §3): e = ln(1 + color / (albedo + 0.00316)), per channel of
+// the first 3 channels of `color` and `albedo`. Negative or non-finite colour counts as 0;
+// albedo is clamped to [0, inf). Output: 3 channels (padded to 4, the 4th is 0).
+
+struct Params {
+    width: u32,
+    height: u32,
+    color_c4: u32,
+    albedo_c4: u32,
+}
+
+@group(0) @binding(0) var<uniform> p: Params;
+@group(0) @binding(1) var<storage, read> color: array<vec4<f32>>;
+@group(0) @binding(2) var<storage, read> albedo: array<vec4<f32>>;
+@group(0) @binding(3) var<storage, read_write> dst: array<vec4<f32>>;
+
+const EPS: f32 = 0.00316;
+
+fn clean(v: vec3<f32>) -> vec3<f32> {
+    // NaN fails the comparison and becomes 0; +Inf fails the bound too.
+    return select(vec3<f32>(0.0), v, v >= vec3<f32>(0.0) & v <= vec3<f32>(3.0e38));
+}
+
+@compute @workgroup_size(8, 8, 1)
+fn main(@builtin(global_invocation_id) gid: vec3<u32>) {
+    let x = gid.x;
+    let y = gid.y;
+    if (x >= p.width || y >= p.height) {
+        return;
+    }
+    let pix = y * p.width + x;
+    let c = clean(color[pix * p.color_c4].xyz);
+    let a = clean(albedo[pix * p.albedo_c4].xyz);
+    dst[pix] = vec4<f32>(log(vec3<f32>(1.0) + c / (a + vec3<f32>(EPS))), 0.0);
+}

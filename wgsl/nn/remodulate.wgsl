@@ -1,0 +1,30 @@
+// Exp + remodulation (DESIGN §3): out = max(exp(o) - 1, 0) * (albedo + 0.00316), over the
+// first 3 channels of `o` and `albedo` (the accumulated albedo). Output: 3 channels
+// (padded to 4, the 4th is 0).
+
+struct Params {
+    width: u32,
+    height: u32,
+    o_c4: u32,
+    albedo_c4: u32,
+}
+
+@group(0) @binding(0) var<uniform> p: Params;
+@group(0) @binding(1) var<storage, read> o: array<vec4<f32>>;
+@group(0) @binding(2) var<storage, read> albedo: array<vec4<f32>>;
+@group(0) @binding(3) var<storage, read_write> dst: array<vec4<f32>>;
+
+const EPS: f32 = 0.00316;
+
+@compute @workgroup_size(8, 8, 1)
+fn main(@builtin(global_invocation_id) gid: vec3<u32>) {
+    let x = gid.x;
+    let y = gid.y;
+    if (x >= p.width || y >= p.height) {
+        return;
+    }
+    let pix = y * p.width + x;
+    let e = o[pix * p.o_c4].xyz;
+    let a = max(albedo[pix * p.albedo_c4].xyz, vec3<f32>(0.0));
+    dst[pix] = vec4<f32>(max(exp(e) - vec3<f32>(1.0), vec3<f32>(0.0)) * (a + vec3<f32>(EPS)), 0.0);
+}
