@@ -1,0 +1,255 @@
+"""Weights files: safetensors with PyTorch names, OIHW conv layout and SSR metadata.
+
+`__metadata__` (all values are strings, as safetensors requires):
+    format      "subpixel-ssr"
+    version     "1"                       (file format version)
+    config      JSON of SSRConfig         ({"enc":[16,32,32],"feature_pool":"max",...})
+    provenance  JSON: {"scenes": [...], "iterations": N, ...} for trained weights, or the
+                JSON string "random-init: for tests only, not a denoiser"
+    metrics     JSON object of validation metrics ({} when there are none)
+    init        (random files only) JSON {"scheme": ..., "seed": N}
+
+Files are written by our own deterministic writer (sorted header keys, tensors in name
+order, contiguous data) so the same model gives the same bytes; the `safetensors` package
+is used to read them.
+
+CLI:  python -m ssr.export --random --seed 0 --out FILE
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import os
+import struct
+import sys
+from typing import Dict, Optional, Tuple
+
+import torch
+from torch import nn
+
+from .model import SSRConfig, SSRModel, flops_per_pixel
+
+FORMAT = "subpixel-ssr"
+FORMAT_VERSION = "1"
+RANDOM_PROVENANCE = "random-init: for tests only, not a denoiser"
+RANDOM_INIT_SCHEME = "he-normal(relu) weights, U(-0.1,0.1) biases; RGB convs: N(0,0.5/fan_in), U(0.5,1)"
+
+
+class WeightsError(ValueError):
+    """A weights file that does not match the expected format, names or shapes."""
+
+
+# ----------------------------------------------------------------------------- writing
+
+
+def safetensors_bytes(tensors: Dict[str, torch.Tensor], metadata: Dict[str, str]) -> bytes:
+    """Serialises float32 tensors + string metadata to safetensors, deterministically."""
+    header: Dict[str, object] = {}
+    if metadata:
+        for k, v in metadata.items():
+            if not isinstance(v, str):
+                raise TypeError(f"metadata `{k}` must be a string, got {type(v).__name__}")
+        header["__metadata__"] = dict(sorted(metadata.items()))
+    blobs = []
+    offset = 0
+    for name in sorted(tensors):
+        t = tensors[name]
+        if t.dtype != torch.float32:
+            raise TypeError(f"tensor `{name}`: only float32 is written, got {t.dtype}")
+        data = t.detach().cpu().contiguous().numpy().astype("<f4", copy=False).tobytes()
+        header[name] = {"dtype": "F32", "shape": list(t.shape), "data_offsets": [offset, offset + len(data)]}
+        blobs.append(data)
+        offset += len(data)
+    h = json.dumps(header, sort_keys=True, separators=(",", ":")).encode("utf-8")
+    h += b" " * (-len(h) % 8)  # align the data section to 8 bytes (as the reference writer does)
+    return struct.pack("<Q", len(h)) + h + b"".join(blobs)
+
+
+def write_safetensors(path: str, tensors: Dict[str, torch.Tensor], metadata: Dict[str, str]) -> int:
+    """Writes the file atomically (temp file + rename); returns its size in bytes."""
+    return write_bytes(path, safetensors_bytes(tensors, metadata))
+
+
+def write_bytes(path: str, data: bytes) -> int:
+    """Writes `data` atomically (temp file + rename); returns its size."""
+    d = os.path.dirname(os.path.abspath(path))
+    os.makedirs(d, exist_ok=True)
+    tmp = path + ".tmp"
+    with open(tmp, "wb") as f:
+        f.write(data)
+    os.replace(tmp, path)
+    return len(data)
+
+
+def weights_metadata(
+    cfg: SSRConfig, provenance: object, metrics: Optional[dict] = None, extra: Optional[Dict[str, str]] = None
+) -> Dict[str, str]:
+    meta = {
+        "format": FORMAT,
+        "version": FORMAT_VERSION,
+        "config": cfg.to_json(),
+        "provenance": json.dumps(provenance, sort_keys=True, separators=(",", ":")),
+        "metrics": json.dumps(metrics if metrics is not None else {}, sort_keys=True, separators=(",", ":")),
+    }
+    if extra:
+        meta.update(extra)
+    return meta
+
+
+def export_weights(
+    model: SSRModel,
+    path: str,
+    provenance: object,
+    metrics: Optional[dict] = None,
+    extra_metadata: Optional[Dict[str, str]] = None,
+) -> int:
+    """Writes `model` to `path` (PyTorch parameter names, conv weights OIHW [Cout, Cin, 3, 3]).
+
+    provenance: for trained weights a dict such as {"scenes": [...], "iterations": N};
+    for random weights RANDOM_PROVENANCE. metrics: dict of validation metrics.
+    """
+    tensors = {k: v for k, v in model.state_dict().items()}
+    meta = weights_metadata(model.cfg, provenance, metrics, extra_metadata)
+    return write_safetensors(path, tensors, meta)
+
+
+# ----------------------------------------------------------------------------- random init
+
+
+def random_init_(model: nn.Module, seed: int) -> nn.Module:
+    """Deterministic random initialisation giving non-trivial activations at every layer.
+
+    Hidden convs: He-normal weights (std sqrt(2 / fan_in)), biases U(-0.1, 0.1). The convs
+    producing RGB (3 outputs): std sqrt(0.5 / fan_in), biases U(0.5, 1), so that the
+    log-space output o is mostly, but not always, positive (remodulation clamps negatives).
+    PyTorch's default init shrinks activations layer by layer (output std ~0.01), which
+    makes a weak parity test.
+    """
+    g = torch.Generator().manual_seed(int(seed))
+    with torch.no_grad():
+        for name, mod in model.named_modules():
+            if not isinstance(mod, nn.Conv2d):
+                continue
+            fan_in = mod.in_channels * mod.kernel_size[0] * mod.kernel_size[1]
+            w = torch.randn(mod.weight.shape, generator=g, dtype=torch.float32)
+            b = torch.rand(mod.bias.shape, generator=g, dtype=torch.float32)
+            if mod.out_channels == 3 and name.startswith("unet.dec"):
+                mod.weight.copy_(w * math.sqrt(0.5 / fan_in))
+                mod.bias.copy_(b * 0.5 + 0.5)
+            else:
+                mod.weight.copy_(w * math.sqrt(2.0 / fan_in))
+                mod.bias.copy_(b * 0.2 - 0.1)
+    return model
+
+
+def random_model(seed: int = 0, cfg: Optional[SSRConfig] = None) -> SSRModel:
+    return random_init_(SSRModel(cfg), seed)
+
+
+def export_random(path: str, seed: int = 0, cfg: Optional[SSRConfig] = None) -> Tuple[SSRModel, int]:
+    model = random_model(seed, cfg)
+    extra = {"init": json.dumps({"scheme": RANDOM_INIT_SCHEME, "seed": int(seed)}, sort_keys=True, separators=(",", ":"))}
+    size = export_weights(model, path, RANDOM_PROVENANCE, {}, extra)
+    return model, size
+
+
+# ----------------------------------------------------------------------------- loading
+
+
+def _parse_json(meta: Dict[str, str], key: str, path: str) -> object:
+    if key not in meta:
+        raise WeightsError(f"{path}: metadata has no `{key}`")
+    try:
+        return json.loads(meta[key])
+    except json.JSONDecodeError as err:
+        raise WeightsError(f"{path}: metadata `{key}` is not valid JSON ({err})") from None
+
+
+def load_weights(path: str, device: str = "cpu") -> Tuple[SSRModel, dict]:
+    """Loads a weights file, checking format, version and every tensor name and shape.
+
+    Returns (model in eval mode, meta) with meta = {"format", "version", "config" (SSRConfig),
+    "provenance", "metrics", "raw" (the metadata strings)}. Raises WeightsError naming the
+    offending metadata key or tensor(s).
+    """
+    from safetensors import safe_open
+
+    try:
+        f = safe_open(path, framework="pt", device=device)
+    except FileNotFoundError:
+        raise
+    except Exception as err:  # the safetensors parser's own errors
+        raise WeightsError(f"{path}: not a readable safetensors file ({err})") from None
+    with f:
+        raw = f.metadata()
+        if raw is None:
+            raise WeightsError(f"{path}: no __metadata__ (expected format={FORMAT!r})")
+        if raw.get("format") != FORMAT:
+            raise WeightsError(f"{path}: metadata `format` is {raw.get('format')!r}, expected {FORMAT!r}")
+        if raw.get("version") != FORMAT_VERSION:
+            raise WeightsError(f"{path}: metadata `version` is {raw.get('version')!r}, expected {FORMAT_VERSION!r}")
+        if "config" not in raw:
+            raise WeightsError(f"{path}: metadata has no `config`")
+        try:
+            cfg = SSRConfig.from_json(raw["config"])
+        except ValueError as err:
+            raise WeightsError(f"{path}: metadata `config`: {err}") from None
+        provenance = _parse_json(raw, "provenance", path)
+        metrics = _parse_json(raw, "metrics", path)
+
+        model = SSRModel(cfg)
+        expected = {k: tuple(v.shape) for k, v in model.state_dict().items()}
+        present = set(f.keys())
+        errors = []
+        for name in sorted(expected):
+            if name not in present:
+                errors.append(f"missing tensor `{name}` (expected shape {list(expected[name])})")
+        for name in sorted(present - set(expected)):
+            errors.append(f"unexpected tensor `{name}`")
+        state = {}
+        for name in sorted(present & set(expected)):
+            t = f.get_tensor(name)
+            if t.dtype != torch.float32:
+                errors.append(f"tensor `{name}`: dtype {t.dtype}, expected float32")
+            if tuple(t.shape) != expected[name]:
+                errors.append(f"tensor `{name}`: shape {list(t.shape)}, expected {list(expected[name])}")
+            state[name] = t
+        if errors:
+            raise WeightsError(f"{path}: " + "; ".join(errors))
+    model.load_state_dict(state, strict=True)
+    model.eval()
+    meta = {
+        "format": raw["format"],
+        "version": raw["version"],
+        "config": cfg,
+        "provenance": provenance,
+        "metrics": metrics,
+        "raw": dict(raw),
+    }
+    return model, meta
+
+
+# ----------------------------------------------------------------------------- CLI
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(prog="python -m ssr.export", description="Write an SSR weights file.")
+    ap.add_argument("--random", action="store_true", help="random-initialised model (for tests only)")
+    ap.add_argument("--seed", type=int, default=0, help="seed of the random initialisation")
+    ap.add_argument("--config", default=None, help="config JSON (default: the default config)")
+    ap.add_argument("--out", required=True, help="output .safetensors path")
+    args = ap.parse_args(argv)
+    if not args.random:
+        ap.error("only --random is supported here; trained weights are exported by the trainer (export_weights)")
+    cfg = SSRConfig.from_json(args.config) if args.config else SSRConfig()
+    model, size = export_random(args.out, args.seed, cfg)
+    n_params = sum(p.numel() for p in model.parameters())
+    total, _ = flops_per_pixel(cfg)
+    print(f"wrote {args.out}: {size} bytes, {n_params} parameters, {total:.0f} FLOP/pixel, config {cfg.to_json()}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,207 @@
+"""Golden cases for the Rust/WGSL parity test.
+
+    cd training && python -m ssr.golden --out ../tests/data
+
+writes
+    golden_weights.safetensors   random-initialised weights (seed 0), see ssr.export
+    golden_frame{0,1,2}.safetensors
+                                 three consecutive 40x24 frames: inputs, every intermediate
+                                 and the output, run as one sequence (frame 0 has no history)
+
+Every tensor in a frame file is float32, HWC ([H, W, C]) with the logical (unpadded)
+channel count. Names: GOLDEN_INPUTS + GOLDEN_INTERMEDIATES (+ enc1/enc2/enc3, extras
+that help to localise a mismatch). The frame metadata records the frame index, size,
+tile offset, seeds and the weights file name.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import sys
+from typing import Dict, List
+
+import torch
+import torch.nn.functional as F
+
+from .export import export_random, safetensors_bytes, write_bytes
+from .model import FRAME_CHANNELS, TILE_OFFSETS, SSRModel, quarter_mask
+
+WIDTH, HEIGHT, FRAMES = 40, 24, 3
+WEIGHTS_SEED = 0
+INPUT_SEED = 1
+WEIGHTS_FILE = "golden_weights.safetensors"
+MAX_FILE_BYTES = 1 << 20
+
+GOLDEN_INPUTS = list(FRAME_CHANNELS)  # color mask albedo normal shadow transparent depth metallic roughness motion
+GOLDEN_INTERMEDIATES = [
+    "a_cur",
+    "warp_acc",
+    "warp_valid",
+    "ref_feat",
+    "emb_cur",
+    "emb_prev",
+    "tfa_weights",
+    "a_acc",
+    "warp_out",
+    "i3",
+    "i2",
+    "o",
+    "output",
+]
+GOLDEN_EXTRAS = ["enc1", "enc2", "enc3"]
+
+
+def make_frames(seed: int = INPUT_SEED, height: int = HEIGHT, width: int = WIDTH, count: int = FRAMES) -> List[Dict[str, torch.Tensor]]:
+    """Random but plausible frames (NCHW, batch 1) following DESIGN section 3.
+
+    color/shadow are HDR (log-normal) and 0 where mask = 0 (shadow also 0 at some traced
+    pixels: occluded); albedo in [0, 1]; unit normals; transparent non-zero on ~40% of the
+    pixels; depth/metallic/roughness in [0, 1]. Motion (pixels) is sub-pixel random, with a
+    zero block, an integer block, ~10% of pixels thrown far off screen, and exact boundary
+    cases (p.x = 0, valid; p.x = W, invalid) in rows 16..19.
+    """
+    g = torch.Generator().manual_seed(int(seed))
+    h, w = height, width
+
+    def u(c: int) -> torch.Tensor:
+        return torch.rand(1, c, h, w, generator=g)
+
+    def n(c: int) -> torch.Tensor:
+        return torch.randn(1, c, h, w, generator=g)
+
+    frames = []
+    for t in range(count):
+        mask = quarter_mask(h, w, t)
+        color = torch.exp(n(3) * 1.5 - 0.5) * mask
+        albedo = u(3)
+        normal = F.normalize(n(3), dim=1)
+        lit = (u(1) > 0.3).float()
+        shadow = torch.exp(n(3)) * lit * mask
+        transparent = u(3) * (u(1) < 0.4).float()
+        depth, metallic, roughness = u(1), u(1), u(1)
+        motion = (u(2) - 0.5) * 5.0
+        far = u(1) < 0.1
+        sign = torch.where(u(2) < 0.5, -1.0, 1.0)
+        motion = torch.where(far, sign * (w + 20.0 * u(2)), motion)
+        motion[:, :, 0:8, 0:10] = 0.0  # zero motion: identity
+        motion[:, 0, 8:12, 0:10] = -1.0  # integer motion: exact taps
+        motion[:, 1, 8:12, 0:10] = 2.0
+        motion[:, :, 16:20, 0] = torch.tensor([-0.5, 0.0]).view(1, 2, 1)  # p.x = 0: valid
+        motion[:, :, 16:20, w - 1] = torch.tensor([0.5, 0.0]).view(1, 2, 1)  # p.x = W: invalid
+        frames.append(
+            {
+                "color": color,
+                "mask": mask,
+                "albedo": albedo,
+                "normal": normal,
+                "shadow": shadow,
+                "transparent": transparent,
+                "depth": depth,
+                "metallic": metallic,
+                "roughness": roughness,
+                "motion": motion,
+            }
+        )
+    return frames
+
+
+def hwc(t: torch.Tensor) -> torch.Tensor:
+    """[1, C, H, W] -> [H, W, C], contiguous float32."""
+    if t.dim() != 4 or t.shape[0] != 1:
+        raise ValueError(f"hwc: expected [1, C, H, W], got {list(t.shape)}")
+    return t[0].permute(1, 2, 0).contiguous().to(torch.float32)
+
+
+@torch.no_grad()
+def golden_tensors(model: SSRModel, frames: List[Dict[str, torch.Tensor]]) -> List[Dict[str, torch.Tensor]]:
+    """Runs the frames as one sequence; per frame, name -> HWC tensor."""
+    model.eval()
+    out = []
+    for frame, r in zip(frames, model.run_sequence(frames)):
+        d = {k: hwc(frame[k]) for k in GOLDEN_INPUTS}
+        for k in GOLDEN_INTERMEDIATES + GOLDEN_EXTRAS:
+            d[k] = hwc(r[k])
+        out.append(d)
+    return out
+
+
+def frame_metadata(t: int, width: int, height: int, weights_seed: int, input_seed: int) -> Dict[str, str]:
+    return {
+        "format": "subpixel-ssr-golden",
+        "version": "1",
+        "frame": str(t),
+        "frames": str(FRAMES),
+        "width": str(width),
+        "height": str(height),
+        "tile_offset": json.dumps(list(TILE_OFFSETS[t % 4])),
+        "history": "none (first frame)" if t == 0 else f"golden_frame{t - 1}",
+        "weights": WEIGHTS_FILE,
+        "weights_seed": str(weights_seed),
+        "input_seed": str(input_seed),
+        "layout": "HWC float32, logical (unpadded) channels",
+    }
+
+
+def spread_report(tensors: Dict[str, torch.Tensor]) -> str:
+    o, out, tw = tensors["o"], tensors["output"], tensors["tfa_weights"]
+    alpha = tw[..., 1]
+    return (
+        f"o std {o.std():.3f} [{o.min():.3f}, {o.max():.3f}], output std {out.std():.3f}, "
+        f"output==0 {(out == 0).float().mean():.3f}, alpha std {alpha.std():.3f}, "
+        f"enc1==0 {(tensors['enc1'] == 0).float().mean():.3f}"
+    )
+
+
+def check_spread(tensors: Dict[str, torch.Tensor], t: int) -> None:
+    """Rejects degenerate goldens: a constant output or dead/saturated layers make a weak test."""
+    out = tensors["output"]
+    problems = []
+    if out.std() < 0.05:
+        problems.append(f"output std {out.std():.4f} < 0.05")
+    if (out == 0).float().mean() > 0.5:
+        problems.append("more than half of the output is clamped to 0")
+    for k in ("enc1", "enc2", "enc3", "ref_feat", "emb_cur"):
+        if (tensors[k] == 0).float().mean() > 0.9:
+            problems.append(f"{k} is > 90% zero")
+    if t > 0 and tensors["tfa_weights"][..., 1].std() < 0.05:
+        problems.append("alpha has no spread")
+    if problems:
+        raise RuntimeError(f"golden frame {t} is degenerate: " + "; ".join(problems))
+
+
+def generate(out_dir: str, weights_seed: int = WEIGHTS_SEED, input_seed: int = INPUT_SEED, verbose: bool = True) -> List[str]:
+    """Writes the weights and frame files into out_dir; returns their paths."""
+    os.makedirs(out_dir, exist_ok=True)
+    weights_path = os.path.join(out_dir, WEIGHTS_FILE)
+    model, _ = export_random(weights_path, weights_seed)
+    frames = make_frames(input_seed, HEIGHT, WIDTH, FRAMES)
+    paths = [weights_path]
+    for t, tensors in enumerate(golden_tensors(model, frames)):
+        check_spread(tensors, t)
+        path = os.path.join(out_dir, f"golden_frame{t}.safetensors")
+        data = safetensors_bytes(tensors, frame_metadata(t, WIDTH, HEIGHT, weights_seed, input_seed))
+        if len(data) >= MAX_FILE_BYTES:
+            raise RuntimeError(f"{path}: {len(data)} bytes, over the 1 MB limit")
+        write_bytes(path, data)
+        paths.append(path)
+        if verbose:
+            print(f"wrote {path}: {len(data)} bytes; {spread_report(tensors)}")
+    if verbose:
+        print(f"wrote {weights_path}: {os.path.getsize(weights_path)} bytes")
+    return paths
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(prog="python -m ssr.golden", description="Write golden parity cases.")
+    ap.add_argument("--out", required=True, help="output folder (../tests/data from training/)")
+    ap.add_argument("--weights-seed", type=int, default=WEIGHTS_SEED)
+    ap.add_argument("--input-seed", type=int, default=INPUT_SEED)
+    args = ap.parse_args(argv)
+    generate(args.out, args.weights_seed, args.input_seed)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

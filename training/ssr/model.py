@@ -1,0 +1,482 @@
+"""SSR denoiser: input preparation, warp, temporal feature accumulator (TFA) and U-Net.
+
+This is the PyTorch mirror of the WGSL engine (wgsl/nn/*.wgsl, DESIGN.md sections 3-4).
+Every convention here is part of the contract with the engine; see training/README.md.
+
+Tensors are NCHW float32. A frame is a dict of full-resolution buffers (DESIGN section 3):
+
+    color(3) mask(1) albedo(3) normal(3) shadow(3) transparent(3)
+    depth(1) metallic(1) roughness(1) motion(2)
+
+`SSRModel.forward(frame, state)` denoises one frame given the recurrent state
+`(a_acc_prev, o_prev)` (or None for the first frame of a sequence) and returns a dict
+with the output and every intermediate (the golden generator and training share it).
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass
+from typing import Dict, List, Optional, Sequence, Tuple
+
+import torch
+import torch.nn.functional as F
+from torch import nn
+
+# ----------------------------------------------------------------------------- constants
+
+ALBEDO_EPS = 0.00316
+"""Added to the albedo before (de)modulation (DESIGN section 3)."""
+
+FINITE_MAX = 3.0e38
+"""The engine's finiteness test: |v| <= 3e38 (NaN fails every comparison)."""
+
+A_CHANNELS = 15
+"""A_t = [e(3), albedo(3), normal(3), log1p(shadow)(3), depth(1), metallic(1), roughness(1)]."""
+
+MT_CHANNELS = 4
+"""MT = [mask(1), transparent(3)]."""
+
+RGB = 3
+
+ALBEDO_SLICE = slice(3, 6)
+"""Channels of A (and A_acc) holding the albedo."""
+
+FRAME_CHANNELS: Dict[str, int] = {
+    "color": 3,
+    "mask": 1,
+    "albedo": 3,
+    "normal": 3,
+    "shadow": 3,
+    "transparent": 3,
+    "depth": 1,
+    "metallic": 1,
+    "roughness": 1,
+    "motion": 2,
+}
+"""Per-frame input buffers and their channel counts (DESIGN section 3)."""
+
+TILE_OFFSETS: Tuple[Tuple[int, int], ...] = ((0, 0), (1, 1), (1, 0), (0, 1))
+"""(dx, dy) of the traced pixel inside each 2x2 tile for frame t: TILE_OFFSETS[t % 4]."""
+
+CONFIG_VERSION = 1
+
+
+# ----------------------------------------------------------------------------- config
+
+
+@dataclass(frozen=True)
+class SSRConfig:
+    """Network widths and options; stored as JSON in the weights file (`config`)."""
+
+    tfa_hidden: int = 8
+    k: int = 8
+    enc: Tuple[int, int, int] = (16, 32, 32)
+    feature_pool: str = "max"  # "max" | "avg": pooling of encoder features
+    upsample: str = "bilinear"  # "bilinear" | "nearest": upsampling of I3, I2
+    input_channels: int = A_CHANNELS + MT_CHANNELS + A_CHANNELS + RGB  # 37
+    version: int = CONFIG_VERSION
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "enc", tuple(int(c) for c in self.enc))
+        self.validate()
+
+    def validate(self) -> None:
+        def positive(name: str, v: object) -> None:
+            if not isinstance(v, int) or isinstance(v, bool) or v <= 0:
+                raise ValueError(f"config: `{name}` must be a positive integer, got {v!r}")
+
+        positive("tfa_hidden", self.tfa_hidden)
+        positive("k", self.k)
+        if len(self.enc) != 3:
+            raise ValueError(f"config: `enc` must hold 3 widths [c1, c2, c3], got {list(self.enc)}")
+        for i, c in enumerate(self.enc):
+            positive(f"enc[{i}]", c)
+        if self.feature_pool not in ("max", "avg"):
+            raise ValueError(f"config: `feature_pool` must be \"max\" or \"avg\", got {self.feature_pool!r}")
+        if self.upsample not in ("bilinear", "nearest"):
+            raise ValueError(f"config: `upsample` must be \"bilinear\" or \"nearest\", got {self.upsample!r}")
+        expected = A_CHANNELS + MT_CHANNELS + A_CHANNELS + RGB
+        if self.input_channels != expected:
+            raise ValueError(f"config: `input_channels` must be {expected}, got {self.input_channels!r}")
+        if self.version != CONFIG_VERSION:
+            raise ValueError(f"config: unsupported `version` {self.version!r} (this code reads {CONFIG_VERSION})")
+
+    def to_dict(self) -> dict:
+        return {
+            "enc": list(self.enc),
+            "feature_pool": self.feature_pool,
+            "input_channels": self.input_channels,
+            "k": self.k,
+            "tfa_hidden": self.tfa_hidden,
+            "upsample": self.upsample,
+            "version": self.version,
+        }
+
+    def to_json(self) -> str:
+        return json.dumps(self.to_dict(), sort_keys=True, separators=(",", ":"))
+
+    @classmethod
+    def from_dict(cls, d: dict) -> "SSRConfig":
+        if not isinstance(d, dict):
+            raise ValueError(f"config: expected a JSON object, got {type(d).__name__}")
+        known = {"tfa_hidden", "k", "enc", "feature_pool", "upsample", "input_channels", "version"}
+        unknown = sorted(set(d) - known)
+        if unknown:
+            raise ValueError(f"config: unknown key(s) {unknown}")
+        missing = sorted(known - set(d))
+        if missing:
+            raise ValueError(f"config: missing key(s) {missing}")
+        enc = d["enc"]
+        if not isinstance(enc, (list, tuple)):
+            raise ValueError(f"config: `enc` must be a list [c1, c2, c3], got {enc!r}")
+        return cls(
+            tfa_hidden=d["tfa_hidden"],
+            k=d["k"],
+            enc=tuple(enc),
+            feature_pool=d["feature_pool"],
+            upsample=d["upsample"],
+            input_channels=d["input_channels"],
+            version=d["version"],
+        )
+
+    @classmethod
+    def from_json(cls, s: str) -> "SSRConfig":
+        try:
+            d = json.loads(s)
+        except json.JSONDecodeError as err:
+            raise ValueError(f"config: not valid JSON ({err})") from None
+        return cls.from_dict(d)
+
+
+# ----------------------------------------------------------------------------- elementwise ops
+
+
+def _clean(x: torch.Tensor) -> torch.Tensor:
+    """NaN, negative and infinite values become 0 (the engine's `clean`)."""
+    return torch.where((x >= 0) & (x <= FINITE_MAX), x, torch.zeros_like(x))
+
+
+def demodulate(color: torch.Tensor, albedo: torch.Tensor) -> torch.Tensor:
+    """e = log(1 + clamp(color, min=0) / (clamp(albedo, min=0) + 0.00316)), per channel.
+
+    Like wgsl/nn/demodulate.wgsl, non-finite colour/albedo values also count as 0.
+    """
+    return torch.log(1.0 + _clean(color) / (_clean(albedo) + ALBEDO_EPS))
+
+
+def remodulate(o: torch.Tensor, albedo_acc: torch.Tensor) -> torch.Tensor:
+    """out = clamp(exp(o) - 1, min=0) * (clamp(albedo_acc, min=0) + 0.00316)."""
+    return torch.clamp(torch.exp(o) - 1.0, min=0.0) * (torch.clamp(albedo_acc, min=0.0) + ALBEDO_EPS)
+
+
+def quarter_mask(height: int, width: int, t: int, *, dtype=torch.float32) -> torch.Tensor:
+    """The 1/4-spp mask of frame t, [1, 1, H, W]: 1 at (2i+dx, 2j+dy), (dx, dy) = TILE_OFFSETS[t % 4]."""
+    dx, dy = TILE_OFFSETS[t % 4]
+    m = torch.zeros(1, 1, height, width, dtype=dtype)
+    m[:, :, dy::2, dx::2] = 1.0
+    return m
+
+
+def _check_frame(frame: Dict[str, torch.Tensor]) -> Tuple[int, int, int]:
+    n = h = w = None
+    for name, c in FRAME_CHANNELS.items():
+        if name not in frame:
+            raise KeyError(f"frame: missing buffer `{name}`")
+        t = frame[name]
+        if t.dim() != 4 or t.shape[1] != c:
+            raise ValueError(f"frame: `{name}` must be [N, {c}, H, W], got {list(t.shape)}")
+        if n is None:
+            n, h, w = t.shape[0], t.shape[2], t.shape[3]
+        elif (t.shape[0], t.shape[2], t.shape[3]) != (n, h, w):
+            raise ValueError(f"frame: `{name}` is {list(t.shape)}, other buffers are [{n}, C, {h}, {w}]")
+    if h % 4 or w % 4:
+        raise ValueError(f"frame: height and width must be multiples of 4 (the engine pads), got {h}x{w}")
+    return n, h, w
+
+
+def prepare_inputs(frame: Dict[str, torch.Tensor]) -> Tuple[torch.Tensor, torch.Tensor]:
+    """Builds A_t (15 ch) and MT (4 ch) from a frame's buffers.
+
+    A_t = [e(3), albedo(3), normal(3), log1p(clamp(shadow, min=0))(3), depth, metallic, roughness]
+    MT  = [mask(1), transparent(3)]
+    """
+    _check_frame(frame)
+    e = demodulate(frame["color"], frame["albedo"])
+    shadow = torch.log1p(torch.clamp(frame["shadow"], min=0.0))
+    a_t = torch.cat(
+        [e, frame["albedo"], frame["normal"], shadow, frame["depth"], frame["metallic"], frame["roughness"]],
+        dim=1,
+    )
+    mt = torch.cat([frame["mask"], frame["transparent"]], dim=1)
+    return a_t, mt
+
+
+# ----------------------------------------------------------------------------- warp
+
+
+def _mix(a: torch.Tensor, b: torch.Tensor, t: torch.Tensor) -> torch.Tensor:
+    """WGSL mix(a, b, t) = a * (1 - t) + b * t."""
+    return a * (1.0 - t) + b * t
+
+
+def warp(src: torch.Tensor, motion: torch.Tensor) -> Tuple[torch.Tensor, torch.Tensor]:
+    """Backward warp of `src` [N, C, H, W] by `motion` [N, 2, H, W] (pixels; prev_pos = pos + motion).
+
+    For pixel (x, y) the sample position is p = (x + 0.5 + mx, y + 0.5 + my). It is valid when
+    the motion is finite (|m| <= 3e38) and 0 <= p.x < W, 0 <= p.y < H; invalid samples are 0.
+    Valid samples are bilinear: s = p - 0.5, x0 = floor(s.x), tx = s.x - x0 (same for y); the
+    taps x0, x0 + 1 / y0, y0 + 1 are clamped to the image; out = mix(mix(a, b, tx), mix(d, e, tx), ty)
+    with a = (x0, y0), b = (x1, y0), d = (x0, y1), e = (x1, y1).
+
+    Returns (warped [N, C, H, W], valid [N, 1, H, W] as 0/1 float). An explicit gather,
+    mirroring wgsl/nn/warp.wgsl (not grid_sample).
+    """
+    if src.dim() != 4 or motion.dim() != 4 or motion.shape[1] != 2:
+        raise ValueError(f"warp: expected src [N, C, H, W] and motion [N, 2, H, W], got {list(src.shape)}, {list(motion.shape)}")
+    n, c, h, w = src.shape
+    if (motion.shape[0], motion.shape[2], motion.shape[3]) != (n, h, w):
+        raise ValueError(f"warp: motion {list(motion.shape)} does not match src {list(src.shape)}")
+    dev, dt = src.device, src.dtype
+    mx, my = motion[:, 0].to(dt), motion[:, 1].to(dt)  # [N, H, W]
+    finite = (mx.abs() <= FINITE_MAX) & (my.abs() <= FINITE_MAX)
+    mx = torch.where(finite, mx, torch.zeros_like(mx))
+    my = torch.where(finite, my, torch.zeros_like(my))
+    xs = torch.arange(w, device=dev, dtype=dt).view(1, 1, w)
+    ys = torch.arange(h, device=dev, dtype=dt).view(1, h, 1)
+    px = (xs + 0.5) + mx
+    py = (ys + 0.5) + my
+    valid = finite & (px >= 0) & (py >= 0) & (px < w) & (py < h)
+    sx = px - 0.5
+    sy = py - 0.5
+    fx = torch.floor(sx)
+    fy = torch.floor(sy)
+    tx = (sx - fx).unsqueeze(1)
+    ty = (sy - fy).unsqueeze(1)
+    x0 = torch.clamp(fx, 0, w - 1).long()
+    x1 = torch.clamp(fx + 1, 0, w - 1).long()
+    y0 = torch.clamp(fy, 0, h - 1).long()
+    y1 = torch.clamp(fy + 1, 0, h - 1).long()
+    flat = src.reshape(n, c, h * w)
+
+    def tap(yi: torch.Tensor, xi: torch.Tensor) -> torch.Tensor:
+        idx = (yi * w + xi).reshape(n, 1, h * w).expand(n, c, h * w)
+        return torch.gather(flat, 2, idx).reshape(n, c, h, w)
+
+    out = _mix(_mix(tap(y0, x0), tap(y0, x1), tx), _mix(tap(y1, x0), tap(y1, x1), tx), ty)
+    valid = valid.unsqueeze(1)
+    out = torch.where(valid, out, torch.zeros_like(out))
+    return out, valid.to(dt)
+
+
+# ----------------------------------------------------------------------------- pooling / upsampling
+
+
+def pool2x2(x: torch.Tensor, mode: str) -> torch.Tensor:
+    """2x2 pooling, stride 2 ("max" or "avg"); H and W are even here."""
+    if mode == "max":
+        return F.max_pool2d(x, 2)
+    if mode == "avg":
+        return F.avg_pool2d(x, 2)
+    raise ValueError(f"pool2x2: unknown mode {mode!r}")
+
+
+def upsample2x(x: torch.Tensor, mode: str) -> torch.Tensor:
+    """2x upsampling, F.interpolate(scale_factor=2, align_corners=False) semantics."""
+    if mode == "bilinear":
+        return F.interpolate(x, scale_factor=2, mode="bilinear", align_corners=False)
+    if mode == "nearest":
+        return F.interpolate(x, scale_factor=2, mode="nearest")
+    raise ValueError(f"upsample2x: unknown mode {mode!r}")
+
+
+# ----------------------------------------------------------------------------- networks
+
+
+def _conv(cin: int, cout: int) -> nn.Conv2d:
+    return nn.Conv2d(cin, cout, 3, padding=1)
+
+
+class TFA(nn.Module):
+    """Temporal feature accumulator: reference net R, shared embedding net E, softmax blend."""
+
+    def __init__(self, cfg: SSRConfig):
+        super().__init__()
+        h, k = cfg.tfa_hidden, cfg.k
+        self.ref = nn.Sequential(_conv(A_CHANNELS + MT_CHANNELS, h), nn.ReLU(), _conv(h, k))
+        self.emb = nn.Sequential(_conv(A_CHANNELS, h), nn.ReLU(), _conv(h, k))
+
+    def forward(
+        self, a_t: torch.Tensor, mt: torch.Tensor, warp_acc: torch.Tensor, warp_valid: torch.Tensor
+    ) -> Dict[str, torch.Tensor]:
+        r = self.ref(torch.cat([a_t, mt], dim=1))
+        n = a_t.shape[0]
+        emb = self.emb(torch.cat([a_t, warp_acc], dim=0))  # one pass over both (shared weights)
+        emb_cur, emb_prev = emb[:n], emb[n:]
+        s_cur = (emb_cur * r).sum(dim=1, keepdim=True)
+        s_prev = (emb_prev * r).sum(dim=1, keepdim=True)
+        m = torch.maximum(s_cur, s_prev)
+        ea = torch.exp(s_prev - m)
+        eb = torch.exp(s_cur - m)
+        alpha = ea / (ea + eb)
+        beta = eb / (ea + eb)
+        ok = warp_valid > 0.5
+        alpha = torch.where(ok, alpha, torch.zeros_like(alpha))
+        beta = torch.where(ok, beta, torch.ones_like(beta))
+        a_acc = alpha * warp_acc + beta * a_t
+        return {
+            "ref_feat": r,
+            "emb_cur": emb_cur,
+            "emb_prev": emb_prev,
+            "tfa_weights": torch.cat([beta, alpha, s_cur, s_prev], dim=1),
+            "a_acc": a_acc,
+        }
+
+
+class UNet(nn.Module):
+    """3-level U-Net fed with the warped previous output at every scale."""
+
+    def __init__(self, cfg: SSRConfig):
+        super().__init__()
+        c1, c2, c3 = cfg.enc
+        self.feature_pool = cfg.feature_pool
+        self.upsample = cfg.upsample
+        relu = nn.ReLU
+        self.enc1 = nn.Sequential(_conv(cfg.input_channels, c1), relu(), _conv(c1, c1), relu())
+        self.enc2 = nn.Sequential(_conv(c1 + RGB, c2), relu(), _conv(c2, c2), relu())
+        self.enc3 = nn.Sequential(_conv(c2 + RGB, c3), relu(), _conv(c3, c3), relu())
+        self.dec3 = nn.Sequential(_conv(c3 + RGB, c3), relu(), _conv(c3, RGB))
+        self.dec2 = nn.Sequential(_conv(c2 + RGB + RGB, c2), relu(), _conv(c2, RGB))
+        self.dec1 = nn.Sequential(_conv(c1 + RGB + RGB, c1), relu(), _conv(c1, RGB))
+
+    def forward(
+        self, a_t: torch.Tensor, mt: torch.Tensor, a_acc: torch.Tensor, wo: torch.Tensor
+    ) -> Dict[str, torch.Tensor]:
+        wo2 = F.avg_pool2d(wo, 2)
+        wo4 = F.avg_pool2d(wo2, 2)
+        enc1 = self.enc1(torch.cat([a_t, mt, a_acc, wo], dim=1))
+        enc2 = self.enc2(torch.cat([pool2x2(enc1, self.feature_pool), wo2], dim=1))
+        enc3 = self.enc3(torch.cat([pool2x2(enc2, self.feature_pool), wo4], dim=1))
+        i3 = self.dec3(torch.cat([enc3, wo4], dim=1))
+        i2 = self.dec2(torch.cat([enc2, upsample2x(i3, self.upsample), wo2], dim=1))
+        o = self.dec1(torch.cat([enc1, upsample2x(i2, self.upsample), wo], dim=1))
+        return {"enc1": enc1, "enc2": enc2, "enc3": enc3, "i3": i3, "i2": i2, "o": o}
+
+
+State = Tuple[torch.Tensor, torch.Tensor]
+"""Recurrent state carried between frames: (A_acc_t [N, 15, H, W], o_t [N, 3, H, W])."""
+
+
+class SSRModel(nn.Module):
+    """TFA + U-Net. Parameter names: tfa.{ref,emb}.{0,2}.*, unet.{enc1..3,dec3..1}.{0,2}.*"""
+
+    def __init__(self, cfg: Optional[SSRConfig] = None):
+        super().__init__()
+        self.cfg = cfg if cfg is not None else SSRConfig()
+        self.tfa = TFA(self.cfg)
+        self.unet = UNet(self.cfg)
+
+    def forward(self, frame: Dict[str, torch.Tensor], state: Optional[State] = None) -> Dict[str, object]:
+        """Denoises one frame.
+
+        frame: dict of NCHW buffers (FRAME_CHANNELS); state: (a_acc_prev, o_prev) or None for
+        the first frame of a sequence (then W(A_acc_prev) := A_t, valid := 1, W(o_prev) := 0).
+
+        Returns a dict with `output` (remodulated radiance, [N, 3, H, W]), `state` (the next
+        frame's state) and every intermediate: a_cur, mt, warp_acc, warp_valid, ref_feat,
+        emb_cur, emb_prev, tfa_weights, a_acc, warp_out, enc1, enc2, enc3, i3, i2, o.
+        """
+        a_t, mt = prepare_inputs(frame)
+        if state is None:
+            warp_acc = a_t
+            warp_valid = torch.ones_like(a_t[:, :1])
+            wo = torch.zeros_like(a_t[:, :RGB])
+        else:
+            a_acc_prev, o_prev = state
+            if a_acc_prev.shape != a_t.shape or o_prev.shape != a_t[:, :RGB].shape:
+                raise ValueError(
+                    f"state: expected a_acc {list(a_t.shape)} and o {list(a_t[:, :RGB].shape)}, "
+                    f"got {list(a_acc_prev.shape)} and {list(o_prev.shape)}"
+                )
+            # One warp of both histories: same motion, hence the same validity.
+            warped, warp_valid = warp(torch.cat([a_acc_prev, o_prev], dim=1), frame["motion"])
+            warp_acc, wo = warped[:, :A_CHANNELS], warped[:, A_CHANNELS:]
+        tfa = self.tfa(a_t, mt, warp_acc, warp_valid)
+        a_acc = tfa["a_acc"]
+        net = self.unet(a_t, mt, a_acc, wo)
+        output = remodulate(net["o"], a_acc[:, ALBEDO_SLICE])
+        out: Dict[str, object] = {
+            "a_cur": a_t,
+            "mt": mt,
+            "warp_acc": warp_acc,
+            "warp_valid": warp_valid,
+            "warp_out": wo,
+            **tfa,
+            **net,
+            "output": output,
+            "state": (a_acc, net["o"]),
+        }
+        return out
+
+    def run_sequence(
+        self,
+        frames: Sequence[Dict[str, torch.Tensor]],
+        state: Optional[State] = None,
+        detach_state: bool = False,
+    ) -> List[Dict[str, object]]:
+        """Runs consecutive frames (e.g. a 5-frame training sequence), carrying the state.
+
+        Gradients flow through the state across frames unless `detach_state`.
+        Returns the per-frame result dicts of `forward`.
+        """
+        results = []
+        for frame in frames:
+            r = self.forward(frame, state)
+            state = r["state"]
+            if detach_state:
+                state = (state[0].detach(), state[1].detach())
+            results.append(r)
+        return results
+
+
+# ----------------------------------------------------------------------------- cost
+
+
+def conv_layers(cfg: SSRConfig) -> List[Tuple[str, int, int, int, int]]:
+    """Every 3x3 conv evaluation per frame: (name, cin, cout, level, evaluations).
+
+    level: 0 full resolution, 1 half, 2 quarter. The embedding net runs twice per frame
+    (on A_t and on W(A_acc_prev)).
+    """
+    h, k = cfg.tfa_hidden, cfg.k
+    c1, c2, c3 = cfg.enc
+    return [
+        ("tfa.ref.0", A_CHANNELS + MT_CHANNELS, h, 0, 1),
+        ("tfa.ref.2", h, k, 0, 1),
+        ("tfa.emb.0", A_CHANNELS, h, 0, 2),
+        ("tfa.emb.2", h, k, 0, 2),
+        ("unet.enc1.0", cfg.input_channels, c1, 0, 1),
+        ("unet.enc1.2", c1, c1, 0, 1),
+        ("unet.enc2.0", c1 + RGB, c2, 1, 1),
+        ("unet.enc2.2", c2, c2, 1, 1),
+        ("unet.enc3.0", c2 + RGB, c3, 2, 1),
+        ("unet.enc3.2", c3, c3, 2, 1),
+        ("unet.dec3.0", c3 + RGB, c3, 2, 1),
+        ("unet.dec3.2", c3, RGB, 2, 1),
+        ("unet.dec2.0", c2 + RGB + RGB, c2, 1, 1),
+        ("unet.dec2.2", c2, RGB, 1, 1),
+        ("unet.dec1.0", c1 + RGB + RGB, c1, 0, 1),
+        ("unet.dec1.2", c1, RGB, 0, 1),
+    ]
+
+
+def flops_per_pixel(cfg: Optional[SSRConfig] = None) -> Tuple[float, List[Tuple[str, float]]]:
+    """FLOPs per full-resolution pixel: 18 * cin * cout per 3x3 conv per output pixel
+    (9 taps x multiply-add), divided by 4**level, times the evaluations per frame.
+    Biases, activations, warps, pooling and the blend are not counted.
+
+    Returns (total, [(layer name, flops per pixel), ...]).
+    """
+    cfg = cfg if cfg is not None else SSRConfig()
+    per_layer = [(name, 18.0 * cin * cout * evals / 4**level) for name, cin, cout, level, evals in conv_layers(cfg)]
+    return sum(f for _, f in per_layer), per_layer
