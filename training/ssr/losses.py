@@ -1,0 +1,186 @@
+"""Training losses (DESIGN section 4).
+
+Sequences are T = 5 frames. `preds` and `refs` are radiance (linear HDR, the remodulated
+`output` of the model and the N-spp reference), [N, T, 3, H, W] or lists of T [N, 3, H, W].
+
+    l_s   spatial: SMAPE(p_t, r_t), weighted over frames by FRAME_WEIGHTS
+    l_t   temporal: SMAPE(p_t - p_{t-1}, r_t - r_{t-1}) for t >= 1, weighted by FRAME_WEIGHTS[t]
+    l_e   relative edge loss (HFEN): mean |LoG(p_t) - LoG(r_t)| / (|LoG(r_t)| + eps), per
+          channel, weighted by FRAME_WEIGHTS
+    l_wt  warped temporal, last two frames only: with the motion of the last frame T-1,
+          d_p = p_{T-1} - W(p_{T-2}), d_r = r_{T-1} - W(r_{T-2}); L1 of d_p - d_r over the
+          pixels whose warp is valid, on log1p-compressed radiance (HDR-robust)
+    l_a   albedo loss, last frame only: L1 in the log-demodulated space where the network
+          predicts, between its raw output o_{T-1} and the reference demodulated by the same
+          accumulated albedo the model remodulates with:
+              l_a = mean | o - log(1 + r / (albedo_acc + 0.00316)) |
+          (o = demodulate(r, albedo_acc) is exactly the prediction that remodulates to r).
+          It supervises o directly, including where remodulation clamps exp(o) - 1 < 0 and
+          radiance losses give no gradient, and it weighs dark-albedo regions fairly.
+
+The frame-weighted terms are plain weighted sums sum_t w_t * l(t) (not normalised by
+sum w_t). total = 0.7 l_s + 0.1 l_t + 0.2 l_e + 0.4 l_wt + 5.0 l_a.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Dict, Optional, Sequence, Tuple, Union
+
+import torch
+import torch.nn.functional as F
+
+from .model import ALBEDO_SLICE, demodulate, warp
+
+FRAME_WEIGHTS: Tuple[float, ...] = (0.05, 0.25, 0.5, 0.75, 1.0)
+LAMBDAS: Dict[str, float] = {"s": 0.7, "t": 0.1, "e": 0.2, "wt": 0.4, "a": 5.0}
+SMAPE_EPS = 1e-2
+HFEN_EPS = 1e-2
+LOG_SIZE = 9
+LOG_SIGMA = 1.5
+
+Frames = Union[torch.Tensor, Sequence[torch.Tensor]]
+
+
+def _stack(x: Frames, name: str) -> torch.Tensor:
+    if isinstance(x, torch.Tensor):
+        t = x
+    else:
+        t = torch.stack(list(x), dim=1)
+    if t.dim() != 5:
+        raise ValueError(f"{name}: expected [N, T, C, H, W] (or a list of [N, C, H, W]), got {list(t.shape)}")
+    return t
+
+
+def smape(p: torch.Tensor, r: torch.Tensor, eps: float = SMAPE_EPS) -> torch.Tensor:
+    """Symmetric mean absolute percentage error: mean(|p - r| / (|p| + |r| + eps))."""
+    return ((p - r).abs() / (p.abs() + r.abs() + eps)).mean()
+
+
+def log_kernel(size: int = LOG_SIZE, sigma: float = LOG_SIGMA) -> torch.Tensor:
+    """Laplacian-of-Gaussian kernel [size, size], shifted to sum to zero (a constant maps to 0)."""
+    c = (size - 1) / 2.0
+    ax = torch.arange(size, dtype=torch.float64) - c
+    yy, xx = torch.meshgrid(ax, ax, indexing="ij")
+    r2 = (xx * xx + yy * yy) / (2.0 * sigma * sigma)
+    k = -(1.0 / (math.pi * sigma**4)) * (1.0 - r2) * torch.exp(-r2)
+    k = k - k.mean()
+    return k.to(torch.float32)
+
+
+def log_filter(x: torch.Tensor, size: int = LOG_SIZE, sigma: float = LOG_SIGMA) -> torch.Tensor:
+    """Per-channel LoG of [N, C, H, W] with replicate padding (no false edges at the border)."""
+    c = x.shape[1]
+    k = log_kernel(size, sigma).to(device=x.device, dtype=x.dtype)
+    w = k.view(1, 1, size, size).expand(c, 1, size, size)
+    pad = size // 2
+    return F.conv2d(F.pad(x, (pad, pad, pad, pad), mode="replicate"), w, groups=c)
+
+
+def hfen_relative(p: torch.Tensor, r: torch.Tensor, eps: float = HFEN_EPS) -> torch.Tensor:
+    """Relative high-frequency error norm: mean(|LoG(p) - LoG(r)| / (|LoG(r)| + eps)), per channel."""
+    lp, lr = log_filter(p), log_filter(r)
+    return ((lp - lr).abs() / (lr.abs() + eps)).mean()
+
+
+def _weights(t: int, frame_weights: Optional[Sequence[float]]) -> Sequence[float]:
+    w = FRAME_WEIGHTS if frame_weights is None else tuple(frame_weights)
+    if len(w) != t:
+        raise ValueError(f"frame weights {list(w)} do not match a sequence of {t} frames")
+    return w
+
+
+def spatial_loss(preds: Frames, refs: Frames, frame_weights: Optional[Sequence[float]] = None) -> torch.Tensor:
+    """l_s = sum_t w_t SMAPE(p_t, r_t)."""
+    p, r = _stack(preds, "preds"), _stack(refs, "refs")
+    w = _weights(p.shape[1], frame_weights)
+    return sum(w[t] * smape(p[:, t], r[:, t]) for t in range(p.shape[1]))
+
+
+def temporal_loss(preds: Frames, refs: Frames, frame_weights: Optional[Sequence[float]] = None) -> torch.Tensor:
+    """l_t = sum_{t>=1} w_t SMAPE(p_t - p_{t-1}, r_t - r_{t-1})."""
+    p, r = _stack(preds, "preds"), _stack(refs, "refs")
+    w = _weights(p.shape[1], frame_weights)
+    total = p.new_zeros(())
+    for t in range(1, p.shape[1]):
+        total = total + w[t] * smape(p[:, t] - p[:, t - 1], r[:, t] - r[:, t - 1])
+    return total
+
+
+def edge_loss(preds: Frames, refs: Frames, frame_weights: Optional[Sequence[float]] = None) -> torch.Tensor:
+    """l_e = sum_t w_t HFEN_rel(p_t, r_t)."""
+    p, r = _stack(preds, "preds"), _stack(refs, "refs")
+    w = _weights(p.shape[1], frame_weights)
+    return sum(w[t] * hfen_relative(p[:, t], r[:, t]) for t in range(p.shape[1]))
+
+
+def warped_temporal_loss(preds: Frames, refs: Frames, motion: Frames) -> torch.Tensor:
+    """l_wt on the last two frames, masked by the warp validity, on log1p(max(x, 0)).
+
+    motion[:, T-1] maps frame T-1 to frame T-2 (prev_pos = pos + motion).
+    """
+    p, r, m = _stack(preds, "preds"), _stack(refs, "refs"), _stack(motion, "motion")
+    if p.shape[1] < 2:
+        raise ValueError("warped temporal loss needs at least 2 frames")
+    lp = torch.log1p(torch.clamp(p[:, -2:], min=0.0))
+    lr = torch.log1p(torch.clamp(r[:, -2:], min=0.0))
+    wp, valid = warp(lp[:, 0], m[:, -1])
+    wr, _ = warp(lr[:, 0], m[:, -1])
+    diff = ((lp[:, 1] - wp) - (lr[:, 1] - wr)).abs() * valid
+    count = valid.sum() * p.shape[2]
+    return diff.sum() / torch.clamp(count, min=1.0)
+
+
+def albedo_loss(o: torch.Tensor, ref: torch.Tensor, albedo_acc: torch.Tensor) -> torch.Tensor:
+    """l_a = mean |o - log(1 + ref / (albedo_acc + 0.00316))| (last frame, log-demodulated space)."""
+    return (o - demodulate(ref, albedo_acc)).abs().mean()
+
+
+def total_loss(
+    preds: Frames,
+    refs: Frames,
+    aux: Dict[str, object],
+    frame_weights: Optional[Sequence[float]] = None,
+    lambdas: Optional[Dict[str, float]] = None,
+) -> Tuple[torch.Tensor, Dict[str, torch.Tensor]]:
+    """Combined loss of a sequence. Returns (total, {"l_s", "l_t", "l_e", "l_wt", "l_a"}).
+
+    preds, refs: radiance [N, T, 3, H, W] (or lists). aux:
+        motion      [N, T, 2, H, W] (or list): each frame's motion
+        o           [N, 3, H, W]: the last frame's log-demodulated prediction
+        albedo_acc  [N, 3, H, W]: the last frame's accumulated albedo (A_acc channels 3..5)
+    """
+    lam = dict(LAMBDAS if lambdas is None else lambdas)
+    p, r = _stack(preds, "preds"), _stack(refs, "refs")
+    if p.shape != r.shape:
+        raise ValueError(f"preds {list(p.shape)} and refs {list(r.shape)} differ")
+    for key in ("motion", "o", "albedo_acc"):
+        if key not in aux:
+            raise KeyError(f"total_loss: aux has no `{key}`")
+    parts = {
+        "l_s": spatial_loss(p, r, frame_weights),
+        "l_t": temporal_loss(p, r, frame_weights),
+        "l_e": edge_loss(p, r, frame_weights),
+        "l_wt": warped_temporal_loss(p, r, aux["motion"]),
+        "l_a": albedo_loss(aux["o"], r[:, -1], aux["albedo_acc"]),
+    }
+    total = lam["s"] * parts["l_s"] + lam["t"] * parts["l_t"] + lam["e"] * parts["l_e"]
+    total = total + lam["wt"] * parts["l_wt"] + lam["a"] * parts["l_a"]
+    return total, parts
+
+
+def sequence_loss(
+    results: Sequence[Dict[str, object]],
+    refs: Frames,
+    frames: Sequence[Dict[str, torch.Tensor]],
+    frame_weights: Optional[Sequence[float]] = None,
+    lambdas: Optional[Dict[str, float]] = None,
+) -> Tuple[torch.Tensor, Dict[str, torch.Tensor]]:
+    """total_loss from SSRModel.run_sequence results and the input frames (for the motion)."""
+    preds = [res["output"] for res in results]
+    aux = {
+        "motion": [f["motion"] for f in frames],
+        "o": results[-1]["o"],
+        "albedo_acc": results[-1]["a_acc"][:, ALBEDO_SLICE],
+    }
+    return total_loss(preds, refs, aux, frame_weights, lambdas)

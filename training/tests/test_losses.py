@@ -1,0 +1,163 @@
+import pytest
+import torch
+
+from ssr import losses as L
+from ssr.export import random_model
+from ssr.golden import make_frames
+from ssr.model import ALBEDO_EPS, demodulate
+
+N, T, C, H, W = 2, 5, 3, 16, 16
+
+
+def _seq(seed=0):
+    g = torch.Generator().manual_seed(seed)
+    refs = torch.exp(torch.randn(N, T, C, H, W, generator=g))
+    motion = (torch.rand(N, T, 2, H, W, generator=g) - 0.5) * 3.0
+    albedo = torch.rand(N, 3, H, W, generator=g)
+    return refs, motion, albedo
+
+
+def _aux(refs, motion, albedo):
+    return {"motion": motion, "o": demodulate(refs[:, -1], albedo), "albedo_acc": albedo}
+
+
+def test_constants():
+    assert L.FRAME_WEIGHTS == (0.05, 0.25, 0.5, 0.75, 1.0)
+    assert L.LAMBDAS == {"s": 0.7, "t": 0.1, "e": 0.2, "wt": 0.4, "a": 5.0}
+
+
+def test_zero_for_identical_inputs():
+    refs, motion, albedo = _seq()
+    total, parts = L.total_loss(refs.clone(), refs, _aux(refs, motion, albedo))
+    assert total.item() == 0.0
+    for k, v in parts.items():
+        assert v.item() == 0.0, k
+
+
+def test_positive_otherwise():
+    refs, motion, albedo = _seq()
+    g = torch.Generator().manual_seed(5)
+    preds = refs * torch.exp(0.3 * torch.randn(refs.shape, generator=g))
+    aux = _aux(refs, motion, albedo)
+    aux["o"] = aux["o"] + 0.1
+    total, parts = L.total_loss(preds, refs, aux)
+    for k, v in parts.items():
+        assert v.item() > 0, k
+    lam = L.LAMBDAS
+    want = (
+        lam["s"] * parts["l_s"]
+        + lam["t"] * parts["l_t"]
+        + lam["e"] * parts["l_e"]
+        + lam["wt"] * parts["l_wt"]
+        + lam["a"] * parts["l_a"]
+    )
+    torch.testing.assert_close(total, want)
+    torch.testing.assert_close(parts["l_a"], torch.tensor(0.1))
+
+
+def test_smape_known_value():
+    p = torch.tensor([1.0, 2.0, 0.0, -1.0])
+    r = torch.tensor([1.0, 0.0, 0.0, 1.0])
+    want = (0.0 + 2.0 / 2.01 + 0.0 + 2.0 / 2.01) / 4
+    torch.testing.assert_close(L.smape(p, r), torch.tensor(want))
+    torch.testing.assert_close(L.smape(p, r, eps=1e-9), torch.tensor(0.5))  # |p-r| / (|p|+|r|) = 1, 1
+
+
+def test_log_kernel():
+    k = L.log_kernel()
+    assert k.shape == (9, 9)
+    assert abs(k.sum().item()) < 1e-6
+    assert torch.equal(k, k.flip(0)) and torch.equal(k, k.t())
+    assert k[4, 4] < 0 and k[4, 4] == k.min()  # negative centre (LoG of a Gaussian blob)
+
+
+def test_hfen_constant_image_is_zero():
+    x = torch.full((1, 3, 12, 14), 3.7)
+    assert L.log_filter(x).abs().max() < 1e-5
+    y = torch.full((1, 3, 12, 14), 0.2)
+    assert L.hfen_relative(x, y) < 1e-3
+    # an edge is seen, also relative to the reference
+    z = x.clone()
+    z[..., 7:] = 10.0
+    assert L.hfen_relative(z, x) > 1.0
+    assert L.log_filter(z).abs().max() > 0.1
+
+
+def test_frame_weights_applied():
+    refs, _, _ = _seq()
+    single = []
+    for k in range(T):
+        preds = refs.clone()
+        preds[:, k] *= 1.5
+        single.append(L.smape(preds[:, k], refs[:, k]))
+        torch.testing.assert_close(L.spatial_loss(preds, refs), L.FRAME_WEIGHTS[k] * single[k])
+        torch.testing.assert_close(
+            L.edge_loss(preds, refs), L.FRAME_WEIGHTS[k] * L.hfen_relative(preds[:, k], refs[:, k])
+        )
+    # temporal: an error in the last frame shows in the last difference only
+    preds = refs.clone()
+    preds[:, -1] *= 1.5
+    d = L.smape(preds[:, -1] - preds[:, -2], refs[:, -1] - refs[:, -2])
+    torch.testing.assert_close(L.temporal_loss(preds, refs), L.FRAME_WEIGHTS[-1] * d)
+    # custom weights and a mismatched count
+    torch.testing.assert_close(L.spatial_loss(preds, refs, [0, 0, 0, 0, 2.0]), 2.0 * single[-1])
+    with pytest.raises(ValueError, match="frame weights"):
+        L.spatial_loss(preds[:, :3], refs[:, :3])
+
+
+def test_lists_equal_stacked():
+    refs, motion, albedo = _seq()
+    preds = refs * 1.1
+    a, pa = L.total_loss(preds, refs, _aux(refs, motion, albedo))
+    aux = _aux(refs, motion, albedo)
+    aux["motion"] = list(motion.unbind(1))
+    b, pb = L.total_loss(list(preds.unbind(1)), list(refs.unbind(1)), aux)
+    torch.testing.assert_close(a, b)
+
+
+def test_warped_temporal_masked_and_stable():
+    refs, motion, _ = _seq()
+    # a temporally stable error (same offset in both warped frames, zero motion) is not penalised
+    zero = torch.zeros_like(motion)
+    preds = refs.clone()
+    preds[:, -2:] = torch.expm1(torch.log1p(refs[:, -2:]) + 0.3)
+    assert L.warped_temporal_loss(preds, refs, zero) < 1e-5
+    assert L.spatial_loss(preds, refs) > 0.05
+    # errors where the warp is invalid are masked out
+    m = torch.zeros_like(motion)
+    m[:, -1, 0, :, :4] = -100.0  # the first 4 columns point off screen
+    preds = refs.clone()
+    preds[:, -1, :, :, :4] += 5.0
+    assert L.warped_temporal_loss(preds, refs, m) == 0.0
+    preds[:, -1, :, :, 4] += 5.0
+    assert L.warped_temporal_loss(preds, refs, m) > 0.0
+    # only the last two frames count
+    preds = refs.clone()
+    preds[:, :3] *= 3.0
+    assert L.warped_temporal_loss(preds, refs, motion) == 0.0
+    # known value: zero motion, log-space flicker of d in the last frame
+    preds = refs.clone()
+    preds[:, -1] = torch.expm1(torch.log1p(refs[:, -1]) + 0.25)
+    torch.testing.assert_close(L.warped_temporal_loss(preds, refs, zero), torch.tensor(0.25))
+
+
+def test_albedo_loss_known_value():
+    ref = torch.full((1, 3, 2, 2), 1.0)
+    albedo = torch.full((1, 3, 2, 2), 0.5)
+    o = torch.zeros(1, 3, 2, 2)
+    want = torch.log(torch.tensor(1.0 + 1.0 / (0.5 + ALBEDO_EPS)))
+    torch.testing.assert_close(L.albedo_loss(o, ref, albedo), want)
+
+
+def test_sequence_loss_backprop_through_model():
+    frames = make_frames(seed=3, height=16, width=16, count=5)
+    model = random_model(0)
+    results = model.run_sequence(frames)
+    refs = [torch.rand(1, 3, 16, 16) for _ in range(5)]
+    total, parts = L.sequence_loss(results, refs, frames)
+    assert torch.isfinite(total) and total > 0
+    total.backward()
+    grads = [p.grad for p in model.parameters()]
+    assert all(g is not None and torch.isfinite(g).all() for g in grads)
+    assert model.unet.dec1[2].weight.grad.abs().sum() > 0
+    assert model.tfa.ref[0].weight.grad.abs().sum() > 0
