@@ -1,0 +1,150 @@
+import os
+import subprocess
+import sys
+
+import pytest
+import torch
+from safetensors import safe_open
+
+from ssr import golden
+from ssr.export import load_weights
+from ssr.model import TILE_OFFSETS, quarter_mask
+
+TRAINING = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+DATA = os.path.join(os.path.dirname(TRAINING), "tests", "data")
+H, W = golden.HEIGHT, golden.WIDTH
+
+SHAPES = {
+    "color": (H, W, 3),
+    "mask": (H, W, 1),
+    "albedo": (H, W, 3),
+    "normal": (H, W, 3),
+    "shadow": (H, W, 3),
+    "transparent": (H, W, 3),
+    "depth": (H, W, 1),
+    "metallic": (H, W, 1),
+    "roughness": (H, W, 1),
+    "motion": (H, W, 2),
+    "a_cur": (H, W, 15),
+    "warp_acc": (H, W, 15),
+    "warp_valid": (H, W, 1),
+    "ref_feat": (H, W, 8),
+    "emb_cur": (H, W, 8),
+    "emb_prev": (H, W, 8),
+    "tfa_weights": (H, W, 4),
+    "a_acc": (H, W, 15),
+    "warp_out": (H, W, 3),
+    "i3": (H // 4, W // 4, 3),
+    "i2": (H // 2, W // 2, 3),
+    "o": (H, W, 3),
+    "output": (H, W, 3),
+    "enc1": (H, W, 16),
+    "enc2": (H // 2, W // 2, 32),
+    "enc3": (H // 4, W // 4, 32),
+}
+FILES = ["golden_weights.safetensors"] + [f"golden_frame{t}.safetensors" for t in range(3)]
+
+
+def _read(path):
+    with safe_open(path, framework="pt") as f:
+        return {k: f.get_tensor(k) for k in f.keys()}, f.metadata()
+
+
+@pytest.fixture(scope="module")
+def generated(tmp_path_factory):
+    a = str(tmp_path_factory.mktemp("golden_a"))
+    b = str(tmp_path_factory.mktemp("golden_b"))
+    golden.generate(a, verbose=False)
+    subprocess.run([sys.executable, "-m", "ssr.golden", "--out", b], cwd=TRAINING, check=True, capture_output=True)
+    return a, b
+
+
+def test_reproducible_bytes(generated):
+    a, b = generated
+    for name in FILES:
+        with open(os.path.join(a, name), "rb") as fa, open(os.path.join(b, name), "rb") as fb:
+            assert fa.read() == fb.read(), name
+
+
+def test_sizes_names_shapes(generated):
+    a, _ = generated
+    for name in FILES:
+        assert os.path.getsize(os.path.join(a, name)) < 1 << 20, name
+    for t in range(3):
+        tensors, meta = _read(os.path.join(a, f"golden_frame{t}.safetensors"))
+        assert {k: tuple(v.shape) for k, v in tensors.items()} == SHAPES
+        assert all(v.dtype == torch.float32 for v in tensors.values())
+        assert meta["frame"] == str(t) and meta["width"] == str(W) and meta["height"] == str(H)
+        assert meta["weights"] == "golden_weights.safetensors"
+        assert meta["tile_offset"] == str(list(TILE_OFFSETS[t]))
+
+
+def test_committed_files_match_generator(generated):
+    """tests/data is what the generator writes (inputs and weights exactly, the rest to float noise)."""
+    a, _ = generated
+    for name in FILES:
+        path = os.path.join(DATA, name)
+        assert os.path.exists(path), f"{path} missing: run `python -m ssr.golden --out ../tests/data` in training/"
+        want, want_meta = _read(os.path.join(a, name))
+        got, got_meta = _read(path)
+        assert got_meta == want_meta, name
+        assert sorted(got) == sorted(want), name
+        for k in want:
+            if name == "golden_weights.safetensors" or k in golden.GOLDEN_INPUTS:
+                assert torch.equal(got[k], want[k]), (name, k)
+            else:
+                torch.testing.assert_close(got[k], want[k], rtol=1e-5, atol=1e-5, msg=f"{name}: {k}")
+
+
+def test_inputs_follow_the_contract(generated):
+    a, _ = generated
+    any_invalid = any_zero_motion = False
+    for t in range(3):
+        d, _ = _read(os.path.join(a, f"golden_frame{t}.safetensors"))
+        mask = d["mask"]
+        assert torch.equal(mask, quarter_mask(H, W, t)[0].permute(1, 2, 0))
+        untraced = (mask == 0).expand(H, W, 3)
+        assert (d["color"] >= 0).all() and (d["color"][untraced] == 0).all()
+        assert d["color"].max() > 1.0  # HDR
+        assert (d["shadow"] >= 0).all() and (d["shadow"][untraced] == 0).all()
+        assert (d["albedo"] >= 0).all() and (d["albedo"] <= 1).all()
+        torch.testing.assert_close(d["normal"].norm(dim=-1), torch.ones(H, W))
+        assert (d["depth"] >= 0).all() and (d["depth"] <= 1).all()
+        assert (d["transparent"] == 0).any() and (d["transparent"] > 0).any()
+        assert torch.isfinite(d["motion"]).all()
+        any_zero_motion |= bool((d["motion"] == 0).all(-1).any())
+        if t > 0:
+            v = d["warp_valid"]
+            any_invalid |= bool((v == 0).any())
+            assert (v == 1).float().mean() > 0.5
+            assert (v[16:20, 0] == 1).all() and (v[16:20, W - 1] == 0).all()  # p.x = 0 valid, p.x = W not
+        else:
+            assert (d["warp_valid"] == 1).all() and (d["warp_out"] == 0).all()
+    assert any_invalid and any_zero_motion
+
+
+def test_outputs_have_spread(generated):
+    a, _ = generated
+    for t in range(3):
+        d, _ = _read(os.path.join(a, f"golden_frame{t}.safetensors"))
+        golden.check_spread(d, t)
+        assert (d["output"] == 0).any() and (d["output"] > 0).float().mean() > 0.5
+        for k in ("enc1", "enc2", "enc3"):
+            frac = (d[k] == 0).float().mean()
+            assert 0.2 < frac < 0.8, (t, k, frac)
+
+
+def test_files_replay_through_loaded_weights(generated):
+    """What the Rust parity test does: load the weights and the inputs, run, compare."""
+    a, _ = generated
+    model, meta = load_weights(os.path.join(a, "golden_weights.safetensors"))
+    assert meta["provenance"].startswith("random-init")
+    state = None
+    for t in range(3):
+        d, _ = _read(os.path.join(a, f"golden_frame{t}.safetensors"))
+        frame = {k: d[k].permute(2, 0, 1).unsqueeze(0) for k in golden.GOLDEN_INPUTS}
+        with torch.no_grad():
+            r = model(frame, state)
+        state = r["state"]
+        for k in golden.GOLDEN_INTERMEDIATES + golden.GOLDEN_EXTRAS:
+            torch.testing.assert_close(golden.hwc(r[k]), d[k], rtol=1e-6, atol=1e-6, msg=f"frame {t}: {k}")
