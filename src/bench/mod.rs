@@ -1,0 +1,6 @@
+//! Benchmarks: kernels in isolation, the denoiser, the whole frame.
+
+pub mod kernels;
+mod peak;
+
+pub use peak::peak_fp32_gflops;
