@@ -3,7 +3,7 @@
 `__metadata__` (all values are strings, as safetensors requires):
     format      "subpixel-ssr"
     version     "1"                       (file format version)
-    config      JSON of SSRConfig         ({"enc":[16,32,32],"feature_pool":"max",...})
+    config      JSON of SSRConfig         ({"enc":[16,32,28],"feature_pool":"max",...})
     provenance  JSON: {"scenes": [...], "iterations": N, ...} for trained weights, or the
                 JSON string "random-init: for tests only, not a denoiser"
     metrics     JSON object of validation metrics ({} when there are none)

@@ -3,7 +3,7 @@
     cd training && python -m ssr.golden --out ../tests/data
 
 writes
-    golden_weights.safetensors   random-initialised weights (seed 0), see ssr.export
+    golden_weights.safetensors   random-initialised weights (seed 6), see ssr.export
     golden_frame{0,1,2}.safetensors
                                  three consecutive 40x24 frames: inputs, every intermediate
                                  and the output, run as one sequence (frame 0 has no history)
@@ -29,7 +29,10 @@ from .export import export_random, safetensors_bytes, write_bytes
 from .model import FRAME_CHANNELS, TILE_OFFSETS, SSRModel, quarter_mask
 
 WIDTH, HEIGHT, FRAMES = 40, 24, 3
-WEIGHTS_SEED = 0
+# Seed 6, not 0: with enc = [16, 32, 28] seed 0 leaves o >= 0 everywhere in frame 0, so the
+# remodulation clamp would go untested (the init draws every conv from one stream, so the
+# seed's luck changes with the widths). Seed 6 clamps 12-24 % of the output per frame.
+WEIGHTS_SEED = 6
 INPUT_SEED = 1
 WEIGHTS_FILE = "golden_weights.safetensors"
 MAX_FILE_BYTES = 1 << 20
@@ -162,6 +165,8 @@ def check_spread(tensors: Dict[str, torch.Tensor], t: int) -> None:
         problems.append(f"output std {out.std():.4f} < 0.05")
     if (out == 0).float().mean() > 0.5:
         problems.append("more than half of the output is clamped to 0")
+    if not (out == 0).any():
+        problems.append("no output pixel is clamped to 0 (the remodulation clamp goes untested)")
     for k in ("enc1", "enc2", "enc3", "ref_feat", "emb_cur"):
         if (tensors[k] == 0).float().mean() > 0.9:
             problems.append(f"{k} is > 90% zero")

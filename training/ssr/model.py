@@ -71,7 +71,7 @@ class SSRConfig:
 
     tfa_hidden: int = 8
     k: int = 8
-    enc: Tuple[int, int, int] = (16, 32, 32)
+    enc: Tuple[int, int, int] = (16, 32, 28)
     feature_pool: str = "max"  # "max" | "avg": pooling of encoder features
     upsample: str = "bilinear"  # "bilinear" | "nearest": upsampling of I3, I2
     input_channels: int = A_CHANNELS + MT_CHANNELS + A_CHANNELS + RGB  # 37

@@ -150,7 +150,7 @@ def test_config_mismatch_names_tensors(tmp_path, good_file):
     bad = str(tmp_path / "bad.safetensors")
     cfg = SSRConfig(enc=(16, 32, 48)).to_json()
     _rewrite(good_file, bad, meta_patch={"config": cfg})
-    with pytest.raises(WeightsError, match=r"tensor `unet\.enc3\.0\.weight`: shape \[32, 35, 3, 3\], expected \[48, 35, 3, 3\]"):
+    with pytest.raises(WeightsError, match=r"tensor `unet\.enc3\.0\.weight`: shape \[28, 35, 3, 3\], expected \[48, 35, 3, 3\]"):
         load_weights(bad)
 
 

@@ -40,7 +40,7 @@ SHAPES = {
     "output": (H, W, 3),
     "enc1": (H, W, 16),
     "enc2": (H // 2, W // 2, 32),
-    "enc3": (H // 4, W // 4, 32),
+    "enc3": (H // 4, W // 4, 28),
 }
 FILES = ["golden_weights.safetensors"] + [f"golden_frame{t}.safetensors" for t in range(3)]
 
