@@ -6,6 +6,7 @@
 //!
 //! - [`gpu`]: device context, kernel registry, timestamp profiler.
 //! - [`nn`]: GPU tensors, the network kernels and their CPU references.
+//! - [`ssr`]: the SSR network, its weights and the embeddable [`ssr::Denoiser`].
 
 #![warn(missing_docs)]
 
@@ -13,5 +14,6 @@ pub mod bench;
 pub mod error;
 pub mod gpu;
 pub mod nn;
+pub mod ssr;
 
 pub use error::{Error, Result};

@@ -141,13 +141,13 @@ pub fn bench_kernels(gpu: &Gpu, o: &KernelBenchOptions) -> Result<Vec<KernelTimi
     });
     cases.push(Case {
         name: "demodulate".into(),
-        dispatch: ops::demodulate(gpu, &rgb, &albedo, &rgb_out)?,
+        dispatch: ops::demodulate(gpu, &rgb, &albedo, 0, &rgb_out)?,
         bytes: 3 * b(&rgb),
         flops: 0,
     });
     cases.push(Case {
         name: "remodulate".into(),
-        dispatch: ops::remodulate(gpu, &rgb, &albedo, &rgb_out)?,
+        dispatch: ops::remodulate(gpu, &rgb, &albedo, 0, &rgb_out)?,
         bytes: 3 * b(&rgb),
         flops: 0,
     });

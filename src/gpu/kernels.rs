@@ -37,6 +37,8 @@ pub const KERNELS: &[KernelSource] = &[
     kernel!("nn/warp"),
     kernel!("nn/demodulate"),
     kernel!("nn/remodulate"),
+    kernel!("ssr/pack_inputs"),
+    kernel!("ssr/store_output"),
 ];
 
 /// Looks a kernel up by name.
@@ -166,6 +168,34 @@ impl KernelRegistry {
         buffers: &[&wgpu::Buffer],
         groups: [u32; 3],
     ) -> Result<Dispatch> {
+        let max_binding = self.device.limits().max_storage_buffer_binding_size;
+        for (i, b) in buffers.iter().enumerate() {
+            if b.size() > max_binding {
+                return Err(Error::Kernel {
+                    kernel: name.to_string(),
+                    message: format!(
+                        "binding {} is {} bytes, more than the adapter's storage binding limit of {max_binding}",
+                        i + 1,
+                        b.size()
+                    ),
+                });
+            }
+        }
+        let resources: Vec<wgpu::BindingResource<'_>> =
+            buffers.iter().map(|b| b.as_entire_binding()).collect();
+        self.dispatch_with(name, spec, params, &resources, groups)
+    }
+
+    /// Like [`KernelRegistry::dispatch`] with arbitrary resources (textures, samplers) at
+    /// bindings 1...
+    pub fn dispatch_with(
+        &self,
+        name: &str,
+        spec: &Specialisation,
+        params: &[u8],
+        resources: &[wgpu::BindingResource<'_>],
+        groups: [u32; 3],
+    ) -> Result<Dispatch> {
         let limit = self.device.limits().max_compute_workgroups_per_dimension;
         if groups.contains(&0) {
             return Err(Error::Kernel {
@@ -180,19 +210,6 @@ impl KernelRegistry {
                     "dispatch {groups:?} exceeds the adapter's {limit} workgroups per dimension"
                 ),
             });
-        }
-        let max_binding = self.device.limits().max_storage_buffer_binding_size;
-        for (i, b) in buffers.iter().enumerate() {
-            if b.size() > max_binding {
-                return Err(Error::Kernel {
-                    kernel: name.to_string(),
-                    message: format!(
-                        "binding {} is {} bytes, more than the adapter's storage binding limit of {max_binding}",
-                        i + 1,
-                        b.size()
-                    ),
-                });
-            }
         }
         let pipeline = self.pipeline(name, spec)?;
         let uniform = (!params.is_empty()).then(|| {
@@ -210,10 +227,10 @@ impl KernelRegistry {
                 resource: u.as_entire_binding(),
             });
         }
-        for (i, b) in buffers.iter().enumerate() {
+        for (i, r) in resources.iter().enumerate() {
             entries.push(wgpu::BindGroupEntry {
                 binding: i as u32 + 1,
-                resource: b.as_entire_binding(),
+                resource: r.clone(),
             });
         }
         let scope = self.device.push_error_scope(wgpu::ErrorFilter::Validation);
@@ -324,7 +341,7 @@ mod tests {
     /// layout) as in Rust.
     #[test]
     fn param_struct_sizes_match_naga() {
-        for (name, rust_size) in crate::nn::ops::PARAM_SIZES {
+        for (name, rust_size) in crate::nn::ops::PARAM_SIZES.iter().chain(crate::ssr::PARAM_SIZES) {
             let k = kernel_source(name).unwrap();
             let module = validate_wgsl(k.name, k.source).unwrap();
             let mut layouter = naga::proc::Layouter::default();

@@ -509,12 +509,21 @@ struct ModParams {
     height: u32,
     a_c4: u32,
     b_c4: u32,
+    b_offset: u32,
+    _pad: [u32; 3],
 }
 
-fn modulation(gpu: &Gpu, kernel: &str, a: &Tensor, albedo: &Tensor, out: &Tensor) -> Result<Dispatch> {
+fn modulation(
+    gpu: &Gpu,
+    kernel: &str,
+    a: &Tensor,
+    albedo: &Tensor,
+    albedo_channel: u32,
+    out: &Tensor,
+) -> Result<Dispatch> {
     let (w, h) = (a.width, a.height);
     check_min_channels(kernel, "input", a, 3)?;
-    check_min_channels(kernel, "albedo", albedo, 3)?;
+    check_min_channels(kernel, "albedo", albedo, albedo_channel + 3)?;
     check_size(kernel, "albedo", albedo, w, h)?;
     check_size(kernel, "out", out, w, h)?;
     check_channels(kernel, "out", out, 3)?;
@@ -524,6 +533,8 @@ fn modulation(gpu: &Gpu, kernel: &str, a: &Tensor, albedo: &Tensor, out: &Tensor
         height: h,
         a_c4: a.c4(),
         b_c4: albedo.c4(),
+        b_offset: albedo_channel,
+        _pad: [0; 3],
     };
     gpu.kernels.dispatch(
         kernel,
@@ -534,14 +545,28 @@ fn modulation(gpu: &Gpu, kernel: &str, a: &Tensor, albedo: &Tensor, out: &Tensor
     )
 }
 
-/// `out = ln(1 + color / (albedo + 0.00316))` over the first 3 channels.
-pub fn demodulate(gpu: &Gpu, color: &Tensor, albedo: &Tensor, out: &Tensor) -> Result<Dispatch> {
-    modulation(gpu, "nn/demodulate", color, albedo, out)
+/// `out = ln(1 + color / (albedo + 0.00316))` over the first 3 channels of `color` and
+/// channels `albedo_channel..albedo_channel + 3` of `albedo`.
+pub fn demodulate(
+    gpu: &Gpu,
+    color: &Tensor,
+    albedo: &Tensor,
+    albedo_channel: u32,
+    out: &Tensor,
+) -> Result<Dispatch> {
+    modulation(gpu, "nn/demodulate", color, albedo, albedo_channel, out)
 }
 
-/// `out = max(exp(o) - 1, 0) * (albedo + 0.00316)` over the first 3 channels.
-pub fn remodulate(gpu: &Gpu, o: &Tensor, albedo: &Tensor, out: &Tensor) -> Result<Dispatch> {
-    modulation(gpu, "nn/remodulate", o, albedo, out)
+/// `out = max(exp(o) - 1, 0) * (albedo + 0.00316)` over the first 3 channels of `o` and
+/// channels `albedo_channel..albedo_channel + 3` of `albedo` (the accumulated albedo).
+pub fn remodulate(
+    gpu: &Gpu,
+    o: &Tensor,
+    albedo: &Tensor,
+    albedo_channel: u32,
+    out: &Tensor,
+) -> Result<Dispatch> {
+    modulation(gpu, "nn/remodulate", o, albedo, albedo_channel, out)
 }
 
 /// Encodes `dispatches` (each in its own pass) and submits them; returns when done.

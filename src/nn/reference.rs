@@ -279,16 +279,18 @@ fn clean(v: f32) -> f32 {
     if v.is_finite() && v >= 0.0 { v } else { 0.0 }
 }
 
-/// `ln(1 + color / (albedo + eps))` on the first 3 channels.
-pub fn demodulate(color: &HostTensor, albedo: &HostTensor) -> HostTensor {
+/// `ln(1 + color / (albedo + eps))` on the first 3 channels of `color` and channels
+/// `albedo_channel..+3` of `albedo`.
+pub fn demodulate(color: &HostTensor, albedo: &HostTensor, albedo_channel: u32) -> HostTensor {
     HostTensor::from_fn(color.width, color.height, 3, |x, y, c| {
-        (1.0 + clean(color.at(x, y, c)) / (clean(albedo.at(x, y, c)) + ALBEDO_EPS)).ln()
+        (1.0 + clean(color.at(x, y, c)) / (clean(albedo.at(x, y, albedo_channel + c)) + ALBEDO_EPS)).ln()
     })
 }
 
-/// `max(exp(o) - 1, 0) * (albedo + eps)` on the first 3 channels.
-pub fn remodulate(o: &HostTensor, albedo: &HostTensor) -> HostTensor {
+/// `max(exp(o) - 1, 0) * (albedo + eps)` on the first 3 channels of `o` and channels
+/// `albedo_channel..+3` of `albedo`.
+pub fn remodulate(o: &HostTensor, albedo: &HostTensor, albedo_channel: u32) -> HostTensor {
     HostTensor::from_fn(o.width, o.height, 3, |x, y, c| {
-        (o.at(x, y, c).exp() - 1.0).max(0.0) * (albedo.at(x, y, c).max(0.0) + ALBEDO_EPS)
+        (o.at(x, y, c).exp() - 1.0).max(0.0) * (albedo.at(x, y, albedo_channel + c).max(0.0) + ALBEDO_EPS)
     })
 }

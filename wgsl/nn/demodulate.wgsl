@@ -7,6 +7,10 @@ struct Params {
     height: u32,
     color_c4: u32,
     albedo_c4: u32,
+    albedo_offset: u32, // first albedo channel
+    _pad0: u32,
+    _pad1: u32,
+    _pad2: u32,
 }
 
 @group(0) @binding(0) var<uniform> p: Params;
@@ -21,6 +25,16 @@ fn clean(v: vec3<f32>) -> vec3<f32> {
     return select(vec3<f32>(0.0), v, v >= vec3<f32>(0.0) & v <= vec3<f32>(3.0e38));
 }
 
+// Three consecutive channels of `albedo` starting at `albedo_offset` (any alignment).
+fn albedo3(pix: u32) -> vec3<f32> {
+    var v: vec3<f32>;
+    for (var i = 0u; i < 3u; i++) {
+        let c = p.albedo_offset + i;
+        v[i] = albedo[pix * p.albedo_c4 + c / 4u][c % 4u];
+    }
+    return v;
+}
+
 @compute @workgroup_size(8, 8, 1)
 fn main(@builtin(global_invocation_id) gid: vec3<u32>) {
     let x = gid.x;
@@ -30,6 +44,6 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>) {
     }
     let pix = y * p.width + x;
     let c = clean(color[pix * p.color_c4].xyz);
-    let a = clean(albedo[pix * p.albedo_c4].xyz);
+    let a = clean(albedo3(pix));
     dst[pix] = vec4<f32>(log(vec3<f32>(1.0) + c / (a + vec3<f32>(EPS))), 0.0);
 }

@@ -7,6 +7,10 @@ struct Params {
     height: u32,
     o_c4: u32,
     albedo_c4: u32,
+    albedo_offset: u32, // first albedo channel
+    _pad0: u32,
+    _pad1: u32,
+    _pad2: u32,
 }
 
 @group(0) @binding(0) var<uniform> p: Params;
@@ -15,6 +19,16 @@ struct Params {
 @group(0) @binding(3) var<storage, read_write> dst: array<vec4<f32>>;
 
 const EPS: f32 = 0.00316;
+
+// Three consecutive channels of `albedo` starting at `albedo_offset` (any alignment).
+fn albedo3(pix: u32) -> vec3<f32> {
+    var v: vec3<f32>;
+    for (var i = 0u; i < 3u; i++) {
+        let c = p.albedo_offset + i;
+        v[i] = albedo[pix * p.albedo_c4 + c / 4u][c % 4u];
+    }
+    return v;
+}
 
 @compute @workgroup_size(8, 8, 1)
 fn main(@builtin(global_invocation_id) gid: vec3<u32>) {
@@ -25,6 +39,6 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>) {
     }
     let pix = y * p.width + x;
     let e = o[pix * p.o_c4].xyz;
-    let a = max(albedo[pix * p.albedo_c4].xyz, vec3<f32>(0.0));
+    let a = max(albedo3(pix), vec3<f32>(0.0));
     dst[pix] = vec4<f32>(max(exp(e) - vec3<f32>(1.0), vec3<f32>(0.0)) * (a + vec3<f32>(EPS)), 0.0);
 }

@@ -1,0 +1,195 @@
+//! Network configuration, stored as JSON in the weights' metadata.
+
+use serde::{Deserialize, Serialize};
+
+use crate::error::{Error, Result};
+use crate::nn::ops::{Activation, PoolMode, UpsampleMode};
+
+/// Channels of the accumulated feature set A (DESIGN §4).
+pub const A_CHANNELS: u32 = 15;
+/// Channels of the mask + transparent tensor MT.
+pub const MT_CHANNELS: u32 = 4;
+/// Channels of an RGB image.
+pub const RGB: u32 = 3;
+
+/// Widths and options of the SSR network.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct SsrConfig {
+    /// Hidden width of the TFA reference and embedding nets.
+    pub tfa_hidden: u32,
+    /// TFA feature width K.
+    pub k: u32,
+    /// Encoder widths at 1/1, 1/2, 1/4 resolution.
+    pub enc: [u32; 3],
+    /// Feature pooling: `"max"` or `"avg"`.
+    pub feature_pool: String,
+    /// Upsampling of the coarse RGB images: `"bilinear"` or `"nearest"`.
+    pub upsample: String,
+    /// U-Net input channels (must be 37).
+    pub input_channels: u32,
+    /// Config version.
+    #[serde(default)]
+    pub version: u32,
+}
+
+impl Default for SsrConfig {
+    fn default() -> Self {
+        Self {
+            tfa_hidden: 8,
+            k: 8,
+            enc: [16, 32, 28],
+            feature_pool: "max".into(),
+            upsample: "bilinear".into(),
+            input_channels: 2 * A_CHANNELS + MT_CHANNELS + RGB,
+            version: 1,
+        }
+    }
+}
+
+/// One 3x3 conv layer of the network.
+#[derive(Debug, Clone, PartialEq)]
+pub struct LayerSpec {
+    /// PyTorch name prefix, e.g. `unet.enc1.0`.
+    pub name: String,
+    /// Input channels per concatenated input tensor.
+    pub inputs: Vec<u32>,
+    /// Output channels.
+    pub cout: u32,
+    /// Activation after the conv.
+    pub act: Activation,
+    /// Resolution level: 0 full, 1 half, 2 quarter.
+    pub level: u32,
+    /// How many times it runs per frame (the embedding net runs twice).
+    pub runs: u32,
+}
+
+impl SsrConfig {
+    /// Checks the options; errors name the field.
+    pub fn validate(&self) -> Result<()> {
+        let bad = |m: String| Err(Error::Invalid(format!("SSR config: {m}")));
+        if self.tfa_hidden == 0 || self.k == 0 || self.enc.contains(&0) {
+            return bad(format!(
+                "widths must be > 0 (tfa_hidden {}, k {}, enc {:?})",
+                self.tfa_hidden, self.k, self.enc
+            ));
+        }
+        if self.input_channels != 2 * A_CHANNELS + MT_CHANNELS + RGB {
+            return bad(format!(
+                "input_channels is {}, the engine feeds 37",
+                self.input_channels
+            ));
+        }
+        self.pool_mode()?;
+        self.upsample_mode()?;
+        Ok(())
+    }
+
+    /// Feature pooling mode.
+    pub fn pool_mode(&self) -> Result<PoolMode> {
+        match self.feature_pool.as_str() {
+            "max" => Ok(PoolMode::Max),
+            "avg" | "average" => Ok(PoolMode::Average),
+            o => Err(Error::Invalid(format!(
+                "SSR config: feature_pool '{o}', expected \"max\" or \"avg\""
+            ))),
+        }
+    }
+
+    /// Upsampling mode.
+    pub fn upsample_mode(&self) -> Result<UpsampleMode> {
+        match self.upsample.as_str() {
+            "bilinear" => Ok(UpsampleMode::Bilinear),
+            "nearest" => Ok(UpsampleMode::Nearest),
+            o => Err(Error::Invalid(format!(
+                "SSR config: upsample '{o}', expected \"bilinear\" or \"nearest\""
+            ))),
+        }
+    }
+
+    /// Every conv layer in execution order.
+    pub fn layers(&self) -> Vec<LayerSpec> {
+        let (h, k) = (self.tfa_hidden, self.k);
+        let [c1, c2, c3] = self.enc;
+        let relu = Activation::Relu;
+        let none = Activation::None;
+        let l = |name: &str, inputs: &[u32], cout, act, level, runs| LayerSpec {
+            name: name.to_string(),
+            inputs: inputs.to_vec(),
+            cout,
+            act,
+            level,
+            runs,
+        };
+        vec![
+            l("tfa.ref.0", &[A_CHANNELS, MT_CHANNELS], h, relu, 0, 1),
+            l("tfa.ref.2", &[h], k, none, 0, 1),
+            l("tfa.emb.0", &[A_CHANNELS], h, relu, 0, 2),
+            l("tfa.emb.2", &[h], k, none, 0, 2),
+            l(
+                "unet.enc1.0",
+                &[A_CHANNELS, MT_CHANNELS, A_CHANNELS, RGB],
+                c1,
+                relu,
+                0,
+                1,
+            ),
+            l("unet.enc1.2", &[c1], c1, relu, 0, 1),
+            l("unet.enc2.0", &[c1, RGB], c2, relu, 1, 1),
+            l("unet.enc2.2", &[c2], c2, relu, 1, 1),
+            l("unet.enc3.0", &[c2, RGB], c3, relu, 2, 1),
+            l("unet.enc3.2", &[c3], c3, relu, 2, 1),
+            l("unet.dec3.0", &[c3, RGB], c3, relu, 2, 1),
+            l("unet.dec3.2", &[c3], RGB, none, 2, 1),
+            l("unet.dec2.0", &[c2, RGB, RGB], c2, relu, 1, 1),
+            l("unet.dec2.2", &[c2], RGB, none, 1, 1),
+            l("unet.dec1.0", &[c1, RGB, RGB], c1, relu, 0, 1),
+            l("unet.dec1.2", &[c1], RGB, none, 0, 1),
+        ]
+    }
+
+    /// FLOPs per full-resolution pixel of one layer (18 Cin Cout per output pixel, /4 per
+    /// level down, times its runs per frame).
+    pub fn layer_flops_per_pixel(l: &LayerSpec) -> f64 {
+        let cin: u32 = l.inputs.iter().sum();
+        18.0 * cin as f64 * l.cout as f64 * l.runs as f64 / 4f64.powi(l.level as i32)
+    }
+
+    /// FLOPs per full-resolution pixel of the whole network.
+    pub fn flops_per_pixel(&self) -> f64 {
+        self.layers().iter().map(Self::layer_flops_per_pixel).sum()
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn default_model_is_within_the_flop_budget() {
+        let f = SsrConfig::default().flops_per_pixel();
+        assert!(f <= 50_000.0, "{f} FLOP/px");
+        assert!(f > 40_000.0, "{f} FLOP/px");
+    }
+
+    #[test]
+    fn bad_options_are_named() {
+        let mut c = SsrConfig {
+            feature_pool: "median".into(),
+            ..Default::default()
+        };
+        assert!(
+            c.validate()
+                .unwrap_err()
+                .to_string()
+                .contains("feature_pool 'median'")
+        );
+        c.feature_pool = "max".into();
+        c.input_channels = 36;
+        assert!(
+            c.validate()
+                .unwrap_err()
+                .to_string()
+                .contains("input_channels is 36")
+        );
+    }
+}

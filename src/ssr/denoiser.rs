@@ -1,0 +1,496 @@
+//! The embeddable denoiser: the caller's device, the caller's frame buffers, one output
+//! texture.
+
+use bytemuck::{Pod, Zeroable};
+
+pub use super::network::Granularity;
+use super::network::Network;
+use super::weights::Weights;
+use crate::error::{Error, Result};
+use crate::gpu::{Dispatch, Gpu, Profiler, Specialisation};
+use crate::nn::HostTensor;
+
+/// Rounds up to a multiple of 4 (the U-Net depth): the engine pads internally.
+pub fn round_up4(n: u32) -> u32 {
+    n.div_ceil(4) * 4
+}
+
+/// One frame of inputs (DESIGN §3), borrowed from the caller's renderer: six storage
+/// buffers of `width * height` `vec4<f32>` (row-major, 16 bytes per pixel), each created
+/// with `BufferUsages::STORAGE`:
+///
+/// | buffer | x y z | w |
+/// |---|---|---|
+/// | `color_mask` | traced radiance (0 at untraced pixels) | mask (1 where traced) |
+/// | `albedo_depth` | first-hit albedo (sky 1) | linear depth / far (sky 1) |
+/// | `normal_metallic` | world normal in [-1, 1] (sky 0) | metallic |
+/// | `shadow_roughness` | NEE light x visibility at traced pixels | perceptual roughness |
+/// | `transparent` | first transmissive tint (0 where none) | unused |
+/// | `motion` | x, y: motion in pixels, `prev = pos + motion` | unused |
+#[derive(Debug, Clone, Copy)]
+pub struct FrameInputs<'a> {
+    /// Radiance rgb + mask.
+    pub color_mask: &'a wgpu::Buffer,
+    /// Albedo rgb + depth.
+    pub albedo_depth: &'a wgpu::Buffer,
+    /// Normal xyz + metallic.
+    pub normal_metallic: &'a wgpu::Buffer,
+    /// Shadow rgb + roughness.
+    pub shadow_roughness: &'a wgpu::Buffer,
+    /// Transparent tint rgb.
+    pub transparent: &'a wgpu::Buffer,
+    /// Motion xy.
+    pub motion: &'a wgpu::Buffer,
+}
+
+impl FrameInputs<'_> {
+    fn buffers(&self) -> [&wgpu::Buffer; 6] {
+        [
+            self.color_mask,
+            self.albedo_depth,
+            self.normal_metallic,
+            self.shadow_roughness,
+            self.transparent,
+            self.motion,
+        ]
+    }
+    const NAMES: [&'static str; 6] = [
+        "color_mask",
+        "albedo_depth",
+        "normal_metallic",
+        "shadow_roughness",
+        "transparent",
+        "motion",
+    ];
+}
+
+/// One frame of inputs in host memory, one [`HostTensor`] per buffer of DESIGN §3.
+#[derive(Debug, Clone, PartialEq)]
+pub struct HostFrame {
+    /// Traced radiance (3).
+    pub color: HostTensor,
+    /// 1 where traced (1).
+    pub mask: HostTensor,
+    /// Albedo (3).
+    pub albedo: HostTensor,
+    /// Normal (3).
+    pub normal: HostTensor,
+    /// NEE shadow (3).
+    pub shadow: HostTensor,
+    /// Transparent tint (3).
+    pub transparent: HostTensor,
+    /// Normalised depth (1).
+    pub depth: HostTensor,
+    /// Metallic (1).
+    pub metallic: HostTensor,
+    /// Roughness (1).
+    pub roughness: HostTensor,
+    /// Motion in pixels (2).
+    pub motion: HostTensor,
+}
+
+impl HostFrame {
+    /// `(name, tensor, expected channels)` of every buffer.
+    pub fn fields(&self) -> [(&'static str, &HostTensor, u32); 10] {
+        [
+            ("color", &self.color, 3),
+            ("mask", &self.mask, 1),
+            ("albedo", &self.albedo, 3),
+            ("normal", &self.normal, 3),
+            ("shadow", &self.shadow, 3),
+            ("transparent", &self.transparent, 3),
+            ("depth", &self.depth, 1),
+            ("metallic", &self.metallic, 1),
+            ("roughness", &self.roughness, 1),
+            ("motion", &self.motion, 2),
+        ]
+    }
+
+    /// Width and height, after checking every buffer has them and the right channels.
+    pub fn size(&self) -> Result<(u32, u32)> {
+        let (w, h) = (self.color.width, self.color.height);
+        for (name, t, c) in self.fields() {
+            if (t.width, t.height, t.channels) != (w, h, c) {
+                return Err(Error::shape(
+                    "frame",
+                    format!(
+                        "buffer '{name}' is {}x{}x{}, expected {w}x{h}x{c}",
+                        t.width, t.height, t.channels
+                    ),
+                ));
+            }
+        }
+        Ok((w, h))
+    }
+
+    /// The six packed `vec4` buffers of [`FrameInputs`], in its field order.
+    pub fn pack(&self) -> Result<[Vec<[f32; 4]>; 6]> {
+        let (w, h) = self.size()?;
+        let n = (w * h) as usize;
+        let mut out: [Vec<[f32; 4]>; 6] = Default::default();
+        for v in out.iter_mut() {
+            v.resize(n, [0.0; 4]);
+        }
+        let put = |dst: &mut Vec<[f32; 4]>, t: &HostTensor, at: usize| {
+            let c = t.channels as usize;
+            for (px, src) in dst.iter_mut().zip(t.data.chunks_exact(c)) {
+                px[at..at + c].copy_from_slice(src);
+            }
+        };
+        put(&mut out[0], &self.color, 0);
+        put(&mut out[0], &self.mask, 3);
+        put(&mut out[1], &self.albedo, 0);
+        put(&mut out[1], &self.depth, 3);
+        put(&mut out[2], &self.normal, 0);
+        put(&mut out[2], &self.metallic, 3);
+        put(&mut out[3], &self.shadow, 0);
+        put(&mut out[3], &self.roughness, 3);
+        put(&mut out[4], &self.transparent, 0);
+        put(&mut out[5], &self.motion, 0);
+        Ok(out)
+    }
+}
+
+#[repr(C)]
+#[derive(Clone, Copy, Pod, Zeroable)]
+struct PackParams {
+    width: u32,
+    height: u32,
+    padded_width: u32,
+    padded_height: u32,
+}
+
+#[repr(C)]
+#[derive(Clone, Copy, Pod, Zeroable)]
+struct StoreParams {
+    width: u32,
+    height: u32,
+    padded_width: u32,
+    c4: u32,
+}
+
+/// Size in bytes of the SSR kernels' uniform `Params`, for the naga layout test.
+pub const PARAM_SIZES: &[(&str, usize)] = &[
+    ("ssr/pack_inputs", std::mem::size_of::<PackParams>()),
+    ("ssr/store_output", std::mem::size_of::<StoreParams>()),
+];
+
+/// The SSR denoiser, embeddable in any wgpu renderer.
+///
+/// ```no_run
+/// # fn demo(device: &wgpu::Device, queue: &wgpu::Queue, inputs: subpixel::ssr::FrameInputs<'_>)
+/// #     -> subpixel::Result<()> {
+/// use subpixel::ssr::{Denoiser, Weights};
+/// let weights = Weights::load("weights/ssr.safetensors")?;
+/// let mut denoiser = Denoiser::new(device, queue, &weights, 1920, 1080)?;
+/// let mut encoder = device.create_command_encoder(&Default::default());
+/// let output: &wgpu::Texture = denoiser.denoise(&mut encoder, &inputs)?; // rgba32float, linear HDR
+/// queue.submit([encoder.finish()]);
+/// # Ok(()) }
+/// ```
+pub struct Denoiser {
+    gpu: Gpu,
+    weights: Weights,
+    net: Network,
+    width: u32,
+    height: u32,
+    output: wgpu::Texture,
+    store: Dispatch,
+    pack: Option<(Vec<wgpu::Buffer>, Dispatch)>,
+    sanitized: wgpu::Buffer,
+    first: bool,
+    frames: u64,
+}
+
+impl Denoiser {
+    /// A denoiser for `width x height` frames on the caller's device.
+    pub fn new(
+        device: &wgpu::Device,
+        queue: &wgpu::Queue,
+        weights: &Weights,
+        width: u32,
+        height: u32,
+    ) -> Result<Self> {
+        let gpu = Gpu::from_device(device, queue, device.adapter_info());
+        Self::with_gpu(&gpu, weights, width, height)
+    }
+
+    /// A denoiser on a [`Gpu`] context.
+    pub fn with_gpu(gpu: &Gpu, weights: &Weights, width: u32, height: u32) -> Result<Self> {
+        if width == 0 || height == 0 {
+            return Err(Error::shape(
+                "denoiser",
+                format!("frame size {width}x{height} must be non-zero"),
+            ));
+        }
+        let net = Network::new(gpu, weights, round_up4(width), round_up4(height))?;
+        let output = Self::make_output(gpu, width, height);
+        let store = Self::make_store(gpu, &net, &output, width, height)?;
+        let sanitized = gpu.device.create_buffer(&wgpu::BufferDescriptor {
+            label: Some("subpixel.ssr.sanitized"),
+            size: 16,
+            usage: wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_SRC | wgpu::BufferUsages::COPY_DST,
+            mapped_at_creation: false,
+        });
+        Ok(Self {
+            gpu: gpu.clone(),
+            weights: weights.clone(),
+            net,
+            width,
+            height,
+            output,
+            store,
+            pack: None,
+            sanitized,
+            first: true,
+            frames: 0,
+        })
+    }
+
+    fn make_output(gpu: &Gpu, width: u32, height: u32) -> wgpu::Texture {
+        gpu.device.create_texture(&wgpu::TextureDescriptor {
+            label: Some("subpixel.ssr.output"),
+            size: wgpu::Extent3d {
+                width,
+                height,
+                depth_or_array_layers: 1,
+            },
+            mip_level_count: 1,
+            sample_count: 1,
+            dimension: wgpu::TextureDimension::D2,
+            format: wgpu::TextureFormat::Rgba32Float,
+            usage: wgpu::TextureUsages::STORAGE_BINDING
+                | wgpu::TextureUsages::TEXTURE_BINDING
+                | wgpu::TextureUsages::COPY_SRC,
+            view_formats: &[],
+        })
+    }
+
+    fn make_store(
+        gpu: &Gpu,
+        net: &Network,
+        output: &wgpu::Texture,
+        width: u32,
+        height: u32,
+    ) -> Result<Dispatch> {
+        let params = StoreParams {
+            width,
+            height,
+            padded_width: net.width,
+            c4: net.output().c4(),
+        };
+        let view = output.create_view(&Default::default());
+        gpu.kernels.dispatch_with(
+            "ssr/store_output",
+            &Specialisation::none(),
+            bytemuck::bytes_of(&params),
+            &[
+                net.output().buffer.as_entire_binding(),
+                wgpu::BindingResource::TextureView(&view),
+            ],
+            [width.div_ceil(8), height.div_ceil(8), 1],
+        )
+    }
+
+    /// Frame width.
+    pub fn width(&self) -> u32 {
+        self.width
+    }
+
+    /// Frame height.
+    pub fn height(&self) -> u32 {
+        self.height
+    }
+
+    /// The weights in use.
+    pub fn weights(&self) -> &Weights {
+        &self.weights
+    }
+
+    /// The output texture (`rgba32float`, linear HDR radiance, `width x height`).
+    pub fn output(&self) -> &wgpu::Texture {
+        &self.output
+    }
+
+    /// The network (for inspection of intermediates and per-layer FLOPs).
+    pub fn network(&self) -> &Network {
+        &self.net
+    }
+
+    /// Forgets the history (call on a camera cut); the next frame starts afresh.
+    pub fn reset(&mut self) {
+        self.first = true;
+    }
+
+    /// Changes the frame size; reallocates and resets the history.
+    pub fn resize(&mut self, width: u32, height: u32) -> Result<()> {
+        if (width, height) == (self.width, self.height) {
+            return Ok(());
+        }
+        *self = Self::with_gpu(&self.gpu, &self.weights, width, height)?;
+        Ok(())
+    }
+
+    /// Frames denoised since creation.
+    pub fn frames(&self) -> u64 {
+        self.frames
+    }
+
+    /// Records the reconstruction of one frame into `encoder` and returns the output
+    /// texture (valid once the encoder's commands have run).
+    pub fn denoise(
+        &mut self,
+        encoder: &mut wgpu::CommandEncoder,
+        inputs: &FrameInputs<'_>,
+    ) -> Result<&wgpu::Texture> {
+        self.denoise_profiled(encoder, inputs, None, Granularity::Stage)
+    }
+
+    /// [`Denoiser::denoise`] with GPU timestamp scopes (`pack`, `tfa`, `unet`, `output` or
+    /// one per layer).
+    pub fn denoise_profiled(
+        &mut self,
+        encoder: &mut wgpu::CommandEncoder,
+        inputs: &FrameInputs<'_>,
+        mut profiler: Option<&mut Profiler>,
+        granularity: Granularity,
+    ) -> Result<&wgpu::Texture> {
+        self.bind_inputs(inputs)?;
+        {
+            let mut pass = encoder.begin_compute_pass(&wgpu::ComputePassDescriptor {
+                label: Some("pack"),
+                timestamp_writes: profiler.as_mut().and_then(|p| p.scope("pack")),
+            });
+            self.pack.as_ref().expect("bound above").1.record(&mut pass);
+        }
+        self.net
+            .record(encoder, self.first, profiler.as_deref_mut(), granularity);
+        {
+            let mut pass = encoder.begin_compute_pass(&wgpu::ComputePassDescriptor {
+                label: Some("output"),
+                timestamp_writes: profiler.as_mut().and_then(|p| p.scope("output")),
+            });
+            self.store.record(&mut pass);
+        }
+        self.first = false;
+        self.frames += 1;
+        Ok(&self.output)
+    }
+
+    fn bind_inputs(&mut self, inputs: &FrameInputs<'_>) -> Result<()> {
+        let bufs = inputs.buffers();
+        if let Some((cached, _)) = &self.pack
+            && cached.iter().zip(bufs).all(|(a, b)| a == b)
+        {
+            return Ok(());
+        }
+        let need = self.width as u64 * self.height as u64 * 16;
+        for (b, name) in bufs.iter().zip(FrameInputs::NAMES) {
+            if b.size() < need {
+                return Err(Error::shape(
+                    "denoiser input",
+                    format!(
+                        "buffer '{name}' is {} bytes, expected at least {need} ({}x{} vec4<f32>)",
+                        b.size(),
+                        self.width,
+                        self.height
+                    ),
+                ));
+            }
+            if !b.usage().contains(wgpu::BufferUsages::STORAGE) {
+                return Err(Error::shape(
+                    "denoiser input",
+                    format!("buffer '{name}' lacks BufferUsages::STORAGE"),
+                ));
+            }
+        }
+        let (a_t, mt, motion) = self.net.inputs();
+        let params = PackParams {
+            width: self.width,
+            height: self.height,
+            padded_width: self.net.width,
+            padded_height: self.net.height,
+        };
+        let mut all: Vec<&wgpu::Buffer> = bufs.to_vec();
+        all.extend([&a_t.buffer, &mt.buffer, &motion.buffer, &self.sanitized]);
+        let d = self.gpu.kernels.dispatch(
+            "ssr/pack_inputs",
+            &Specialisation::none(),
+            bytemuck::bytes_of(&params),
+            &all,
+            [self.net.width.div_ceil(8), self.net.height.div_ceil(8), 1],
+        )?;
+        self.pack = Some((bufs.iter().map(|b| (*b).clone()).collect(), d));
+        Ok(())
+    }
+
+    /// Number of non-finite input values replaced by 0 since creation (blocks on a readback).
+    pub fn sanitized_count(&self) -> Result<u64> {
+        let b = self.gpu.read_buffer(&self.sanitized, 0, 4)?;
+        Ok(u32::from_le_bytes([b[0], b[1], b[2], b[3]]) as u64)
+    }
+
+    /// Offline convenience: uploads a frame from host memory, denoises it, waits and
+    /// returns the output (3 channels, `width x height`).
+    pub fn denoise_host(&mut self, frame: &HostFrame) -> Result<HostTensor> {
+        let (w, h) = frame.size()?;
+        if (w, h) != (self.width, self.height) {
+            return Err(Error::shape(
+                "denoiser",
+                format!(
+                    "frame is {w}x{h}, the denoiser was made for {}x{}",
+                    self.width, self.height
+                ),
+            ));
+        }
+        let packed = frame.pack()?;
+        let bufs = self.host_buffers()?;
+        for (b, data) in bufs.iter().zip(&packed) {
+            self.gpu.queue.write_buffer(b, 0, bytemuck::cast_slice(data));
+        }
+        let mut enc = self.gpu.device.create_command_encoder(&Default::default());
+        let inputs = FrameInputs {
+            color_mask: &bufs[0],
+            albedo_depth: &bufs[1],
+            normal_metallic: &bufs[2],
+            shadow_roughness: &bufs[3],
+            transparent: &bufs[4],
+            motion: &bufs[5],
+        };
+        self.denoise(&mut enc, &inputs)?;
+        self.gpu.queue.submit([enc.finish()]);
+        self.gpu.wait()?;
+        self.read_output()
+    }
+
+    /// Input buffers owned by the denoiser for [`Denoiser::denoise_host`] (reused).
+    fn host_buffers(&mut self) -> Result<Vec<wgpu::Buffer>> {
+        if let Some((bufs, _)) = &self.pack
+            && bufs
+                .iter()
+                .all(|b| b.usage().contains(wgpu::BufferUsages::COPY_DST))
+        {
+            return Ok(bufs.clone());
+        }
+        let size = self.width as u64 * self.height as u64 * 16;
+        Ok(FrameInputs::NAMES
+            .iter()
+            .map(|n| {
+                self.gpu.device.create_buffer(&wgpu::BufferDescriptor {
+                    label: Some(&format!("subpixel.ssr.host.{n}")),
+                    size,
+                    usage: wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_DST,
+                    mapped_at_creation: false,
+                })
+            })
+            .collect())
+    }
+
+    /// Reads the output (cropped to `width x height`, 3 channels) back to the host.
+    pub fn read_output(&self) -> Result<HostTensor> {
+        let out = self.net.output().read(&self.gpu)?;
+        Ok(HostTensor::from_fn(self.width, self.height, 3, |x, y, c| {
+            out.at(x, y, c)
+        }))
+    }
+}

@@ -1,0 +1,12 @@
+//! The SSR reconstruction network (DESIGN §4): weights, the network on the WGSL kernels,
+//! its history, and the embeddable [`Denoiser`].
+
+mod config;
+mod denoiser;
+mod network;
+mod weights;
+
+pub use config::{LayerSpec, SsrConfig};
+pub use denoiser::{Denoiser, FrameInputs, Granularity, HostFrame, PARAM_SIZES, round_up4};
+pub use network::{INTERMEDIATES, Network};
+pub use weights::{WEIGHTS_FORMAT, WEIGHTS_VERSION, Weights};

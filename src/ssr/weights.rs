@@ -1,0 +1,173 @@
+//! Loading SSR weights from safetensors (PyTorch names, OIHW conv layout) with every name
+//! and shape checked.
+
+use std::collections::{BTreeMap, HashMap};
+use std::path::{Path, PathBuf};
+
+use super::config::SsrConfig;
+use crate::error::{Error, Result};
+
+/// Value of the `format` metadata key.
+pub const WEIGHTS_FORMAT: &str = "subpixel-ssr";
+/// Weights file version this engine reads.
+pub const WEIGHTS_VERSION: u32 = 1;
+
+/// Network weights and their provenance.
+#[derive(Debug, Clone)]
+pub struct Weights {
+    /// Where they came from (a file path, or `<memory>`).
+    pub path: PathBuf,
+    /// Network configuration.
+    pub config: SsrConfig,
+    /// Tensors by PyTorch name, row-major f32.
+    pub tensors: HashMap<String, Vec<f32>>,
+    /// The file's `__metadata__` (format, version, config, provenance, metrics, ...).
+    pub metadata: BTreeMap<String, String>,
+}
+
+impl Weights {
+    /// Loads and checks a weights file.
+    pub fn load(path: impl AsRef<Path>) -> Result<Self> {
+        let path = path.as_ref();
+        let bytes = std::fs::read(path).map_err(|e| Error::Weights {
+            path: path.to_path_buf(),
+            message: format!("cannot read: {e}"),
+        })?;
+        Self::from_bytes(&bytes, path)
+    }
+
+    /// Parses and checks weights from bytes; `path` only names them in errors.
+    pub fn from_bytes(bytes: &[u8], path: impl AsRef<Path>) -> Result<Self> {
+        let path = path.as_ref().to_path_buf();
+        let err = |message: String| Error::Weights {
+            path: path.clone(),
+            message,
+        };
+        let (_, header) = safetensors::SafeTensors::read_metadata(bytes).map_err(|e| {
+            err(format!(
+                "not a valid safetensors file (truncated or corrupt?): {e}"
+            ))
+        })?;
+        let metadata: BTreeMap<String, String> = header
+            .metadata()
+            .clone()
+            .unwrap_or_default()
+            .into_iter()
+            .collect();
+        match metadata.get("format") {
+            Some(f) if f == WEIGHTS_FORMAT => {}
+            Some(f) => {
+                return Err(err(format!(
+                    "metadata format is '{f}', expected '{WEIGHTS_FORMAT}'"
+                )));
+            }
+            None => {
+                return Err(err(format!(
+                    "no 'format' in the metadata (expected '{WEIGHTS_FORMAT}')"
+                )));
+            }
+        }
+        match metadata.get("version").map(|v| v.parse::<u32>()) {
+            Some(Ok(WEIGHTS_VERSION)) => {}
+            Some(Ok(v)) => {
+                return Err(err(format!(
+                    "version {v}, this engine reads version {WEIGHTS_VERSION}"
+                )));
+            }
+            _ => return Err(err("metadata 'version' is missing or not an integer".into())),
+        }
+        let config: SsrConfig = serde_json::from_str(
+            metadata
+                .get("config")
+                .ok_or_else(|| err("no 'config' in the metadata".into()))?,
+        )
+        .map_err(|e| err(format!("metadata 'config' is not a valid SSR config: {e}")))?;
+        config.validate().map_err(|e| err(e.to_string()))?;
+        let st = safetensors::SafeTensors::deserialize(bytes).map_err(|e| {
+            err(format!(
+                "not a valid safetensors file (truncated or corrupt?): {e}"
+            ))
+        })?;
+
+        let mut tensors = HashMap::new();
+        let mut expected = Vec::new();
+        for l in config.layers() {
+            let cin: u32 = l.inputs.iter().sum();
+            expected.push((
+                format!("{}.weight", l.name),
+                vec![l.cout as usize, cin as usize, 3, 3],
+            ));
+            expected.push((format!("{}.bias", l.name), vec![l.cout as usize]));
+        }
+        for (name, shape) in &expected {
+            let view = st
+                .tensor(name)
+                .map_err(|_| err(format!("tensor '{name}' is missing (expected shape {shape:?})")))?;
+            if view.shape() != shape.as_slice() {
+                return Err(err(format!(
+                    "tensor '{name}' has shape {:?}, expected {shape:?}",
+                    view.shape()
+                )));
+            }
+            if view.dtype() != safetensors::Dtype::F32 {
+                return Err(err(format!(
+                    "tensor '{name}' is {:?}, expected F32",
+                    view.dtype()
+                )));
+            }
+            let data: Vec<f32> = view
+                .data()
+                .chunks_exact(4)
+                .map(|b| f32::from_le_bytes([b[0], b[1], b[2], b[3]]))
+                .collect();
+            if let Some(i) = data.iter().position(|v| !v.is_finite()) {
+                return Err(err(format!(
+                    "tensor '{name}' holds a non-finite value at index {i}"
+                )));
+            }
+            tensors.insert(name.clone(), data);
+        }
+        let mut unexpected: Vec<&str> = st
+            .names()
+            .into_iter()
+            .filter(|n| !expected.iter().any(|(e, _)| e == n))
+            .collect();
+        unexpected.sort();
+        if !unexpected.is_empty() {
+            return Err(err(format!(
+                "unexpected tensors {unexpected:?} (config {:?} has no such layers)",
+                config
+            )));
+        }
+        Ok(Self {
+            path,
+            config,
+            tensors,
+            metadata,
+        })
+    }
+
+    /// Weight and bias of layer `name`.
+    pub fn layer(&self, name: &str) -> Result<(&[f32], &[f32])> {
+        let get = |k: String| {
+            self.tensors
+                .get(&k)
+                .map(|v| v.as_slice())
+                .ok_or_else(|| Error::Weights {
+                    path: self.path.clone(),
+                    message: format!("tensor '{k}' is missing"),
+                })
+        };
+        Ok((get(format!("{name}.weight"))?, get(format!("{name}.bias"))?))
+    }
+
+    /// The `provenance` metadata (JSON text), if any.
+    pub fn provenance(&self) -> Option<&str> {
+        self.metadata.get("provenance").map(|s| s.as_str())
+    }
+
+    /// Whether these are random-initialised test weights rather than a trained denoiser.
+    pub fn is_random_init(&self) -> bool {
+        self.provenance().is_some_and(|p| p.contains("random-init"))
+    }
+}

@@ -1,0 +1,117 @@
+//! Rust/WGSL vs PyTorch parity on the golden cases written by `training/ssr/golden.py`:
+//! three consecutive 40x24 frames (so the history path runs), every intermediate compared
+//! in execution order so a failure names the layer that diverged.
+
+mod common;
+
+use std::path::PathBuf;
+
+use subpixel::nn::HostTensor;
+use subpixel::ssr::{Denoiser, HostFrame, Weights};
+
+fn data(name: &str) -> PathBuf {
+    PathBuf::from(env!("CARGO_MANIFEST_DIR"))
+        .join("tests/data")
+        .join(name)
+}
+
+/// Every tensor of a golden frame file, HWC.
+fn load_frame(i: usize) -> std::collections::HashMap<String, HostTensor> {
+    let bytes = std::fs::read(data(&format!("golden_frame{i}.safetensors"))).unwrap();
+    let st = safetensors::SafeTensors::deserialize(&bytes).unwrap();
+    st.tensors()
+        .into_iter()
+        .map(|(name, v)| {
+            let s = v.shape();
+            let vals: Vec<f32> = v
+                .data()
+                .chunks_exact(4)
+                .map(|b| f32::from_le_bytes([b[0], b[1], b[2], b[3]]))
+                .collect();
+            (
+                name,
+                HostTensor::from_vec(s[1] as u32, s[0] as u32, s[2] as u32, vals),
+            )
+        })
+        .collect()
+}
+
+/// (name in the golden file, name in the engine), in execution order.
+const COMPARED: &[(&str, &str)] = &[
+    ("a_cur", "a_t"),
+    ("warp_acc", "warp_acc"),
+    ("warp_valid", "warp_valid"),
+    ("ref_feat", "ref_feat"),
+    ("emb_cur", "emb_cur"),
+    ("emb_prev", "emb_prev"),
+    ("tfa_weights", "tfa_weights"),
+    ("a_acc", "a_acc"),
+    ("warp_out", "warp_out"),
+    ("enc1", "enc1"),
+    ("enc2", "enc2"),
+    ("enc3", "enc3"),
+    ("i3", "i3"),
+    ("i2", "i2"),
+    ("o", "o"),
+    ("output", "output"),
+];
+
+/// Tolerance of the final output: 1e-3 of its range (the bar). Intermediates use
+/// a tighter 1e-4 of their own range: f32 sums in another order differ by ~1e-6.
+const OUTPUT_TOL: f32 = 1e-3;
+const INTERMEDIATE_TOL: f32 = 1e-4;
+
+fn range(t: &HostTensor) -> f32 {
+    let (lo, hi) = t
+        .data
+        .iter()
+        .fold((f32::MAX, f32::MIN), |(l, h), &v| (l.min(v), h.max(v)));
+    (hi - lo).max(1e-6)
+}
+
+#[test]
+fn denoiser_matches_pytorch_on_golden_frames() {
+    let gpu = common::gpu();
+    let weights = Weights::load(data("golden_weights.safetensors")).unwrap();
+    assert!(
+        weights.is_random_init(),
+        "golden weights are random-initialised test weights"
+    );
+    let mut den = Denoiser::with_gpu(&gpu, &weights, 40, 24).unwrap();
+    for i in 0..3 {
+        let g = load_frame(i);
+        let frame = HostFrame {
+            color: g["color"].clone(),
+            mask: g["mask"].clone(),
+            albedo: g["albedo"].clone(),
+            normal: g["normal"].clone(),
+            shadow: g["shadow"].clone(),
+            transparent: g["transparent"].clone(),
+            depth: g["depth"].clone(),
+            metallic: g["metallic"].clone(),
+            roughness: g["roughness"].clone(),
+            motion: g["motion"].clone(),
+        };
+        let out = den.denoise_host(&frame).unwrap();
+        for &(golden, engine) in COMPARED {
+            let want = &g[golden];
+            let got = den.network().tensor(engine).unwrap().read(&gpu).unwrap();
+            let rel = if golden == "output" {
+                OUTPUT_TOL
+            } else {
+                INTERMEDIATE_TOL
+            };
+            let tol = common::Tol {
+                abs: rel * range(want),
+                rel: 0.0,
+            };
+            common::assert_close(&format!("frame {i} layer '{golden}'"), &got, want, tol);
+        }
+        let tol = common::Tol {
+            abs: OUTPUT_TOL * range(&g["output"]),
+            rel: 0.0,
+        };
+        common::assert_close(&format!("frame {i} cropped output"), &out, &g["output"], tol);
+    }
+    assert_eq!(den.sanitized_count().unwrap(), 0);
+}
