@@ -1,5 +1,6 @@
 //! Benchmarks: kernels in isolation, the denoiser, the whole frame.
 
+pub mod denoise;
 pub mod kernels;
 mod peak;
 

@@ -2,8 +2,19 @@
 
 use anyhow::Result;
 use clap::{Parser, Subcommand};
+use subpixel::bench::denoise::bench_denoise;
 use subpixel::bench::kernels::{KernelBenchOptions, bench_kernels, table};
 use subpixel::gpu::Gpu;
+use subpixel::ssr::{SsrConfig, Weights};
+
+/// The shipped weights, else random weights of the default config (timing only).
+fn default_weights() -> Result<Weights> {
+    let shipped = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("weights/ssr.safetensors");
+    if shipped.exists() {
+        return Ok(Weights::load(shipped)?);
+    }
+    Ok(Weights::random(&SsrConfig::default(), 0)?)
+}
 
 #[derive(Parser)]
 #[command(
@@ -29,6 +40,31 @@ enum Command {
 enum BenchCommand {
     /// Each network kernel in isolation.
     Kernels(KernelsArgs),
+    /// The SSR network: per layer (FLOPs, ms, GFLOP/s) and per stage (TFA, U-Net).
+    Denoise(DenoiseBenchArgs),
+}
+
+#[derive(clap::Args)]
+struct DenoiseBenchArgs {
+    /// Frame width (default 1920, or 128 on a CPU adapter).
+    #[arg(long)]
+    width: Option<u32>,
+    /// Frame height (default 1080, or 128 on a CPU adapter).
+    #[arg(long)]
+    height: Option<u32>,
+    /// Weights file (default: the shipped weights, else random weights of the default config;
+    /// the weights do not change the timing).
+    #[arg(long)]
+    weights: Option<std::path::PathBuf>,
+    /// Timed frames (default 100 on a GPU, 5 on a CPU adapter).
+    #[arg(long)]
+    frames: Option<u32>,
+    /// Untimed warm-up frames.
+    #[arg(long, default_value_t = 5)]
+    warmup: u32,
+    /// Print JSON instead of tables.
+    #[arg(long)]
+    json: bool,
 }
 
 #[derive(clap::Args)]
@@ -94,6 +130,30 @@ fn main() -> Result<()> {
                     }
                 );
                 print!("{}", table(&rows));
+            }
+        }
+        Some(Command::Bench {
+            what: BenchCommand::Denoise(a),
+        }) => {
+            let gpu = Gpu::new()?;
+            let cpu = gpu.kind() == subpixel::gpu::AdapterKind::Cpu;
+            let (dw, dh, df) = if cpu { (128, 128, 5) } else { (1920, 1080, 100) };
+            let weights = match &a.weights {
+                Some(p) => Weights::load(p)?,
+                None => default_weights()?,
+            };
+            let b = bench_denoise(
+                &gpu,
+                &weights,
+                a.width.unwrap_or(dw),
+                a.height.unwrap_or(dh),
+                a.warmup,
+                a.frames.unwrap_or(df),
+            )?;
+            if a.json {
+                println!("{}", serde_json::to_string_pretty(&b)?);
+            } else {
+                print!("{}", subpixel::bench::denoise::table(&b));
             }
         }
         None => {

@@ -147,6 +147,51 @@ impl Weights {
         })
     }
 
+    /// Deterministic pseudo-random weights (He-scaled) for `config`: for benchmarks and
+    /// tests of the plumbing only, never a denoiser ([`Weights::is_random_init`] is true).
+    pub fn random(config: &SsrConfig, seed: u64) -> Result<Self> {
+        config.validate()?;
+        let mut state = seed.wrapping_mul(0x9E37_79B9_7F4A_7C15) | 1;
+        let mut next = move || {
+            state ^= state << 13;
+            state ^= state >> 7;
+            state ^= state << 17;
+            (state >> 11) as f64 / (1u64 << 53) as f64 * 2.0 - 1.0
+        };
+        let mut tensors = HashMap::new();
+        for l in config.layers() {
+            let cin: u32 = l.inputs.iter().sum();
+            let scale = (6.0 / (9.0 * cin as f64)).sqrt();
+            let n = (l.cout * cin * 9) as usize;
+            tensors.insert(
+                format!("{}.weight", l.name),
+                (0..n).map(|_| (next() * scale) as f32).collect(),
+            );
+            tensors.insert(
+                format!("{}.bias", l.name),
+                (0..l.cout).map(|_| (next() * 0.05) as f32).collect(),
+            );
+        }
+        let metadata = BTreeMap::from([
+            ("format".to_string(), WEIGHTS_FORMAT.to_string()),
+            ("version".to_string(), WEIGHTS_VERSION.to_string()),
+            (
+                "config".to_string(),
+                serde_json::to_string(config).expect("config serialises"),
+            ),
+            (
+                "provenance".to_string(),
+                "\"random-init: for tests only, not a denoiser\"".to_string(),
+            ),
+        ]);
+        Ok(Self {
+            path: PathBuf::from("<random>"),
+            config: config.clone(),
+            tensors,
+            metadata,
+        })
+    }
+
     /// Weight and bias of layer `name`.
     pub fn layer(&self, name: &str) -> Result<(&[f32], &[f32])> {
         let get = |k: String| {

@@ -1,0 +1,242 @@
+//! `subpixel bench denoise`: the SSR network timed per layer and per stage.
+
+use crate::error::Result;
+use crate::gpu::{Gpu, Profiler, Stats};
+use crate::nn::HostTensor;
+use crate::ssr::{Denoiser, FrameInputs, Granularity, HostFrame, Weights};
+
+/// One timed step.
+#[derive(Debug, Clone, serde::Serialize)]
+pub struct LayerTiming {
+    /// Stage (`pack`, `tfa`, `unet`, `output`).
+    pub stage: String,
+    /// Layer label.
+    pub name: String,
+    /// FLOPs per frame (0 for data movement).
+    pub flops: u64,
+    /// Timing.
+    pub stats: Stats,
+    /// Achieved GFLOP/s at the median.
+    pub gflop_per_s: f64,
+}
+
+/// Result of the denoiser benchmark.
+#[derive(Debug, Clone, serde::Serialize)]
+pub struct DenoiseBench {
+    /// Adapter description.
+    pub adapter: String,
+    /// Frame size.
+    pub width: u32,
+    /// Frame height.
+    pub height: u32,
+    /// Timed frames.
+    pub frames: u32,
+    /// Whether GPU timestamps were used.
+    pub gpu_timestamps: bool,
+    /// Per-layer timings (each layer in its own pass).
+    pub layers: Vec<LayerTiming>,
+    /// Per-stage timings (one pass per stage, as in production).
+    pub stages: Vec<LayerTiming>,
+    /// Median of the per-frame total of the stage timings, ms.
+    pub total_ms: f64,
+    /// FLOPs per frame.
+    pub total_flops: u64,
+    /// FLOPs per pixel.
+    pub flops_per_pixel: f64,
+    /// Achieved GFLOP/s over the whole network.
+    pub gflop_per_s: f64,
+    /// Fraction of the adapter's FP32 peak, where known.
+    pub fraction_of_peak: Option<f64>,
+}
+
+/// A synthetic frame with every buffer non-trivial.
+pub fn synthetic_frame(w: u32, h: u32, t: u32) -> HostFrame {
+    let (dx, dy) = [(0, 0), (1, 1), (1, 0), (0, 1)][t as usize % 4];
+    let mask = HostTensor::from_fn(w, h, 1, |x, y, _| (x % 2 == dx && y % 2 == dy) as u32 as f32);
+    let f = |c, g: fn(u32, u32, u32) -> f32| HostTensor::from_fn(w, h, c, g);
+    HostFrame {
+        color: HostTensor::from_fn(w, h, 3, |x, y, c| {
+            mask.at(x, y, 0) * ((x + 3 * y + c) % 7) as f32 * 0.3
+        }),
+        mask: mask.clone(),
+        albedo: f(3, |x, _, c| 0.2 + 0.2 * ((x / 8 + c) % 4) as f32),
+        normal: f(3, |_, _, c| if c == 2 { 1.0 } else { 0.0 }),
+        shadow: HostTensor::from_fn(w, h, 3, |x, y, _| mask.at(x, y, 0)),
+        transparent: f(3, |_, _, _| 0.0),
+        depth: f(1, |_, y, _| 0.5 + 0.001 * y as f32),
+        metallic: f(1, |_, _, _| 0.0),
+        roughness: f(1, |_, _, _| 0.5),
+        motion: f(2, |_, _, c| if c == 0 { 0.25 } else { 0.0 }),
+    }
+}
+
+/// Times the network on synthetic frames: `warmup` untimed frames, then `frames` timed,
+/// once with a pass per layer and once with a pass per stage.
+pub fn bench_denoise(
+    gpu: &Gpu,
+    weights: &Weights,
+    w: u32,
+    h: u32,
+    warmup: u32,
+    frames: u32,
+) -> Result<DenoiseBench> {
+    let mut den = Denoiser::with_gpu(gpu, weights, w, h)?;
+    let packed = synthetic_frame(w, h, 0).pack()?;
+    let bufs: Vec<wgpu::Buffer> = packed
+        .iter()
+        .map(|d| {
+            use wgpu::util::DeviceExt;
+            gpu.device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
+                label: Some("subpixel.bench.input"),
+                contents: bytemuck::cast_slice(d),
+                usage: wgpu::BufferUsages::STORAGE,
+            })
+        })
+        .collect();
+    let inputs = FrameInputs {
+        color_mask: &bufs[0],
+        albedo_depth: &bufs[1],
+        normal_metallic: &bufs[2],
+        shadow_roughness: &bufs[3],
+        transparent: &bufs[4],
+        motion: &bufs[5],
+    };
+    let flops: Vec<(&'static str, String, u64)> = den.network().step_flops();
+    let total_flops: u64 = flops.iter().map(|f| f.2).sum();
+    let mut run = |granularity: Granularity| -> Result<(Profiler, Vec<f64>)> {
+        let mut prof = Profiler::new(gpu, 64);
+        let mut totals = Vec::new();
+        for i in 0..warmup + frames {
+            let mut enc = gpu.device.create_command_encoder(&Default::default());
+            den.denoise_profiled(&mut enc, &inputs, Some(&mut prof), granularity)?;
+            prof.resolve(&mut enc);
+            let t0 = std::time::Instant::now();
+            gpu.queue.submit([enc.finish()]);
+            gpu.wait()?;
+            let wall = t0.elapsed().as_secs_f64() * 1e3;
+            prof.collect(gpu)?;
+            if !prof.gpu_timed() {
+                prof.record("frame (CPU wall)", wall);
+            }
+            if i + 1 == warmup {
+                prof.clear();
+                totals.clear();
+            } else if i >= warmup {
+                totals.push(wall);
+            }
+        }
+        Ok((prof, totals))
+    };
+    let timing = |prof: &Profiler, stage: &str, name: &str, flops: u64| {
+        prof.stat(name).map(|stats| LayerTiming {
+            stage: stage.to_string(),
+            name: name.to_string(),
+            flops,
+            gflop_per_s: if flops > 0 {
+                flops as f64 / (stats.median_ms * 1e-3) * 1e-9
+            } else {
+                0.0
+            },
+            stats,
+        })
+    };
+    let (lp, _) = run(Granularity::Layer)?;
+    let mut layers = Vec::new();
+    layers.extend(timing(&lp, "pack", "pack", 0));
+    for (stage, label, f) in &flops {
+        layers.extend(timing(&lp, stage, label, *f));
+    }
+    layers.extend(timing(&lp, "output", "output", 0));
+    let (sp, _) = run(Granularity::Stage)?;
+    let stage_flops = |s: &str| flops.iter().filter(|f| f.0 == s).map(|f| f.2).sum::<u64>();
+    let stages: Vec<LayerTiming> = ["pack", "tfa", "unet", "output"]
+        .iter()
+        .filter_map(|s| timing(&sp, s, s, stage_flops(s)))
+        .collect();
+    let total_ms = if sp.gpu_timed() {
+        stages.iter().map(|s| s.stats.median_ms).sum()
+    } else {
+        sp.stat("frame (CPU wall)").map(|s| s.median_ms).unwrap_or(0.0)
+    };
+    let gflop_per_s = total_flops as f64 / (total_ms * 1e-3) * 1e-9;
+    let peak = crate::bench::peak_fp32_gflops(&gpu.info.name);
+    Ok(DenoiseBench {
+        adapter: gpu.describe(),
+        width: w,
+        height: h,
+        frames,
+        gpu_timestamps: sp.gpu_timed(),
+        layers,
+        stages,
+        total_ms,
+        total_flops,
+        flops_per_pixel: total_flops as f64 / (den.network().width as f64 * den.network().height as f64),
+        gflop_per_s,
+        fraction_of_peak: peak.map(|p| gflop_per_s / p),
+    })
+}
+
+/// Formats the benchmark as tables.
+pub fn table(b: &DenoiseBench) -> String {
+    let mut s = format!(
+        "adapter: {}\nSSR at {}x{}, median over {} frames ({})\n\n",
+        b.adapter,
+        b.width,
+        b.height,
+        b.frames,
+        if b.gpu_timestamps {
+            "GPU timestamps"
+        } else {
+            "CPU wall time"
+        }
+    );
+    s += &format!(
+        "{:<7} {:<20} {:>10} {:>10} {:>10} {:>10}\n",
+        "stage", "layer", "MFLOP", "median ms", "p95 ms", "GFLOP/s"
+    );
+    for l in &b.layers {
+        let gf = if l.flops > 0 {
+            format!("{:.1}", l.gflop_per_s)
+        } else {
+            "-".into()
+        };
+        s += &format!(
+            "{:<7} {:<20} {:>10.1} {:>10.4} {:>10.4} {:>10}\n",
+            l.stage,
+            l.name,
+            l.flops as f64 * 1e-6,
+            l.stats.median_ms,
+            l.stats.p95_ms,
+            gf
+        );
+    }
+    let layer_sum: f64 = b.layers.iter().map(|l| l.stats.median_ms).sum();
+    if b.gpu_timestamps && (layer_sum > 2.0 * b.total_ms || 2.0 * layer_sum < b.total_ms) {
+        s += &format!(
+            "warning: the per-layer medians add up to {layer_sum:.3} ms but the stages to {:.3} ms; \
+             this adapter's per-pass timestamps are not reliable (CPU drivers such as lavapipe)\n",
+            b.total_ms
+        );
+    }
+    s += "\nper stage (one pass each, as in production):\n";
+    for l in &b.stages {
+        s += &format!(
+            "{:<7} {:>10.1} MFLOP {:>10.4} ms median {:>10.4} ms p95\n",
+            l.name,
+            l.flops as f64 * 1e-6,
+            l.stats.median_ms,
+            l.stats.p95_ms
+        );
+    }
+    s += &format!(
+        "total   {:>10.1} MFLOP {:>10.4} ms  ({:.0} FLOP/px, {:.1} GFLOP/s{})\n",
+        b.total_flops as f64 * 1e-6,
+        b.total_ms,
+        b.flops_per_pixel,
+        b.gflop_per_s,
+        b.fraction_of_peak
+            .map(|f| format!(", {:.1}% of FP32 peak", 100.0 * f))
+            .unwrap_or_default()
+    );
+    s
+}
