@@ -11,8 +11,12 @@
 #![warn(missing_docs)]
 
 pub mod bench;
+pub mod cli;
 pub mod error;
+pub mod frame;
 pub mod gpu;
+pub mod io;
+pub mod metrics;
 pub mod nn;
 pub mod ssr;
 

@@ -6,7 +6,8 @@ mod denoiser;
 mod network;
 mod weights;
 
+pub use crate::frame::HostFrame;
 pub use config::{LayerSpec, SsrConfig};
-pub use denoiser::{Denoiser, FrameInputs, Granularity, HostFrame, PARAM_SIZES, round_up4};
+pub use denoiser::{Denoiser, FrameInputs, Granularity, PARAM_SIZES, round_up4};
 pub use network::{INTERMEDIATES, Network};
 pub use weights::{WEIGHTS_FORMAT, WEIGHTS_VERSION, Weights};

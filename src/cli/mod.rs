@@ -1,0 +1,87 @@
+//! The `subpixel` command line: argument parsing and the commands' drivers.
+
+mod bench;
+mod denoise;
+mod eval;
+
+use std::path::{Path, PathBuf};
+use std::process::ExitCode;
+
+use anyhow::Result;
+use clap::{Parser, Subcommand};
+
+use crate::ssr::{SsrConfig, Weights};
+
+#[derive(Parser)]
+#[command(
+    name = "subpixel",
+    version,
+    about = "1/4-spp path tracing + SSR neural reconstruction on wgpu"
+)]
+struct Cli {
+    #[command(subcommand)]
+    command: Option<Command>,
+}
+
+#[derive(Subcommand)]
+enum Command {
+    /// Denoise a folder of frame EXRs with SSR.
+    Denoise(denoise::DenoiseArgs),
+    /// Score predictions against references (PSNR, SSIM, RMSE, relMSE, temporal error).
+    Eval(eval::EvalArgs),
+    /// Time kernels, the denoiser or the whole frame.
+    Bench {
+        #[command(subcommand)]
+        what: bench::BenchCommand,
+    },
+}
+
+/// Runs the CLI; errors are printed with their causes.
+pub fn main() -> ExitCode {
+    env_logger::Builder::from_env(env_logger::Env::default().default_filter_or("warn")).init();
+    let cli = Cli::parse();
+    let result = match cli.command {
+        Some(Command::Denoise(a)) => denoise::run(&a),
+        Some(Command::Eval(a)) => eval::run(&a),
+        Some(Command::Bench { what }) => bench::run(what),
+        None => Err(anyhow::anyhow!(
+            "the main job (`subpixel run`) is not built yet; see `subpixel --help`"
+        )),
+    };
+    match result {
+        Ok(()) => ExitCode::SUCCESS,
+        Err(e) => {
+            eprintln!("error: {e:#}");
+            ExitCode::FAILURE
+        }
+    }
+}
+
+/// The shipped weights file.
+pub fn shipped_weights_path() -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR")).join("weights/ssr.safetensors")
+}
+
+/// The shipped weights, else random weights of the default config (for timing only).
+fn weights_or_random(path: Option<&Path>) -> Result<Weights> {
+    if let Some(p) = path {
+        return Ok(Weights::load(p)?);
+    }
+    let shipped = shipped_weights_path();
+    if shipped.exists() {
+        return Ok(Weights::load(shipped)?);
+    }
+    Ok(Weights::random(&SsrConfig::default(), 0)?)
+}
+
+/// A progress bar with the crate's style.
+fn progress(len: u64, what: &str) -> indicatif::ProgressBar {
+    let pb = indicatif::ProgressBar::new(len);
+    pb.set_style(
+        indicatif::ProgressStyle::with_template("{msg:>10} [{bar:40}] {pos}/{len} {per_sec} eta {eta}")
+            .expect("valid template")
+            .progress_chars("=> "),
+    );
+    pb.set_message(what.to_string());
+    pb
+}

@@ -1,0 +1,91 @@
+//! One frame of the per-frame data contract (DESIGN §3) in host memory.
+
+use crate::error::{Error, Result};
+use crate::nn::HostTensor;
+
+/// One frame of inputs in host memory, one [`HostTensor`] per buffer of DESIGN §3.
+#[derive(Debug, Clone, PartialEq)]
+pub struct HostFrame {
+    /// Traced radiance (3).
+    pub color: HostTensor,
+    /// 1 where traced (1).
+    pub mask: HostTensor,
+    /// Albedo (3).
+    pub albedo: HostTensor,
+    /// Normal (3).
+    pub normal: HostTensor,
+    /// NEE shadow (3).
+    pub shadow: HostTensor,
+    /// Transparent tint (3).
+    pub transparent: HostTensor,
+    /// Normalised depth (1).
+    pub depth: HostTensor,
+    /// Metallic (1).
+    pub metallic: HostTensor,
+    /// Roughness (1).
+    pub roughness: HostTensor,
+    /// Motion in pixels (2).
+    pub motion: HostTensor,
+}
+
+impl HostFrame {
+    /// `(name, tensor, expected channels)` of every buffer.
+    pub fn fields(&self) -> [(&'static str, &HostTensor, u32); 10] {
+        [
+            ("color", &self.color, 3),
+            ("mask", &self.mask, 1),
+            ("albedo", &self.albedo, 3),
+            ("normal", &self.normal, 3),
+            ("shadow", &self.shadow, 3),
+            ("transparent", &self.transparent, 3),
+            ("depth", &self.depth, 1),
+            ("metallic", &self.metallic, 1),
+            ("roughness", &self.roughness, 1),
+            ("motion", &self.motion, 2),
+        ]
+    }
+
+    /// Width and height, after checking every buffer has them and the right channels.
+    pub fn size(&self) -> Result<(u32, u32)> {
+        let (w, h) = (self.color.width, self.color.height);
+        for (name, t, c) in self.fields() {
+            if (t.width, t.height, t.channels) != (w, h, c) {
+                return Err(Error::shape(
+                    "frame",
+                    format!(
+                        "buffer '{name}' is {}x{}x{}, expected {w}x{h}x{c}",
+                        t.width, t.height, t.channels
+                    ),
+                ));
+            }
+        }
+        Ok((w, h))
+    }
+
+    /// The six packed `vec4` buffers of [`FrameInputs`], in its field order.
+    pub fn pack(&self) -> Result<[Vec<[f32; 4]>; 6]> {
+        let (w, h) = self.size()?;
+        let n = (w * h) as usize;
+        let mut out: [Vec<[f32; 4]>; 6] = Default::default();
+        for v in out.iter_mut() {
+            v.resize(n, [0.0; 4]);
+        }
+        let put = |dst: &mut Vec<[f32; 4]>, t: &HostTensor, at: usize| {
+            let c = t.channels as usize;
+            for (px, src) in dst.iter_mut().zip(t.data.chunks_exact(c)) {
+                px[at..at + c].copy_from_slice(src);
+            }
+        };
+        put(&mut out[0], &self.color, 0);
+        put(&mut out[0], &self.mask, 3);
+        put(&mut out[1], &self.albedo, 0);
+        put(&mut out[1], &self.depth, 3);
+        put(&mut out[2], &self.normal, 0);
+        put(&mut out[2], &self.metallic, 3);
+        put(&mut out[3], &self.shadow, 0);
+        put(&mut out[3], &self.roughness, 3);
+        put(&mut out[4], &self.transparent, 0);
+        put(&mut out[5], &self.motion, 0);
+        Ok(out)
+    }
+}

@@ -1,0 +1,277 @@
+//! One multi-channel f32 EXR per frame, channels named `buffer.C` (DESIGN §3, §6):
+//! `color.R color.G color.B mask.Y albedo.R.. normal.X normal.Y normal.Z shadow.R..
+//! transparent.R.. depth.Y metallic.Y roughness.Y motion.X motion.Y`, plus optional
+//! `reference.R..` (the N-spp reference) and `pred.R..` (a denoised prediction).
+
+use std::collections::HashMap;
+use std::path::Path;
+
+use exr::prelude::*;
+
+use crate::error::{Error, Result};
+use crate::frame::HostFrame;
+use crate::nn::HostTensor;
+
+/// Channel suffixes of a buffer with `c` channels named `name`.
+pub fn suffixes(name: &str, c: u32) -> &'static [&'static str] {
+    match (name, c) {
+        ("normal", 3) => &["X", "Y", "Z"],
+        ("motion", 2) => &["X", "Y"],
+        (_, 3) => &["R", "G", "B"],
+        (_, 1) => &["Y"],
+        (_, 2) => &["X", "Y"],
+        _ => &["R", "G", "B", "A"],
+    }
+}
+
+/// Everything one frame file may hold.
+#[derive(Debug, Clone, PartialEq, Default)]
+pub struct FrameFile {
+    /// The renderer's buffers, when present.
+    pub frame: Option<HostFrame>,
+    /// The reference image (`reference.*`), when present.
+    pub reference: Option<HostTensor>,
+    /// A prediction (`pred.*`), when present.
+    pub pred: Option<HostTensor>,
+}
+
+/// Writes named HWC tensors of one size as f32 channels `name.SUFFIX`.
+pub fn write_tensors(path: &Path, tensors: &[(&str, &HostTensor)]) -> Result<()> {
+    let err = |m: String| Error::File {
+        path: path.to_path_buf(),
+        message: m,
+    };
+    let Some((_, first)) = tensors.first() else {
+        return Err(err("nothing to write".into()));
+    };
+    let (w, h) = (first.width as usize, first.height as usize);
+    let mut channels = Vec::new();
+    for (name, t) in tensors {
+        if (t.width as usize, t.height as usize) != (w, h) {
+            return Err(err(format!(
+                "tensor '{name}' is {}x{}, the image is {w}x{h}",
+                t.width, t.height
+            )));
+        }
+        for (c, suffix) in suffixes(name, t.channels)
+            .iter()
+            .enumerate()
+            .take(t.channels as usize)
+        {
+            let samples: Vec<f32> = (0..w * h).map(|i| t.data[i * t.channels as usize + c]).collect();
+            channels.push(AnyChannel::new(
+                format!("{name}.{suffix}").as_str(),
+                FlatSamples::F32(samples),
+            ));
+        }
+    }
+    let layer = Layer::new(
+        (w, h),
+        LayerAttributes::default(),
+        Encoding::FAST_LOSSLESS,
+        AnyChannels::sort(SmallVec::from_vec(channels)),
+    );
+    Image::from_layer(layer)
+        .write()
+        .to_file(path)
+        .map_err(|e| err(format!("cannot write EXR: {e}")))
+}
+
+/// Reads every channel of an EXR: `(width, height, name -> samples)`.
+pub fn read_channels(path: &Path) -> Result<(u32, u32, HashMap<String, Vec<f32>>)> {
+    let err = |m: String| Error::File {
+        path: path.to_path_buf(),
+        message: m,
+    };
+    let image = read()
+        .no_deep_data()
+        .largest_resolution_level()
+        .all_channels()
+        .first_valid_layer()
+        .all_attributes()
+        .from_file(path)
+        .map_err(|e| err(format!("cannot read EXR: {e}")))?;
+    let layer = image.layer_data;
+    let size = layer.size;
+    let mut out = HashMap::new();
+    for ch in layer.channel_data.list {
+        out.insert(ch.name.to_string(), ch.sample_data.values_as_f32().collect());
+    }
+    Ok((size.0 as u32, size.1 as u32, out))
+}
+
+/// Gathers channels `name.SUFFIX` into a tensor; `None` when none of them exists, an error
+/// naming the file and the channel when only some do.
+pub fn gather(
+    path: &Path,
+    w: u32,
+    h: u32,
+    chans: &HashMap<String, Vec<f32>>,
+    name: &str,
+    c: u32,
+) -> Result<Option<HostTensor>> {
+    let names: Vec<String> = suffixes(name, c)
+        .iter()
+        .take(c as usize)
+        .map(|s| format!("{name}.{s}"))
+        .collect();
+    if names.iter().all(|n| !chans.contains_key(n)) {
+        return Ok(None);
+    }
+    let mut t = HostTensor::zeros(w, h, c);
+    for (ci, n) in names.iter().enumerate() {
+        let src = chans.get(n).ok_or_else(|| Error::File {
+            path: path.to_path_buf(),
+            message: format!("channel '{n}' is missing (found {})", sorted_names(chans)),
+        })?;
+        for (i, v) in src.iter().enumerate().take((w * h) as usize) {
+            t.data[i * c as usize + ci] = *v;
+        }
+    }
+    Ok(Some(t))
+}
+
+fn sorted_names(chans: &HashMap<String, Vec<f32>>) -> String {
+    let mut v: Vec<&str> = chans.keys().map(|s| s.as_str()).collect();
+    v.sort();
+    v.join(" ")
+}
+
+/// Writes a frame file.
+pub fn write_frame(path: &Path, f: &FrameFile) -> Result<()> {
+    let mut tensors: Vec<(&str, &HostTensor)> = Vec::new();
+    if let Some(frame) = &f.frame {
+        frame.size()?;
+        tensors.extend(frame.fields().iter().map(|(n, t, _)| (*n, *t)));
+    }
+    if let Some(r) = &f.reference {
+        tensors.push(("reference", r));
+    }
+    if let Some(p) = &f.pred {
+        tensors.push(("pred", p));
+    }
+    write_tensors(path, &tensors)
+}
+
+/// Reads a frame file. The renderer's buffers are all-or-nothing: a file with some of
+/// them is an error naming the first missing channel.
+pub fn read_frame(path: &Path) -> Result<FrameFile> {
+    let (w, h, chans) = read_channels(path)?;
+    let get = |name: &str, c: u32| gather(path, w, h, &chans, name, c);
+    let reference = get("reference", 3)?;
+    let pred = get("pred", 3)?;
+    let names = [
+        "color",
+        "mask",
+        "albedo",
+        "normal",
+        "shadow",
+        "transparent",
+        "depth",
+        "metallic",
+        "roughness",
+        "motion",
+    ];
+    let channels = [3, 1, 3, 3, 3, 3, 1, 1, 1, 2];
+    let mut parts = Vec::new();
+    for (n, c) in names.iter().zip(channels) {
+        parts.push(get(n, c)?);
+    }
+    let frame = if parts.iter().all(|p| p.is_none()) {
+        None
+    } else {
+        if let Some(i) = parts.iter().position(|p| p.is_none()) {
+            let first = format!("{}.{}", names[i], suffixes(names[i], channels[i])[0]);
+            return Err(Error::File {
+                path: path.to_path_buf(),
+                message: format!("channel '{first}' is missing (found {})", sorted_names(&chans)),
+            });
+        }
+        let mut it = parts.into_iter().map(|p| p.expect("checked above"));
+        let mut next = || it.next().expect("ten buffers");
+        Some(HostFrame {
+            color: next(),
+            mask: next(),
+            albedo: next(),
+            normal: next(),
+            shadow: next(),
+            transparent: next(),
+            depth: next(),
+            metallic: next(),
+            roughness: next(),
+            motion: next(),
+        })
+    };
+    Ok(FrameFile {
+        frame,
+        reference,
+        pred,
+    })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn frame(w: u32, h: u32) -> HostFrame {
+        let t =
+            |c, k: f32| HostTensor::from_fn(w, h, c, |x, y, ch| k * (x as f32 + 10.0 * y as f32) + ch as f32);
+        HostFrame {
+            color: t(3, 1.5),
+            mask: t(1, 0.0),
+            albedo: t(3, 0.01),
+            normal: t(3, -0.02),
+            shadow: t(3, 3.0),
+            transparent: t(3, 0.0),
+            depth: t(1, 0.001),
+            metallic: t(1, 0.5),
+            roughness: t(1, 0.25),
+            motion: t(2, -0.123_456_7),
+        }
+    }
+
+    #[test]
+    fn frame_round_trip_is_exact() {
+        let dir = std::env::temp_dir().join(format!("subpixel-exr-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let path = dir.join("frame_0000.exr");
+        let f = FrameFile {
+            frame: Some(frame(7, 5)),
+            reference: Some(HostTensor::from_fn(7, 5, 3, |x, _, c| x as f32 * 1e3 + c as f32)),
+            pred: None,
+        };
+        write_frame(&path, &f).unwrap();
+        assert_eq!(read_frame(&path).unwrap(), f);
+        // Only a prediction.
+        let p = FrameFile {
+            pred: Some(HostTensor::from_fn(7, 5, 3, |x, y, c| (x * y + c) as f32)),
+            ..Default::default()
+        };
+        write_frame(&path, &p).unwrap();
+        assert_eq!(read_frame(&path).unwrap(), p);
+        std::fs::remove_dir_all(&dir).ok();
+    }
+
+    #[test]
+    fn missing_channels_are_named() {
+        let dir = std::env::temp_dir().join(format!("subpixel-exr-missing-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let path = dir.join("frame_0001.exr");
+        let f = frame(4, 4);
+        let fields = f.fields();
+        let partial: Vec<(&str, &HostTensor)> = fields
+            .iter()
+            .filter(|(n, _, _)| *n != "motion")
+            .map(|(n, t, _)| (*n, *t))
+            .collect();
+        write_tensors(&path, &partial).unwrap();
+        let e = read_frame(&path).unwrap_err().to_string();
+        assert!(
+            e.contains("frame_0001.exr") && e.contains("'motion.X' is missing"),
+            "{e}"
+        );
+        let e = read_frame(&dir.join("nope.exr")).unwrap_err().to_string();
+        assert!(e.contains("nope.exr") && e.contains("cannot read EXR"), "{e}");
+        std::fs::remove_dir_all(&dir).ok();
+    }
+}

@@ -1,0 +1,194 @@
+//! The `subpixel` binary end to end on tiny data: denoise a folder, score it, and the
+//! errors a user sees for bad input.
+
+use std::path::{Path, PathBuf};
+use std::process::Command;
+
+use subpixel::io::exr::{FrameFile, read_frame, write_frame};
+use subpixel::nn::HostTensor;
+use subpixel::ssr::HostFrame;
+
+fn bin() -> Command {
+    Command::new(env!("CARGO_BIN_EXE_subpixel"))
+}
+
+fn tmp(name: &str) -> PathBuf {
+    let d = std::env::temp_dir().join(format!("subpixel-cli-{name}-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&d);
+    std::fs::create_dir_all(&d).unwrap();
+    d
+}
+
+fn data(name: &str) -> PathBuf {
+    PathBuf::from(env!("CARGO_MANIFEST_DIR"))
+        .join("tests/data")
+        .join(name)
+}
+
+/// The golden frames as a frame folder, with the PyTorch output as the "reference".
+fn golden_folder(dir: &Path) {
+    for i in 0..3 {
+        let bytes = std::fs::read(data(&format!("golden_frame{i}.safetensors"))).unwrap();
+        let st = safetensors::SafeTensors::deserialize(&bytes).unwrap();
+        let t = |n: &str| {
+            let v = st.tensor(n).unwrap();
+            let s = v.shape();
+            let vals = v
+                .data()
+                .chunks_exact(4)
+                .map(|b| f32::from_le_bytes([b[0], b[1], b[2], b[3]]))
+                .collect();
+            HostTensor::from_vec(s[1] as u32, s[0] as u32, s[2] as u32, vals)
+        };
+        let frame = HostFrame {
+            color: t("color"),
+            mask: t("mask"),
+            albedo: t("albedo"),
+            normal: t("normal"),
+            shadow: t("shadow"),
+            transparent: t("transparent"),
+            depth: t("depth"),
+            metallic: t("metallic"),
+            roughness: t("roughness"),
+            motion: t("motion"),
+        };
+        let f = FrameFile {
+            frame: Some(frame),
+            reference: Some(t("output")),
+            pred: None,
+        };
+        write_frame(&dir.join(format!("frame_{i:04}.exr")), &f).unwrap();
+    }
+}
+
+#[test]
+fn denoise_then_eval_a_frame_folder() {
+    let input = tmp("in");
+    let out = tmp("out");
+    golden_folder(&input);
+    let o = bin()
+        .args(["denoise", "--weights"])
+        .arg(data("golden_weights.safetensors"))
+        .arg("--input")
+        .arg(&input)
+        .arg("--out")
+        .arg(&out)
+        .arg("--png")
+        .output()
+        .unwrap();
+    let stderr = String::from_utf8_lossy(&o.stderr);
+    assert!(o.status.success(), "{stderr}");
+    assert!(
+        stderr.contains("random test weights"),
+        "random weights must be flagged: {stderr}"
+    );
+    for i in 0..3 {
+        let f = read_frame(&out.join(format!("frame_{i:04}.exr"))).unwrap();
+        assert_eq!(f.pred.unwrap().width, 40);
+        let png = image::open(out.join(format!("frame_{i:04}.png"))).unwrap();
+        assert_eq!((png.width(), png.height()), (120, 24), "input | SSR | reference");
+    }
+    // The reference is PyTorch's output for the same weights: near-perfect scores.
+    let o = bin()
+        .args(["eval", "--json", "--pred"])
+        .arg(&out)
+        .arg("--ref")
+        .arg(&input)
+        .output()
+        .unwrap();
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let v: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
+    assert_eq!(v["frames"], 3);
+    assert!(v["psnr"].as_f64().unwrap() > 50.0, "{v}");
+    assert!(v["ssim"].as_f64().unwrap() > 0.999, "{v}");
+    assert!(v["temporal"].as_f64().unwrap() < 1e-3, "{v}");
+    // Scoring the input against the same reference is much worse.
+    std::fs::remove_dir_all(&input).ok();
+    std::fs::remove_dir_all(&out).ok();
+}
+
+#[test]
+fn bad_input_gives_clear_errors() {
+    let input = tmp("bad");
+    golden_folder(&input);
+    std::fs::remove_file(input.join("frame_0001.exr")).unwrap();
+    let o = bin()
+        .args(["denoise", "--weights"])
+        .arg(data("golden_weights.safetensors"))
+        .arg("--input")
+        .arg(&input)
+        .arg("--out")
+        .arg(input.join("out"))
+        .output()
+        .unwrap();
+    let stderr = String::from_utf8_lossy(&o.stderr);
+    assert!(!o.status.success());
+    assert!(stderr.contains("frame_0001.exr is missing"), "{stderr}");
+    let o = bin()
+        .args(["denoise", "--weights", "/nonexistent.safetensors", "--input"])
+        .arg(&input)
+        .args(["--out", "/tmp/x"])
+        .output()
+        .unwrap();
+    assert!(String::from_utf8_lossy(&o.stderr).contains("/nonexistent.safetensors"));
+    std::fs::remove_dir_all(&input).ok();
+}
+
+#[test]
+fn bench_kernels_prints_a_table() {
+    let o = bin()
+        .args([
+            "bench",
+            "kernels",
+            "--width",
+            "16",
+            "--height",
+            "16",
+            "--channels",
+            "8",
+            "--iterations",
+            "2",
+        ])
+        .output()
+        .unwrap();
+    let out = String::from_utf8_lossy(&o.stdout);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    for k in [
+        "conv3x3 8->8",
+        "pool2x2 max",
+        "upsample2x bilinear",
+        "tfa_blend",
+        "warp",
+        "demodulate",
+        "GFLOP/s",
+    ] {
+        assert!(out.contains(k), "missing {k} in\n{out}");
+    }
+}
+
+#[test]
+fn bench_denoise_prints_per_layer_flops() {
+    let o = bin()
+        .args([
+            "bench", "denoise", "--width", "16", "--height", "12", "--frames", "2", "--warmup", "1", "--json",
+        ])
+        .output()
+        .unwrap();
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let v: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
+    let layers = v["layers"].as_array().unwrap();
+    assert!(
+        layers
+            .iter()
+            .any(|l| l["name"] == "unet.enc1.0" && l["flops"].as_u64().unwrap() > 0)
+    );
+    let stages: Vec<&str> = v["stages"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|s| s["name"].as_str().unwrap())
+        .collect();
+    assert_eq!(stages, ["pack", "tfa", "unet", "output"]);
+    let fpp = v["flops_per_pixel"].as_f64().unwrap();
+    assert!(fpp > 40_000.0 && fpp <= 50_000.0, "{fpp}");
+}
