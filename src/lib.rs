@@ -19,5 +19,6 @@ pub mod io;
 pub mod metrics;
 pub mod nn;
 pub mod ssr;
+pub mod view;
 
 pub use error::{Error, Result};

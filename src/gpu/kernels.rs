@@ -39,6 +39,7 @@ pub const KERNELS: &[KernelSource] = &[
     kernel!("nn/remodulate"),
     kernel!("ssr/pack_inputs"),
     kernel!("ssr/store_output"),
+    kernel!("view/display"),
 ];
 
 /// Looks a kernel up by name.
@@ -341,7 +342,11 @@ mod tests {
     /// layout) as in Rust.
     #[test]
     fn param_struct_sizes_match_naga() {
-        for (name, rust_size) in crate::nn::ops::PARAM_SIZES.iter().chain(crate::ssr::PARAM_SIZES) {
+        for (name, rust_size) in crate::nn::ops::PARAM_SIZES
+            .iter()
+            .chain(crate::ssr::PARAM_SIZES)
+            .chain(crate::view::PARAM_SIZES)
+        {
             let k = kernel_source(name).unwrap();
             let module = validate_wgsl(k.name, k.source).unwrap();
             let mut layouter = naga::proc::Layouter::default();

@@ -1,0 +1,314 @@
+//! Showing tensors on screen: tonemapping, channel views, split screen and a bitmap-font
+//! text overlay, written by one compute kernel into an `rgba8unorm` texture that a viewer
+//! blits to its surface (or saves as a screenshot).
+
+use bytemuck::{Pod, Zeroable};
+
+use crate::error::{Error, Result};
+use crate::gpu::{Gpu, Specialisation};
+use crate::nn::{HostTensor, Tensor};
+
+/// How source values become display colours.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum DisplayMode {
+    /// Linear HDR radiance, filmic tonemap + gamma 2.2 (as [`crate::metrics::tonemap`]).
+    Radiance,
+    /// Signed values: `v * scale` in [-1, 1] shown as [0, 1] (normals, motion).
+    Signed(f32),
+    /// Values clamped to [0, 1] (albedo, depth, masks).
+    Unit,
+}
+
+/// What to show.
+#[derive(Debug, Clone, PartialEq)]
+pub struct View {
+    /// Colour mapping.
+    pub mode: DisplayMode,
+    /// First source channel shown.
+    pub first: u32,
+    /// Channels shown: 1 (grey), 2 (red-green) or 3 (rgb).
+    pub channels: u32,
+    /// Output column where the second source starts (split screen), if any.
+    pub split_x: Option<u32>,
+    /// Overlay text lines (ASCII; others show as `?`).
+    pub text: Vec<String>,
+    /// Glyph scale (8 px glyphs times this).
+    pub text_scale: u32,
+}
+
+impl Default for View {
+    fn default() -> Self {
+        Self {
+            mode: DisplayMode::Radiance,
+            first: 0,
+            channels: 3,
+            split_x: None,
+            text: Vec::new(),
+            text_scale: 2,
+        }
+    }
+}
+
+#[repr(C)]
+#[derive(Clone, Copy, Pod, Zeroable)]
+struct Params {
+    out_w: u32,
+    out_h: u32,
+    src_w: u32,
+    src_h: u32,
+    mode: u32,
+    first: u32,
+    channels: u32,
+    c4_a: u32,
+    c4_b: u32,
+    split_x: u32,
+    text_cols: u32,
+    text_rows: u32,
+    text_scale: u32,
+    scale_b: f32,
+    _pad: [u32; 2],
+}
+
+/// Size of the kernel's uniform `Params`, for the naga layout test.
+pub const PARAM_SIZES: &[(&str, usize)] = &[("view/display", std::mem::size_of::<Params>())];
+
+/// The 8x8 font packed as the kernel reads it: per glyph, rows 0-3 then 4-7, 8 bits a row
+/// with bit 0 the leftmost pixel.
+fn font_words() -> Vec<u32> {
+    font8x8::legacy::BASIC_LEGACY
+        .iter()
+        .flat_map(|g| {
+            [
+                u32::from_le_bytes([g[0], g[1], g[2], g[3]]),
+                u32::from_le_bytes([g[4], g[5], g[6], g[7]]),
+            ]
+        })
+        .collect()
+}
+
+fn text_grid(lines: &[String]) -> (u32, u32, Vec<u32>) {
+    let cols = lines.iter().map(|l| l.chars().count()).max().unwrap_or(0) as u32;
+    let rows = lines.len() as u32;
+    let mut grid = vec![b' ' as u32; (cols * rows).max(1) as usize];
+    for (r, l) in lines.iter().enumerate() {
+        for (c, ch) in l.chars().enumerate() {
+            grid[r * cols as usize + c] = if ch.is_ascii() { ch as u32 } else { b'?' as u32 };
+        }
+    }
+    (cols, rows, grid)
+}
+
+/// The display target and its resources.
+pub struct Display {
+    gpu: Gpu,
+    font: wgpu::Buffer,
+    target: wgpu::Texture,
+    width: u32,
+    height: u32,
+}
+
+impl Display {
+    /// A `width x height` display target.
+    pub fn new(gpu: &Gpu, width: u32, height: u32) -> Result<Self> {
+        if width == 0 || height == 0 {
+            return Err(Error::shape(
+                "display",
+                format!("size {width}x{height} must be non-zero"),
+            ));
+        }
+        use wgpu::util::DeviceExt;
+        let font = gpu.device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
+            label: Some("subpixel.view.font"),
+            contents: bytemuck::cast_slice(&font_words()),
+            usage: wgpu::BufferUsages::STORAGE,
+        });
+        let target = gpu.device.create_texture(&wgpu::TextureDescriptor {
+            label: Some("subpixel.view.target"),
+            size: wgpu::Extent3d {
+                width,
+                height,
+                depth_or_array_layers: 1,
+            },
+            mip_level_count: 1,
+            sample_count: 1,
+            dimension: wgpu::TextureDimension::D2,
+            format: wgpu::TextureFormat::Rgba8Unorm,
+            usage: wgpu::TextureUsages::STORAGE_BINDING
+                | wgpu::TextureUsages::TEXTURE_BINDING
+                | wgpu::TextureUsages::COPY_SRC,
+            view_formats: &[],
+        });
+        Ok(Self {
+            gpu: gpu.clone(),
+            font,
+            target,
+            width,
+            height,
+        })
+    }
+
+    /// The `rgba8unorm` texture the display is drawn into.
+    pub fn texture(&self) -> &wgpu::Texture {
+        &self.target
+    }
+
+    /// Records drawing `a` (and `b` right of `view.split_x`) with the overlay.
+    pub fn draw(
+        &self,
+        encoder: &mut wgpu::CommandEncoder,
+        a: &Tensor,
+        b: Option<&Tensor>,
+        view: &View,
+    ) -> Result<()> {
+        let b = b.unwrap_or(a);
+        if (a.width, a.height) != (b.width, b.height) {
+            return Err(Error::shape("display", "split-screen sources differ in size"));
+        }
+        let need = view.first + view.channels.clamp(1, 3);
+        if need > a.channels.max(b.channels).div_ceil(4) * 4 || !(1..=3).contains(&view.channels) {
+            return Err(Error::shape(
+                "display",
+                format!(
+                    "view of channels {}..{need} of a {}-channel tensor",
+                    view.first, a.channels
+                ),
+            ));
+        }
+        let (cols, rows, grid) = text_grid(&view.text);
+        use wgpu::util::DeviceExt;
+        let text = self
+            .gpu
+            .device
+            .create_buffer_init(&wgpu::util::BufferInitDescriptor {
+                label: Some("subpixel.view.text"),
+                contents: bytemuck::cast_slice(&grid),
+                usage: wgpu::BufferUsages::STORAGE,
+            });
+        let (mode, scale_b) = match view.mode {
+            DisplayMode::Radiance => (0, 1.0),
+            DisplayMode::Signed(s) => (1, s),
+            DisplayMode::Unit => (2, 1.0),
+        };
+        let params = Params {
+            out_w: self.width,
+            out_h: self.height,
+            src_w: a.width,
+            src_h: a.height,
+            mode,
+            first: view.first,
+            channels: view.channels,
+            c4_a: a.c4(),
+            c4_b: b.c4(),
+            split_x: view.split_x.unwrap_or(u32::MAX),
+            text_cols: cols,
+            text_rows: rows,
+            text_scale: view.text_scale.max(1),
+            scale_b,
+            _pad: [0; 2],
+        };
+        let tv = self.target.create_view(&Default::default());
+        let d = self.gpu.kernels.dispatch_with(
+            "view/display",
+            &Specialisation::none(),
+            bytemuck::bytes_of(&params),
+            &[
+                a.buffer.as_entire_binding(),
+                b.buffer.as_entire_binding(),
+                text.as_entire_binding(),
+                self.font.as_entire_binding(),
+                wgpu::BindingResource::TextureView(&tv),
+            ],
+            [self.width.div_ceil(8), self.height.div_ceil(8), 1],
+        )?;
+        d.encode(encoder);
+        Ok(())
+    }
+
+    /// Reads the display back as an RGBA image (for screenshots).
+    pub fn read_rgba(&self) -> Result<image::RgbaImage> {
+        let bpr = (self.width * 4).div_ceil(256) * 256;
+        let buf = self.gpu.device.create_buffer(&wgpu::BufferDescriptor {
+            label: Some("subpixel.view.readback"),
+            size: (bpr * self.height) as u64,
+            usage: wgpu::BufferUsages::COPY_DST | wgpu::BufferUsages::COPY_SRC,
+            mapped_at_creation: false,
+        });
+        let mut enc = self.gpu.device.create_command_encoder(&Default::default());
+        enc.copy_texture_to_buffer(
+            self.target.as_image_copy(),
+            wgpu::TexelCopyBufferInfo {
+                buffer: &buf,
+                layout: wgpu::TexelCopyBufferLayout {
+                    offset: 0,
+                    bytes_per_row: Some(bpr),
+                    rows_per_image: None,
+                },
+            },
+            wgpu::Extent3d {
+                width: self.width,
+                height: self.height,
+                depth_or_array_layers: 1,
+            },
+        );
+        self.gpu.queue.submit([enc.finish()]);
+        let bytes = self.gpu.read_buffer(&buf, 0, buf.size())?;
+        let mut img = image::RgbaImage::new(self.width, self.height);
+        for y in 0..self.height {
+            let row = &bytes[(y * bpr) as usize..(y * bpr + self.width * 4) as usize];
+            for x in 0..self.width {
+                let i = (x * 4) as usize;
+                img.put_pixel(x, y, image::Rgba([row[i], row[i + 1], row[i + 2], row[i + 3]]));
+            }
+        }
+        Ok(img)
+    }
+}
+
+/// Scalar CPU reference of the display kernel: the 8-bit colour of output pixel (x, y).
+pub fn reference_pixel(
+    a: &HostTensor,
+    b: &HostTensor,
+    view: &View,
+    out_w: u32,
+    out_h: u32,
+    x: u32,
+    y: u32,
+) -> [u8; 3] {
+    let sx = (x * a.width / out_w).min(a.width - 1);
+    let sy = (y * a.height / out_h).min(a.height - 1);
+    let split = view.split_x.unwrap_or(u32::MAX);
+    let src = if x >= split { b } else { a };
+    let get = |c: u32| if c < src.channels { src.at(sx, sy, c) } else { 0.0 };
+    let mut v = [0.0f32; 3];
+    for (i, vi) in v.iter_mut().enumerate().take(view.channels.min(3) as usize) {
+        *vi = get(view.first + i as u32);
+    }
+    if view.channels == 1 {
+        v = [v[0]; 3];
+    }
+    let mut rgb = v.map(|c| match view.mode {
+        DisplayMode::Radiance => crate::metrics::tonemap(c),
+        DisplayMode::Signed(s) => (c * s * 0.5 + 0.5).clamp(0.0, 1.0),
+        DisplayMode::Unit => c.clamp(0.0, 1.0),
+    });
+    if split < out_w && x == split {
+        rgb = [1.0; 3];
+    }
+    let (cols, rows, grid) = text_grid(&view.text);
+    let cell = 8 * view.text_scale.max(1);
+    let (col, row) = (x / cell, y / cell);
+    if col < cols && row < rows {
+        let code = (grid[(row * cols + col) as usize] & 127) as usize;
+        let (gx, gy) = (
+            (x % cell) / view.text_scale.max(1),
+            (y % cell) / view.text_scale.max(1),
+        );
+        let on = (font8x8::legacy::BASIC_LEGACY[code][gy as usize] >> gx) & 1 == 1;
+        rgb = if on {
+            [1.0, 1.0, 0.6]
+        } else {
+            rgb.map(|c| c * 0.35)
+        };
+    }
+    rgb.map(|c| (c * 255.0).round() as u8)
+}

@@ -1,0 +1,80 @@
+//! The display kernel against its CPU reference: every mode, split screen and text overlay.
+
+mod common;
+
+use subpixel::nn::Tensor;
+use subpixel::view::{Display, DisplayMode, View, reference_pixel};
+
+#[test]
+fn display_matches_reference() {
+    let g = common::gpu();
+    let a = common::random(1, 13, 9, 15, -1.0, 4.0);
+    let b = common::random(2, 13, 9, 15, -1.0, 4.0);
+    let (ta, tb) = (
+        Tensor::from_host(&g, "a", &a).unwrap(),
+        Tensor::from_host(&g, "b", &b).unwrap(),
+    );
+    let (w, h) = (37, 21);
+    let disp = Display::new(&g, w, h).unwrap();
+    let views = [
+        View::default(),
+        View {
+            mode: DisplayMode::Signed(0.5),
+            first: 6,
+            channels: 3,
+            ..Default::default()
+        },
+        View {
+            mode: DisplayMode::Unit,
+            first: 12,
+            channels: 1,
+            split_x: Some(20),
+            ..Default::default()
+        },
+        View {
+            mode: DisplayMode::Signed(1.0),
+            first: 13,
+            channels: 2,
+            ..Default::default()
+        },
+        View {
+            text: vec!["FPS 60.0".into(), "tfa 1.2ms".into()],
+            text_scale: 1,
+            split_x: Some(5),
+            ..Default::default()
+        },
+    ];
+    for (i, v) in views.iter().enumerate() {
+        let mut enc = g.device.create_command_encoder(&Default::default());
+        disp.draw(&mut enc, &ta, Some(&tb), v).unwrap();
+        g.queue.submit([enc.finish()]);
+        let img = disp.read_rgba().unwrap();
+        for y in 0..h {
+            for x in 0..w {
+                let want = reference_pixel(&a, &b, v, w, h, x, y);
+                let got = img.get_pixel(x, y).0;
+                for c in 0..3 {
+                    // One 8-bit step: pow/exp differ in the last ulp between GPU and CPU.
+                    assert!(
+                        (got[c] as i32 - want[c] as i32).abs() <= 1,
+                        "view {i} at ({x},{y}) ch {c}: gpu {got:?} cpu {want:?}"
+                    );
+                }
+                assert_eq!(got[3], 255);
+            }
+        }
+    }
+    // Asking for channels the tensor does not have is an error, not garbage.
+    let mut enc = g.device.create_command_encoder(&Default::default());
+    let bad = View {
+        first: 15,
+        channels: 3,
+        ..Default::default()
+    };
+    assert!(
+        disp.draw(&mut enc, &ta, None, &bad)
+            .unwrap_err()
+            .to_string()
+            .contains("channels 15..18")
+    );
+}
