@@ -411,3 +411,20 @@ fn large_images_fit_the_dispatch_limits() {
     let d = ops::pool2x2(&g, PoolMode::Max, &x, &out).unwrap();
     assert_eq!(d.groups, [128, 64, 1]);
 }
+
+#[test]
+fn missing_feature_is_a_named_error() {
+    let g = gpu();
+    // Never requested by the crate, so no device has it.
+    let e = g
+        .require(
+            wgpu::Features::TEXTURE_COMPRESSION_BC,
+            "a BC-compressed texture path",
+        )
+        .unwrap_err()
+        .to_string();
+    assert!(
+        e.contains("a BC-compressed texture path") && e.contains(&g.info.name),
+        "{e}"
+    );
+}
