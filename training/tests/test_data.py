@@ -1,0 +1,231 @@
+import json
+import os
+import shutil
+
+import numpy as np
+import pytest
+import torch
+
+from ssr.data import (
+    EXR_CHANNELS,
+    DatasetError,
+    SequenceDataset,
+    WindowKey,
+    WindowSampler,
+    check_dataset,
+    collate,
+    effective_crop,
+    flip_frame,
+    pad_frame,
+    read_exr,
+    to_frame,
+    write_exr,
+)
+from ssr.model import FRAME_CHANNELS, warp
+from ssr.synth import make_sequence, write_sequence
+
+from conftest import DATASET_FRAMES, DATASET_SIZE
+
+
+def source(ds, key_seq, t):
+    """The synthetic frame as written (dict of CHW arrays), regenerated from its seed."""
+    s = ds.sequences[key_seq]
+    return make_sequence(s.width, s.height, s.frames, s.meta["seed"], scene_seed=0)[t]
+
+
+def test_exr_roundtrip(tmp_path):
+    rng = np.random.default_rng(0)
+    bufs = {"color": rng.normal(size=(3, 5, 7)).astype(np.float32), "mask": rng.random((1, 5, 7)).astype(np.float32)}
+    p = str(tmp_path / "a.exr")
+    write_exr(p, bufs)
+    arr = read_exr(p, ["color.R", "color.G", "color.B", "mask.Y"])
+    assert arr.shape == (5, 7, 4) and arr.dtype == np.float32
+    np.testing.assert_array_equal(arr[..., :3].transpose(2, 0, 1), bufs["color"])
+    np.testing.assert_array_equal(arr[..., 3], bufs["mask"][0])
+    assert len(EXR_CHANNELS) == 24 and EXR_CHANNELS[0] == "color.R" and EXR_CHANNELS[-1] == "reference.B"
+
+
+def test_windows_and_items(dataset):
+    ds = SequenceDataset(dataset, "train", crop=None, flips=False)
+    assert len(ds.sequences) == 2
+    assert len(ds) == 2 * (DATASET_FRAMES - 5 + 1)
+    item = ds[1]  # sequence 0, window starting at frame 1, whole frame
+    assert len(item) == 5
+    for t, f in enumerate(item):
+        assert set(f) == set(FRAME_CHANNELS) | {"reference"}
+        for k, c in FRAME_CHANNELS.items():
+            assert f[k].shape == (c, DATASET_SIZE, DATASET_SIZE) and f[k].dtype == torch.float32
+        src = source(ds, 0, t + 1)
+        for k in f:
+            np.testing.assert_array_equal(f[k].numpy(), src[k], err_msg=k)
+
+
+def test_crop_and_flips_match_source(dataset):
+    ds = SequenceDataset(dataset, "train", crop=16)
+    assert ds.crop_hw == (16, 16)
+    src = source(ds, 1, 1)
+    for hf in (False, True):
+        for vf in (False, True):
+            f = ds[WindowKey(1, 1, 4, 10, hf, vf)][0]
+            for k, v in f.items():
+                want = src[k][:, 4:20, 10:26]
+                if hf:
+                    want = want[:, :, ::-1]
+                if vf:
+                    want = want[:, ::-1, :]
+                if k == "motion":
+                    want = want * np.array([-1.0 if hf else 1.0, -1.0 if vf else 1.0], np.float32)[:, None, None]
+                np.testing.assert_array_equal(v.numpy(), want, err_msg=f"{k} h={hf} v={vf}")
+
+
+def test_flip_motion_sign_commutes_with_warp():
+    # warp(flip(src), flip(motion)) == flip(warp(src, motion)): the sign convention is right.
+    g = torch.Generator().manual_seed(0)
+    src = torch.rand(1, 3, 16, 20, generator=g)
+    motion = (torch.rand(1, 2, 16, 20, generator=g) - 0.5) * 3.0
+    ref, ref_valid = warp(src, motion)
+    for hf, vf in ((True, False), (False, True), (True, True)):
+        fl = flip_frame({"s": src, "motion": motion}, hf, vf)
+        out, valid = warp(fl["s"], fl["motion"])
+        back = flip_frame({"s": out, "v": valid}, hf, vf)
+        both = (back["v"] > 0) & (ref_valid > 0)
+        assert both.float().mean() > 0.6
+        torch.testing.assert_close(back["s"] * both, ref * both, atol=1e-5, rtol=0)
+    # a wrong sign does not commute
+    bad = flip_frame({"s": src}, True, False)
+    out, valid = warp(bad["s"], motion)
+    back = flip_frame({"s": out}, True, False)["s"]
+    assert (back - ref).abs().max() > 0.1
+
+
+def test_sampler_keys(dataset):
+    ds = SequenceDataset(dataset, "train", crop=16)
+    s0 = WindowSampler(ds, 4, 0, 3, seed=7, rank=0)
+    batches = list(s0)
+    assert len(batches) == 3 and all(len(b) == 4 for b in batches)
+    # a resumed sampler gives the same keys for the same iterations; another rank others
+    assert list(WindowSampler(ds, 4, 1, 3, seed=7, rank=0)) == batches[1:]
+    assert WindowSampler(ds, 4, 0, 1, seed=7, rank=1).keys(0) != batches[0]
+    keys = [k for b in WindowSampler(ds, 8, 0, 20, seed=1) for k in b]
+    assert {k.hflip for k in keys} == {False, True} and {k.vflip for k in keys} == {False, True}
+    assert {k.seq for k in keys} == {0, 1}
+    for k in keys:
+        assert k.x0 % 2 == 0 and k.y0 % 2 == 0
+        assert 0 <= k.x0 <= DATASET_SIZE - 16 and 0 <= k.y0 <= DATASET_SIZE - 16
+        assert 0 <= k.start <= DATASET_FRAMES - 5
+    noflip = SequenceDataset(dataset, "train", crop=16, flips=False)
+    assert not any(k.hflip or k.vflip for b in WindowSampler(noflip, 8, 0, 5) for k in b)
+
+
+def test_dataloader_collate_and_caches(dataset, tmp_path):
+    ds = SequenceDataset(dataset, "train", crop=16)
+    loader = torch.utils.data.DataLoader(ds, batch_sampler=WindowSampler(ds, 3, 0, 2, seed=2), collate_fn=collate)
+    batches = list(loader)
+    assert len(batches) == 2
+    b = batches[0]
+    assert len(b) == 5 and b[0]["color"].shape == (3, 3, 16, 16) and b[4]["motion"].shape == (3, 2, 16, 16)
+    keys = WindowSampler(ds, 3, 0, 1, seed=2).keys(0)
+    for cache in ("memory", "disk"):
+        dc = SequenceDataset(dataset, "train", crop=16, cache=cache, cache_dir=str(tmp_path / "cache"))
+        for _ in range(2):  # second pass: from the cache
+            got = collate([dc[k] for k in keys])
+            for t in range(5):
+                for k in got[t]:
+                    torch.testing.assert_close(got[t][k], b[t][k], rtol=0, atol=0)
+    assert any(f.endswith(".npy") for _, _, fs in os.walk(tmp_path / "cache") for f in fs)
+
+
+def test_small_frames_use_the_whole_frame_cut_to_multiple_of_4(tmp_path):
+    root = str(tmp_path / "ds")
+    write_sequence(os.path.join(root, "train", "a"), "train", 0, 5, width=30, height=22, seed=1)
+    ds = SequenceDataset(root, "train", crop=256)
+    assert ds.crop_hw == (20, 28)
+    item = ds[WindowSampler(ds, 1, 0, 1).keys(0)[0]]
+    assert item[0]["color"].shape == (3, 20, 28)
+    with pytest.raises(ValueError, match="multiple of 4"):
+        effective_crop(ds.sequences, 30)
+
+
+def test_pad_frame_replicates_edges():
+    f = {"x": torch.arange(6.0).view(1, 1, 2, 3)}
+    p, (h, w) = pad_frame(f)
+    assert (h, w) == (2, 3) and p["x"].shape == (1, 1, 4, 4)
+    assert p["x"][0, 0, 3, 3] == 5.0 and p["x"][0, 0, 0, 3] == 2.0
+
+
+# ----------------------------------------------------------------------------- errors
+
+
+def make_seq(tmp_path, frames=5, size=8):
+    root = str(tmp_path / "ds")
+    folder = write_sequence(os.path.join(root, "train", "s0"), "train", 0, frames, size, size, seed=2)
+    return root, folder
+
+
+def test_missing_frame_is_named(tmp_path):
+    root, folder = make_seq(tmp_path)
+    os.remove(os.path.join(folder, "frame_0003.exr"))
+    with pytest.raises(DatasetError, match=r"frame_0003\.exr: missing frame"):
+        SequenceDataset(root, "train", crop=8)
+    assert any("frame_0003.exr" in p for p in check_dataset(root))
+
+
+def test_missing_channel_is_named(tmp_path):
+    root, folder = make_seq(tmp_path)
+    fr = make_sequence(8, 8, 5, 2)[2]
+    del fr["depth"]
+    write_exr(os.path.join(folder, "frame_0002.exr"), fr)
+    ds = SequenceDataset(root, "train", crop=8)
+    with pytest.raises(DatasetError, match=r"frame_0002\.exr: missing channel\(s\) \['depth\.Y'\]"):
+        ds[0]
+    assert any("frame_0002.exr: missing channel" in p for p in check_dataset(root))
+
+
+def test_mismatched_size_is_named(tmp_path):
+    root, folder = make_seq(tmp_path)
+    write_exr(os.path.join(folder, "frame_0001.exr"), make_sequence(12, 8, 2, 2)[1])
+    ds = SequenceDataset(root, "train", crop=8)
+    with pytest.raises(DatasetError, match=r"frame_0001\.exr: frame is 12x8 but .*sequence\.json says 8x8"):
+        ds[0]
+    assert any("frame_0001.exr: frame is 12x8" in p for p in check_dataset(root))
+
+
+def test_bad_sequence_json(tmp_path):
+    root, folder = make_seq(tmp_path)
+    jp = os.path.join(folder, "sequence.json")
+    meta = json.load(open(jp))
+    del meta["width"]
+    json.dump(meta, open(jp, "w"))
+    with pytest.raises(DatasetError, match=r"sequence\.json: missing key\(s\) \['width'\]"):
+        SequenceDataset(root, "train")
+    meta["width"] = 8
+    meta["split"] = "test"
+    json.dump(meta, open(jp, "w"))
+    with pytest.raises(DatasetError, match="split"):
+        SequenceDataset(root, "train")
+    os.remove(jp)
+    with pytest.raises(DatasetError, match="missing sequence.json"):
+        SequenceDataset(root, "train")
+    with pytest.raises(DatasetError, match="no such split"):
+        SequenceDataset(root, "val")
+
+
+def test_short_sequence_and_unknown_scene(tmp_path):
+    root, _ = make_seq(tmp_path, frames=3)
+    with pytest.raises(DatasetError, match="fewer than the window of 5"):
+        SequenceDataset(root, "train")
+    with pytest.raises(DatasetError, match=r"scene\(s\) \['nope'\]"):
+        SequenceDataset(root, "train", window=3, scenes=["nope"])
+
+
+def test_non_finite_values_are_sanitised_except_motion(tmp_path):
+    root, folder = make_seq(tmp_path)
+    fr = make_sequence(8, 8, 5, 2)[0]
+    fr["color"][0, 0, 0] = np.nan
+    fr["reference"][1, 1, 1] = np.inf
+    fr["motion"][0, 2, 2] = np.nan
+    write_exr(os.path.join(folder, "frame_0000.exr"), fr)
+    f = SequenceDataset(root, "train", crop=8, flips=False)[0][0]
+    assert f["color"][0, 0, 0] == 0 and f["reference"][1, 1, 1] == 0
+    assert torch.isnan(f["motion"][0, 2, 2])
+    assert torch.isfinite(to_frame(np.zeros((2, 2, 24), np.float32))["color"]).all()
