@@ -125,8 +125,10 @@ def test_gradients_flow_through_sequence(frames):
     for name, p in model.named_parameters():
         assert p.grad is not None and torch.isfinite(p.grad).all(), name
         if name == "tfa.emb.2.bias":
-            # b adds <b, R> to both s_cur and s_prev: it cancels in the softmax (a dead parameter)
-            assert torch.equal(p.grad, torch.zeros_like(p.grad))
+            # b adds <b, R> to both s_cur and s_prev: it cancels in the softmax (a dead parameter);
+            # its gradient is zero up to rounding (exactly zero only for some summation orders,
+            # i.e. thread counts)
+            assert p.grad.abs().max() < 1e-6
         else:
             assert p.grad.abs().sum() > 0, name
 

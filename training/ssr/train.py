@@ -1,0 +1,572 @@
+"""Training (DESIGN sections 4 and 6): SSR or a learned baseline on a `subpixel dataset` folder.
+
+    python -m ssr.train --data ROOT --out RUN_DIR [--model ssr|rae|nsrr] [--iters N]
+                        [--batch 8] [--crop 256] [--lr 1e-4] [--scenes S ...] [--resume]
+    torchrun --nproc_per_node G -m ssr.train ...          (DistributedDataParallel)
+
+* Loss: the five losses of losses.py with their weights over 5-frame windows (SSR:
+  losses.sequence_loss; baselines: the same total_loss, l_a on their own o and albedo).
+* Adam, lr halved at round(iters / 3) and round(2 iters / 3) (a pure function of the
+  iteration, so resuming needs no scheduler state).
+* Data: random windows, crops and flips from data.WindowSampler, seeded by (seed, rank,
+  iteration): a resumed run sees the batches an uninterrupted one would have seen.
+  --batch is the global batch; each of the WORLD_SIZE processes takes batch / WORLD_SIZE.
+* Checkpoints: RUN_DIR/checkpoint.pt (model, optimizer, iteration, config, every rank's RNG
+  states, wall time, validation history), written atomically every --ckpt-every iterations
+  and at the end. --resume continues from it; a checkpoint whose config differs (model,
+  widths, batch, crop, lr, iters, window, scenes, flips, seed) is an error naming the file
+  and the keys. Without --resume an existing checkpoint is an error (no silent overwrite).
+* Progress: a line every --log-every iterations (loss and its parts, lr, it/s, ETA) and the
+  validation metrics (PSNR/SSIM on tonemapped 8-bit images, metrics.py) on the val split
+  every --val-every iterations; the same as JSON lines in RUN_DIR/log.jsonl.
+* At the end: RUN_DIR/weights.safetensors with provenance (model, scenes, sequences,
+  iterations, hardware, wall time, ...) and the final validation metrics.
+
+Device: CUDA when available (else CPU), or --device. Under torchrun (env WORLD_SIZE > 1)
+each process uses cuda:LOCAL_RANK with NCCL, or the CPU with gloo.
+"""
+
+from __future__ import annotations
+
+import argparse
+import datetime
+import json
+import math
+import os
+import platform
+import random
+import subprocess
+import sys
+import time
+from typing import Dict, List, Optional, Sequence, Tuple
+
+import numpy as np
+import torch
+import torch.distributed as dist
+from torch import nn
+
+from . import losses
+from .baselines import build_model, export_model, loss_aux
+from .data import DatasetError, SequenceDataset, WindowSampler, collate, pad_frame
+from .metrics import image_metrics, mean_metrics
+from .model import SSRModel
+
+CHECKPOINT_FORMAT = "subpixel-train-checkpoint"
+CHECKPOINT_VERSION = 1
+CHECKPOINT_FILE = "checkpoint.pt"
+WEIGHTS_FILE = "weights.safetensors"
+
+
+class CheckpointError(ValueError):
+    """A checkpoint that cannot be resumed (other config, bad file): names the file."""
+
+
+# ----------------------------------------------------------------------------- arguments
+
+
+def parse_args(argv=None) -> argparse.Namespace:
+    ap = argparse.ArgumentParser(prog="python -m ssr.train", description="Train SSR (or a baseline) on a subpixel dataset.")
+    ap.add_argument("--data", required=True, help="dataset root: ROOT/{train,val,test}/SEQUENCE/")
+    ap.add_argument("--out", required=True, help="run folder (checkpoint, log, weights)")
+    ap.add_argument("--model", default="ssr", choices=["ssr", "rae", "nsrr"])
+    ap.add_argument("--model-config", default=None, help="JSON overriding the model's default config (e.g. widths)")
+    ap.add_argument("--iters", type=int, default=60000, help="training iterations (default 60000)")
+    ap.add_argument("--batch", type=int, default=8, help="global batch (split over torchrun processes)")
+    ap.add_argument("--crop", type=int, default=256, help="crop size, a multiple of 4")
+    ap.add_argument("--lr", type=float, default=1e-4)
+    ap.add_argument("--window", type=int, default=5, help="frames per training sequence")
+    ap.add_argument("--scenes", nargs="+", default=None, help="train (and validate) on these scenes only")
+    ap.add_argument("--no-flips", action="store_true", help="no random flips")
+    ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--resume", action="store_true", help="continue from RUN_DIR/checkpoint.pt")
+    ap.add_argument("--ckpt-every", type=int, default=1000)
+    ap.add_argument("--val-every", type=int, default=2000, help="0: only at the end")
+    ap.add_argument("--val-frames", type=int, default=16, help="frames per val sequence (from frame 0)")
+    ap.add_argument("--val-size", type=int, default=0, help="centre-crop val frames to at most this size (0: whole)")
+    ap.add_argument("--log-every", type=int, default=50)
+    ap.add_argument("--workers", type=int, default=4, help="DataLoader worker processes per GPU/process")
+    ap.add_argument("--cache", default="none", choices=["none", "memory", "disk"], help="frame cache (see ssr/data.py)")
+    ap.add_argument("--cache-mb", type=float, default=4096.0, help="memory cache size per process, MiB")
+    ap.add_argument("--cache-dir", default=None, help="disk cache folder (default ROOT/.cache)")
+    ap.add_argument("--device", default="auto", choices=["auto", "cuda", "cpu"])
+    ap.add_argument("--clip", type=float, default=0.0, help="clip the gradient norm (0: off)")
+    ap.add_argument("--stop-at", type=int, default=None, help="checkpoint and stop at this iteration (time-limited jobs)")
+    args = ap.parse_args(argv)
+    if args.iters <= 0:
+        ap.error("--iters must be positive")
+    if args.crop <= 0 or args.crop % 4:
+        ap.error(f"--crop must be a positive multiple of 4, got {args.crop}")
+    if args.window < 2:
+        ap.error("--window must be at least 2 (the warped temporal loss uses the last two frames)")
+    return args
+
+
+def run_config(args: argparse.Namespace) -> dict:
+    """The settings a checkpoint must share to be resumed (not paths, logging, workers, device)."""
+    model_cfg = json.loads(args.model_config) if args.model_config else {}
+    model = build_model(args.model, model_cfg)
+    cfg_dict = model.cfg.to_dict()
+    return {
+        "model": args.model,
+        "model_config": cfg_dict,
+        "iters": args.iters,
+        "batch": args.batch,
+        "crop": args.crop,
+        "lr": args.lr,
+        "window": args.window,
+        "scenes": sorted(args.scenes) if args.scenes else None,
+        "flips": not args.no_flips,
+        "seed": args.seed,
+        "clip": args.clip,
+        "frame_weights": list(frame_weights(args.window)),
+        "lambdas": dict(losses.LAMBDAS),
+    }
+
+
+def config_diff(saved: dict, current: dict) -> List[str]:
+    keys = sorted(set(saved) | set(current))
+    out = []
+    for k in keys:
+        a, b = saved.get(k, "<absent>"), current.get(k, "<absent>")
+        if a != b:
+            out.append(f"{k}: {json.dumps(a)} in the checkpoint, {json.dumps(b)} now")
+    return out
+
+
+def frame_weights(window: int) -> Tuple[float, ...]:
+    """FRAME_WEIGHTS for 5 frames; otherwise the last `window` of (…, 0.05, 0.25, 0.5, 0.75, 1)
+    extended with 0.05 at the front (a documented generalisation)."""
+    w = losses.FRAME_WEIGHTS
+    if window == len(w):
+        return tuple(w)
+    if window < len(w):
+        return tuple(w[-window:])
+    return (w[0],) * (window - len(w)) + tuple(w)
+
+
+def lr_at(base: float, iteration: int, iters: int) -> float:
+    """base, halved at round(iters / 3) and again at round(2 iters / 3)."""
+    m1, m2 = round(iters / 3), round(2 * iters / 3)
+    return base * 0.5 ** ((iteration >= m1) + (iteration >= m2))
+
+
+# ----------------------------------------------------------------------------- distributed
+
+
+class Dist:
+    def __init__(self, device_arg: str):
+        self.world = int(os.environ.get("WORLD_SIZE", "1"))
+        self.rank = int(os.environ.get("RANK", "0"))
+        self.local_rank = int(os.environ.get("LOCAL_RANK", "0"))
+        want_cuda = device_arg == "cuda" or (device_arg == "auto" and torch.cuda.is_available())
+        if want_cuda and not torch.cuda.is_available():
+            raise SystemExit("error: --device cuda but CUDA is not available")
+        if want_cuda:
+            torch.cuda.set_device(self.local_rank)
+            self.device = torch.device("cuda", self.local_rank)
+        else:
+            self.device = torch.device("cpu")
+        self.enabled = self.world > 1
+        if self.enabled:
+            dist.init_process_group("nccl" if want_cuda else "gloo")
+
+    @property
+    def main(self) -> bool:
+        return self.rank == 0
+
+    def barrier(self) -> None:
+        if self.enabled:
+            dist.barrier()
+
+    def gather(self, obj) -> list:
+        if not self.enabled:
+            return [obj]
+        out = [None] * self.world
+        dist.all_gather_object(out, obj)
+        return out
+
+    def broadcast(self, obj):
+        if not self.enabled:
+            return obj
+        box = [obj]
+        dist.broadcast_object_list(box, src=0)
+        return box[0]
+
+    def close(self) -> None:
+        if self.enabled:
+            dist.destroy_process_group()
+
+
+def device_name(device: torch.device) -> str:
+    """The GPU's name, or the CPU model and torch's thread count."""
+    if device.type == "cuda":
+        return torch.cuda.get_device_name(device)
+    name = platform.processor() or platform.machine()
+    try:
+        with open("/proc/cpuinfo") as f:
+            for line in f:
+                if line.startswith("model name"):
+                    name = line.split(":", 1)[1].strip()
+                    break
+    except OSError:
+        pass
+    return f"{name} ({torch.get_num_threads()} threads)"
+
+
+def hardware(device: torch.device, world: int) -> dict:
+    return {
+        "device": device.type,
+        "name": device_name(device),
+        "processes": world,
+        "torch": torch.__version__,
+        "cuda": torch.version.cuda if device.type == "cuda" else None,
+        "host": platform.system(),
+    }
+
+
+def git_commit() -> Optional[str]:
+    try:
+        here = os.path.dirname(os.path.abspath(__file__))
+        out = subprocess.run(["git", "-C", here, "rev-parse", "HEAD"], capture_output=True, text=True, timeout=5)
+        return out.stdout.strip() or None
+    except Exception:
+        return None
+
+
+# ----------------------------------------------------------------------------- RNG state
+
+
+def rng_state() -> dict:
+    np_state = np.random.get_state()
+    return {
+        "torch": torch.get_rng_state(),
+        "cuda": torch.cuda.get_rng_state_all() if torch.cuda.is_available() else [],
+        "numpy": [np_state[0], torch.from_numpy(np_state[1].astype(np.int64)), int(np_state[2]), int(np_state[3]), float(np_state[4])],
+        "python": random.getstate(),
+    }
+
+
+def set_rng_state(s: dict) -> None:
+    torch.set_rng_state(s["torch"])
+    if s.get("cuda") and torch.cuda.is_available() and len(s["cuda"]) == torch.cuda.device_count():
+        torch.cuda.set_rng_state_all(s["cuda"])
+    n = s["numpy"]
+    np.random.set_state((n[0], n[1].numpy().astype(np.uint32), n[2], n[3], n[4]))
+    py = s["python"]
+    random.setstate((py[0], tuple(py[1]), py[2]))
+
+
+# ----------------------------------------------------------------------------- checkpoints
+
+
+def save_checkpoint(path: str, payload: dict) -> None:
+    tmp = path + ".tmp"
+    torch.save(payload, tmp)
+    os.replace(tmp, path)
+
+
+def load_checkpoint(path: str, config: dict) -> dict:
+    try:
+        ck = torch.load(path, map_location="cpu", weights_only=False)
+    except Exception as err:
+        raise CheckpointError(f"{path}: not a readable checkpoint ({err})") from None
+    if not isinstance(ck, dict) or ck.get("format") != CHECKPOINT_FORMAT:
+        raise CheckpointError(f"{path}: not a {CHECKPOINT_FORMAT} file")
+    if ck.get("version") != CHECKPOINT_VERSION:
+        raise CheckpointError(f"{path}: checkpoint version {ck.get('version')!r}, this trainer reads {CHECKPOINT_VERSION}")
+    diff = config_diff(ck.get("config", {}), config)
+    if diff:
+        raise CheckpointError(f"{path}: checkpoint is from another config; differing keys: " + "; ".join(diff))
+    return ck
+
+
+# ----------------------------------------------------------------------------- validation
+
+
+@torch.no_grad()
+def validate(model: nn.Module, ds: SequenceDataset, device: torch.device, frames: int, size: int = 0) -> dict:
+    """Runs every val sequence from frame 0 for `frames` frames (whole frames, padded to a
+    multiple of 4 like the engine, optionally centre-cropped to `size`) and averages the
+    per-frame metrics (PSNR/SSIM tonemapped 8-bit, RMSE/relMSE HDR)."""
+    was_training = model.training
+    model.eval()
+    rows, per_scene = [], {}
+    for si, seq in enumerate(ds.sequences):
+        state = None
+        for t in range(min(frames, seq.frames)):
+            f = ds.full_frame(si, t)
+            if size:
+                h, w = f["color"].shape[-2:]
+                ch, cw = min(h, size), min(w, size)
+                y0, x0 = (h - ch) // 2, (w - cw) // 2
+                f = {k: v[:, y0 : y0 + ch, x0 : x0 + cw] for k, v in f.items()}
+            f = {k: v.unsqueeze(0).to(device) for k, v in f.items()}
+            padded, (h, w) = pad_frame(f)
+            r = model(padded, state)
+            state = r["state"]
+            pred = r["output"][0, :, :h, :w].float().cpu()
+            m = image_metrics(pred, f["reference"][0].cpu())
+            rows.append(m)
+            per_scene.setdefault(seq.scene, []).append(m)
+    model.train(was_training)
+    out = mean_metrics(rows)
+    out["frames"] = len(rows)
+    out["sequences"] = len(ds.sequences)
+    out["scenes"] = {k: mean_metrics(v) for k, v in sorted(per_scene.items())}
+    return out
+
+
+# ----------------------------------------------------------------------------- training
+
+
+class SequenceRunner(nn.Module):
+    """Wraps a model so that one forward runs a whole window (one DDP forward per step)."""
+
+    def __init__(self, model: nn.Module):
+        super().__init__()
+        self.model = model
+
+    def forward(self, frames: List[Dict[str, torch.Tensor]]):
+        return self.model.run_sequence(frames)
+
+
+def compute_loss(model: nn.Module, results, frames, weights) -> Tuple[torch.Tensor, Dict[str, torch.Tensor]]:
+    refs = [f["reference"] for f in frames]
+    if isinstance(model, SSRModel):
+        return losses.sequence_loss(results, refs, frames, frame_weights=weights)
+    preds = [r["output"] for r in results]
+    return losses.total_loss(preds, refs, loss_aux(results, frames), frame_weights=weights)
+
+
+def fmt_time(s: float) -> str:
+    s = int(max(0, s))
+    h, rem = divmod(s, 3600)
+    m, sec = divmod(rem, 60)
+    return f"{h}h{m:02d}m" if h else f"{m}m{sec:02d}s"
+
+
+def train(argv=None) -> dict:
+    """Runs training; returns a summary dict (for tests). See the module doc."""
+    args = parse_args(argv)
+    config = run_config(args)
+    dd = Dist(args.device)
+    try:
+        return _train(args, config, dd)
+    finally:
+        dd.close()
+
+
+def _log(run_dir: str, record: dict) -> None:
+    with open(os.path.join(run_dir, "log.jsonl"), "a") as f:
+        f.write(json.dumps(record, sort_keys=True) + "\n")
+
+
+def _train(args, config: dict, dd: Dist) -> dict:
+    device = dd.device
+    if args.batch % dd.world:
+        raise SystemExit(f"error: --batch {args.batch} is not divisible by WORLD_SIZE {dd.world}")
+    per_rank = args.batch // dd.world
+    os.makedirs(args.out, exist_ok=True)
+    ckpt_path = os.path.join(args.out, CHECKPOINT_FILE)
+    tag = f"[{args.model}]"
+
+    def say(msg: str) -> None:
+        if dd.main:
+            print(f"{tag} {msg}", flush=True)
+
+    # data
+    train_ds = SequenceDataset(
+        args.data, "train", window=args.window, crop=args.crop, flips=not args.no_flips, scenes=args.scenes,
+        cache=args.cache, cache_mb=args.cache_mb, cache_dir=args.cache_dir,
+    )
+    if tuple(train_ds.crop_hw) != (args.crop, args.crop):
+        say(f"note: frames smaller than --crop {args.crop}: crops are {train_ds.crop_hw[1]}x{train_ds.crop_hw[0]}")
+    val_ds = None
+    try:
+        val_ds = SequenceDataset(args.data, "val", window=1, crop=None, flips=False, scenes=args.scenes, cache="none")
+    except DatasetError as err:
+        say(f"note: no validation ({err})")
+
+    # model, optimizer
+    torch.manual_seed(args.seed)
+    model = build_model(args.model, config["model_config"]).to(device)
+    opt = torch.optim.Adam(model.parameters(), lr=args.lr)
+    start, wall, history = 0, 0.0, []
+    if args.resume and os.path.isfile(ckpt_path):
+        ck = load_checkpoint(ckpt_path, config)
+        model.load_state_dict(ck["model"])
+        opt.load_state_dict(ck["optimizer"])
+        start, wall, history = int(ck["iteration"]), float(ck.get("wall_time_s", 0.0)), list(ck.get("val_history", []))
+        rngs = ck.get("rng", [])
+        if len(rngs) == dd.world:
+            set_rng_state(rngs[dd.rank])
+        else:
+            say(f"note: checkpoint has RNG states of {len(rngs)} process(es), now {dd.world}: reseeding")
+            torch.manual_seed(args.seed + 1_000_003 * start + dd.rank)
+        say(f"resumed from {ckpt_path} at iteration {start}/{args.iters}")
+    elif args.resume:
+        say(f"note: --resume but no {ckpt_path}: starting from scratch")
+    elif os.path.exists(ckpt_path):
+        raise SystemExit(f"error: {ckpt_path} exists: pass --resume to continue it, or choose another --out")
+    if dd.main and start == 0:
+        with open(os.path.join(args.out, "run.json"), "w") as f:
+            json.dump({"config": config, "args": vars(args)}, f, indent=2, sort_keys=True)
+
+    runner: nn.Module = SequenceRunner(model)
+    if dd.enabled:
+        runner = nn.parallel.DistributedDataParallel(runner, device_ids=[device.index] if device.type == "cuda" else None)
+    n_params = sum(p.numel() for p in model.parameters())
+    say(
+        f"{n_params} parameters; {len(train_ds.sequences)} train sequences ({', '.join(train_ds.scenes)}), "
+        f"{len(train_ds)} windows of {args.window}; crop {train_ds.crop_hw[1]}x{train_ds.crop_hw[0]}; "
+        f"batch {args.batch} ({dd.world} x {per_rank}); device {device} ({hardware(device, dd.world)['name']})"
+    )
+
+    stop = min(args.iters, args.stop_at) if args.stop_at is not None else args.iters
+    sampler = WindowSampler(train_ds, per_rank, start, stop, seed=args.seed, rank=dd.rank)
+    loader = torch.utils.data.DataLoader(
+        train_ds, batch_sampler=sampler, collate_fn=collate, num_workers=args.workers,
+        pin_memory=device.type == "cuda", persistent_workers=False,
+    )
+    weights = frame_weights(args.window)
+
+    def checkpoint(it: int, wall_now: float) -> None:
+        rngs = dd.gather(rng_state())
+        if dd.main:
+            save_checkpoint(
+                ckpt_path,
+                {
+                    "format": CHECKPOINT_FORMAT,
+                    "version": CHECKPOINT_VERSION,
+                    "iteration": it,
+                    "config": config,
+                    "model": model.state_dict(),
+                    "optimizer": opt.state_dict(),
+                    "rng": rngs,
+                    "wall_time_s": wall_now,
+                    "val_history": history,
+                    "saved": datetime.datetime.now(datetime.timezone.utc).isoformat(),
+                },
+            )
+        dd.barrier()
+
+    def run_val(it: int) -> Optional[dict]:
+        m = None
+        if val_ds is not None and dd.main:
+            m = validate(model, val_ds, device, args.val_frames, args.val_size)
+            history.append({"iteration": it, **{k: v for k, v in m.items() if k != "scenes"}})
+            say(
+                f"val it {it}: PSNR {m['psnr']:.2f} dB  SSIM {m['ssim']:.4f}  RMSE {m['rmse']:.4g}  relMSE {m['relmse']:.4g}"
+                f"  ({m['sequences']} seq, {m['frames']} frames)"
+            )
+            _log(args.out, {"event": "val", "iteration": it, **m})
+        dd.barrier()
+        return m
+
+    model.train()
+    t0 = time.time()
+    t_log, it_log = t0, start
+    acc: Dict[str, float] = {}
+    n_acc, skipped = 0, 0
+    it = start
+    for batch in loader:
+        lr = lr_at(args.lr, it, args.iters)
+        for g in opt.param_groups:
+            g["lr"] = lr
+        frames = [{k: v.to(device, non_blocking=True) for k, v in f.items()} for f in batch]
+        results = runner(frames)
+        loss, parts = compute_loss(model, results, frames, weights)
+        opt.zero_grad(set_to_none=True)
+        loss.backward()
+        gnorm = torch.nn.utils.clip_grad_norm_(model.parameters(), args.clip if args.clip > 0 else float("inf"))
+        if torch.isfinite(gnorm):  # identical on every rank (gradients are already averaged)
+            opt.step()
+        else:
+            skipped += 1
+            say(f"warning: non-finite gradient at iteration {it}: step skipped ({skipped} so far)")
+            if skipped >= 100:
+                raise SystemExit("error: 100 non-finite gradients: giving up (lower --lr or check the data)")
+        it += 1
+        acc["loss"] = acc.get("loss", 0.0) + float(loss.detach())
+        for k, v in parts.items():
+            acc[k] = acc.get(k, 0.0) + float(v.detach())
+        n_acc += 1
+        if dd.main and (it % args.log_every == 0 or it == stop):
+            now = time.time()
+            rate = (it - it_log) / max(now - t_log, 1e-9)
+            avg = {k: v / n_acc for k, v in acc.items()}
+            eta = (stop - it) / max(rate, 1e-9)
+            say(
+                f"it {it}/{args.iters} ({100.0 * it / args.iters:.1f}%) loss {avg['loss']:.4f} "
+                f"[s {avg['l_s']:.4f} t {avg['l_t']:.4f} e {avg['l_e']:.4f} wt {avg['l_wt']:.4f} a {avg['l_a']:.4f}] "
+                f"lr {lr:.2e} {rate:.2f} it/s eta {fmt_time(eta)}"
+            )
+            _log(args.out, {"event": "train", "iteration": it, "lr": lr, "it_per_s": rate, **avg})
+            t_log, it_log, acc, n_acc = now, it, {}, 0
+        if args.val_every and it % args.val_every == 0 and it < args.iters:
+            run_val(it)
+        if it % args.ckpt_every == 0 and it < stop:
+            checkpoint(it, wall + time.time() - t0)
+    wall += time.time() - t0
+
+    if it < args.iters:  # --stop-at
+        checkpoint(it, wall)
+        say(f"stopped at iteration {it}/{args.iters} (--stop-at); continue with --resume")
+        return {"iteration": it, "checkpoint": ckpt_path, "weights": None, "metrics": None}
+
+    t1 = time.time()
+    final = run_val(it)
+    wall += time.time() - t1
+    checkpoint(it, wall)
+    weights_path = os.path.join(args.out, WEIGHTS_FILE)
+    if dd.main:
+        provenance = {
+            "model": args.model,
+            "trainer": "training/ssr/train.py",
+            "commit": git_commit(),
+            "dataset": os.path.basename(os.path.normpath(os.path.abspath(args.data))),
+            "scenes": train_ds.scenes,
+            "sequences": {
+                "train": [s.id for s in train_ds.sequences],
+                "val": [s.id for s in val_ds.sequences] if val_ds is not None else [],
+            },
+            "train_frames": sum(s.frames for s in train_ds.sequences),
+            "resolution": sorted({f"{s.width}x{s.height}" for s in train_ds.sequences}),
+            "iterations": it,
+            "batch": args.batch,
+            "crop": list(train_ds.crop_hw),
+            "window": args.window,
+            "lr": args.lr,
+            "lr_schedule": "Adam; halved at 1/3 and 2/3 of the iterations",
+            "losses": {"frame_weights": list(weights), "lambdas": dict(losses.LAMBDAS)},
+            "seed": args.seed,
+            "hardware": hardware(device, dd.world),
+            "wall_time_s": round(wall, 1),
+            "skipped_steps": skipped,
+        }
+        metrics = {}
+        if final is not None:
+            metrics = {
+                "split": "val",
+                "tonemap": "uncharted2 exposure 2 white 11.2, gamma 2.2, 8-bit",
+                "frames_per_sequence": args.val_frames,
+                **{k: v for k, v in final.items()},
+            }
+        size = export_model(model, weights_path, provenance, metrics)
+        say(f"wrote {weights_path} ({size} bytes) after {it} iterations, {fmt_time(wall)} wall time")
+        _log(args.out, {"event": "export", "iteration": it, "weights": weights_path, "wall_time_s": wall})
+    dd.barrier()
+    return {"iteration": it, "checkpoint": ckpt_path, "weights": weights_path, "metrics": final}
+
+
+def main(argv=None) -> int:
+    try:
+        train(argv)
+    except (DatasetError, CheckpointError) as err:
+        print(f"error: {err}", file=sys.stderr)
+        return 1
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

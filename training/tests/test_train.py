@@ -1,0 +1,89 @@
+import json
+import os
+import shutil
+
+import pytest
+import torch
+
+from ssr import train as T
+from ssr.baselines import load_model
+from ssr.export import load_weights
+
+
+def args(data, out, *extra, iters=3):
+    return [
+        "--data", data, "--out", out, "--iters", str(iters), "--batch", "2", "--crop", "16",
+        "--workers", "0", "--log-every", "1", "--val-frames", "2", "--val-every", "0",
+        "--ckpt-every", "2", "--device", "cpu", *extra,
+    ]  # fmt: skip
+
+
+def test_lr_schedule_and_frame_weights():
+    assert [T.lr_at(1.0, i, 9) for i in range(9)] == [1, 1, 1, 0.5, 0.5, 0.5, 0.25, 0.25, 0.25]
+    assert T.lr_at(1e-4, 0, 3) == 1e-4 and T.lr_at(1e-4, 1, 3) == 5e-5 and T.lr_at(1e-4, 2, 3) == 2.5e-5
+    assert T.frame_weights(5) == (0.05, 0.25, 0.5, 0.75, 1.0)
+    assert T.frame_weights(3) == (0.5, 0.75, 1.0)
+    assert T.frame_weights(6) == (0.05, 0.05, 0.25, 0.5, 0.75, 1.0)
+
+
+def test_train_checkpoint_resume_export(dataset, tmp_path, capsys):
+    # straight 3 iterations
+    a = str(tmp_path / "a")
+    res = T.train(args(dataset, a))
+    out = capsys.readouterr().out
+    assert "it 3/3" in out and "val it 3: PSNR" in out and "wrote" in out
+    assert os.path.isfile(os.path.join(a, "checkpoint.pt")) and res["iteration"] == 3
+    ck = torch.load(os.path.join(a, "checkpoint.pt"), weights_only=False)
+    assert ck["iteration"] == 3 and ck["config"]["lr"] == 1e-4 and len(ck["rng"]) == 1
+    assert set(ck) >= {"model", "optimizer", "iteration", "config", "rng", "wall_time_s"}
+    model, meta = load_weights(res["weights"])
+    prov = meta["provenance"]
+    assert prov["iterations"] == 3 and prov["scenes"] == ["synthetic"] and prov["model"] == "ssr"
+    assert prov["sequences"]["train"] == ["train/synthetic_000", "train/synthetic_001"]
+    assert prov["sequences"]["val"] == ["val/synthetic_000"]
+    assert prov["hardware"]["device"] == "cpu" and prov["wall_time_s"] >= 0
+    assert meta["metrics"]["split"] == "val" and meta["metrics"]["frames"] == 2 and meta["metrics"]["psnr"] > 0
+    for k, v in ck["model"].items():
+        assert torch.equal(model.state_dict()[k], v)
+    log = [json.loads(l) for l in open(os.path.join(a, "log.jsonl"))]
+    assert [r["iteration"] for r in log if r["event"] == "train"] == [1, 2, 3]
+    assert [r["lr"] for r in log if r["event"] == "train"] == [1e-4, 5e-5, 2.5e-5]
+
+    # interrupted at 2 (--stop-at), then resumed: the same weights as straight through
+    b = str(tmp_path / "b")
+    res_b = T.train(args(dataset, b, "--stop-at", "2"))
+    assert res_b["iteration"] == 2 and res_b["weights"] is None
+    assert torch.load(os.path.join(b, "checkpoint.pt"), weights_only=False)["iteration"] == 2
+    with pytest.raises(SystemExit, match="pass --resume"):
+        T.train(args(dataset, b))
+    res_b = T.train(args(dataset, b, "--resume"))
+    out = capsys.readouterr().out
+    assert "resumed from" in out and "at iteration 2/3" in out
+    assert res_b["iteration"] == 3
+    mb, _ = load_weights(res_b["weights"])
+    for k, v in model.state_dict().items():
+        assert torch.equal(mb.state_dict()[k], v), k
+
+    # resuming with another config names the file and the differing keys
+    with pytest.raises(T.CheckpointError, match=r"b/checkpoint\.pt: checkpoint is from another config; differing keys: crop: 16 in the checkpoint, 32 now; lr: 0\.0001 in the checkpoint, 0\.001 now"):
+        T.train(args(dataset, b, "--resume", "--lr", "1e-3", "--crop", "32"))
+    with pytest.raises(T.CheckpointError, match="model_config"):
+        T.train(args(dataset, b, "--resume", "--model-config", '{"enc": [8, 8, 8]}'))
+    assert T.main(args(dataset, b, "--resume", "--lr", "1e-3")) == 1
+    assert "differing keys: lr" in capsys.readouterr().err
+
+
+def test_train_baseline_exports(dataset, tmp_path):
+    out = str(tmp_path / "rae")
+    res = T.train(args(dataset, out, "--model", "rae", "--model-config", '{"enc": [8, 8], "bottleneck": 8}', iters=1))
+    model, meta = load_model(res["weights"])
+    assert meta["format"] == "subpixel-baseline-rae" and meta["provenance"]["model"] == "rae"
+    assert model.cfg.enc == (8, 8) and meta["metrics"]["frames"] == 2
+
+
+def test_dataset_errors_are_reported(dataset, tmp_path, capsys):
+    broken = str(tmp_path / "ds")
+    shutil.copytree(dataset, broken)
+    os.remove(os.path.join(broken, "train", "synthetic_001", "frame_0004.exr"))
+    assert T.main(args(broken, str(tmp_path / "run"))) == 1
+    assert "synthetic_001/frame_0004.exr: missing frame" in capsys.readouterr().err
