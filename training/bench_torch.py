@@ -259,7 +259,7 @@ def main(argv=None) -> int:
     if args.device == "cuda" and not torch.cuda.is_available():
         ap.error("--device cuda but CUDA is not available")
     device = torch.device("cuda" if args.device == "cuda" or (args.device == "auto" and torch.cuda.is_available()) else "cpu")
-    model, meta = load_weights(args.weights, device=str(device) if device.type == "cuda" else "cpu")
+    model, _ = load_weights(args.weights)
     model = model.to(device).eval()
     wp, hp = round_up4(args.width), round_up4(args.height)
     fl = stage_flops(model, wp, hp)

@@ -87,3 +87,22 @@ def test_dataset_errors_are_reported(dataset, tmp_path, capsys):
     os.remove(os.path.join(broken, "train", "synthetic_001", "frame_0004.exr"))
     assert T.main(args(broken, str(tmp_path / "run"))) == 1
     assert "synthetic_001/frame_0004.exr: missing frame" in capsys.readouterr().err
+
+
+@pytest.mark.skipif(not os.environ.get("SUBPIXEL_SLOW_TESTS"), reason="starts 2 processes (~20 s); set SUBPIXEL_SLOW_TESTS=1")
+def test_torchrun_ddp_two_cpu_processes(dataset, tmp_path):
+    import subprocess
+    import sys
+
+    out = str(tmp_path / "ddp")
+    training = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+    cmd = [sys.executable, "-m", "torch.distributed.run", "--standalone", "--nproc_per_node", "2", "-m", "ssr.train",
+           *args(dataset, out, "--batch", "4")]  # fmt: skip
+    env = dict(os.environ, OMP_NUM_THREADS="1")
+    p = subprocess.run(cmd, cwd=training, env=env, capture_output=True, text=True, timeout=300)
+    assert p.returncode == 0, p.stdout + p.stderr
+    assert "batch 4 (2 x 2)" in p.stdout and p.stdout.count("it 3/3") == 1  # rank 0 prints
+    ck = torch.load(os.path.join(out, "checkpoint.pt"), weights_only=False)
+    assert len(ck["rng"]) == 2 and ck["iteration"] == 3
+    _, meta = load_weights(os.path.join(out, "weights.safetensors"))
+    assert meta["provenance"]["hardware"]["processes"] == 2
