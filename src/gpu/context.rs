@@ -62,6 +62,9 @@ pub struct Gpu {
     pub info: wgpu::AdapterInfo,
     /// Compiled kernels, shared by clones.
     pub kernels: Arc<KernelRegistry>,
+    /// The instance and adapter the device came from, when the crate created it (a
+    /// window needs them to create and configure its surface); `None` for a wrapped device.
+    pub origin: Option<(wgpu::Instance, wgpu::Adapter)>,
 }
 
 impl std::fmt::Debug for Gpu {
@@ -100,7 +103,11 @@ impl Gpu {
             desc.backends = set;
             let instance = wgpu::Instance::new(desc);
             match Self::pick_adapter(&instance, set, opts).await {
-                Ok(adapter) => return Self::from_adapter(&adapter).await,
+                Ok(adapter) => {
+                    let mut gpu = Self::from_adapter(&adapter).await?;
+                    gpu.origin = Some((instance, adapter));
+                    return Ok(gpu);
+                }
                 Err(e) => last_err = Some(e),
             }
             if set == backends {
@@ -186,6 +193,7 @@ impl Gpu {
             queue: queue.clone(),
             kernels: Arc::new(KernelRegistry::new(device)),
             info,
+            origin: None,
         }
     }
 
