@@ -1,0 +1,3 @@
+//! File formats: multi-channel EXR frames.
+
+pub mod exr;
