@@ -7,6 +7,9 @@
 //! - [`gpu`]: device context, kernel registry, timestamp profiler.
 //! - [`nn`]: GPU tensors, the network kernels and their CPU references.
 //! - [`ssr`]: the SSR network, its weights and the embeddable [`ssr::Denoiser`].
+//! - [`render`]: the 1/4-spp path tracer, its scenes and G-buffers.
+//! - [`io`]: EXR frames, PNG previews, frame folders.
+//! - [`metrics`]: image quality metrics; [`view`]: showing tensors on screen.
 
 #![warn(missing_docs)]
 
@@ -18,6 +21,7 @@ pub mod gpu;
 pub mod io;
 pub mod metrics;
 pub mod nn;
+pub mod render;
 pub mod ssr;
 pub mod view;
 

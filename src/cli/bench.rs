@@ -13,6 +13,8 @@ pub(super) enum BenchCommand {
     Kernels(KernelsArgs),
     /// The SSR network: per layer (FLOPs, ms, GFLOP/s) and per stage (TFA, U-Net).
     Denoise(DenoiseBenchArgs),
+    /// The path tracer: G-buffer and trace stages, quarter vs full.
+    Render(crate::render::cli::BenchRenderArgs),
 }
 
 #[derive(clap::Args)]
@@ -61,6 +63,9 @@ pub(super) struct DenoiseBenchArgs {
 }
 
 pub(super) fn run(what: BenchCommand) -> Result<()> {
+    if let BenchCommand::Render(a) = &what {
+        return crate::render::cli::bench_render_command(a);
+    }
     let gpu = Gpu::new()?;
     let cpu = gpu.kind() == AdapterKind::Cpu;
     match what {
@@ -116,6 +121,7 @@ pub(super) fn run(what: BenchCommand) -> Result<()> {
                 print!("{}", denoise_table(&b));
             }
         }
+        BenchCommand::Render(_) => unreachable!("handled above"),
     }
     Ok(())
 }

@@ -25,6 +25,8 @@ struct Cli {
 
 #[derive(Subcommand)]
 enum Command {
+    /// Path trace a scene into one multi-channel EXR per frame.
+    Render(crate::render::cli::RenderArgs),
     /// Denoise a folder of frame EXRs with SSR.
     Denoise(denoise::DenoiseArgs),
     /// Score predictions against references (PSNR, SSIM, RMSE, relMSE, temporal error).
@@ -41,6 +43,7 @@ pub fn main() -> ExitCode {
     env_logger::Builder::from_env(env_logger::Env::default().default_filter_or("warn")).init();
     let cli = Cli::parse();
     let result = match cli.command {
+        Some(Command::Render(a)) => crate::render::cli::render_command(&a),
         Some(Command::Denoise(a)) => denoise::run(&a),
         Some(Command::Eval(a)) => eval::run(&a),
         Some(Command::Bench { what }) => bench::run(what),

@@ -10,13 +10,20 @@ use std::sync::{Arc, Mutex};
 
 use crate::error::{Error, Result};
 
-/// One embedded WGSL file.
+/// One embedded WGSL kernel: its entry file, composed with the library files it includes.
+///
+/// WGSL has no `#include`; a kernel that shares code (the path tracer's traversal, BSDF,
+/// sampling) lists library files under `wgsl/**/lib/`, which are concatenated in order in
+/// front of the entry file at compile time. Library files hold functions, structs and
+/// constants only; they may refer to bindings that every including entry file declares.
 #[derive(Debug, Clone, Copy)]
 pub struct KernelSource {
     /// Name: the path under `wgsl/` without extension, e.g. `nn/conv3x3`.
     pub name: &'static str,
-    /// WGSL text.
+    /// WGSL text: the included libraries followed by the entry file.
     pub source: &'static str,
+    /// Library files (names under `wgsl/`, no extension) composed in front of the entry file.
+    pub includes: &'static [&'static str],
 }
 
 macro_rules! kernel {
@@ -24,7 +31,40 @@ macro_rules! kernel {
         KernelSource {
             name: $name,
             source: include_str!(concat!(env!("CARGO_MANIFEST_DIR"), "/wgsl/", $name, ".wgsl")),
+            includes: &[],
         }
+    };
+    ($name:literal, [$($lib:literal),+ $(,)?]) => {
+        KernelSource {
+            name: $name,
+            source: concat!(
+                $(
+                    "// ---- library wgsl/", $lib, ".wgsl ----\n",
+                    include_str!(concat!(env!("CARGO_MANIFEST_DIR"), "/wgsl/", $lib, ".wgsl")),
+                    "\n",
+                )+
+                "// ---- kernel wgsl/", $name, ".wgsl ----\n",
+                include_str!(concat!(env!("CARGO_MANIFEST_DIR"), "/wgsl/", $name, ".wgsl")),
+            ),
+            includes: &[$($lib),+],
+        }
+    };
+}
+
+/// Libraries of the path tracer, in dependency order (each may use those before it).
+macro_rules! trace_kernel {
+    ($name:literal) => {
+        kernel!(
+            $name,
+            [
+                "trace/lib/common",
+                "trace/lib/bvh",
+                "trace/lib/material",
+                "trace/lib/bsdf",
+                "trace/lib/lights",
+                "trace/lib/camera",
+            ]
+        )
     };
 }
 
@@ -40,7 +80,18 @@ pub const KERNELS: &[KernelSource] = &[
     kernel!("ssr/pack_inputs"),
     kernel!("ssr/store_output"),
     kernel!("view/display"),
+    trace_kernel!("trace/query"),
+    trace_kernel!("trace/gbuffer"),
+    trace_kernel!("trace/pathtrace"),
 ];
+
+/// Every library file under `wgsl/` that kernels include (not kernels themselves).
+pub fn libraries() -> Vec<&'static str> {
+    let mut libs: Vec<&'static str> = KERNELS.iter().flat_map(|k| k.includes.iter().copied()).collect();
+    libs.sort_unstable();
+    libs.dedup();
+    libs
+}
 
 /// Looks a kernel up by name.
 pub fn kernel_source(name: &str) -> Result<&'static KernelSource> {
@@ -321,8 +372,53 @@ mod tests {
         let root = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("wgsl");
         let mut files = Vec::new();
         walk(&root, &root, &mut files);
+        let libs = libraries();
         for f in files {
-            assert!(kernel_source(&f).is_ok(), "wgsl/{f}.wgsl is not in KERNELS");
+            let is_lib = f.split('/').any(|part| part == "lib");
+            if is_lib {
+                // A library must be composed into at least one kernel, which validates it.
+                assert!(
+                    libs.contains(&f.as_str()),
+                    "library wgsl/{f}.wgsl is included by no kernel in KERNELS"
+                );
+                assert!(
+                    kernel_source(&f).is_err(),
+                    "library wgsl/{f}.wgsl is registered as a kernel"
+                );
+            } else {
+                assert!(kernel_source(&f).is_ok(), "wgsl/{f}.wgsl is not in KERNELS");
+            }
+        }
+    }
+
+    /// Composed kernels contain their libraries verbatim, in order, before the entry file.
+    #[test]
+    fn composed_kernels_embed_their_libraries() {
+        let root = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("wgsl");
+        for k in KERNELS.iter().filter(|k| !k.includes.is_empty()) {
+            let mut at = 0;
+            for lib in k.includes {
+                let text = std::fs::read_to_string(root.join(format!("{lib}.wgsl"))).unwrap();
+                let pos = k.source[at..]
+                    .find(&text)
+                    .unwrap_or_else(|| panic!("{}: library {lib} missing or out of order", k.name));
+                at += pos + text.len();
+            }
+            let entry = std::fs::read_to_string(root.join(format!("{}.wgsl", k.name))).unwrap();
+            assert!(
+                k.source.ends_with(&entry),
+                "{}: entry file must come last",
+                k.name
+            );
+            // Libraries declare no bindings: those belong to the entry file.
+            for lib in k.includes {
+                let text = std::fs::read_to_string(root.join(format!("{lib}.wgsl"))).unwrap();
+                assert!(!text.contains("@binding"), "library {lib} declares a binding");
+                assert!(
+                    !text.contains("@compute"),
+                    "library {lib} declares an entry point"
+                );
+            }
         }
     }
 
@@ -346,6 +442,7 @@ mod tests {
             .iter()
             .chain(crate::ssr::PARAM_SIZES)
             .chain(crate::view::PARAM_SIZES)
+            .chain(crate::render::PARAM_SIZES)
         {
             let k = kernel_source(name).unwrap();
             let module = validate_wgsl(k.name, k.source).unwrap();

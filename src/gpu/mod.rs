@@ -5,5 +5,7 @@ mod kernels;
 mod profiler;
 
 pub use context::{AdapterKind, Gpu, GpuOptions};
-pub use kernels::{Dispatch, KERNELS, KernelRegistry, KernelSource, Specialisation, kernel_source};
+pub use kernels::{
+    Dispatch, KERNELS, KernelRegistry, KernelSource, Specialisation, kernel_source, libraries,
+};
 pub use profiler::{Profiler, StageStats, Stats};

@@ -1,0 +1,384 @@
+//! Pinhole cameras and camera paths (static, orbit, keyframed fly-through with Catmull-Rom
+//! interpolation), deterministic from a seed.
+
+use bytemuck::{Pod, Zeroable};
+use glam::{Vec2, Vec3};
+
+/// A pinhole camera looking from `position` at `target`.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Camera {
+    /// Eye position (world).
+    pub position: Vec3,
+    /// Point looked at.
+    pub target: Vec3,
+    /// Up hint.
+    pub up: Vec3,
+    /// Vertical field of view in radians.
+    pub yfov: f32,
+}
+
+/// The camera as the WGSL `Camera` struct lays it out.
+#[repr(C)]
+#[derive(Debug, Clone, Copy, Pod, Zeroable, PartialEq)]
+pub struct GpuCamera {
+    /// Position xyz, w = tan(yfov / 2).
+    pub pos: [f32; 4],
+    /// Right axis xyz, w = aspect (width / height).
+    pub right: [f32; 4],
+    /// Up axis.
+    pub up: [f32; 4],
+    /// Forward axis.
+    pub fwd: [f32; 4],
+}
+
+impl Camera {
+    /// Orthonormal `(right, up, forward)`.
+    pub fn basis(&self) -> (Vec3, Vec3, Vec3) {
+        let fwd = (self.target - self.position).normalize_or(Vec3::NEG_Z);
+        let mut right = fwd.cross(self.up);
+        if right.length_squared() < 1e-12 {
+            right = fwd.cross(if fwd.y.abs() < 0.9 { Vec3::Y } else { Vec3::X });
+        }
+        let right = right.normalize();
+        (right, right.cross(fwd), fwd)
+    }
+
+    /// GPU layout for an image of `width x height`.
+    pub fn gpu(&self, width: u32, height: u32) -> GpuCamera {
+        let (r, u, f) = self.basis();
+        let aspect = width as f32 / height as f32;
+        GpuCamera {
+            pos: [
+                self.position.x,
+                self.position.y,
+                self.position.z,
+                (0.5 * self.yfov).tan(),
+            ],
+            right: [r.x, r.y, r.z, aspect],
+            up: [u.x, u.y, u.z, 0.0],
+            fwd: [f.x, f.y, f.z, 0.0],
+        }
+    }
+
+    /// Unit direction through continuous pixel position `px` (pixel centres at +0.5, y down).
+    pub fn ray_dir(&self, px: Vec2, width: u32, height: u32) -> Vec3 {
+        let (r, u, f) = self.basis();
+        let t = (0.5 * self.yfov).tan();
+        let aspect = width as f32 / height as f32;
+        let x = (2.0 * px.x / width as f32 - 1.0) * t * aspect;
+        let y = (1.0 - 2.0 * px.y / height as f32) * t;
+        (f + x * r + y * u).normalize()
+    }
+
+    /// Continuous pixel position of world point `p`, `None` behind the camera.
+    pub fn project(&self, p: Vec3, width: u32, height: u32) -> Option<Vec2> {
+        let (r, u, f) = self.basis();
+        let v = p - self.position;
+        let z = v.dot(f);
+        if z <= 1e-12 {
+            return None;
+        }
+        let t = (0.5 * self.yfov).tan();
+        let aspect = width as f32 / height as f32;
+        let x = v.dot(r) / (z * t * aspect);
+        let y = v.dot(u) / (z * t);
+        Some(Vec2::new(
+            (x + 1.0) * 0.5 * width as f32,
+            (1.0 - y) * 0.5 * height as f32,
+        ))
+    }
+}
+
+/// A camera path as requested (by the CLI or `scene.json`), before it is made concrete.
+#[derive(Debug, Clone, PartialEq)]
+pub enum CameraPathSpec {
+    /// The scene camera, every frame.
+    Static,
+    /// Orbit about the scene camera's target at its distance and height.
+    Orbit {
+        /// Degrees per frame (sign: direction); `None` picks from the seed.
+        degrees_per_frame: Option<f32>,
+    },
+    /// Catmull-Rom fly-through. Keys given explicitly, or generated from the seed around the
+    /// scene camera.
+    FlyThrough {
+        /// Explicit key cameras; `None`: generated.
+        keys: Option<Vec<Camera>>,
+        /// Frames between consecutive keys.
+        frames_per_key: f32,
+    },
+}
+
+impl std::str::FromStr for CameraPathSpec {
+    type Err = String;
+    fn from_str(s: &str) -> Result<Self, String> {
+        match s {
+            "static" => Ok(Self::Static),
+            "orbit" => Ok(Self::Orbit {
+                degrees_per_frame: None,
+            }),
+            "flythrough" | "fly-through" | "fly" => Ok(Self::FlyThrough {
+                keys: None,
+                frames_per_key: 24.0,
+            }),
+            _ => Err(format!("unknown camera path '{s}' (static, orbit or flythrough)")),
+        }
+    }
+}
+
+/// A concrete camera path: a camera per frame.
+#[derive(Debug, Clone, PartialEq)]
+pub enum CameraPath {
+    /// One camera.
+    Static(Camera),
+    /// Circle about `centre` in the horizontal plane.
+    Orbit {
+        /// Camera at angle 0 (its target, up, fov are kept).
+        base: Camera,
+        /// Orbit centre (the base camera's target).
+        centre: Vec3,
+        /// Angle of frame 0, radians.
+        start: f32,
+        /// Radians per frame.
+        step: f32,
+    },
+    /// Catmull-Rom spline through key cameras (positions and targets).
+    Keyframes {
+        /// Key cameras (at least 2).
+        keys: Vec<Camera>,
+        /// Frames between keys.
+        frames_per_key: f32,
+    },
+}
+
+/// SplitMix64: a tiny deterministic generator for camera paths.
+#[derive(Debug, Clone)]
+pub struct SplitMix(u64);
+
+impl SplitMix {
+    /// Generator for `seed`.
+    pub fn new(seed: u64) -> Self {
+        Self(seed ^ 0x5851_f42d_4c95_7f2d)
+    }
+    /// Next 64 random bits.
+    pub fn next_u64(&mut self) -> u64 {
+        self.0 = self.0.wrapping_add(0x9e37_79b9_7f4a_7c15);
+        let mut z = self.0;
+        z = (z ^ (z >> 30)).wrapping_mul(0xbf58_476d_1ce4_e5b9);
+        z = (z ^ (z >> 27)).wrapping_mul(0x94d0_49bb_1331_11eb);
+        z ^ (z >> 31)
+    }
+    /// Uniform in `[0, 1)`.
+    pub fn next_f32(&mut self) -> f32 {
+        (self.next_u64() >> 40) as f32 / (1u64 << 24) as f32
+    }
+    /// Uniform in `[-1, 1)`.
+    pub fn signed(&mut self) -> f32 {
+        2.0 * self.next_f32() - 1.0
+    }
+}
+
+fn catmull_rom(p0: Vec3, p1: Vec3, p2: Vec3, p3: Vec3, t: f32) -> Vec3 {
+    let t2 = t * t;
+    let t3 = t2 * t;
+    0.5 * ((2.0 * p1)
+        + (p2 - p0) * t
+        + (2.0 * p0 - 5.0 * p1 + 4.0 * p2 - p3) * t2
+        + (3.0 * p1 - p0 - 3.0 * p2 + p3) * t3)
+}
+
+impl CameraPath {
+    /// Makes `spec` concrete around `base` for `frames` frames. Generated paths depend on
+    /// `seed` only (and the base camera): orbits of different seeds sweep disjoint arcs
+    /// (seed 0 starts at the base camera, then alternating sides), fly-throughs visit
+    /// different random key positions.
+    pub fn from_spec(spec: &CameraPathSpec, base: &Camera, seed: u64, frames: u32) -> Self {
+        match spec {
+            CameraPathSpec::Static => CameraPath::Static(*base),
+            CameraPathSpec::Orbit { degrees_per_frame } => {
+                let mut rng = SplitMix::new(seed);
+                let dir = if rng.next_u64() & 1 == 0 { 1.0 } else { -1.0 };
+                let speed = degrees_per_frame.unwrap_or(dir * (0.75 + 0.5 * rng.next_f32()));
+                let step = speed.to_radians();
+                // Disjoint arcs: seed k occupies slot ceil(k/2) on alternating sides, each slot
+                // as wide as the longest sweep of any seed (1.25 deg/frame) plus a gap.
+                let slot = (1.25f32.to_radians() * frames.max(1) as f32 + 5f32.to_radians())
+                    .min(std::f32::consts::TAU);
+                let k = seed % 1_000_000;
+                let index = k.div_ceil(2) as f32 * if k % 2 == 1 { 1.0 } else { -1.0 };
+                let mut start = index * slot;
+                if step < 0.0 {
+                    start += -step * frames.saturating_sub(1) as f32; // sweep back into the slot
+                }
+                CameraPath::Orbit {
+                    base: *base,
+                    centre: base.target,
+                    start,
+                    step,
+                }
+            }
+            CameraPathSpec::FlyThrough {
+                keys: Some(keys),
+                frames_per_key,
+            } if keys.len() >= 2 => CameraPath::Keyframes {
+                keys: keys.clone(),
+                frames_per_key: frames_per_key.max(1.0),
+            },
+            CameraPathSpec::FlyThrough { frames_per_key, .. } => {
+                let mut rng = SplitMix::new(seed ^ 0xf1f1_7ab1e);
+                let fpk = frames_per_key.max(1.0);
+                let n = 2 + (frames as f32 / fpk).ceil() as usize;
+                let dist = base.position.distance(base.target).max(1e-6);
+                let (r, u, f) = base.basis();
+                let amp = 0.08 * dist;
+                let mut keys = Vec::with_capacity(n);
+                for i in 0..n {
+                    // Key 0 is the base camera jittered; later keys drift forward a little.
+                    let drift = f * (0.03 * dist * i as f32) * rng.signed().signum();
+                    let p = base.position
+                        + drift
+                        + r * (amp * rng.signed())
+                        + u * (0.5 * amp * rng.signed())
+                        + f * (0.5 * amp * rng.signed());
+                    let t = base.target + r * (amp * rng.signed()) + u * (0.5 * amp * rng.signed());
+                    keys.push(Camera {
+                        position: p,
+                        target: t,
+                        ..*base
+                    });
+                }
+                CameraPath::Keyframes {
+                    keys,
+                    frames_per_key: fpk,
+                }
+            }
+        }
+    }
+
+    /// Camera of frame `frame`.
+    pub fn camera(&self, frame: u32) -> Camera {
+        match self {
+            CameraPath::Static(c) => *c,
+            CameraPath::Orbit {
+                base,
+                centre,
+                start,
+                step,
+            } => {
+                let rel = base.position - *centre;
+                let a = start + step * frame as f32;
+                let (s, c) = a.sin_cos();
+                let rotated = Vec3::new(c * rel.x + s * rel.z, rel.y, -s * rel.x + c * rel.z);
+                Camera {
+                    position: *centre + rotated,
+                    target: *centre,
+                    ..*base
+                }
+            }
+            CameraPath::Keyframes { keys, frames_per_key } => {
+                let n = keys.len();
+                let x = frame as f32 / frames_per_key;
+                let i = (x.floor() as usize).min(n.saturating_sub(2));
+                let t = (x - i as f32).clamp(0.0, 1.0);
+                let k = |j: isize| keys[j.clamp(0, n as isize - 1) as usize];
+                let (k0, k1, k2, k3) = (
+                    k(i as isize - 1),
+                    k(i as isize),
+                    k(i as isize + 1),
+                    k(i as isize + 2),
+                );
+                Camera {
+                    position: catmull_rom(k0.position, k1.position, k2.position, k3.position, t),
+                    target: catmull_rom(k0.target, k1.target, k2.target, k3.target, t),
+                    up: k1.up,
+                    yfov: k1.yfov + (k2.yfov - k1.yfov) * t,
+                }
+            }
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn base() -> Camera {
+        Camera {
+            position: Vec3::new(0.0, 1.0, 5.0),
+            target: Vec3::new(0.0, 1.0, 0.0),
+            up: Vec3::Y,
+            yfov: 0.7,
+        }
+    }
+
+    #[test]
+    fn project_inverts_ray_dir() {
+        let c = base();
+        for &(x, y) in &[(0.5f32, 0.5f32), (31.5, 7.25), (63.9, 47.0)] {
+            let d = c.ray_dir(Vec2::new(x, y), 64, 48);
+            let p = c.position + 3.7 * d;
+            let q = c.project(p, 64, 48).unwrap();
+            assert!((q - Vec2::new(x, y)).length() < 1e-3, "{q} vs {x},{y}");
+        }
+    }
+
+    #[test]
+    fn paths_are_deterministic_and_differ_per_seed() {
+        for spec in ["orbit", "flythrough"] {
+            let spec: CameraPathSpec = spec.parse().unwrap();
+            let a = CameraPath::from_spec(&spec, &base(), 7, 60);
+            let b = CameraPath::from_spec(&spec, &base(), 7, 60);
+            let c = CameraPath::from_spec(&spec, &base(), 8, 60);
+            assert_eq!(a, b);
+            for f in [0, 13, 59] {
+                assert_eq!(a.camera(f), b.camera(f));
+                assert!(
+                    a.camera(f).position.distance(c.camera(f).position) > 1e-4,
+                    "{spec:?} frame {f}"
+                );
+            }
+        }
+    }
+
+    #[test]
+    fn orbit_arcs_of_different_seeds_are_disjoint() {
+        let spec: CameraPathSpec = "orbit".parse().unwrap();
+        let frames = 40;
+        let arcs: Vec<(f32, f32)> = (0..6)
+            .map(|s| {
+                let CameraPath::Orbit { start, step, .. } = CameraPath::from_spec(&spec, &base(), s, frames)
+                else {
+                    unreachable!()
+                };
+                let end = start + step * (frames - 1) as f32;
+                (start.min(end), start.max(end))
+            })
+            .collect();
+        for i in 0..arcs.len() {
+            for j in i + 1..arcs.len() {
+                let (a, b) = (arcs[i], arcs[j]);
+                assert!(a.1 < b.0 || b.1 < a.0, "seeds {i} and {j} overlap: {a:?} {b:?}");
+            }
+        }
+    }
+
+    #[test]
+    fn keyframes_pass_through_keys() {
+        let keys: Vec<Camera> = (0..4)
+            .map(|i| Camera {
+                position: Vec3::new(i as f32, 0.0, 5.0),
+                ..base()
+            })
+            .collect();
+        let path = CameraPath::Keyframes {
+            keys: keys.clone(),
+            frames_per_key: 10.0,
+        };
+        for (i, k) in keys.iter().enumerate().take(3) {
+            assert!(path.camera(10 * i as u32).position.distance(k.position) < 1e-5);
+        }
+        // Smooth in between.
+        let mid = path.camera(15).position;
+        assert!((mid.x - 1.5).abs() < 1e-4, "{mid}");
+    }
+}

@@ -1,0 +1,716 @@
+//! Loading scenes from files: glTF 2.0 (`.gltf`, `.glb`) and the `scene.json` sidecar of
+//! `scenes/README.md` (environment map, camera, film, optional camera path).
+
+use std::collections::HashMap;
+use std::path::{Path, PathBuf};
+
+use glam::{Mat3, Mat4, Vec2, Vec3, Vec4};
+use serde::Deserialize;
+
+use super::builtin::builtin;
+use super::camera::{Camera, CameraPathSpec};
+use super::scene::{AlphaMode, Environment, Geometry, Material, Scene, Texture, Wrap};
+use crate::error::{Error, Result};
+
+/// glTF extensions the loader understands; a file requiring any other is refused.
+pub const SUPPORTED_EXTENSIONS: &[&str] = &[
+    "KHR_materials_emissive_strength",
+    "KHR_materials_transmission",
+    "KHR_materials_ior",
+    "KHR_materials_volume",
+];
+
+fn scene_err(path: &Path, message: impl Into<String>) -> Error {
+    Error::Scene {
+        path: path.to_path_buf(),
+        message: message.into(),
+    }
+}
+
+fn file_err(path: &Path, message: impl Into<String>) -> Error {
+    Error::File {
+        path: path.to_path_buf(),
+        message: message.into(),
+    }
+}
+
+/// Loads `builtin:NAME`, a `scene.json`, a folder holding one, or a `.gltf`/`.glb` file.
+pub fn load_scene(spec: &str) -> Result<Scene> {
+    if let Some(name) = spec.strip_prefix("builtin:") {
+        return builtin(name);
+    }
+    let path = PathBuf::from(spec);
+    if path.is_dir() {
+        let json = path.join("scene.json");
+        if !json.is_file() {
+            return Err(scene_err(&path, "a scene folder needs a scene.json"));
+        }
+        return load_sidecar(&json);
+    }
+    if !path.exists() {
+        return Err(file_err(&path, "no such file"));
+    }
+    match path
+        .extension()
+        .and_then(|e| e.to_str())
+        .map(str::to_ascii_lowercase)
+        .as_deref()
+    {
+        Some("json") => load_sidecar(&path),
+        Some("gltf") | Some("glb") => load_gltf(&path),
+        _ => Err(scene_err(
+            &path,
+            "expected builtin:NAME, a scene.json, a scene folder, or a .gltf/.glb file",
+        )),
+    }
+}
+
+#[derive(Debug, Deserialize)]
+struct Sidecar {
+    gltf: String,
+    #[serde(default)]
+    environment: Option<EnvSpec>,
+    #[serde(default)]
+    camera: Option<CamSpec>,
+    #[serde(default)]
+    film: Option<[u32; 2]>,
+    #[serde(default)]
+    camera_path: Option<PathSpec>,
+}
+
+#[derive(Debug, Deserialize)]
+struct EnvSpec {
+    file: String,
+    #[serde(default)]
+    scale: Option<f32>,
+    #[serde(default)]
+    to_world: Option<[[f32; 4]; 4]>,
+    #[serde(default)]
+    rotation_y_deg: Option<f32>,
+    #[serde(default)]
+    mapping: Option<String>,
+}
+
+#[derive(Debug, Deserialize)]
+struct CamSpec {
+    position: [f32; 3],
+    target: [f32; 3],
+    #[serde(default)]
+    up: Option<[f32; 3]>,
+    yfov_deg: f32,
+}
+
+/// Optional `camera_path` of `scene.json` (an extension of the README schema):
+/// `{"type": "orbit", "degrees_per_frame": 0.5}` or
+/// `{"type": "flythrough", "frames_per_key": 24, "keys": [{"position": [..], "target": [..]}, ..]}`.
+#[derive(Debug, Deserialize)]
+#[serde(tag = "type", rename_all = "lowercase")]
+enum PathSpec {
+    Static,
+    Orbit {
+        #[serde(default)]
+        degrees_per_frame: Option<f32>,
+    },
+    Flythrough {
+        #[serde(default)]
+        frames_per_key: Option<f32>,
+        #[serde(default)]
+        keys: Option<Vec<KeySpec>>,
+    },
+}
+
+#[derive(Debug, Deserialize)]
+struct KeySpec {
+    position: [f32; 3],
+    target: [f32; 3],
+}
+
+/// Loads a `scene.json` sidecar and the glTF it names.
+pub fn load_sidecar(path: &Path) -> Result<Scene> {
+    let text = std::fs::read_to_string(path).map_err(|e| file_err(path, format!("cannot read: {e}")))?;
+    let side: Sidecar =
+        serde_json::from_str(&text).map_err(|e| scene_err(path, format!("malformed scene.json: {e}")))?;
+    let dir = path.parent().unwrap_or(Path::new("."));
+    let mut scene = load_gltf(&dir.join(&side.gltf))?;
+    scene.name = path.display().to_string();
+    if let Some(e) = &side.environment {
+        if let Some(m) = &e.mapping
+            && !m.trim_start().starts_with("mitsuba_latlong")
+        {
+            return Err(scene_err(
+                path,
+                format!("unsupported environment mapping '{m}' (mitsuba_latlong only)"),
+            ));
+        }
+        let to_world = match (e.to_world, e.rotation_y_deg) {
+            (Some(m), _) => {
+                let r = Mat3::from_cols(
+                    Vec3::new(m[0][0], m[1][0], m[2][0]),
+                    Vec3::new(m[0][1], m[1][1], m[2][1]),
+                    Vec3::new(m[0][2], m[1][2], m[2][2]),
+                );
+                if r.determinant().abs() <= 1e-6 || !r.is_finite() {
+                    return Err(scene_err(path, "environment to_world is singular"));
+                }
+                r
+            }
+            (None, Some(deg)) => Mat3::from_rotation_y(deg.to_radians()),
+            (None, None) => Mat3::IDENTITY,
+        };
+        let scale = e.scale.unwrap_or(1.0);
+        if !scale.is_finite() || scale < 0.0 {
+            return Err(scene_err(
+                path,
+                format!("environment scale {scale} must be finite and >= 0"),
+            ));
+        }
+        scene.environment = Some(load_environment(&dir.join(&e.file), scale, to_world)?);
+    }
+    if let Some(c) = &side.camera {
+        scene.camera = Camera {
+            position: Vec3::from(c.position),
+            target: Vec3::from(c.target),
+            up: c.up.map(Vec3::from).unwrap_or(Vec3::Y),
+            yfov: c.yfov_deg.to_radians(),
+        };
+        if !(scene.camera.yfov > 0.0 && scene.camera.yfov < std::f32::consts::PI) {
+            return Err(scene_err(
+                path,
+                format!("camera yfov_deg {} out of (0, 180)", c.yfov_deg),
+            ));
+        }
+    }
+    if let Some([w, h]) = side.film {
+        if w == 0 || h == 0 {
+            return Err(scene_err(path, "film size must be positive"));
+        }
+        scene.film = (w, h);
+    }
+    scene.camera_path = side.camera_path.map(|p| match p {
+        PathSpec::Static => CameraPathSpec::Static,
+        PathSpec::Orbit { degrees_per_frame } => CameraPathSpec::Orbit { degrees_per_frame },
+        PathSpec::Flythrough { frames_per_key, keys } => CameraPathSpec::FlyThrough {
+            keys: keys.map(|k| {
+                k.iter()
+                    .map(|k| Camera {
+                        position: Vec3::from(k.position),
+                        target: Vec3::from(k.target),
+                        ..scene.camera
+                    })
+                    .collect()
+            }),
+            frames_per_key: frames_per_key.unwrap_or(24.0),
+        },
+    });
+    Ok(scene)
+}
+
+/// Loads a lat-long environment map (`.hdr`, `.exr`, or anything the `image` crate reads).
+pub fn load_environment(path: &Path, scale: f32, to_world: Mat3) -> Result<Environment> {
+    let img = image::ImageReader::open(path)
+        .map_err(|e| file_err(path, format!("cannot open environment map: {e}")))?
+        .with_guessed_format()
+        .map_err(|e| file_err(path, format!("cannot read environment map: {e}")))?
+        .decode()
+        .map_err(|e| file_err(path, format!("cannot decode environment map: {e}")))?
+        .to_rgb32f();
+    let (width, height) = img.dimensions();
+    if width == 0 || height == 0 {
+        return Err(file_err(path, "empty environment map"));
+    }
+    let pixels: Vec<[f32; 3]> = img
+        .pixels()
+        .map(|p| p.0.map(|v| if v.is_finite() { v.max(0.0) } else { 0.0 }))
+        .collect();
+    Ok(Environment {
+        source: path.to_path_buf(),
+        width,
+        height,
+        pixels,
+        scale,
+        to_world,
+    })
+}
+
+/// Decodes standard base64 (data URIs).
+fn base64_decode(s: &str) -> Option<Vec<u8>> {
+    let mut out = Vec::with_capacity(s.len() * 3 / 4);
+    let mut acc = 0u32;
+    let mut bits = 0;
+    for c in s.bytes() {
+        let v = match c {
+            b'A'..=b'Z' => c - b'A',
+            b'a'..=b'z' => c - b'a' + 26,
+            b'0'..=b'9' => c - b'0' + 52,
+            b'+' | b'-' => 62,
+            b'/' | b'_' => 63,
+            b'=' | b'\n' | b'\r' | b' ' => continue,
+            _ => return None,
+        } as u32;
+        acc = (acc << 6) | v;
+        bits += 6;
+        if bits >= 8 {
+            bits -= 8;
+            out.push((acc >> bits) as u8);
+        }
+    }
+    Some(out)
+}
+
+fn percent_decode(s: &str) -> String {
+    let b = s.as_bytes();
+    let mut out = Vec::with_capacity(b.len());
+    let mut i = 0;
+    while i < b.len() {
+        if b[i] == b'%'
+            && i + 2 < b.len()
+            && let Some(v) = std::str::from_utf8(&b[i + 1..i + 3])
+                .ok()
+                .and_then(|h| u8::from_str_radix(h, 16).ok())
+        {
+            out.push(v);
+            i += 3;
+            continue;
+        }
+        out.push(b[i]);
+        i += 1;
+    }
+    String::from_utf8_lossy(&out).into_owned()
+}
+
+/// Bytes of a URI relative to `base`: a data URI or a file.
+fn read_uri(gltf_path: &Path, base: &Path, uri: &str, what: &str) -> Result<(Vec<u8>, PathBuf)> {
+    if let Some(rest) = uri.strip_prefix("data:") {
+        let (_, data) = rest
+            .split_once(";base64,")
+            .ok_or_else(|| scene_err(gltf_path, format!("{what}: unsupported data URI")))?;
+        let bytes = base64_decode(data)
+            .ok_or_else(|| scene_err(gltf_path, format!("{what}: malformed base64 data URI")))?;
+        return Ok((bytes, gltf_path.to_path_buf()));
+    }
+    let file = base.join(percent_decode(uri));
+    let bytes = std::fs::read(&file).map_err(|e| {
+        file_err(
+            &file,
+            format!("{what} referenced by {} cannot be read: {e}", gltf_path.display()),
+        )
+    })?;
+    Ok((bytes, file))
+}
+
+struct Loader<'a> {
+    path: &'a Path,
+    base: PathBuf,
+    doc: gltf::Document,
+    buffers: Vec<Vec<u8>>,
+    images: HashMap<usize, image::RgbaImage>,
+    textures: Vec<Texture>,
+    texture_ids: HashMap<(usize, bool), u32>,
+    approx: Vec<String>,
+}
+
+impl Loader<'_> {
+    fn note(&mut self, s: String) {
+        if !self.approx.contains(&s) {
+            self.approx.push(s);
+        }
+    }
+
+    fn image(&mut self, index: usize) -> Result<&image::RgbaImage> {
+        if !self.images.contains_key(&index) {
+            let img = self
+                .doc
+                .images()
+                .nth(index)
+                .ok_or_else(|| scene_err(self.path, format!("image {index} missing")))?;
+            let what = format!(
+                "image {index}{}",
+                img.name().map(|n| format!(" '{n}'")).unwrap_or_default()
+            );
+            let (bytes, file) = match img.source() {
+                gltf::image::Source::View { view, .. } => {
+                    let buf = &self.buffers[view.buffer().index()];
+                    let (o, l) = (view.offset(), view.length());
+                    let slice = buf
+                        .get(o..o + l)
+                        .ok_or_else(|| scene_err(self.path, format!("{what}: buffer view out of range")))?;
+                    (slice.to_vec(), self.path.to_path_buf())
+                }
+                gltf::image::Source::Uri { uri, .. } => read_uri(self.path, &self.base, uri, &what)?,
+            };
+            let decoded = image::load_from_memory(&bytes)
+                .map_err(|e| file_err(&file, format!("cannot decode {what}: {e}")))?
+                .to_rgba8();
+            self.images.insert(index, decoded);
+        }
+        Ok(&self.images[&index])
+    }
+
+    fn texture(
+        &mut self,
+        info: Option<(gltf::texture::Texture<'_>, u32)>,
+        srgb: bool,
+        slot: &str,
+    ) -> Result<Option<u32>> {
+        let Some((tex, coord)) = info else {
+            return Ok(None);
+        };
+        if coord != 0 {
+            self.note(format!(
+                "{slot} texture uses TEXCOORD_{coord}; TEXCOORD_0 is used"
+            ));
+        }
+        let key = (tex.index(), srgb);
+        if let Some(&id) = self.texture_ids.get(&key) {
+            return Ok(Some(id));
+        }
+        let image_index = tex.source().index();
+        let name = tex
+            .source()
+            .name()
+            .map(str::to_string)
+            .or_else(|| match tex.source().source() {
+                gltf::image::Source::Uri { uri, .. } => Some(uri.to_string()),
+                _ => None,
+            })
+            .unwrap_or_else(|| format!("image {image_index}"));
+        let sampler = tex.sampler();
+        let wrap = |m: gltf::texture::WrappingMode| match m {
+            gltf::texture::WrappingMode::ClampToEdge => Wrap::Clamp,
+            gltf::texture::WrappingMode::MirroredRepeat => Wrap::Mirror,
+            gltf::texture::WrappingMode::Repeat => Wrap::Repeat,
+        };
+        let w = [wrap(sampler.wrap_s()), wrap(sampler.wrap_t())];
+        let img = self.image(image_index)?;
+        let (width, height) = img.dimensions();
+        if width == 0 || height == 0 {
+            return Err(scene_err(self.path, format!("texture '{name}' is empty")));
+        }
+        let texels = img.pixels().map(|p| p.0).collect();
+        self.textures.push(Texture {
+            name,
+            width,
+            height,
+            texels,
+            srgb,
+            wrap: w,
+        });
+        let id = self.textures.len() as u32 - 1;
+        self.texture_ids.insert(key, id);
+        Ok(Some(id))
+    }
+
+    fn material(&mut self, m: gltf::Material<'_>) -> Result<Material> {
+        let name = m.name().unwrap_or("unnamed").to_string();
+        let pbr = m.pbr_metallic_roughness();
+        let base_color_texture = self.texture(
+            pbr.base_color_texture().map(|t| (t.texture(), t.tex_coord())),
+            true,
+            "base colour",
+        )?;
+        let metallic_roughness_texture = self.texture(
+            pbr.metallic_roughness_texture()
+                .map(|t| (t.texture(), t.tex_coord())),
+            false,
+            "metallic-roughness",
+        )?;
+        let (normal_texture, normal_scale) = match m.normal_texture() {
+            Some(n) => (
+                self.texture(Some((n.texture(), n.tex_coord())), false, "normal")?,
+                n.scale(),
+            ),
+            None => (None, 1.0),
+        };
+        let emissive_texture = self.texture(
+            m.emissive_texture().map(|t| (t.texture(), t.tex_coord())),
+            true,
+            "emissive",
+        )?;
+        let strength = m.emissive_strength().unwrap_or(1.0);
+        let emissive = m.emissive_factor().map(|e| e * strength);
+        let (transmission, transmission_tex) = m
+            .transmission()
+            .map(|t| (t.transmission_factor(), t.transmission_texture().is_some()))
+            .unwrap_or((0.0, false));
+        if transmission_tex {
+            self.note(format!(
+                "material '{name}': transmission texture ignored (factor used)"
+            ));
+        }
+        let volume = m.volume();
+        if let Some(v) = &volume
+            && v.thickness_texture().is_some()
+        {
+            self.note(format!("material '{name}': volume thickness texture ignored"));
+        }
+        let alpha = match m.alpha_mode() {
+            gltf::material::AlphaMode::Opaque => AlphaMode::Opaque,
+            gltf::material::AlphaMode::Mask => AlphaMode::Mask(m.alpha_cutoff().unwrap_or(0.5)),
+            gltf::material::AlphaMode::Blend => {
+                self.note(format!("material '{name}': alphaMode BLEND rendered as OPAQUE"));
+                AlphaMode::Opaque
+            }
+        };
+        let ior = m.ior().unwrap_or(1.5);
+        Ok(Material {
+            name,
+            base_color: pbr.base_color_factor(),
+            base_color_texture,
+            metallic: pbr.metallic_factor(),
+            roughness: pbr.roughness_factor(),
+            metallic_roughness_texture,
+            normal_texture,
+            normal_scale,
+            emissive,
+            emissive_texture,
+            transmission,
+            ior: if ior.is_finite() && ior >= 1.0 { ior } else { 1.5 },
+            thin: volume.is_none(),
+            attenuation_color: volume.as_ref().map(|v| v.attenuation_color()).unwrap_or([1.0; 3]),
+            attenuation_distance: volume
+                .as_ref()
+                .map(|v| v.attenuation_distance())
+                .unwrap_or(f32::INFINITY),
+            alpha,
+            double_sided: m.double_sided(),
+            specular: 1.0,
+        })
+    }
+}
+
+/// Loads a glTF 2.0 file (`.gltf` with its buffers and images, or `.glb`).
+pub fn load_gltf(path: &Path) -> Result<Scene> {
+    let bytes = std::fs::read(path).map_err(|e| file_err(path, format!("cannot read glTF: {e}")))?;
+    let gltf = gltf::Gltf::from_slice(&bytes).map_err(|e| scene_err(path, format!("malformed glTF: {e}")))?;
+    let base = path.parent().unwrap_or(Path::new(".")).to_path_buf();
+    let mut approx = Vec::new();
+    for ext in gltf.extensions_required() {
+        if !SUPPORTED_EXTENSIONS.contains(&ext) {
+            return Err(scene_err(
+                path,
+                format!("requires the unsupported glTF extension {ext}"),
+            ));
+        }
+    }
+    let ignored: Vec<&str> = gltf
+        .extensions_used()
+        .filter(|e| !SUPPORTED_EXTENSIONS.contains(e))
+        .collect();
+    if !ignored.is_empty() {
+        approx.push(format!("extensions ignored: {}", ignored.join(", ")));
+    }
+    let gltf::Gltf { document, blob } = gltf;
+    let mut buffers = Vec::new();
+    for b in document.buffers() {
+        let data = match b.source() {
+            gltf::buffer::Source::Bin => blob
+                .clone()
+                .ok_or_else(|| scene_err(path, "buffer refers to a missing GLB binary chunk"))?,
+            gltf::buffer::Source::Uri(uri) => read_uri(path, &base, uri, &format!("buffer {}", b.index()))?.0,
+        };
+        if data.len() < b.length() {
+            return Err(scene_err(
+                path,
+                format!(
+                    "buffer {} holds {} bytes, {} declared",
+                    b.index(),
+                    data.len(),
+                    b.length()
+                ),
+            ));
+        }
+        buffers.push(data);
+    }
+    let mut loader = Loader {
+        path,
+        base,
+        doc: document,
+        buffers,
+        images: HashMap::new(),
+        textures: Vec::new(),
+        texture_ids: HashMap::new(),
+        approx,
+    };
+    let doc = loader.doc.clone();
+    let mut materials = Vec::new();
+    for m in doc.materials() {
+        materials.push(loader.material(m)?);
+    }
+    let default_material = materials.len() as u32;
+    materials.push(Material::default());
+
+    let mut geometry = Geometry::default();
+    let mut camera = None;
+    let mut skipped_modes = 0usize;
+    let scene = doc
+        .default_scene()
+        .or_else(|| doc.scenes().next())
+        .ok_or_else(|| scene_err(path, "the glTF has no scene"))?;
+    let mut stack: Vec<(gltf::Node, Mat4)> = scene.nodes().map(|n| (n, Mat4::IDENTITY)).collect();
+    let mut visited = 0usize;
+    while let Some((node, parent)) = stack.pop() {
+        visited += 1;
+        if visited > 1_000_000 {
+            return Err(scene_err(path, "node hierarchy too large or cyclic"));
+        }
+        let local = Mat4::from_cols_array_2d(&node.transform().matrix());
+        let world = parent * local;
+        if !world.is_finite() {
+            return Err(scene_err(
+                path,
+                format!("node {} has a non-finite transform", node.index()),
+            ));
+        }
+        if camera.is_none()
+            && let Some(c) = node.camera()
+            && let gltf::camera::Projection::Perspective(p) = c.projection()
+        {
+            let pos = world.transform_point3(Vec3::ZERO);
+            let fwd = world.transform_vector3(Vec3::NEG_Z).normalize_or(Vec3::NEG_Z);
+            let up = world.transform_vector3(Vec3::Y).normalize_or(Vec3::Y);
+            camera = Some(Camera {
+                position: pos,
+                target: pos + fwd,
+                up,
+                yfov: p.yfov(),
+            });
+        }
+        if let Some(mesh) = node.mesh() {
+            let normal_m = Mat3::from_mat4(world).inverse().transpose();
+            let m3 = Mat3::from_mat4(world);
+            let flip = m3.determinant() < 0.0;
+            for prim in mesh.primitives() {
+                if prim.mode() != gltf::mesh::Mode::Triangles {
+                    skipped_modes += 1;
+                    continue;
+                }
+                let bufs = &loader.buffers;
+                let reader = prim.reader(|b| bufs.get(b.index()).map(|v| v.as_slice()));
+                let what = format!("mesh {} primitive {}", mesh.index(), prim.index());
+                let positions: Vec<Vec3> = reader
+                    .read_positions()
+                    .ok_or_else(|| scene_err(path, format!("{what} has no POSITION")))?
+                    .map(|p| world.transform_point3(Vec3::from(p)))
+                    .collect();
+                let n = positions.len();
+                let normals: Option<Vec<Vec3>> = reader.read_normals().map(|it| {
+                    it.map(|v| (normal_m * Vec3::from(v)).normalize_or_zero())
+                        .collect()
+                });
+                let uvs: Option<Vec<Vec2>> = reader
+                    .read_tex_coords(0)
+                    .map(|it| it.into_f32().map(Vec2::from).collect());
+                let tangents: Option<Vec<Vec4>> = reader.read_tangents().map(|it| {
+                    it.map(|t| {
+                        let v = (m3 * Vec3::new(t[0], t[1], t[2])).normalize_or_zero();
+                        v.extend(if flip { -t[3] } else { t[3] })
+                    })
+                    .collect()
+                });
+                for (attr, len) in [
+                    ("NORMAL", normals.as_ref().map(|v| v.len())),
+                    ("TEXCOORD_0", uvs.as_ref().map(|v| v.len())),
+                    ("TANGENT", tangents.as_ref().map(|v| v.len())),
+                ] {
+                    if let Some(l) = len
+                        && l != n
+                    {
+                        return Err(scene_err(
+                            path,
+                            format!("{what}: {attr} has {l} entries, POSITION {n}"),
+                        ));
+                    }
+                }
+                let indices: Vec<u32> = match reader.read_indices() {
+                    Some(i) => i.into_u32().collect(),
+                    None => (0..n as u32).collect(),
+                };
+                if !indices.len().is_multiple_of(3) {
+                    return Err(scene_err(
+                        path,
+                        format!("{what}: index count {} is not a multiple of 3", indices.len()),
+                    ));
+                }
+                if let Some(&bad) = indices.iter().find(|&&i| i as usize >= n) {
+                    return Err(scene_err(
+                        path,
+                        format!("{what}: index {bad} past its {n} vertices"),
+                    ));
+                }
+                let tris: Vec<[u32; 3]> = indices
+                    .chunks_exact(3)
+                    .map(|c| {
+                        if flip {
+                            [c[0], c[2], c[1]]
+                        } else {
+                            [c[0], c[1], c[2]]
+                        }
+                    })
+                    .collect();
+                let material = prim
+                    .material()
+                    .index()
+                    .map(|i| i as u32)
+                    .unwrap_or(default_material);
+                geometry.push_mesh(
+                    &positions,
+                    normals.as_deref(),
+                    uvs.as_deref(),
+                    tangents.as_deref(),
+                    &tris,
+                    material,
+                );
+            }
+        }
+        for child in node.children() {
+            stack.push((child, world));
+        }
+    }
+    if skipped_modes > 0 {
+        log::warn!(
+            "{}: {skipped_modes} non-triangle primitive(s) (points/lines/strips) skipped",
+            path.display()
+        );
+    }
+    if geometry.triangles.is_empty() {
+        return Err(scene_err(path, "the glTF scene has no triangles"));
+    }
+    let (lo, hi) = geometry.bounds();
+    let camera = camera.unwrap_or_else(|| {
+        let c = 0.5 * (lo + hi);
+        let r = 0.5 * (hi - lo).length().max(1e-3);
+        Camera {
+            position: c + Vec3::new(0.0, 0.0, 2.5 * r),
+            target: c,
+            up: Vec3::Y,
+            yfov: 45f32.to_radians(),
+        }
+    });
+    let scene = Scene {
+        name: path.display().to_string(),
+        geometry,
+        materials,
+        textures: loader.textures,
+        environment: None,
+        camera,
+        film: (512, 512),
+        camera_path: None,
+        approximations: loader.approx,
+    };
+    scene.validate()?;
+    Ok(scene)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn base64_and_percent() {
+        assert_eq!(base64_decode("aGVsbG8=").unwrap(), b"hello");
+        assert_eq!(base64_decode("AAEC").unwrap(), vec![0, 1, 2]);
+        assert!(base64_decode("a*b").is_none());
+        assert_eq!(percent_decode("a%20b.png"), "a b.png");
+        assert_eq!(percent_decode("100%"), "100%");
+    }
+}

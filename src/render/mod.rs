@@ -1,0 +1,34 @@
+//! The subpixel-sampling path tracer (DESIGN.md section 5): scenes (built-in, glTF 2.0 +
+//! `scene.json`), an obvhs CWBVH traversed in WGSL, a unidirectional path tracer with
+//! next-event estimation and MIS, G-buffers from primary visibility, and camera paths.
+//!
+//! ```no_run
+//! # fn main() -> subpixel::Result<()> {
+//! use subpixel::render::{FrameSettings, GpuScene, Mode, Tracer, load_scene};
+//! let gpu = subpixel::gpu::Gpu::new()?;
+//! let scene = load_scene("builtin:cornell")?;
+//! let gpu_scene = GpuScene::new(&gpu, &scene)?;
+//! let mut tracer = Tracer::new(&gpu, 64, 64)?;
+//! let far = scene.far_distance([&scene.camera.position]);
+//! tracer.render(&gpu_scene, &FrameSettings::new(scene.camera, Mode::Quarter, far))?;
+//! let frame = tracer.buffers.download(&gpu)?; // colour, mask, albedo, normal, ...
+//! # Ok(()) }
+//! ```
+
+pub mod builtin;
+pub mod bvh;
+pub mod camera;
+pub mod cli;
+pub mod gpu_scene;
+pub mod loader;
+pub mod scene;
+pub mod tracer;
+
+pub use camera::{Camera, CameraPath, CameraPathSpec};
+pub use gpu_scene::GpuScene;
+pub use loader::load_scene;
+pub use scene::{Material, Scene};
+pub use tracer::{
+    DEFAULT_MAX_DEPTH, FrameBuffers, FrameSettings, FrameStats, Mode, PARAM_SIZES, TILE_OFFSETS, Tracer,
+    query_rays, tile_offset,
+};

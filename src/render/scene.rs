@@ -1,0 +1,457 @@
+//! The scene model the tracer renders: world-space triangles with per-vertex attributes,
+//! glTF metallic-roughness materials, RGBA8 textures, an optional lat-long environment map,
+//! and a camera.
+
+use std::path::PathBuf;
+
+use glam::{Mat3, Vec2, Vec3, Vec4};
+
+use super::camera::{Camera, CameraPathSpec};
+use crate::error::{Error, Result};
+
+/// Texture coordinate wrap mode (glTF sampler).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub enum Wrap {
+    /// Tile.
+    #[default]
+    Repeat,
+    /// Clamp to the edge texel.
+    Clamp,
+    /// Tile, mirroring every other copy.
+    Mirror,
+}
+
+impl Wrap {
+    /// Code used by the WGSL texture sampler.
+    pub fn code(self) -> u32 {
+        match self {
+            Wrap::Repeat => 0,
+            Wrap::Clamp => 1,
+            Wrap::Mirror => 2,
+        }
+    }
+}
+
+/// An 8-bit RGBA texture.
+#[derive(Debug, Clone)]
+pub struct Texture {
+    /// Where it came from (file name or a description), for messages.
+    pub name: String,
+    /// Width in texels.
+    pub width: u32,
+    /// Height in texels.
+    pub height: u32,
+    /// `width * height` texels, row-major from the top-left.
+    pub texels: Vec<[u8; 4]>,
+    /// The RGB channels hold sRGB-encoded colour (base colour, emissive).
+    pub srgb: bool,
+    /// Wrap modes along u and v.
+    pub wrap: [Wrap; 2],
+}
+
+impl Texture {
+    /// Mean of the linear RGB values (sRGB decoded when `srgb`).
+    pub fn mean_rgb(&self) -> Vec3 {
+        if self.texels.is_empty() {
+            return Vec3::ZERO;
+        }
+        let mut sum = glam::DVec3::ZERO;
+        for t in &self.texels {
+            let c = Vec3::new(t[0] as f32, t[1] as f32, t[2] as f32) / 255.0;
+            let c = if self.srgb { srgb_to_linear(c) } else { c };
+            sum += c.as_dvec3();
+        }
+        (sum / self.texels.len() as f64).as_vec3()
+    }
+
+    /// This texture at half resolution (2x2 box filter; odd edges clamp).
+    pub fn halved(&self) -> Texture {
+        let w = (self.width / 2).max(1);
+        let h = (self.height / 2).max(1);
+        let mut texels = Vec::with_capacity((w * h) as usize);
+        for y in 0..h {
+            for x in 0..w {
+                let mut acc = [0u32; 4];
+                for (dx, dy) in [(0, 0), (1, 0), (0, 1), (1, 1)] {
+                    let sx = (2 * x + dx).min(self.width - 1);
+                    let sy = (2 * y + dy).min(self.height - 1);
+                    let t = self.texels[(sy * self.width + sx) as usize];
+                    for c in 0..4 {
+                        acc[c] += t[c] as u32;
+                    }
+                }
+                texels.push(acc.map(|a| ((a + 2) / 4) as u8));
+            }
+        }
+        Texture {
+            name: self.name.clone(),
+            width: w,
+            height: h,
+            texels,
+            srgb: self.srgb,
+            wrap: self.wrap,
+        }
+    }
+}
+
+/// sRGB transfer function decode.
+pub fn srgb_to_linear(c: Vec3) -> Vec3 {
+    let f = |v: f32| {
+        if v <= 0.04045 {
+            v / 12.92
+        } else {
+            ((v + 0.055) / 1.055).powf(2.4)
+        }
+    };
+    Vec3::new(f(c.x), f(c.y), f(c.z))
+}
+
+/// How a material's alpha is used.
+#[derive(Debug, Clone, Copy, PartialEq, Default)]
+pub enum AlphaMode {
+    /// Alpha ignored.
+    #[default]
+    Opaque,
+    /// Cut-out: surfaces with alpha below the cutoff are not there.
+    Mask(f32),
+}
+
+/// A glTF 2.0 metallic-roughness material with the extensions the tracer understands.
+#[derive(Debug, Clone)]
+pub struct Material {
+    /// Name, for messages.
+    pub name: String,
+    /// Linear base colour factor (rgb) and alpha.
+    pub base_color: [f32; 4],
+    /// Base colour texture (sRGB), index into [`Scene::textures`].
+    pub base_color_texture: Option<u32>,
+    /// Metallic factor.
+    pub metallic: f32,
+    /// Perceptual roughness factor.
+    pub roughness: f32,
+    /// Metallic (B) / roughness (G) texture.
+    pub metallic_roughness_texture: Option<u32>,
+    /// Tangent-space normal map.
+    pub normal_texture: Option<u32>,
+    /// Normal map xy scale.
+    pub normal_scale: f32,
+    /// Emitted radiance: emissive factor x `KHR_materials_emissive_strength`.
+    pub emissive: [f32; 3],
+    /// Emissive texture (sRGB), multiplies `emissive`.
+    pub emissive_texture: Option<u32>,
+    /// `KHR_materials_transmission` factor.
+    pub transmission: f32,
+    /// `KHR_materials_ior` (1.5 by default).
+    pub ior: f32,
+    /// Thin-walled transmission (no `KHR_materials_volume`): light passes straight through.
+    pub thin: bool,
+    /// Volume attenuation colour (`KHR_materials_volume`).
+    pub attenuation_color: [f32; 3],
+    /// Volume attenuation distance; infinite for none.
+    pub attenuation_distance: f32,
+    /// Alpha mode.
+    pub alpha: AlphaMode,
+    /// Both faces are shaded; otherwise an opaque surface is black from behind.
+    pub double_sided: bool,
+    /// Strength of the dielectric specular layer (`KHR_materials_specular`; 1 by default,
+    /// 0 gives a pure Lambertian diffuse).
+    pub specular: f32,
+}
+
+impl Default for Material {
+    fn default() -> Self {
+        Self {
+            name: "default".into(),
+            base_color: [1.0; 4],
+            base_color_texture: None,
+            metallic: 1.0,
+            roughness: 1.0,
+            metallic_roughness_texture: None,
+            normal_texture: None,
+            normal_scale: 1.0,
+            emissive: [0.0; 3],
+            emissive_texture: None,
+            transmission: 0.0,
+            ior: 1.5,
+            thin: true,
+            attenuation_color: [1.0; 3],
+            attenuation_distance: f32::INFINITY,
+            alpha: AlphaMode::Opaque,
+            double_sided: false,
+            specular: 1.0,
+        }
+    }
+}
+
+impl Material {
+    /// A diffuse (metallic 0, roughness 1) material of colour `rgb`.
+    pub fn diffuse(name: &str, rgb: [f32; 3]) -> Self {
+        Self {
+            name: name.into(),
+            base_color: [rgb[0], rgb[1], rgb[2], 1.0],
+            metallic: 0.0,
+            roughness: 1.0,
+            ..Default::default()
+        }
+    }
+
+    /// Luminance of the emitted radiance, texture mean included: the light-selection weight.
+    pub fn emitted_luminance(&self, textures: &[Texture]) -> f32 {
+        let mut e = Vec3::from(self.emissive);
+        if let Some(t) = self.emissive_texture.and_then(|t| textures.get(t as usize)) {
+            e *= t.mean_rgb();
+        }
+        luminance(e).max(0.0)
+    }
+}
+
+/// Rec.709 luminance.
+pub fn luminance(c: Vec3) -> f32 {
+    c.dot(Vec3::new(0.2126, 0.7152, 0.0722))
+}
+
+/// A lat-long environment map (Mitsuba convention, see `scenes/README.md`).
+#[derive(Debug, Clone)]
+pub struct Environment {
+    /// Where it came from.
+    pub source: PathBuf,
+    /// Width in pixels.
+    pub width: u32,
+    /// Height in pixels.
+    pub height: u32,
+    /// Linear RGB radiance, row-major from the top-left (`v = 0` is straight up).
+    pub pixels: Vec<[f32; 3]>,
+    /// Radiance scale.
+    pub scale: f32,
+    /// Map-to-world rotation (`to_world` of `scene.json`).
+    pub to_world: Mat3,
+}
+
+impl Environment {
+    /// A constant environment of radiance `rgb` (a small map, so the CDF code path is used).
+    pub fn uniform(rgb: [f32; 3]) -> Self {
+        let (width, height) = (8, 4);
+        Self {
+            source: PathBuf::from(format!("uniform {rgb:?}")),
+            width,
+            height,
+            pixels: vec![rgb; (width * height) as usize],
+            scale: 1.0,
+            to_world: Mat3::IDENTITY,
+        }
+    }
+
+    /// Radiance (scaled) towards world direction `d`, nearest texel, as the GPU looks it up.
+    pub fn radiance(&self, d: Vec3) -> Vec3 {
+        let l = self.to_world.inverse() * d;
+        let u = (l.x.atan2(-l.z) / std::f32::consts::TAU).rem_euclid(1.0);
+        let v = l.y.clamp(-1.0, 1.0).acos() / std::f32::consts::PI;
+        let x = ((u * self.width as f32) as u32).min(self.width - 1);
+        let y = ((v * self.height as f32) as u32).min(self.height - 1);
+        Vec3::from(self.pixels[(y * self.width + x) as usize]) * self.scale
+    }
+}
+
+/// Triangles in world space with per-vertex attributes. Vertices are never shared between
+/// triangles of different materials.
+#[derive(Debug, Clone, Default)]
+pub struct Geometry {
+    /// Vertex positions.
+    pub positions: Vec<Vec3>,
+    /// Vertex shading normals (unit).
+    pub normals: Vec<Vec3>,
+    /// Vertex texture coordinates (`TEXCOORD_0`), zero when absent.
+    pub uvs: Vec<Vec2>,
+    /// Vertex tangents (xyz, w = bitangent sign); `Vec4::ZERO` where absent.
+    pub tangents: Vec<Vec4>,
+    /// Vertex indices of each triangle (counter-clockwise front faces).
+    pub triangles: Vec<[u32; 3]>,
+    /// Material index of each triangle.
+    pub materials: Vec<u32>,
+}
+
+impl Geometry {
+    /// Appends a triangle mesh; normals default to the face normals, uvs to zero.
+    #[allow(clippy::too_many_arguments)]
+    pub fn push_mesh(
+        &mut self,
+        positions: &[Vec3],
+        normals: Option<&[Vec3]>,
+        uvs: Option<&[Vec2]>,
+        tangents: Option<&[Vec4]>,
+        triangles: &[[u32; 3]],
+        material: u32,
+    ) {
+        let base = self.positions.len() as u32;
+        self.positions.extend_from_slice(positions);
+        match normals {
+            Some(n) => self.normals.extend(n.iter().map(|v| v.normalize_or_zero())),
+            None => {
+                // Area-weighted face normals.
+                let mut acc = vec![Vec3::ZERO; positions.len()];
+                for t in triangles {
+                    let [a, b, c] = t.map(|i| positions[i as usize]);
+                    let n = (b - a).cross(c - a);
+                    for &i in t {
+                        acc[i as usize] += n;
+                    }
+                }
+                self.normals.extend(acc.iter().map(|v| v.normalize_or_zero()));
+            }
+        }
+        match uvs {
+            Some(u) => self.uvs.extend_from_slice(u),
+            None => self.uvs.extend(std::iter::repeat_n(Vec2::ZERO, positions.len())),
+        }
+        match tangents {
+            Some(t) => self.tangents.extend_from_slice(t),
+            None => self
+                .tangents
+                .extend(std::iter::repeat_n(Vec4::ZERO, positions.len())),
+        }
+        for t in triangles {
+            self.triangles.push(t.map(|i| i + base));
+            self.materials.push(material);
+        }
+    }
+
+    /// Appends a quad `a b c d` (counter-clockwise seen from the front).
+    pub fn push_quad(&mut self, a: Vec3, b: Vec3, c: Vec3, d: Vec3, material: u32) {
+        let uv = [
+            Vec2::new(0.0, 1.0),
+            Vec2::new(1.0, 1.0),
+            Vec2::new(1.0, 0.0),
+            Vec2::new(0.0, 0.0),
+        ];
+        self.push_mesh(
+            &[a, b, c, d],
+            None,
+            Some(&uv),
+            None,
+            &[[0, 1, 2], [0, 2, 3]],
+            material,
+        );
+    }
+
+    /// Axis-aligned bounds `(min, max)` of all vertices.
+    pub fn bounds(&self) -> (Vec3, Vec3) {
+        self.positions.iter().fold(
+            (Vec3::splat(f32::INFINITY), Vec3::splat(f32::NEG_INFINITY)),
+            |(lo, hi), p| (lo.min(*p), hi.max(*p)),
+        )
+    }
+}
+
+/// Everything the tracer needs to render.
+#[derive(Debug, Clone)]
+pub struct Scene {
+    /// Name (`builtin:cornell`, or the file).
+    pub name: String,
+    /// Triangles.
+    pub geometry: Geometry,
+    /// Materials.
+    pub materials: Vec<Material>,
+    /// Textures.
+    pub textures: Vec<Texture>,
+    /// Environment map, if any (none: black background).
+    pub environment: Option<Environment>,
+    /// The scene's camera.
+    pub camera: Camera,
+    /// Preferred image size.
+    pub film: (u32, u32),
+    /// Camera path given by the scene, if any.
+    pub camera_path: Option<CameraPathSpec>,
+    /// Material features that were approximated while loading (reported once as a warning).
+    pub approximations: Vec<String>,
+}
+
+impl Scene {
+    /// Checks indices, finiteness and non-emptiness.
+    pub fn validate(&self) -> Result<()> {
+        let err = |message: String| Error::Scene {
+            path: PathBuf::from(&self.name),
+            message,
+        };
+        let g = &self.geometry;
+        if g.triangles.is_empty() {
+            return Err(err("the scene has no triangles".into()));
+        }
+        let n = g.positions.len();
+        if g.normals.len() != n || g.uvs.len() != n || g.tangents.len() != n {
+            return Err(err("vertex attribute arrays differ in length".into()));
+        }
+        if g.materials.len() != g.triangles.len() {
+            return Err(err("one material index per triangle is needed".into()));
+        }
+        if let Some(t) = g.triangles.iter().find(|t| t.iter().any(|&i| i as usize >= n)) {
+            return Err(err(format!("triangle {t:?} indexes past the {n} vertices")));
+        }
+        if let Some(m) = g.materials.iter().find(|&&m| m as usize >= self.materials.len()) {
+            return Err(err(format!(
+                "material index {m} out of {} materials",
+                self.materials.len()
+            )));
+        }
+        if let Some(p) = g.positions.iter().find(|p| !p.is_finite()) {
+            return Err(err(format!("non-finite vertex position {p}")));
+        }
+        for m in &self.materials {
+            for t in [
+                m.base_color_texture,
+                m.metallic_roughness_texture,
+                m.normal_texture,
+                m.emissive_texture,
+            ]
+            .into_iter()
+            .flatten()
+            {
+                if t as usize >= self.textures.len() {
+                    return Err(err(format!("material '{}' uses missing texture {t}", m.name)));
+                }
+            }
+        }
+        for t in &self.textures {
+            if t.width == 0 || t.height == 0 || t.texels.len() != (t.width * t.height) as usize {
+                return Err(err(format!("texture '{}' has an inconsistent size", t.name)));
+            }
+        }
+        if let Some(e) = &self.environment
+            && (e.width == 0 || e.height == 0 || e.pixels.len() != (e.width * e.height) as usize)
+        {
+            return Err(err(format!(
+                "environment {} has an inconsistent size",
+                e.source.display()
+            )));
+        }
+        Ok(())
+    }
+
+    /// Scene bounds `(min, max)`.
+    pub fn bounds(&self) -> (Vec3, Vec3) {
+        self.geometry.bounds()
+    }
+
+    /// Distance used to normalise view depth for camera positions `eyes`: the farthest
+    /// distance from any of them to the scene's bounding sphere's far side.
+    pub fn far_distance<'a>(&self, eyes: impl IntoIterator<Item = &'a Vec3>) -> f32 {
+        let (lo, hi) = self.bounds();
+        let centre = 0.5 * (lo + hi);
+        let radius = 0.5 * (hi - lo).length();
+        let far = eyes
+            .into_iter()
+            .map(|e| e.distance(centre) + radius)
+            .fold(radius.max(1e-6), f32::max);
+        far.max(1e-6)
+    }
+
+    /// Logs the approximations made while loading, as one warning.
+    pub fn warn_approximations(&self) {
+        if !self.approximations.is_empty() {
+            log::warn!(
+                "{}: approximated material features: {}",
+                self.name,
+                self.approximations.join("; ")
+            );
+        }
+    }
+}

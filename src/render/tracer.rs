@@ -1,0 +1,575 @@
+//! The per-frame renderer: G-buffers from primary visibility, then path tracing in
+//! `quarter`, `full` or `reference` mode, into the buffers of the denoiser contract
+//! (DESIGN.md section 3).
+
+use bytemuck::{Pod, Zeroable};
+
+use super::camera::{Camera, GpuCamera};
+use super::gpu_scene::GpuScene;
+use crate::error::{Error, Result};
+use crate::frame::HostFrame;
+use crate::gpu::{Dispatch, Gpu, Profiler, Specialisation};
+use crate::nn::{HostTensor, Tensor};
+
+/// Sampling mode of the path tracer.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum, serde::Serialize, serde::Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Mode {
+    /// One pixel per 2x2 tile per frame (1/4 spp), rotating with [`TILE_OFFSETS`].
+    Quarter,
+    /// One sample in every pixel.
+    Full,
+    /// Progressive N spp per pixel, box filter (the plain mean of jittered samples).
+    Reference,
+}
+
+impl Mode {
+    fn code(self) -> u32 {
+        match self {
+            Mode::Quarter => 0,
+            Mode::Full => 1,
+            Mode::Reference => 2,
+        }
+    }
+}
+
+/// Traced pixel `(dx, dy)` inside each 2x2 tile, for frame `t` at index `t mod 4`.
+pub const TILE_OFFSETS: [(u32, u32); 4] = [(0, 0), (1, 1), (1, 0), (0, 1)];
+
+/// The traced tile offset of frame `frame`.
+pub fn tile_offset(frame: u32) -> (u32, u32) {
+    TILE_OFFSETS[(frame % 4) as usize]
+}
+
+/// Default `max_depth`: the largest number of path segments (1 = emitters seen directly,
+/// 2 = direct lighting, 3 = one indirect bounce, ...).
+pub const DEFAULT_MAX_DEPTH: u32 = 8;
+
+/// Parameters of the image kernels (WGSL `FrameParams`, 192 bytes).
+#[repr(C)]
+#[derive(Debug, Clone, Copy, Pod, Zeroable)]
+pub struct FrameParams {
+    /// Camera of this frame.
+    pub cam: GpuCamera,
+    /// Camera of the previous frame.
+    pub prev: GpuCamera,
+    /// Width, height, frame index, seed.
+    pub size: [u32; 4],
+    /// Mode, tile dx, tile dy, max depth.
+    pub mode: [u32; 4],
+    /// Samples accumulated so far, samples in this pass.
+    pub accum: [u32; 4],
+    /// Far distance for depth normalisation.
+    pub misc: [f32; 4],
+}
+
+/// Parameters of `trace/query` (16 bytes).
+#[repr(C)]
+#[derive(Debug, Clone, Copy, Pod, Zeroable)]
+pub struct QueryParams {
+    /// Number of rays.
+    pub count: u32,
+    /// 1: any hit, 0: closest hit.
+    pub any_hit: u32,
+    /// Padding.
+    pub pad: [u32; 2],
+}
+
+/// Uniform parameter sizes of the tracer kernels, checked against naga's layout.
+pub const PARAM_SIZES: &[(&str, usize)] = &[
+    ("trace/query", std::mem::size_of::<QueryParams>()),
+    ("trace/gbuffer", std::mem::size_of::<FrameParams>()),
+    ("trace/pathtrace", std::mem::size_of::<FrameParams>()),
+];
+
+/// What one frame is rendered with.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct FrameSettings {
+    /// Frame index (tile offset, random numbers).
+    pub frame: u32,
+    /// Camera of this frame.
+    pub camera: Camera,
+    /// Camera of the previous frame (the same camera for a first frame: zero motion).
+    pub prev_camera: Camera,
+    /// Sampling mode.
+    pub mode: Mode,
+    /// Samples per pixel in reference mode (ignored otherwise).
+    pub spp: u32,
+    /// Largest number of path segments, see [`DEFAULT_MAX_DEPTH`].
+    pub max_depth: u32,
+    /// Random seed.
+    pub seed: u32,
+    /// Distance that normalises view depth to [0, 1] (see [`super::Scene::far_distance`]).
+    pub far: f32,
+}
+
+impl FrameSettings {
+    /// Settings for a static `camera` at frame 0.
+    pub fn new(camera: Camera, mode: Mode, far: f32) -> Self {
+        Self {
+            frame: 0,
+            camera,
+            prev_camera: camera,
+            mode,
+            spp: 1,
+            max_depth: DEFAULT_MAX_DEPTH,
+            seed: 0,
+            far,
+        }
+    }
+}
+
+/// The per-frame GPU buffers of the denoiser contract: W x H `vec4<f32>` each.
+#[derive(Debug)]
+pub struct FrameBuffers {
+    /// (traced radiance rgb, 0 at untraced pixels; mask: 1 where traced this frame).
+    pub color_mask: Tensor,
+    /// (first-hit base colour rgb incl. texture, sky = 1; linear view depth / far, sky = 1).
+    pub albedo_depth: Tensor,
+    /// (first-hit world shading normal xyz in [-1, 1], sky = 0; metallic).
+    pub normal_metallic: Tensor,
+    /// (NEE light colour x visibility at the first hit of traced pixels, else 0; perceptual
+    /// roughness).
+    pub shadow_roughness: Tensor,
+    /// (base colour x transmission of the first transmissive surface on the primary ray, 0
+    /// where none; 0).
+    pub transparent: Tensor,
+    /// (screen-space motion in pixels, prev_pos = pos + motion with pos the pixel centre; 0, 0).
+    pub motion: Tensor,
+}
+
+impl FrameBuffers {
+    /// Zeroed buffers of `width x height`.
+    pub fn new(gpu: &Gpu, width: u32, height: u32) -> Result<Self> {
+        let t = |name: &str| Tensor::new(gpu, name, width, height, 4);
+        Ok(Self {
+            color_mask: t("frame.color_mask")?,
+            albedo_depth: t("frame.albedo_depth")?,
+            normal_metallic: t("frame.normal_metallic")?,
+            shadow_roughness: t("frame.shadow_roughness")?,
+            transparent: t("frame.transparent")?,
+            motion: t("frame.motion")?,
+        })
+    }
+
+    /// Width.
+    pub fn width(&self) -> u32 {
+        self.color_mask.width
+    }
+
+    /// Height.
+    pub fn height(&self) -> u32 {
+        self.color_mask.height
+    }
+
+    /// Downloads every buffer, split into the named host tensors of DESIGN.md section 3.
+    pub fn download(&self, gpu: &Gpu) -> Result<HostFrame> {
+        let cm = self.color_mask.read(gpu)?;
+        let ad = self.albedo_depth.read(gpu)?;
+        let nm = self.normal_metallic.read(gpu)?;
+        let sr = self.shadow_roughness.read(gpu)?;
+        let tr = self.transparent.read(gpu)?;
+        let mv = self.motion.read(gpu)?;
+        Ok(HostFrame {
+            color: channels(&cm, &[0, 1, 2]),
+            mask: channels(&cm, &[3]),
+            albedo: channels(&ad, &[0, 1, 2]),
+            depth: channels(&ad, &[3]),
+            normal: channels(&nm, &[0, 1, 2]),
+            metallic: channels(&nm, &[3]),
+            shadow: channels(&sr, &[0, 1, 2]),
+            roughness: channels(&sr, &[3]),
+            transparent: channels(&tr, &[0, 1, 2]),
+            motion: channels(&mv, &[0, 1]),
+        })
+    }
+}
+
+/// The channels `which` of `t`, in that order.
+pub fn channels(t: &HostTensor, which: &[u32]) -> HostTensor {
+    HostTensor::from_fn(t.width, t.height, which.len() as u32, |x, y, c| {
+        t.at(x, y, which[c as usize])
+    })
+}
+
+/// Counts of one rendered frame.
+#[derive(Debug, Clone, Copy, Default, PartialEq)]
+pub struct FrameStats {
+    /// Rays traced by the path tracer (camera, bounce and shadow rays).
+    pub rays: u64,
+    /// Samples traced (paths).
+    pub samples: u64,
+}
+
+/// The image kernels and their per-frame buffers for one resolution.
+pub struct Tracer {
+    gpu: Gpu,
+    /// The frame's buffers.
+    pub buffers: FrameBuffers,
+    counters: wgpu::Buffer,
+    scratch: Option<(Tensor, Tensor)>,
+    /// Most paths one reference dispatch traces (more samples are split into passes): keeps
+    /// each dispatch short for the driver.
+    pub paths_per_pass: u64,
+}
+
+impl std::fmt::Debug for Tracer {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("Tracer")
+            .field("width", &self.buffers.width())
+            .field("height", &self.buffers.height())
+            .finish()
+    }
+}
+
+/// Storage buffers the G-buffer kernel binds (the most of the image kernels).
+const MAX_STORAGE_BUFFERS: u32 = 10;
+
+fn groups(w: u32, h: u32) -> [u32; 3] {
+    [w.div_ceil(8), h.div_ceil(8), 1]
+}
+
+/// Default bound on the paths of one reference dispatch (see [`Tracer::paths_per_pass`]).
+pub const PATHS_PER_PASS: u64 = 1 << 18;
+
+/// Most samples one invocation traces in a pass. Mesa lavapipe (22.3) was seen to drop
+/// samples of invocations looping over many hundreds of samples (one pass of 1024 samples
+/// per pixel lost about 20% of them; 16 passes of 64 matched 1 pass of 64 exactly).
+pub const MAX_SAMPLES_PER_PASS: u32 = 64;
+
+/// Samples per pixel of one reference pass of at most `paths` paths.
+fn samples_per_pass(width: u32, height: u32, spp: u32, paths: u64) -> u32 {
+    let px = (width as u64 * height as u64).max(1);
+    (paths / px).clamp(1, spp.clamp(1, MAX_SAMPLES_PER_PASS) as u64) as u32
+}
+
+impl Tracer {
+    /// A tracer for `width x height` frames.
+    pub fn new(gpu: &Gpu, width: u32, height: u32) -> Result<Self> {
+        let have = gpu.device.limits().max_storage_buffers_per_shader_stage;
+        if have < MAX_STORAGE_BUFFERS {
+            return Err(Error::Invalid(format!(
+                "the path tracer binds {MAX_STORAGE_BUFFERS} storage buffers per kernel; adapter '{}' allows {have}",
+                gpu.info.name
+            )));
+        }
+        let counters = gpu.device.create_buffer(&wgpu::BufferDescriptor {
+            label: Some("subpixel.trace.counters"),
+            size: 16,
+            usage: wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_SRC | wgpu::BufferUsages::COPY_DST,
+            mapped_at_creation: false,
+        });
+        Ok(Self {
+            gpu: gpu.clone(),
+            buffers: FrameBuffers::new(gpu, width, height)?,
+            counters,
+            scratch: None,
+            paths_per_pass: PATHS_PER_PASS,
+        })
+    }
+
+    /// Width.
+    pub fn width(&self) -> u32 {
+        self.buffers.width()
+    }
+
+    /// Height.
+    pub fn height(&self) -> u32 {
+        self.buffers.height()
+    }
+
+    fn params(&self, s: &FrameSettings, accum: [u32; 2]) -> FrameParams {
+        let (w, h) = (self.width(), self.height());
+        let (dx, dy) = tile_offset(s.frame);
+        FrameParams {
+            cam: s.camera.gpu(w, h),
+            prev: s.prev_camera.gpu(w, h),
+            size: [w, h, s.frame, s.seed],
+            mode: [s.mode.code(), dx, dy, s.max_depth.max(1)],
+            accum: [accum[0], accum[1], 0, 0],
+            misc: [s.far.max(1e-6), 0.0, 0.0, 0.0],
+        }
+    }
+
+    /// The G-buffer dispatch of frame `s`.
+    pub fn gbuffer_dispatch(&self, scene: &GpuScene, s: &FrameSettings) -> Result<Dispatch> {
+        let b = &self.buffers;
+        self.gpu.kernels.dispatch(
+            "trace/gbuffer",
+            &Specialisation::none(),
+            bytemuck::bytes_of(&self.params(s, [0, 1])),
+            &[
+                &scene.nodes,
+                &scene.tris,
+                &scene.verts,
+                &scene.materials,
+                &scene.texels,
+                &b.albedo_depth.buffer,
+                &b.normal_metallic.buffer,
+                &b.shadow_roughness.buffer,
+                &b.transparent.buffer,
+                &b.motion.buffer,
+            ],
+            groups(self.width(), self.height()),
+        )
+    }
+
+    /// A path-tracing dispatch writing `color` and `shadow` (4-channel tensors of the frame
+    /// size); `accum` = (samples already in `color`, samples of this pass) in reference mode.
+    pub fn trace_dispatch(
+        &self,
+        scene: &GpuScene,
+        s: &FrameSettings,
+        accum: [u32; 2],
+        color: &Tensor,
+        shadow: &Tensor,
+    ) -> Result<Dispatch> {
+        let (w, h) = (self.width(), self.height());
+        let g = if s.mode == Mode::Quarter {
+            groups(w.div_ceil(2), h.div_ceil(2))
+        } else {
+            groups(w, h)
+        };
+        self.gpu.kernels.dispatch(
+            "trace/pathtrace",
+            &Specialisation::none(),
+            bytemuck::bytes_of(&self.params(s, accum)),
+            &[
+                &scene.nodes,
+                &scene.tris,
+                &scene.verts,
+                &scene.materials,
+                &scene.texels,
+                &scene.lights,
+                &scene.env,
+                &color.buffer,
+                &shadow.buffer,
+                &self.counters,
+            ],
+            g,
+        )
+    }
+
+    fn pass(encoder: &mut wgpu::CommandEncoder, d: &Dispatch, profiler: Option<&mut Profiler>, label: &str) {
+        let timestamp_writes = profiler.and_then(|p| p.scope(label));
+        let mut pass = encoder.begin_compute_pass(&wgpu::ComputePassDescriptor {
+            label: Some(label),
+            timestamp_writes,
+        });
+        d.record(&mut pass);
+    }
+
+    /// Records one quarter or full frame (G-buffer pass labelled `gbuffer`, trace pass
+    /// labelled `trace`) into `encoder`, timing both with `profiler` when given.
+    pub fn encode_frame(
+        &self,
+        encoder: &mut wgpu::CommandEncoder,
+        scene: &GpuScene,
+        s: &FrameSettings,
+        mut profiler: Option<&mut Profiler>,
+    ) -> Result<()> {
+        if s.mode == Mode::Reference {
+            return Err(Error::Invalid(
+                "encode_frame records quarter and full frames; reference frames use render".into(),
+            ));
+        }
+        let gb = self.gbuffer_dispatch(scene, s)?;
+        let b = &self.buffers;
+        let tr = self.trace_dispatch(scene, s, [0, 1], &b.color_mask, &b.shadow_roughness)?;
+        encoder.clear_buffer(&self.counters, 0, None);
+        Self::pass(encoder, &gb, profiler.as_deref_mut(), "gbuffer");
+        Self::pass(encoder, &tr, profiler, "trace");
+        Ok(())
+    }
+
+    /// Renders frame `s` into [`Tracer::buffers`] and waits for it. Reference mode renders
+    /// `s.spp` samples per pixel in passes of about a million paths.
+    pub fn render(&mut self, scene: &GpuScene, s: &FrameSettings) -> Result<FrameStats> {
+        let (w, h) = (self.width() as u64, self.height() as u64);
+        let mut enc = self.encoder();
+        if s.mode != Mode::Reference {
+            self.encode_frame(&mut enc, scene, s, None)?;
+            self.gpu.queue.submit([enc.finish()]);
+            let samples = if s.mode == Mode::Quarter {
+                (self.width().div_ceil(2) as u64) * (self.height().div_ceil(2) as u64)
+            } else {
+                w * h
+            };
+            return Ok(FrameStats {
+                rays: self.read_counter()?,
+                samples,
+            });
+        }
+        let gb = self.gbuffer_dispatch(scene, s)?;
+        Self::pass(&mut enc, &gb, None, "gbuffer");
+        self.gpu.queue.submit([enc.finish()]);
+        let b = &self.buffers;
+        let rays = self.accumulate(scene, s, s.spp, &b.color_mask, &b.shadow_roughness)?;
+        Ok(FrameStats {
+            rays,
+            samples: w * h * s.spp.max(1) as u64,
+        })
+    }
+
+    /// Renders an `spp`-sample reference of frame `s` (independent of the frame's own
+    /// samples) into `out` (4 channels: radiance, 1), leaving the frame buffers untouched.
+    pub fn render_reference(
+        &mut self,
+        scene: &GpuScene,
+        s: &FrameSettings,
+        spp: u32,
+        out: &Tensor,
+    ) -> Result<u64> {
+        if (out.width, out.height) != (self.width(), self.height()) || out.channels != 4 {
+            return Err(Error::shape(
+                "render_reference",
+                format!("output must be {}x{}x4", self.width(), self.height()),
+            ));
+        }
+        if self.scratch.is_none() {
+            let t = Tensor::new(&self.gpu, "trace.scratch_shadow", self.width(), self.height(), 4)?;
+            let c = Tensor::new(&self.gpu, "trace.scratch_color", 1, 1, 4)?;
+            self.scratch = Some((t, c));
+        }
+        let s = FrameSettings {
+            mode: Mode::Reference,
+            seed: s.seed ^ 0x9e37_79b9,
+            ..*s
+        };
+        let (shadow, _) = self.scratch.as_ref().expect("created above");
+        self.accumulate(scene, &s, spp, out, shadow)
+    }
+
+    fn accumulate(
+        &self,
+        scene: &GpuScene,
+        s: &FrameSettings,
+        spp: u32,
+        color: &Tensor,
+        shadow: &Tensor,
+    ) -> Result<u64> {
+        let spp = spp.max(1);
+        let per = samples_per_pass(self.width(), self.height(), spp, self.paths_per_pass);
+        let mut done = 0;
+        let mut rays = 0u64;
+        let s = FrameSettings {
+            mode: Mode::Reference,
+            ..*s
+        };
+        while done < spp {
+            let n = per.min(spp - done);
+            let d = self.trace_dispatch(scene, &s, [done, n], color, shadow)?;
+            let mut enc = self.encoder();
+            enc.clear_buffer(&self.counters, 0, None);
+            Self::pass(&mut enc, &d, None, "trace");
+            self.gpu.queue.submit([enc.finish()]);
+            rays += self.read_counter()?;
+            done += n;
+        }
+        Ok(rays)
+    }
+
+    fn encoder(&self) -> wgpu::CommandEncoder {
+        self.gpu
+            .device
+            .create_command_encoder(&wgpu::CommandEncoderDescriptor {
+                label: Some("subpixel.trace"),
+            })
+    }
+
+    /// Rays counted by the last trace pass (waits for the GPU).
+    pub fn read_counter(&self) -> Result<u64> {
+        let bytes = self.gpu.read_buffer(&self.counters, 0, 16)?;
+        let c: &[u32] = bytemuck::cast_slice(&bytes);
+        Ok(c[0] as u64)
+    }
+}
+
+/// Closest hits of rays on the GPU (`trace/query`): per ray `(origin, direction, tmax)`,
+/// returns `(BVH slot, t)` or `None`; with `any_hit`, any hit within tmax.
+pub fn query_rays(
+    gpu: &Gpu,
+    scene: &GpuScene,
+    rays: &[(glam::Vec3, glam::Vec3, f32)],
+    any_hit: bool,
+) -> Result<Vec<Option<(u32, f32)>>> {
+    use wgpu::util::DeviceExt;
+    if rays.is_empty() {
+        return Ok(Vec::new());
+    }
+    let data: Vec<[f32; 4]> = rays
+        .iter()
+        .flat_map(|(o, d, t)| [[o.x, o.y, o.z, *t], [d.x, d.y, d.z, 0.0]])
+        .collect();
+    let ray_buf = gpu.device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
+        label: Some("subpixel.query.rays"),
+        contents: bytemuck::cast_slice(&data),
+        usage: wgpu::BufferUsages::STORAGE,
+    });
+    let hits = gpu.device.create_buffer(&wgpu::BufferDescriptor {
+        label: Some("subpixel.query.hits"),
+        size: 16 * rays.len() as u64,
+        usage: wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_SRC,
+        mapped_at_creation: false,
+    });
+    let params = QueryParams {
+        count: rays.len() as u32,
+        any_hit: any_hit as u32,
+        pad: [0; 2],
+    };
+    let n = rays.len() as u32;
+    let d = gpu.kernels.dispatch(
+        "trace/query",
+        &Specialisation::none(),
+        bytemuck::bytes_of(&params),
+        &[
+            &scene.nodes,
+            &scene.tris,
+            &scene.verts,
+            &scene.materials,
+            &scene.texels,
+            &ray_buf,
+            &hits,
+        ],
+        [n.div_ceil(64).min(65535), n.div_ceil(64).div_ceil(65535), 1],
+    )?;
+    if n.div_ceil(64) > 65535 {
+        return Err(Error::Invalid("query_rays: at most 4M rays per call".into()));
+    }
+    let mut enc = gpu.device.create_command_encoder(&Default::default());
+    d.encode(&mut enc);
+    gpu.queue.submit([enc.finish()]);
+    let bytes = gpu.read_buffer(&hits, 0, 16 * rays.len() as u64)?;
+    let h: &[[f32; 4]] = bytemuck::cast_slice(&bytes);
+    Ok(h.iter()
+        .map(|v| {
+            let prim = v[1].to_bits();
+            (prim != u32::MAX).then_some((prim, v[0]))
+        })
+        .collect())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn quarter_offsets_cover_each_tile_once() {
+        let mut seen = [[0; 2]; 2];
+        for t in 0..4 {
+            let (dx, dy) = tile_offset(t);
+            seen[dy as usize][dx as usize] += 1;
+        }
+        assert_eq!(seen, [[1, 1], [1, 1]]);
+        assert_eq!(tile_offset(1), (1, 1));
+        assert_eq!(tile_offset(6), (1, 0));
+    }
+
+    #[test]
+    fn reference_passes_are_bounded() {
+        assert_eq!(samples_per_pass(256, 256, 16, 1 << 20), 16);
+        assert_eq!(samples_per_pass(1920, 1080, 64, 1 << 20), 1);
+        assert_eq!(samples_per_pass(8, 8, 3, 1 << 20), 3);
+        assert_eq!(samples_per_pass(8, 8, 1000, 1 << 20), MAX_SAMPLES_PER_PASS);
+    }
+}
