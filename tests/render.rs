@@ -527,6 +527,7 @@ fn render_command_writes_exr_frames() {
         path: Some("orbit".parse().unwrap()),
         reference_spp: Some(2),
         png: true,
+        resume: false,
         out: out.clone(),
     };
     render_command(&args).unwrap();

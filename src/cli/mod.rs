@@ -1,6 +1,7 @@
 //! The `subpixel` command line: argument parsing and the commands' drivers.
 
 mod bench;
+mod dataset;
 mod denoise;
 mod eval;
 
@@ -27,6 +28,8 @@ struct Cli {
 enum Command {
     /// Path trace a scene into one multi-channel EXR per frame.
     Render(crate::render::cli::RenderArgs),
+    /// Render training / validation / test sequences (inputs, buffers and references).
+    Dataset(dataset::DatasetArgs),
     /// Denoise a folder of frame EXRs with SSR.
     Denoise(denoise::DenoiseArgs),
     /// Score predictions against references (PSNR, SSIM, RMSE, relMSE, temporal error).
@@ -44,6 +47,7 @@ pub fn main() -> ExitCode {
     let cli = Cli::parse();
     let result = match cli.command {
         Some(Command::Render(a)) => crate::render::cli::render_command(&a),
+        Some(Command::Dataset(a)) => dataset::run(&a),
         Some(Command::Denoise(a)) => denoise::run(&a),
         Some(Command::Eval(a)) => eval::run(&a),
         Some(Command::Bench { what }) => bench::run(what),

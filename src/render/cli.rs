@@ -56,6 +56,9 @@ pub struct RenderArgs {
     /// Also write a tonemapped PNG preview of the colour of every frame.
     #[arg(long)]
     pub png: bool,
+    /// Skip frames whose EXR already exists (resume an interrupted render).
+    #[arg(long)]
+    pub resume: bool,
     /// Output folder.
     #[arg(long)]
     pub out: PathBuf,
@@ -164,8 +167,15 @@ pub fn render_command(args: &RenderArgs) -> Result<()> {
         .expect("valid template"),
     );
     let (mut rays, mut samples, mut gpu_secs) = (0u64, 0u64, 0f64);
+    let mut skipped = 0;
     for k in 0..args.frames {
         let f = args.first_frame + k;
+        let file = args.out.join(format!("frame_{f:04}.exr"));
+        if args.resume && file.is_file() {
+            skipped += 1;
+            bar.inc(1);
+            continue;
+        }
         let settings = FrameSettings {
             frame: f,
             camera: path.camera(f),
@@ -190,8 +200,12 @@ pub fn render_command(args: &RenderArgs) -> Result<()> {
             host.reference = Some(super::tracer::channels(&r.read(&gpu)?, &[0, 1, 2]));
         }
         gpu_secs += t.elapsed().as_secs_f64();
-        let file = args.out.join(format!("frame_{f:04}.exr"));
-        crate::io::exr::write_frame(&file, &host)?;
+        // Written under a temporary name first, so an interrupted render leaves no
+        // truncated frame for --resume to skip.
+        let tmp = args.out.join(format!("frame_{f:04}.partial.exr"));
+        crate::io::exr::write_frame(&tmp, &host)?;
+        std::fs::rename(&tmp, &file)
+            .with_context(|| format!("cannot rename {} to {}", tmp.display(), file.display()))?;
         if args.png {
             write_png(&args.out.join(format!("frame_{f:04}.png")), &host)?;
         }
@@ -199,10 +213,14 @@ pub fn render_command(args: &RenderArgs) -> Result<()> {
         bar.inc(1);
     }
     bar.finish();
+    if skipped > 0 {
+        println!("skipped {skipped} frame(s) already in {}", args.out.display());
+    }
+    let rendered = args.frames - skipped;
     println!(
         "rendered {} frame(s) of {} at {w}x{h}, mode {:?}{}: {} rays, {} samples in {:.3} s \
          ({:.2} Mrays/s, {:.3} s per frame; scene load + BVH {:.3} s) -> {}",
-        args.frames,
+        rendered,
         scene.name,
         args.mode,
         if args.mode == Mode::Reference {
@@ -214,7 +232,7 @@ pub fn render_command(args: &RenderArgs) -> Result<()> {
         samples,
         gpu_secs,
         rays as f64 / gpu_secs.max(1e-9) / 1e6,
-        gpu_secs / args.frames as f64,
+        gpu_secs / rendered.max(1) as f64,
         load_time.as_secs_f64(),
         args.out.display()
     );
