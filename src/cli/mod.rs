@@ -4,6 +4,7 @@ mod bench;
 mod dataset;
 mod denoise;
 mod eval;
+mod run;
 
 use std::path::{Path, PathBuf};
 use std::process::ExitCode;
@@ -28,6 +29,8 @@ struct Cli {
 enum Command {
     /// Path trace a scene into one multi-channel EXR per frame.
     Render(crate::render::cli::RenderArgs),
+    /// The main job: render a short 1/4-spp sequence, denoise it, compare with a reference.
+    Run(run::RunArgs),
     /// Render training / validation / test sequences (inputs, buffers and references).
     Dataset(dataset::DatasetArgs),
     /// Denoise a folder of frame EXRs with SSR.
@@ -47,13 +50,12 @@ pub fn main() -> ExitCode {
     let cli = Cli::parse();
     let result = match cli.command {
         Some(Command::Render(a)) => crate::render::cli::render_command(&a),
+        Some(Command::Run(a)) => run::run(&a),
         Some(Command::Dataset(a)) => dataset::run(&a),
         Some(Command::Denoise(a)) => denoise::run(&a),
         Some(Command::Eval(a)) => eval::run(&a),
         Some(Command::Bench { what }) => bench::run(what),
-        None => Err(anyhow::anyhow!(
-            "the main job (`subpixel run`) is not built yet; see `subpixel --help`"
-        )),
+        None => run::run(&run::RunArgs::default_args()),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

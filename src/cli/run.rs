@@ -1,0 +1,190 @@
+//! `subpixel run`, the main job: a short sequence of a built-in scene path traced at 1/4
+//! spp, reconstructed by SSR with the shipped weights, compared with a reference.
+
+use std::path::PathBuf;
+
+use anyhow::{Context, Result, bail};
+
+use crate::gpu::{AdapterKind, Gpu, Profiler};
+use crate::io::png::write_png_row;
+use crate::metrics;
+use crate::nn::{HostTensor, Tensor};
+use crate::render::{CameraPath, DEFAULT_MAX_DEPTH, FrameSettings, GpuScene, Mode, Tracer, load_scene};
+use crate::ssr::{Denoiser, FrameInputs, Granularity, Weights};
+
+#[derive(clap::Args)]
+pub(super) struct RunArgs {
+    /// Scene: builtin:NAME, a scene.json, a scene folder or a .gltf/.glb.
+    #[arg(long, default_value = "builtin:cornell")]
+    scene: String,
+    /// Frames to render.
+    #[arg(long, default_value_t = 8)]
+    frames: u32,
+    /// Width (default 1280, or 128 on a CPU adapter).
+    #[arg(long)]
+    width: Option<u32>,
+    /// Height (default 720, or 128 on a CPU adapter).
+    #[arg(long)]
+    height: Option<u32>,
+    /// Samples per pixel of the reference (default 1024, or 128 on a CPU adapter).
+    #[arg(long)]
+    reference_spp: Option<u32>,
+    /// Weights (default: the shipped weights/ssr.safetensors).
+    #[arg(long)]
+    weights: Option<PathBuf>,
+    /// Output folder for the PNGs (input | SSR | reference).
+    #[arg(long, default_value = "out/run")]
+    out: PathBuf,
+    /// Seed of the camera path and the sampler.
+    #[arg(long, default_value_t = 7)]
+    seed: u64,
+}
+
+impl RunArgs {
+    /// The defaults, as `subpixel run` with no arguments.
+    pub(super) fn default_args() -> Self {
+        use clap::FromArgMatches;
+        let cmd = <Self as clap::Args>::augment_args(clap::Command::new("run"));
+        Self::from_arg_matches(&cmd.get_matches_from(["run"])).expect("defaults parse")
+    }
+}
+
+pub(super) fn run(a: &RunArgs) -> Result<()> {
+    let wpath = a.weights.clone().unwrap_or_else(super::shipped_weights_path);
+    let weights = Weights::load(&wpath).with_context(|| {
+        "the main job needs trained SSR weights (shipped in weights/, or give --weights FILE)".to_string()
+    })?;
+    if weights.is_random_init() {
+        eprintln!(
+            "warning: {} holds random test weights: the SSR column shows no denoising",
+            wpath.display()
+        );
+    }
+    if a.frames == 0 {
+        bail!("--frames must be at least 1");
+    }
+    let gpu = Gpu::new()?;
+    let cpu = gpu.kind() == AdapterKind::Cpu;
+    let (w, h) = (
+        a.width.unwrap_or(if cpu { 128 } else { 1280 }),
+        a.height.unwrap_or(if cpu { 128 } else { 720 }),
+    );
+    let spp = a.reference_spp.unwrap_or(if cpu { 128 } else { 1024 });
+    println!("adapter: {}", gpu.describe());
+    if cpu {
+        println!("CPU adapter: {w}x{h}, reference {spp} spp (a GPU runs 1280x720 by default)");
+    }
+    let scene = load_scene(&a.scene)?;
+    scene.warn_approximations();
+    let gs = GpuScene::new(&gpu, &scene)?;
+    let path = CameraPath::from_spec(
+        &"orbit".parse().expect("known path"),
+        &scene.camera,
+        a.seed,
+        a.frames,
+    );
+    let eyes: Vec<_> = (0..a.frames).map(|f| path.camera(f).position).collect();
+    let far = scene.far_distance(eyes.iter().chain([&scene.camera.position]));
+    let mut tracer = Tracer::new(&gpu, w, h)?;
+    let mut den = Denoiser::with_gpu(&gpu, &weights, w, h)?;
+    let reference = Tensor::new(&gpu, "run.reference", w, h, 4)?;
+    std::fs::create_dir_all(&a.out).with_context(|| format!("cannot create {}", a.out.display()))?;
+    let mut prof = Profiler::new(&gpu, 16);
+    let mut rows = Vec::new();
+    let pb = super::progress(a.frames as u64, "frames");
+    let mut walls = Vec::new();
+    for f in 0..a.frames {
+        let settings = FrameSettings {
+            frame: f,
+            camera: path.camera(f),
+            prev_camera: path.camera(f.saturating_sub(1)),
+            mode: Mode::Quarter,
+            spp: 1,
+            max_depth: DEFAULT_MAX_DEPTH,
+            seed: a.seed as u32,
+            far,
+        };
+        let t0 = std::time::Instant::now();
+        let mut enc = gpu.device.create_command_encoder(&Default::default());
+        tracer.encode_frame(&mut enc, &gs, &settings, Some(&mut prof))?;
+        let b = &tracer.buffers;
+        let inputs = FrameInputs {
+            color_mask: &b.color_mask.buffer,
+            albedo_depth: &b.albedo_depth.buffer,
+            normal_metallic: &b.normal_metallic.buffer,
+            shadow_roughness: &b.shadow_roughness.buffer,
+            transparent: &b.transparent.buffer,
+            motion: &b.motion.buffer,
+        };
+        den.denoise_profiled(&mut enc, &inputs, Some(&mut prof), Granularity::Stage)?;
+        prof.resolve(&mut enc);
+        gpu.queue.submit([enc.finish()]);
+        gpu.wait()?;
+        walls.push(t0.elapsed().as_secs_f64() * 1e3);
+        prof.collect(&gpu)?;
+        let input = tracer.buffers.download(&gpu)?.color;
+        let ssr = den.read_output()?;
+        tracer.render_reference(&gs, &settings, spp, &reference)?;
+        let r4 = reference.read(&gpu)?;
+        let rref = HostTensor::from_fn(w, h, 3, |x, y, c| r4.at(x, y, c));
+        write_png_row(&a.out.join(format!("frame_{f:04}.png")), &[&input, &ssr, &rref])?;
+        rows.push([
+            metrics::psnr(&input, &rref),
+            metrics::ssim(&input, &rref),
+            metrics::psnr(&ssr, &rref),
+            metrics::ssim(&ssr, &rref),
+        ]);
+        pb.inc(1);
+    }
+    pb.finish_and_clear();
+    println!(
+        "\n{:>5} {:>11} {:>11} {:>11} {:>11}",
+        "frame", "input PSNR", "input SSIM", "SSR PSNR", "SSR SSIM"
+    );
+    for (f, r) in rows.iter().enumerate() {
+        println!(
+            "{f:>5} {:>11.2} {:>11.4} {:>11.2} {:>11.4}",
+            r[0], r[1], r[2], r[3]
+        );
+    }
+    let n = rows.len() as f64;
+    let mean = |i: usize| rows.iter().map(|r| r[i]).sum::<f64>() / n;
+    println!(
+        "{:>5} {:>11.2} {:>11.4} {:>11.2} {:>11.4}",
+        "mean",
+        mean(0),
+        mean(1),
+        mean(2),
+        mean(3)
+    );
+    let stages: Vec<String> = ["gbuffer", "trace", "pack", "tfa", "unet", "output"]
+        .iter()
+        .filter_map(|s| prof.stat(s).map(|st| format!("{s} {:.2}", st.median_ms)))
+        .collect();
+    let total: f64 = ["gbuffer", "trace", "pack", "tfa", "unet", "output"]
+        .iter()
+        .filter_map(|s| prof.stat(s).map(|st| st.median_ms))
+        .sum();
+    let wall = crate::gpu::Stats::from_samples(&walls).expect("frames ran");
+    println!(
+        "\ntime per frame at {w}x{h} (median over {} frames): {} ms of GPU ({}), {:.2} ms CPU wall{}",
+        a.frames,
+        if prof.gpu_timed() {
+            format!("{total:.2}")
+        } else {
+            "n/a".into()
+        },
+        stages.join(", "),
+        wall.median_ms,
+        if cpu {
+            " (CPU adapter: about 1000x slower than a GPU)"
+        } else {
+            ""
+        }
+    );
+    println!(
+        "images: {}/frame_NNNN.png (input | SSR | reference {spp} spp)",
+        a.out.display()
+    );
+    Ok(())
+}
