@@ -733,3 +733,84 @@ fn furnace_smooth_metal_and_glass() {
         assert!((m - 1.0).abs() < 0.02, "furnace {name}: {m}");
     }
 }
+
+/// A white Lambertian sphere inside a closed box whose inner walls emit radiance 1 (and
+/// reflect nothing) converges to 1 as in a white furnace: next-event estimation on emissive
+/// triangles of different sizes (power-proportional choice) and its MIS with BSDF sampling.
+#[test]
+fn emissive_box_furnace_converges_to_one() {
+    let mut scene = builtin::furnace();
+    scene.environment = None;
+    scene.materials.push(Material {
+        emissive: [1.0; 3],
+        specular: 0.0,
+        ..Material::diffuse("glow", [0.0; 3])
+    });
+    let (lo, hi) = (Vec3::new(-2.0, -1.5, -3.0), Vec3::new(2.5, 1.5, 6.0));
+    let c = |x: bool, y: bool, z: bool| {
+        Vec3::new(
+            if x { hi.x } else { lo.x },
+            if y { hi.y } else { lo.y },
+            if z { hi.z } else { lo.z },
+        )
+    };
+    let g = &mut scene.geometry;
+    // Inward-facing faces (counter-clockwise seen from inside).
+    let faces = [
+        [
+            c(false, false, false),
+            c(false, false, true),
+            c(true, false, true),
+            c(true, false, false),
+        ], // floor
+        [
+            c(false, true, false),
+            c(true, true, false),
+            c(true, true, true),
+            c(false, true, true),
+        ], // ceiling
+        [
+            c(false, false, false),
+            c(true, false, false),
+            c(true, true, false),
+            c(false, true, false),
+        ], // back
+        [
+            c(true, false, true),
+            c(false, false, true),
+            c(false, true, true),
+            c(true, true, true),
+        ], // front
+        [
+            c(false, false, true),
+            c(false, false, false),
+            c(false, true, false),
+            c(false, true, true),
+        ], // left
+        [
+            c(true, false, false),
+            c(true, false, true),
+            c(true, true, true),
+            c(true, true, false),
+        ], // right
+    ];
+    for [a, b, cc, d] in faces {
+        let n = (b - a).cross(cc - a);
+        assert!(n.dot(-(a + cc) * 0.5) > 0.0, "face must point inwards");
+        g.push_quad(a, b, cc, d, 1);
+    }
+    let gs = GpuScene::new(&gpu(), &scene).unwrap();
+    assert_eq!(gs.emissive_triangles, 12);
+    let f = reference(&scene, &gs, 12, 12, 256, 16, 4);
+    let sphere: Vec<usize> = (0..144)
+        .filter(|&i| f.albedo.data[3 * i] == 1.0 && f.depth.data[i] < 0.5)
+        .collect();
+    assert!(sphere.len() > 30, "sphere pixels {}", sphere.len());
+    let m = mean(sphere.iter().map(|&i| f.color.data[3 * i + 1]));
+    let all = mean((0..144).map(|i| f.color.data[3 * i + 1]));
+    eprintln!("emissive box furnace: sphere {m}, image {all}");
+    assert!(
+        (m - 1.0).abs() < 0.01 && (all - 1.0).abs() < 0.01,
+        "sphere {m}, image {all}"
+    );
+}

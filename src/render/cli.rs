@@ -149,6 +149,9 @@ pub fn render_command(args: &RenderArgs) -> Result<()> {
         .collect();
     let far = scene.far_distance(horizon.iter().chain([&scene.camera.position]));
     let mut tracer = Tracer::new(&gpu, w, h)?;
+    let t_compile = Instant::now();
+    tracer.compile()?;
+    let compile_time = t_compile.elapsed();
     let reference = match args.reference_spp {
         Some(_) => Some(Tensor::new(&gpu, "reference", w, h, 4)?),
         None => None,
@@ -197,7 +200,7 @@ pub fn render_command(args: &RenderArgs) -> Result<()> {
     bar.finish();
     println!(
         "rendered {} frame(s) of {} at {w}x{h}, mode {:?}{}: {} rays, {} samples in {:.3} s \
-         ({:.2} Mrays/s, {:.3} s per frame; scene load + BVH {:.3} s) -> {}",
+         ({:.2} Mrays/s, {:.3} s per frame; scene load + BVH {:.3} s, kernel compilation {:.3} s) -> {}",
         args.frames,
         scene.name,
         args.mode,
@@ -212,6 +215,7 @@ pub fn render_command(args: &RenderArgs) -> Result<()> {
         rays as f64 / gpu_secs.max(1e-9) / 1e6,
         gpu_secs / args.frames as f64,
         load_time.as_secs_f64(),
+        compile_time.as_secs_f64(),
         args.out.display()
     );
     Ok(())
@@ -286,6 +290,7 @@ pub fn bench_render_command(args: &BenchRenderArgs) -> Result<()> {
     let scene = load_scene(&args.scene)?;
     let gs = GpuScene::new(&gpu, &scene)?;
     let mut tracer = Tracer::new(&gpu, args.width, args.height)?;
+    tracer.compile()?;
     let path = CameraPath::from_spec(
         &"orbit".parse().expect("known"),
         &scene.camera,

@@ -330,6 +330,14 @@ impl Tracer {
         })
     }
 
+    /// Compiles the image kernels now (otherwise the first frame does).
+    pub fn compile(&self) -> Result<()> {
+        for k in ["trace/gbuffer", "trace/pathtrace"] {
+            self.gpu.kernels.pipeline(k, &Specialisation::none())?;
+        }
+        Ok(())
+    }
+
     /// Width.
     pub fn width(&self) -> u32 {
         self.buffers.width()
