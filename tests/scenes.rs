@@ -6,7 +6,7 @@ mod common;
 
 use std::path::PathBuf;
 
-use subpixel::render::{CameraPath, FrameSettings, GpuScene, Mode, Tracer, load_scene};
+use subpixel::render::{CameraPath, FrameSettings, GpuScene, Mode, Tracer, load_scene, query_rays};
 
 fn scenes_dir() -> PathBuf {
     std::env::var_os("SUBPIXEL_SCENES")
@@ -43,6 +43,40 @@ fn every_scene_loads_and_renders() {
         let t_load = t0.elapsed();
         let gs = GpuScene::new(&g, &scene).unwrap_or_else(|e| panic!("{e}"));
         let t_upload = t0.elapsed() - t_load;
+        // GPU traversal == obvhs CPU traversal on rays from the scene camera.
+        let (r, u, f) = scene.camera.basis();
+        let rays: Vec<_> = (0..2000)
+            .map(|i| {
+                let a = (i as f32 * 0.618_034).fract() * 2.0 - 1.0;
+                let b = (i as f32 * 0.414_213_6).fract() * 2.0 - 1.0;
+                (
+                    scene.camera.position,
+                    (f + 0.8 * a * r + 0.6 * b * u).normalize(),
+                    f32::INFINITY,
+                )
+            })
+            .collect();
+        let hits = query_rays(&g, &gs, &rays, false).unwrap();
+        let mut mismatches = 0;
+        for ((o, d, tmax), h) in rays.iter().zip(&hits) {
+            let c = gs.bvh.intersect(*o, *d, *tmax);
+            let same = match (c, h) {
+                (None, None) => true,
+                (Some((cp, ct)), Some((gp, gt))) => cp == *gp && (ct - gt).abs() <= 1e-4 * ct.abs().max(1e-3),
+                _ => false,
+            };
+            mismatches += !same as usize;
+        }
+        // Alpha-masked triangles are skipped by the GPU only (the CPU reference has no
+        // textures): allow those few rays.
+        let masked = scene
+            .materials
+            .iter()
+            .any(|m| matches!(m.alpha, subpixel::render::scene::AlphaMode::Mask(_)));
+        assert!(
+            mismatches == 0 || (masked && mismatches < 100),
+            "{name}: {mismatches} of 2000 rays differ"
+        );
         // Tiny, with the film's aspect ratio.
         let (fw, fh) = scene.film;
         let w = 24u32;

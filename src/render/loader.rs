@@ -480,6 +480,22 @@ impl Loader<'_> {
 
 /// Loads a glTF 2.0 file (`.gltf` with its buffers and images, or `.glb`).
 pub fn load_gltf(path: &Path) -> Result<Scene> {
+    // The glTF reader indexes buffers directly; a file whose accessors overrun their views
+    // must become an error naming the file, not a crash.
+    std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| load_gltf_checked(path))).unwrap_or_else(|p| {
+        let what = p
+            .downcast_ref::<String>()
+            .cloned()
+            .or_else(|| p.downcast_ref::<&str>().map(|s| s.to_string()))
+            .unwrap_or_else(|| "unknown error".into());
+        Err(scene_err(
+            path,
+            format!("malformed glTF (reading it failed: {what})"),
+        ))
+    })
+}
+
+fn load_gltf_checked(path: &Path) -> Result<Scene> {
     let bytes = std::fs::read(path).map_err(|e| file_err(path, format!("cannot read glTF: {e}")))?;
     let gltf = gltf::Gltf::from_slice(&bytes).map_err(|e| scene_err(path, format!("malformed glTF: {e}")))?;
     let base = path.parent().unwrap_or(Path::new(".")).to_path_buf();
