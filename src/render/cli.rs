@@ -66,12 +66,12 @@ pub struct BenchRenderArgs {
     /// Scene (as for `render`).
     #[arg(long, default_value = "builtin:cornell")]
     pub scene: String,
-    /// Image width.
-    #[arg(long, default_value_t = 1920)]
-    pub width: u32,
-    /// Image height.
-    #[arg(long, default_value_t = 1080)]
-    pub height: u32,
+    /// Image width (default: 1920 on a GPU, 256 on a CPU adapter).
+    #[arg(long)]
+    pub width: Option<u32>,
+    /// Image height (default: 1080 on a GPU, 144 on a CPU adapter).
+    #[arg(long)]
+    pub height: Option<u32>,
     /// Timed frames per mode (default: 100 on a GPU, 3 on a CPU adapter).
     #[arg(long)]
     pub frames: Option<u32>,
@@ -287,9 +287,11 @@ pub fn bench_render_command(args: &BenchRenderArgs) -> Result<()> {
     let gpu = Gpu::new()?;
     let cpu = gpu.kind() == AdapterKind::Cpu;
     let frames = args.frames.unwrap_or(if cpu { 3 } else { 100 }).max(1);
+    let width = args.width.unwrap_or(if cpu { 256 } else { 1920 });
+    let height = args.height.unwrap_or(if cpu { 144 } else { 1080 });
     let scene = load_scene(&args.scene)?;
     let gs = GpuScene::new(&gpu, &scene)?;
-    let mut tracer = Tracer::new(&gpu, args.width, args.height)?;
+    let mut tracer = Tracer::new(&gpu, width, height)?;
     tracer.compile()?;
     let path = CameraPath::from_spec(
         &"orbit".parse().expect("known"),
@@ -361,7 +363,7 @@ pub fn bench_render_command(args: &BenchRenderArgs) -> Result<()> {
         let out = serde_json::json!({
             "adapter": gpu.describe(),
             "scene": scene.name,
-            "width": args.width, "height": args.height,
+            "width": width, "height": height,
             "frames": frames, "max_depth": args.max_depth,
             "modes": results,
             "speedup_trace": speedup_trace,
@@ -374,8 +376,8 @@ pub fn bench_render_command(args: &BenchRenderArgs) -> Result<()> {
         "{} | {} {}x{}, {frames} frames (+{} warm-up), max depth {}",
         gpu.describe(),
         scene.name,
-        args.width,
-        args.height,
+        width,
+        height,
         args.warmup,
         args.max_depth
     );

@@ -220,6 +220,11 @@ pub struct FrameHost {
 }
 
 impl FrameHost {
+    /// Downloads `buffers` (same as [`FrameBuffers::download`]).
+    pub fn download(buffers: &FrameBuffers, gpu: &Gpu) -> Result<Self> {
+        buffers.download(gpu)
+    }
+
     /// Width.
     pub fn width(&self) -> u32 {
         self.color.width
