@@ -104,7 +104,11 @@ impl Fly {
         }
     }
     fn forward(&self) -> Vec3 {
-        Vec3::new(self.yaw.sin() * self.pitch.cos(), self.pitch.sin(), -self.yaw.cos() * self.pitch.cos())
+        Vec3::new(
+            self.yaw.sin() * self.pitch.cos(),
+            self.pitch.sin(),
+            -self.yaw.cos() * self.pitch.cos(),
+        )
     }
     fn update(&mut self, dt: f32) {
         let f = self.forward();
@@ -161,7 +165,11 @@ struct App {
 
 impl App {
     fn render_size(&self, w: u32, h: u32) -> (u32, u32) {
-        let s = self.args.scale.unwrap_or(if self.gpu.kind() == AdapterKind::Cpu { 0.25 } else { 1.0 });
+        let s = self.args.scale.unwrap_or(if self.gpu.kind() == AdapterKind::Cpu {
+            0.25
+        } else {
+            1.0
+        });
         // Multiples of 4, so the SSR output (padded to 4 internally) matches the frame buffers.
         let r = |n: u32| (((n as f32 * s) as u32) / 4 * 4).max(4);
         (r(w), r(h))
@@ -210,7 +218,9 @@ impl App {
             far: self.far,
         };
         let mut enc = self.gpu.device.create_command_encoder(&Default::default());
-        frame.tracer.encode_frame(&mut enc, &self.scene, &settings, Some(&mut self.profiler))?;
+        frame
+            .tracer
+            .encode_frame(&mut enc, &self.scene, &settings, Some(&mut self.profiler))?;
         let b = &frame.tracer.buffers;
         let inputs = FrameInputs {
             color_mask: &b.color_mask.buffer,
@@ -220,12 +230,18 @@ impl App {
             transparent: &b.transparent.buffer,
             motion: &b.motion.buffer,
         };
-        frame.denoiser.denoise_profiled(&mut enc, &inputs, Some(&mut self.profiler), Granularity::Stage)?;
+        frame
+            .denoiser
+            .denoise_profiled(&mut enc, &inputs, Some(&mut self.profiler), Granularity::Stage)?;
         if moved {
             frame.reference_spp = 0;
         }
         if self.view == ViewKind::Reference {
-            let s = FrameSettings { mode: Mode::Reference, seed: 7 + self.index, ..settings };
+            let s = FrameSettings {
+                mode: Mode::Reference,
+                seed: 7 + self.index,
+                ..settings
+            };
             let d = frame.tracer.trace_dispatch(
                 &self.scene,
                 &s,
@@ -242,22 +258,23 @@ impl App {
         }
         let net = frame.denoiser.network();
         let ssr = net.output();
-        let (src, other, mode, first, channels): (&Tensor, Option<&Tensor>, DisplayMode, u32, u32) = match self.view {
-            ViewKind::Input => (&b.color_mask, None, DisplayMode::Radiance, 0, 3),
-            ViewKind::Ssr => (ssr, None, DisplayMode::Radiance, 0, 3),
-            ViewKind::Split => (&b.color_mask, Some(ssr), DisplayMode::Radiance, 0, 3),
-            ViewKind::Accumulated => (&frame.accumulated, None, DisplayMode::Radiance, 0, 3),
-            ViewKind::Reference => (&frame.reference, None, DisplayMode::Radiance, 0, 3),
-            ViewKind::Albedo => (&b.albedo_depth, None, DisplayMode::Unit, 0, 3),
-            ViewKind::Normal => (&b.normal_metallic, None, DisplayMode::Signed(1.0), 0, 3),
-            ViewKind::Depth => (&b.albedo_depth, None, DisplayMode::Unit, 3, 1),
-            ViewKind::Shadow => (&b.shadow_roughness, None, DisplayMode::Radiance, 0, 3),
-            ViewKind::Motion => (&b.motion, None, DisplayMode::Signed(0.125), 0, 2),
-            ViewKind::Mask => (&b.color_mask, None, DisplayMode::Unit, 3, 1),
-            ViewKind::Transparent => (&b.transparent, None, DisplayMode::Unit, 0, 3),
-            ViewKind::Metallic => (&b.normal_metallic, None, DisplayMode::Unit, 3, 1),
-            ViewKind::Roughness => (&b.shadow_roughness, None, DisplayMode::Unit, 3, 1),
-        };
+        let (src, other, mode, first, channels): (&Tensor, Option<&Tensor>, DisplayMode, u32, u32) =
+            match self.view {
+                ViewKind::Input => (&b.color_mask, None, DisplayMode::Radiance, 0, 3),
+                ViewKind::Ssr => (ssr, None, DisplayMode::Radiance, 0, 3),
+                ViewKind::Split => (&b.color_mask, Some(ssr), DisplayMode::Radiance, 0, 3),
+                ViewKind::Accumulated => (&frame.accumulated, None, DisplayMode::Radiance, 0, 3),
+                ViewKind::Reference => (&frame.reference, None, DisplayMode::Radiance, 0, 3),
+                ViewKind::Albedo => (&b.albedo_depth, None, DisplayMode::Unit, 0, 3),
+                ViewKind::Normal => (&b.normal_metallic, None, DisplayMode::Signed(1.0), 0, 3),
+                ViewKind::Depth => (&b.albedo_depth, None, DisplayMode::Unit, 3, 1),
+                ViewKind::Shadow => (&b.shadow_roughness, None, DisplayMode::Radiance, 0, 3),
+                ViewKind::Motion => (&b.motion, None, DisplayMode::Signed(0.125), 0, 2),
+                ViewKind::Mask => (&b.color_mask, None, DisplayMode::Unit, 3, 1),
+                ViewKind::Transparent => (&b.transparent, None, DisplayMode::Unit, 0, 3),
+                ViewKind::Metallic => (&b.normal_metallic, None, DisplayMode::Unit, 3, 1),
+                ViewKind::Roughness => (&b.shadow_roughness, None, DisplayMode::Unit, 3, 1),
+            };
         let fps = self.fps.len() as f64 / self.fps.iter().sum::<f64>().max(1e-9);
         let mut text = vec![format!(
             "{:?}  {:.1} fps  {}x{}  {}",
@@ -276,7 +293,10 @@ impl App {
         if self.view == ViewKind::Reference {
             text.push(format!("reference: {} spp", frame.reference_spp));
         }
-        let (w, h) = (self.config.as_ref().map_or(self.args.width, |c| c.width), self.config.as_ref().map_or(self.args.height, |c| c.height));
+        let (w, h) = (
+            self.config.as_ref().map_or(self.args.width, |c| c.width),
+            self.config.as_ref().map_or(self.args.height, |c| c.height),
+        );
         let view = View {
             mode,
             first,
@@ -290,7 +310,9 @@ impl App {
         self.profiler.resolve(&mut enc);
         let surface_tex = match &self.surface {
             Some(s) => match s.get_current_texture() {
-                wgpu::CurrentSurfaceTexture::Success(t) | wgpu::CurrentSurfaceTexture::Suboptimal(t) => Some(t),
+                wgpu::CurrentSurfaceTexture::Success(t) | wgpu::CurrentSurfaceTexture::Suboptimal(t) => {
+                    Some(t)
+                }
                 _ => None,
             },
             None => None,
@@ -317,7 +339,8 @@ impl App {
     fn screenshot(&self) -> Result<()> {
         let frame = self.frame.as_ref().context("nothing rendered yet")?;
         let img = frame.display.read_rgba()?;
-        img.save(&self.args.screenshot).with_context(|| format!("cannot write {}", self.args.screenshot.display()))?;
+        img.save(&self.args.screenshot)
+            .with_context(|| format!("cannot write {}", self.args.screenshot.display()))?;
         println!("saved {}", self.args.screenshot.display());
         Ok(())
     }
@@ -345,7 +368,11 @@ impl ApplicationHandler for App {
             .with_inner_size(winit::dpi::PhysicalSize::new(self.args.width, self.args.height));
         let result = (|| -> Result<()> {
             let window = Arc::new(el.create_window(attrs)?);
-            let (instance, adapter) = self.gpu.origin.as_ref().context("the GPU context has no instance")?;
+            let (instance, adapter) = self
+                .gpu
+                .origin
+                .as_ref()
+                .context("the GPU context has no instance")?;
             let surface = instance.create_surface(window.clone())?;
             let size = window.inner_size();
             let mut config = surface
@@ -372,10 +399,19 @@ impl ApplicationHandler for App {
                 WindowEvent::Resized(s) => self.resize(s.width, s.height)?,
                 WindowEvent::KeyboardInput { event, .. } => {
                     let down = event.state == ElementState::Pressed;
-                    let PhysicalKey::Code(k) = event.physical_key else { return Ok(()) };
-                    let fly_key = [KeyCode::KeyW, KeyCode::KeyS, KeyCode::KeyA, KeyCode::KeyD, KeyCode::KeyE, KeyCode::KeyQ]
-                        .iter()
-                        .position(|c| *c == k);
+                    let PhysicalKey::Code(k) = event.physical_key else {
+                        return Ok(());
+                    };
+                    let fly_key = [
+                        KeyCode::KeyW,
+                        KeyCode::KeyS,
+                        KeyCode::KeyA,
+                        KeyCode::KeyD,
+                        KeyCode::KeyE,
+                        KeyCode::KeyQ,
+                    ]
+                    .iter()
+                    .position(|c| *c == k);
                     if let Some(i) = fly_key {
                         self.fly.keys[i] = down;
                         return Ok(());
@@ -415,19 +451,21 @@ impl ApplicationHandler for App {
                         _ => {}
                     }
                 }
-                WindowEvent::MouseInput { state, button: MouseButton::Left, .. } => {
+                WindowEvent::MouseInput {
+                    state,
+                    button: MouseButton::Left,
+                    ..
+                } => {
                     self.fly.dragging = state == ElementState::Pressed;
                     self.fly.last_mouse = None;
                 }
-                WindowEvent::CursorMoved { position, .. } => {
-                    if self.fly.dragging {
-                        if let Some((x, y)) = self.fly.last_mouse {
-                            self.fly.yaw += 0.005 * (position.x - x) as f32;
-                            self.fly.pitch = (self.fly.pitch - 0.005 * (position.y - y) as f32).clamp(-1.5, 1.5);
-                            self.fly.moved = true;
-                        }
-                        self.fly.last_mouse = Some((position.x, position.y));
+                WindowEvent::CursorMoved { position, .. } if self.fly.dragging => {
+                    if let Some((x, y)) = self.fly.last_mouse {
+                        self.fly.yaw += 0.005 * (position.x - x) as f32;
+                        self.fly.pitch = (self.fly.pitch - 0.005 * (position.y - y) as f32).clamp(-1.5, 1.5);
+                        self.fly.moved = true;
                     }
+                    self.fly.last_mouse = Some((position.x, position.y));
                 }
                 WindowEvent::MouseWheel { delta, .. } => {
                     let d = match delta {
@@ -467,17 +505,27 @@ fn main() -> Result<()> {
     let args = Args::parse();
     let gpu = Gpu::new()?;
     let scene = load_scene(&args.scene)?;
-    let weights_path = args.weights.clone().unwrap_or_else(|| PathBuf::from("weights/ssr.safetensors"));
+    let weights_path = args
+        .weights
+        .clone()
+        .unwrap_or_else(|| PathBuf::from("weights/ssr.safetensors"));
     let weights = Weights::load(&weights_path)?;
     let (lo, hi) = scene.bounds();
     let extent = (hi - lo).length().max(1e-3);
     let far = scene.far_distance([&scene.camera.position]);
-    let path = scene.camera_path.as_ref().map(|spec| CameraPath::from_spec(spec, &scene.camera, 1, 240));
+    let path = scene
+        .camera_path
+        .as_ref()
+        .map(|spec| CameraPath::from_spec(spec, &scene.camera, 1, 240));
     let gpu_scene = GpuScene::new(&gpu, &scene)?;
     let event_loop = EventLoop::new()?;
     event_loop.set_control_flow(ControlFlow::Poll);
     let mut app = App {
-        view: if args.split { ViewKind::Split } else { ViewKind::Ssr },
+        view: if args.split {
+            ViewKind::Split
+        } else {
+            ViewKind::Ssr
+        },
         profiler: Profiler::new(&gpu, 16),
         fly: Fly::new(scene.camera, extent),
         playing: path.is_some() && args.frames.is_some(),

@@ -5,12 +5,12 @@ mod common;
 use common::gpu;
 use glam::{Vec2, Vec3};
 use rand::{Rng, SeedableRng, rngs::StdRng};
+use subpixel::frame::HostFrame;
 use subpixel::render::builtin::{self, CornellOptions};
 use subpixel::render::scene::{Geometry, Material, Scene};
 use subpixel::render::{Camera, FrameSettings, GpuScene, Mode, Tracer, query_rays};
-use subpixel::ssr::HostFrame as FrameHost;
 
-fn render(scene: &Scene, gs: &GpuScene, w: u32, h: u32, s: &FrameSettings) -> FrameHost {
+fn render(scene: &Scene, gs: &GpuScene, w: u32, h: u32, s: &FrameSettings) -> HostFrame {
     let g = gpu();
     let mut t = Tracer::new(&g, w, h).unwrap();
     let _ = scene;
@@ -188,7 +188,7 @@ fn far_of(scene: &Scene) -> f32 {
     scene.far_distance([&scene.camera.position])
 }
 
-fn reference(scene: &Scene, gs: &GpuScene, w: u32, h: u32, spp: u32, max_depth: u32, seed: u32) -> FrameHost {
+fn reference(scene: &Scene, gs: &GpuScene, w: u32, h: u32, spp: u32, max_depth: u32, seed: u32) -> HostFrame {
     let mut s = FrameSettings::new(scene.camera, Mode::Reference, far_of(scene));
     s.spp = spp;
     s.max_depth = max_depth;
@@ -245,7 +245,7 @@ fn cornell_energy_and_back_wall_symmetry() {
     let scene = symmetric_cornell();
     let gs = GpuScene::new(&gpu(), &scene).unwrap();
     let (w, h) = (20, 20);
-    let lum = |f: &FrameHost| {
+    let lum = |f: &HostFrame| {
         mean((0..w * h).map(|i| {
             let c = &f.color.data[3 * i as usize..3 * i as usize + 3];
             0.2126 * c[0] + 0.7152 * c[1] + 0.0722 * c[2]
@@ -428,7 +428,7 @@ fn reference_variance_falls_like_one_over_n() {
     let gs = GpuScene::new(&gpu(), &scene).unwrap();
     let (w, h) = (12, 12);
     let var_at = |spp: u32| {
-        let runs: Vec<FrameHost> = (0..16)
+        let runs: Vec<HostFrame> = (0..16)
             .map(|seed| reference(&scene, &gs, w, h, spp, 3, 100 + seed))
             .collect();
         let n = runs.len() as f64;
@@ -541,4 +541,324 @@ fn render_command_writes_exr_frames() {
         serde_json::from_str(&std::fs::read_to_string(out.join("sequence.json")).unwrap()).unwrap();
     assert_eq!(seq["camera_path"], "orbit");
     std::fs::remove_dir_all(&out).ok();
+}
+
+fn test_env(w: u32, h: u32, rot_deg: f32) -> subpixel::render::scene::Environment {
+    let mut pixels = Vec::new();
+    for y in 0..h {
+        for x in 0..w {
+            pixels.push([
+                0.2 + x as f32 * 0.1,
+                0.1 + y as f32 * 0.3,
+                0.5 + ((x * 7 + y * 3) % 5) as f32 * 0.2,
+            ]);
+        }
+    }
+    subpixel::render::scene::Environment {
+        source: "test env".into(),
+        width: w,
+        height: h,
+        pixels,
+        scale: 1.5,
+        to_world: glam::Mat3::from_rotation_y(rot_deg.to_radians()) * glam::Mat3::from_rotation_x(0.3),
+    }
+}
+
+fn env_scene(env: subpixel::render::scene::Environment, geometry: Geometry, camera: Camera) -> Scene {
+    Scene {
+        name: "env test".into(),
+        geometry,
+        materials: vec![Material {
+            specular: 0.0,
+            ..Material::diffuse("white", [1.0; 3])
+        }],
+        textures: vec![],
+        environment: Some(env),
+        camera,
+        film: (16, 16),
+        camera_path: None,
+        approximations: vec![],
+    }
+}
+
+/// The GPU's lat-long lookup (Mitsuba convention, to_world, scale) equals the CPU's.
+#[test]
+fn environment_lookup_matches_cpu() {
+    let env = test_env(8, 4, 37.0);
+    let mut g = Geometry::default();
+    // A tiny triangle far behind the camera (a scene needs geometry).
+    g.push_mesh(
+        &[
+            Vec3::new(0.0, 0.0, 100.0),
+            Vec3::new(0.01, 0.0, 100.0),
+            Vec3::new(0.0, 0.01, 100.0),
+        ],
+        None,
+        None,
+        None,
+        &[[0, 1, 2]],
+        0,
+    );
+    let camera = Camera {
+        position: Vec3::ZERO,
+        target: Vec3::new(0.3, 0.2, -1.0),
+        up: Vec3::Y,
+        yfov: 2.2,
+    };
+    let scene = env_scene(env.clone(), g, camera);
+    let gs = GpuScene::new(&gpu(), &scene).unwrap();
+    let (w, h) = (24, 16);
+    let mut s = FrameSettings::new(camera, Mode::Full, far_of(&scene));
+    s.max_depth = 1;
+    let f = render(&scene, &gs, w, h, &s);
+    let mut compared = 0;
+    for y in 0..h {
+        for x in 0..w {
+            let corners = [(0.0, 0.0), (1.0, 0.0), (0.0, 1.0), (1.0, 1.0), (0.5, 0.5)]
+                .map(|(dx, dy)| env.radiance(camera.ray_dir(Vec2::new(x as f32 + dx, y as f32 + dy), w, h)));
+            if corners.iter().all(|c| (*c - corners[0]).length() < 1e-6) {
+                let got = Vec3::new(f.color.at(x, y, 0), f.color.at(x, y, 1), f.color.at(x, y, 2));
+                assert!(
+                    (got - corners[0]).length() < 1e-5,
+                    "pixel {x},{y}: gpu {got} cpu {}",
+                    corners[0]
+                );
+                compared += 1;
+            }
+        }
+    }
+    assert!(compared > 100, "only {compared} pixels inside one texel");
+}
+
+/// A white Lambertian plane under a non-uniform environment (with a bright texel) shows
+/// E(n)/pi, the cosine-weighted environment integrated on the CPU: environment importance
+/// sampling, the BSDF sampling and their MIS weights agree with the integral.
+#[test]
+fn environment_lighting_matches_cpu_integral() {
+    let mut env = test_env(16, 8, 20.0);
+    env.pixels[2 * 16 + 5] = [60.0, 50.0, 40.0]; // a "sun" in the upper hemisphere
+    let mut g = Geometry::default();
+    g.push_quad(
+        Vec3::new(-50.0, 0.0, 50.0),
+        Vec3::new(50.0, 0.0, 50.0),
+        Vec3::new(50.0, 0.0, -50.0),
+        Vec3::new(-50.0, 0.0, -50.0),
+        0,
+    );
+    let camera = Camera {
+        position: Vec3::new(0.0, 3.0, 0.0),
+        target: Vec3::ZERO,
+        up: Vec3::Z,
+        yfov: 0.8,
+    };
+    let scene = env_scene(env.clone(), g, camera);
+    let gs = GpuScene::new(&gpu(), &scene).unwrap();
+    let f = reference(&scene, &gs, 12, 12, 512, 2, 11);
+    // CPU: (1/pi) * integral over the upper hemisphere of L(w) cos(theta_y) dw.
+    let (ew, eh) = (env.width, env.height);
+    let sub = 24;
+    let mut expect = glam::DVec3::ZERO;
+    for j in 0..eh * sub {
+        for i in 0..ew * sub {
+            let u = (i as f64 + 0.5) / (ew * sub) as f64;
+            let v = (j as f64 + 0.5) / (eh * sub) as f64;
+            let (theta, phi) = (v * std::f64::consts::PI, u * std::f64::consts::TAU);
+            let l = glam::DVec3::new(theta.sin() * phi.sin(), theta.cos(), -theta.sin() * phi.cos());
+            let d = env.to_world.as_dmat3() * l;
+            if d.y <= 0.0 {
+                continue;
+            }
+            let dw = 2.0 * std::f64::consts::PI * std::f64::consts::PI * theta.sin()
+                / ((ew * sub) as f64 * (eh * sub) as f64);
+            let px = env.pixels[(j / sub * ew + i / sub) as usize];
+            expect +=
+                glam::DVec3::new(px[0] as f64, px[1] as f64, px[2] as f64) * env.scale as f64 * d.y * dw;
+        }
+    }
+    expect /= std::f64::consts::PI;
+    for c in 0..3 {
+        let m = mean((0..144).map(|i| f.color.data[3 * i + c]));
+        eprintln!("env lighting channel {c}: gpu {m} cpu {}", expect[c]);
+        assert!(
+            (m - expect[c]).abs() < 0.015 * expect[c],
+            "channel {c}: gpu {m} vs cpu {}",
+            expect[c]
+        );
+    }
+}
+
+/// Energy-conserving smooth materials are invisible in a uniform white environment too:
+/// a white mirror, a solid glass sphere and a thin-walled glass sphere.
+#[test]
+fn furnace_smooth_metal_and_glass() {
+    let cases = [
+        (
+            "mirror",
+            Material {
+                base_color: [1.0; 4],
+                metallic: 1.0,
+                roughness: 0.0,
+                ..Default::default()
+            },
+        ),
+        (
+            "solid glass",
+            Material {
+                metallic: 0.0,
+                roughness: 0.0,
+                transmission: 1.0,
+                thin: false,
+                ..Default::default()
+            },
+        ),
+        (
+            "thin glass",
+            Material {
+                metallic: 0.0,
+                roughness: 0.0,
+                transmission: 1.0,
+                thin: true,
+                double_sided: true,
+                ..Default::default()
+            },
+        ),
+    ];
+    for (name, m) in cases {
+        let mut scene = builtin::furnace();
+        scene.materials[0] = m;
+        let gs = GpuScene::new(&gpu(), &scene).unwrap();
+        let f = reference(&scene, &gs, 12, 12, 64, 32, 2);
+        let sphere: Vec<usize> = (0..144).filter(|&i| f.depth.data[i] < 1.0).collect();
+        assert!(sphere.len() > 30);
+        let m = mean(sphere.iter().map(|&i| f.color.data[3 * i]));
+        eprintln!("furnace {name}: {m}");
+        assert!((m - 1.0).abs() < 0.02, "furnace {name}: {m}");
+    }
+}
+
+/// A white Lambertian sphere inside a closed box whose inner walls emit radiance 1 (and
+/// reflect nothing) converges to 1 as in a white furnace: next-event estimation on emissive
+/// triangles of different sizes (power-proportional choice) and its MIS with BSDF sampling.
+#[test]
+fn emissive_box_furnace_converges_to_one() {
+    let mut scene = builtin::furnace();
+    scene.environment = None;
+    scene.materials.push(Material {
+        emissive: [1.0; 3],
+        specular: 0.0,
+        ..Material::diffuse("glow", [0.0; 3])
+    });
+    let (lo, hi) = (Vec3::new(-2.0, -1.5, -3.0), Vec3::new(2.5, 1.5, 6.0));
+    let c = |x: bool, y: bool, z: bool| {
+        Vec3::new(
+            if x { hi.x } else { lo.x },
+            if y { hi.y } else { lo.y },
+            if z { hi.z } else { lo.z },
+        )
+    };
+    let g = &mut scene.geometry;
+    // Inward-facing faces (counter-clockwise seen from inside).
+    let faces = [
+        [
+            c(false, false, false),
+            c(false, false, true),
+            c(true, false, true),
+            c(true, false, false),
+        ], // floor
+        [
+            c(false, true, false),
+            c(true, true, false),
+            c(true, true, true),
+            c(false, true, true),
+        ], // ceiling
+        [
+            c(false, false, false),
+            c(true, false, false),
+            c(true, true, false),
+            c(false, true, false),
+        ], // back
+        [
+            c(true, false, true),
+            c(false, false, true),
+            c(false, true, true),
+            c(true, true, true),
+        ], // front
+        [
+            c(false, false, true),
+            c(false, false, false),
+            c(false, true, false),
+            c(false, true, true),
+        ], // left
+        [
+            c(true, false, false),
+            c(true, false, true),
+            c(true, true, true),
+            c(true, true, false),
+        ], // right
+    ];
+    for [a, b, cc, d] in faces {
+        let n = (b - a).cross(cc - a);
+        assert!(n.dot(-(a + cc) * 0.5) > 0.0, "face must point inwards");
+        g.push_quad(a, b, cc, d, 1);
+    }
+    let gs = GpuScene::new(&gpu(), &scene).unwrap();
+    assert_eq!(gs.emissive_triangles, 12);
+    let f = reference(&scene, &gs, 12, 12, 256, 16, 4);
+    let sphere: Vec<usize> = (0..144)
+        .filter(|&i| f.albedo.data[3 * i] == 1.0 && f.depth.data[i] < 0.5)
+        .collect();
+    assert!(sphere.len() > 30, "sphere pixels {}", sphere.len());
+    let m = mean(sphere.iter().map(|&i| f.color.data[3 * i + 1]));
+    let all = mean((0..144).map(|i| f.color.data[3 * i + 1]));
+    eprintln!("emissive box furnace: sphere {m}, image {all}");
+    assert!(
+        (m - 1.0).abs() < 0.01 && (all - 1.0).abs() < 0.01,
+        "sphere {m}, image {all}"
+    );
+}
+
+/// Rough materials never create energy in the white furnace (single-scattering GGX loses a
+/// little), and stay finite.
+#[test]
+fn furnace_rough_materials_do_not_gain_energy() {
+    let cases = [
+        (
+            "rough metal",
+            Material {
+                base_color: [1.0; 4],
+                metallic: 1.0,
+                roughness: 0.6,
+                ..Default::default()
+            },
+        ),
+        (
+            "rough glass",
+            Material {
+                metallic: 0.0,
+                roughness: 0.5,
+                transmission: 1.0,
+                thin: false,
+                ..Default::default()
+            },
+        ),
+        (
+            "rough plastic",
+            Material {
+                metallic: 0.0,
+                roughness: 0.4,
+                ..Material::diffuse("p", [1.0; 3])
+            },
+        ),
+    ];
+    for (name, m) in cases {
+        let mut scene = builtin::furnace();
+        scene.materials[0] = m;
+        let gs = GpuScene::new(&gpu(), &scene).unwrap();
+        let f = reference(&scene, &gs, 12, 12, 128, 32, 8);
+        assert!(f.color.data.iter().all(|v| v.is_finite()), "{name}: non-finite");
+        let sphere: Vec<usize> = (0..144).filter(|&i| f.depth.data[i] < 1.0).collect();
+        let m = mean(sphere.iter().map(|&i| f.color.data[3 * i]));
+        eprintln!("furnace {name}: {m}");
+        assert!(m <= 1.015 && m > 0.75, "furnace {name}: {m}");
+    }
 }

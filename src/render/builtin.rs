@@ -418,7 +418,7 @@ pub fn room() -> Scene {
     let lamp = add_material(
         &mut s,
         Material {
-            emissive: [12.0, 10.0, 7.0],
+            emissive: [25.0, 21.0, 15.0],
             ..Material::diffuse("lamp", [0.9; 3])
         },
     );

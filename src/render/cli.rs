@@ -70,12 +70,12 @@ pub struct BenchRenderArgs {
     /// Scene (as for `render`).
     #[arg(long, default_value = "builtin:cornell")]
     pub scene: String,
-    /// Image width.
-    #[arg(long, default_value_t = 1920)]
-    pub width: u32,
-    /// Image height.
-    #[arg(long, default_value_t = 1080)]
-    pub height: u32,
+    /// Image width (default: 1920 on a GPU, 256 on a CPU adapter).
+    #[arg(long)]
+    pub width: Option<u32>,
+    /// Image height (default: 1080 on a GPU, 144 on a CPU adapter).
+    #[arg(long)]
+    pub height: Option<u32>,
     /// Timed frames per mode (default: 100 on a GPU, 3 on a CPU adapter).
     #[arg(long)]
     pub frames: Option<u32>,
@@ -153,6 +153,9 @@ pub fn render_command(args: &RenderArgs) -> Result<()> {
         .collect();
     let far = scene.far_distance(horizon.iter().chain([&scene.camera.position]));
     let mut tracer = Tracer::new(&gpu, w, h)?;
+    let t_compile = Instant::now();
+    tracer.compile()?;
+    let compile_time = t_compile.elapsed();
     let reference = match args.reference_spp {
         Some(_) => Some(Tensor::new(&gpu, "reference", w, h, 4)?),
         None => None,
@@ -219,7 +222,7 @@ pub fn render_command(args: &RenderArgs) -> Result<()> {
     let rendered = args.frames - skipped;
     println!(
         "rendered {} frame(s) of {} at {w}x{h}, mode {:?}{}: {} rays, {} samples in {:.3} s \
-         ({:.2} Mrays/s, {:.3} s per frame; scene load + BVH {:.3} s) -> {}",
+         ({:.2} Mrays/s, {:.3} s per frame; scene load + BVH {:.3} s, kernel compilation {:.3} s) -> {}",
         rendered,
         scene.name,
         args.mode,
@@ -234,6 +237,7 @@ pub fn render_command(args: &RenderArgs) -> Result<()> {
         rays as f64 / gpu_secs.max(1e-9) / 1e6,
         gpu_secs / rendered.max(1) as f64,
         load_time.as_secs_f64(),
+        compile_time.as_secs_f64(),
         args.out.display()
     );
     Ok(())
@@ -306,9 +310,12 @@ pub fn bench_render_command(args: &BenchRenderArgs) -> Result<()> {
     let gpu = Gpu::new()?;
     let cpu = gpu.kind() == AdapterKind::Cpu;
     let frames = args.frames.unwrap_or(if cpu { 3 } else { 100 }).max(1);
+    let width = args.width.unwrap_or(if cpu { 256 } else { 1920 });
+    let height = args.height.unwrap_or(if cpu { 144 } else { 1080 });
     let scene = load_scene(&args.scene)?;
     let gs = GpuScene::new(&gpu, &scene)?;
-    let mut tracer = Tracer::new(&gpu, args.width, args.height)?;
+    let mut tracer = Tracer::new(&gpu, width, height)?;
+    tracer.compile()?;
     let path = CameraPath::from_spec(
         &"orbit".parse().expect("known"),
         &scene.camera,
@@ -379,7 +386,7 @@ pub fn bench_render_command(args: &BenchRenderArgs) -> Result<()> {
         let out = serde_json::json!({
             "adapter": gpu.describe(),
             "scene": scene.name,
-            "width": args.width, "height": args.height,
+            "width": width, "height": height,
             "frames": frames, "max_depth": args.max_depth,
             "modes": results,
             "speedup_trace": speedup_trace,
@@ -392,8 +399,8 @@ pub fn bench_render_command(args: &BenchRenderArgs) -> Result<()> {
         "{} | {} {}x{}, {frames} frames (+{} warm-up), max depth {}",
         gpu.describe(),
         scene.name,
-        args.width,
-        args.height,
+        width,
+        height,
         args.warmup,
         args.max_depth
     );

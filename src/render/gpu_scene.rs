@@ -367,6 +367,30 @@ mod tests {
     use super::*;
     use crate::render::scene::Wrap;
 
+    /// Rust structs shared with WGSL have naga's size.
+    #[test]
+    fn shared_struct_sizes_match_naga() {
+        let k = crate::gpu::kernel_source("trace/pathtrace").unwrap();
+        let module = naga::front::wgsl::parse_str(k.source).unwrap();
+        let mut layouter = naga::proc::Layouter::default();
+        layouter.update(module.to_ctx()).unwrap();
+        for (name, size) in [
+            ("Material", std::mem::size_of::<GpuMaterial>()),
+            ("Camera", std::mem::size_of::<crate::render::camera::GpuCamera>()),
+            (
+                "FrameParams",
+                std::mem::size_of::<crate::render::tracer::FrameParams>(),
+            ),
+        ] {
+            let (h, _) = module
+                .types
+                .iter()
+                .find(|(_, t)| t.name.as_deref() == Some(name))
+                .unwrap_or_else(|| panic!("no WGSL struct {name}"));
+            assert_eq!(layouter[h].size as usize, size, "struct {name}");
+        }
+    }
+
     #[test]
     fn textures_are_halved_to_fit() {
         let t = |n: &str, s: u32| Texture {

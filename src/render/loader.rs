@@ -480,6 +480,22 @@ impl Loader<'_> {
 
 /// Loads a glTF 2.0 file (`.gltf` with its buffers and images, or `.glb`).
 pub fn load_gltf(path: &Path) -> Result<Scene> {
+    // The glTF reader indexes buffers directly; a file whose accessors overrun their views
+    // must become an error naming the file, not a crash.
+    std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| load_gltf_checked(path))).unwrap_or_else(|p| {
+        let what = p
+            .downcast_ref::<String>()
+            .cloned()
+            .or_else(|| p.downcast_ref::<&str>().map(|s| s.to_string()))
+            .unwrap_or_else(|| "unknown error".into());
+        Err(scene_err(
+            path,
+            format!("malformed glTF (reading it failed: {what})"),
+        ))
+    })
+}
+
+fn load_gltf_checked(path: &Path) -> Result<Scene> {
     let bytes = std::fs::read(path).map_err(|e| file_err(path, format!("cannot read glTF: {e}")))?;
     let gltf = gltf::Gltf::from_slice(&bytes).map_err(|e| scene_err(path, format!("malformed glTF: {e}")))?;
     let base = path.parent().unwrap_or(Path::new(".")).to_path_buf();
@@ -712,5 +728,170 @@ mod tests {
         assert!(base64_decode("a*b").is_none());
         assert_eq!(percent_decode("a%20b.png"), "a b.png");
         assert_eq!(percent_decode("100%"), "100%");
+    }
+
+    fn base64_encode(b: &[u8]) -> String {
+        const A: &[u8] = b"ABCDEFGHIJKLMNOPQRSTUVWXYZabcdefghijklmnopqrstuvwxyz0123456789+/";
+        let mut s = String::new();
+        for c in b.chunks(3) {
+            let n =
+                (c[0] as u32) << 16 | (*c.get(1).unwrap_or(&0) as u32) << 8 | *c.get(2).unwrap_or(&0) as u32;
+            for k in 0..4 {
+                if k <= c.len() {
+                    s.push(A[(n >> (18 - 6 * k) & 63) as usize] as char);
+                } else {
+                    s.push('=');
+                }
+            }
+        }
+        s
+    }
+
+    /// A one-triangle glTF (positions + u16 indices in a data URI); `extra` is merged into
+    /// the root object, `node` into the node.
+    fn tiny_gltf(extra: &str, node: &str, material: &str) -> String {
+        let mut bytes = Vec::new();
+        for v in [[0f32, 0., 0.], [1., 0., 0.], [0., 1., 0.]] {
+            for c in v {
+                bytes.extend(c.to_le_bytes());
+            }
+        }
+        for i in [0u16, 1, 2, 0] {
+            bytes.extend(i.to_le_bytes());
+        }
+        format!(
+            r#"{{"asset": {{"version": "2.0"}}, "scene": 0, "scenes": [{{"nodes": [0]}}],
+            "nodes": [{{"mesh": 0 {node}}}],
+            "meshes": [{{"primitives": [{{"attributes": {{"POSITION": 0}}, "indices": 1 {material}}}]}}],
+            "accessors": [
+              {{"bufferView": 0, "componentType": 5126, "count": 3, "type": "VEC3", "min": [0,0,0], "max": [1,1,0]}},
+              {{"bufferView": 1, "componentType": 5123, "count": 3, "type": "SCALAR"}}],
+            "bufferViews": [{{"buffer": 0, "byteOffset": 0, "byteLength": 36}}, {{"buffer": 0, "byteOffset": 36, "byteLength": 6}}],
+            "buffers": [{{"byteLength": 44, "uri": "data:application/octet-stream;base64,{}"}}] {extra}}}"#,
+            base64_encode(&bytes)
+        )
+    }
+
+    fn tmp(name: &str) -> PathBuf {
+        let d = std::env::temp_dir().join(format!("subpixel-loader-{}-{name}", std::process::id()));
+        std::fs::create_dir_all(&d).unwrap();
+        d
+    }
+
+    #[test]
+    fn tiny_gltf_loads_with_node_transform_and_mirroring() {
+        let d = tmp("ok");
+        let p = d.join("t.gltf");
+        std::fs::write(&p, tiny_gltf("", r#", "translation": [0, 0, -5]"#, "")).unwrap();
+        let s = load_scene(p.to_str().unwrap()).unwrap();
+        assert_eq!(s.geometry.triangles.len(), 1);
+        assert_eq!(s.geometry.positions[1], Vec3::new(1.0, 0.0, -5.0));
+        // Default material: glTF defaults.
+        assert_eq!(s.materials.last().unwrap().metallic, 1.0);
+        // A mirroring transform keeps the front face (winding flipped).
+        std::fs::write(&p, tiny_gltf("", r#", "scale": [-1, 1, 1]"#, "")).unwrap();
+        let s = load_scene(p.to_str().unwrap()).unwrap();
+        let [a, b, c] = s.geometry.triangles[0].map(|i| s.geometry.positions[i as usize]);
+        assert!((b - a).cross(c - a).z > 0.0, "front face must still face +z");
+        std::fs::remove_dir_all(&d).ok();
+    }
+
+    #[test]
+    fn bad_files_are_named_errors() {
+        let d = tmp("bad");
+        // Malformed JSON.
+        let p = d.join("broken.gltf");
+        std::fs::write(&p, "{ not json").unwrap();
+        let e = load_scene(p.to_str().unwrap()).unwrap_err().to_string();
+        assert!(e.contains("broken.gltf") && e.contains("malformed"), "{e}");
+        // Unsupported required extension.
+        let p = d.join("draco.gltf");
+        let ext = r#", "extensionsUsed": ["KHR_draco_mesh_compression"], "extensionsRequired": ["KHR_draco_mesh_compression"]"#;
+        std::fs::write(&p, tiny_gltf(ext, "", "")).unwrap();
+        let e = load_scene(p.to_str().unwrap()).unwrap_err().to_string();
+        assert!(
+            e.contains("draco.gltf") && e.contains("KHR_draco_mesh_compression"),
+            "{e}"
+        );
+        // Missing texture file.
+        let p = d.join("tex.gltf");
+        let extra = r#", "materials": [{"pbrMetallicRoughness": {"baseColorTexture": {"index": 0}}}],
+            "textures": [{"source": 0}], "images": [{"uri": "missing_albedo.png"}]"#;
+        std::fs::write(&p, tiny_gltf(extra, "", r#", "material": 0"#)).unwrap();
+        let e = load_scene(p.to_str().unwrap()).unwrap_err().to_string();
+        assert!(e.contains("missing_albedo.png") && e.contains("tex.gltf"), "{e}");
+        // Undecodable texture.
+        std::fs::write(d.join("missing_albedo.png"), b"not a png").unwrap();
+        let e = load_scene(p.to_str().unwrap()).unwrap_err().to_string();
+        assert!(e.contains("missing_albedo.png") && e.contains("decode"), "{e}");
+        // Unreadable / corrupt environment map.
+        let ok = d.join("ok.gltf");
+        std::fs::write(&ok, tiny_gltf("", "", "")).unwrap();
+        let json = d.join("scene.json");
+        std::fs::write(
+            &json,
+            r#"{"gltf": "ok.gltf", "environment": {"file": "sky.hdr", "scale": 1.0}}"#,
+        )
+        .unwrap();
+        let e = load_scene(d.to_str().unwrap()).unwrap_err().to_string();
+        assert!(e.contains("sky.hdr"), "{e}");
+        std::fs::write(d.join("sky.hdr"), b"#?RADIANCE\ngarbage").unwrap();
+        let e = load_scene(json.to_str().unwrap()).unwrap_err().to_string();
+        assert!(e.contains("sky.hdr") && e.contains("environment"), "{e}");
+        // Malformed scene.json.
+        std::fs::write(&json, r#"{"environment": null}"#).unwrap();
+        let e = load_scene(json.to_str().unwrap()).unwrap_err().to_string();
+        assert!(e.contains("scene.json") && e.contains("gltf"), "{e}");
+        // Missing file, unknown extension.
+        let e = load_scene(d.join("nope.glb").to_str().unwrap())
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("nope.glb"), "{e}");
+        std::fs::write(d.join("x.obj"), "").unwrap();
+        let e = load_scene(d.join("x.obj").to_str().unwrap())
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("x.obj"), "{e}");
+        std::fs::remove_dir_all(&d).ok();
+    }
+
+    #[test]
+    fn sidecar_environment_and_camera() {
+        let d = tmp("side");
+        std::fs::write(d.join("ok.gltf"), tiny_gltf("", "", "")).unwrap();
+        // A 4x2 RGB float EXR environment, via the image crate.
+        let img = image::Rgb32FImage::from_fn(4, 2, |x, y| image::Rgb([x as f32, y as f32, 1.0]));
+        image::DynamicImage::ImageRgb32F(img)
+            .save(d.join("env.exr"))
+            .unwrap();
+        std::fs::write(
+            d.join("scene.json"),
+            r#"{"gltf": "ok.gltf",
+                "environment": {"file": "env.exr", "scale": 2.0, "rotation_y_deg": 90.0,
+                                "mapping": "mitsuba_latlong: ..."},
+                "camera": {"position": [0, 0, 3], "target": [0, 0, 0], "up": [0, 1, 0], "yfov_deg": 40},
+                "film": [64, 32],
+                "camera_path": {"type": "orbit", "degrees_per_frame": 2.0}}"#,
+        )
+        .unwrap();
+        let s = load_scene(d.to_str().unwrap()).unwrap();
+        let e = s.environment.as_ref().unwrap();
+        assert_eq!((e.width, e.height, e.scale), (4, 2, 2.0));
+        assert_eq!(s.film, (64, 32));
+        assert!((s.camera.yfov - 40f32.to_radians()).abs() < 1e-6);
+        assert_eq!(
+            s.camera_path,
+            Some(CameraPathSpec::Orbit {
+                degrees_per_frame: Some(2.0)
+            })
+        );
+        // Mitsuba lat-long: with to_world = rotate 90 deg about +y, world +x maps to map
+        // direction +z: u = atan2(0, -1) / 2pi = 0.5 -> column 2; v = 0.5 -> row 1.
+        let c = e.radiance(Vec3::X);
+        assert_eq!(c, Vec3::new(2.0, 1.0, 1.0) * 2.0);
+        // World -z maps to map +x (rotated): u = atan2(1, 0) / 2pi = 0.25 -> column 1.
+        let c = e.radiance(Vec3::NEG_Z);
+        assert_eq!(c, Vec3::new(1.0, 1.0, 1.0) * 2.0);
+        std::fs::remove_dir_all(&d).ok();
     }
 }

@@ -380,6 +380,15 @@ impl Scene {
         if g.normals.len() != n || g.uvs.len() != n || g.tangents.len() != n {
             return Err(err("vertex attribute arrays differ in length".into()));
         }
+        if self.materials.len() > 1 << 24 {
+            return Err(err(format!(
+                "{} materials; at most 2^24 are supported",
+                self.materials.len()
+            )));
+        }
+        if n > u32::MAX as usize {
+            return Err(err(format!("{n} vertices; at most 2^32 - 1 are supported")));
+        }
         if g.materials.len() != g.triangles.len() {
             return Err(err("one material index per triangle is needed".into()));
         }

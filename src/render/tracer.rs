@@ -268,6 +268,14 @@ impl Tracer {
         })
     }
 
+    /// Compiles the image kernels now (otherwise the first frame does).
+    pub fn compile(&self) -> Result<()> {
+        for k in ["trace/gbuffer", "trace/pathtrace"] {
+            self.gpu.kernels.pipeline(k, &Specialisation::none())?;
+        }
+        Ok(())
+    }
+
     /// Width.
     pub fn width(&self) -> u32 {
         self.buffers.width()
@@ -518,6 +526,12 @@ pub fn query_rays(
         pad: [0; 2],
     };
     let n = rays.len() as u32;
+    let groups = n.div_ceil(64);
+    if groups > gpu.device.limits().max_compute_workgroups_per_dimension {
+        return Err(Error::Invalid(format!(
+            "query_rays: {n} rays are too many for one dispatch"
+        )));
+    }
     let d = gpu.kernels.dispatch(
         "trace/query",
         &Specialisation::none(),
@@ -531,11 +545,8 @@ pub fn query_rays(
             &ray_buf,
             &hits,
         ],
-        [n.div_ceil(64).min(65535), n.div_ceil(64).div_ceil(65535), 1],
+        [groups, 1, 1],
     )?;
-    if n.div_ceil(64) > 65535 {
-        return Err(Error::Invalid("query_rays: at most 4M rays per call".into()));
-    }
     let mut enc = gpu.device.create_command_encoder(&Default::default());
     d.encode(&mut enc);
     gpu.queue.submit([enc.finish()]);
