@@ -192,3 +192,62 @@ fn bench_denoise_prints_per_layer_flops() {
     let fpp = v["flops_per_pixel"].as_f64().unwrap();
     assert!(fpp > 40_000.0 && fpp <= 50_000.0, "{fpp}");
 }
+
+#[test]
+fn dataset_shards_resume_and_write_the_loader_keys() {
+    let out = tmp("dataset");
+    let run = |range: &str| {
+        bin()
+            .args([
+                "dataset",
+                "--scene",
+                "builtin:cornell-empty",
+                "--split",
+                "val",
+                "--sequences",
+                "1",
+            ])
+            .args([
+                "--frames",
+                "2",
+                "--width",
+                "8",
+                "--height",
+                "8",
+                "--reference-spp",
+                "2",
+                "--frame-range",
+                range,
+            ])
+            .arg("--out")
+            .arg(&out)
+            .output()
+            .unwrap()
+    };
+    for range in ["1..2", "0..1"] {
+        let o = run(range);
+        assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    }
+    let seq = out.join("val/cornell-empty_val_000");
+    for f in 0..2 {
+        let file = read_frame(&seq.join(format!("frame_{f:04}.exr"))).unwrap();
+        assert!(
+            file.frame.is_some() && file.reference.is_some(),
+            "frame {f} holds buffers and a reference"
+        );
+    }
+    let json: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(seq.join("sequence.json")).unwrap()).unwrap();
+    let want = serde_json::json!({"split": "val", "sequence": 0, "frames": 2, "width": 8, "spp": 2});
+    for (k, v) in want.as_object().unwrap() {
+        assert_eq!(&json[k], v, "sequence.json key {k}");
+    }
+    let o = run("0..2");
+    assert!(
+        String::from_utf8_lossy(&o.stdout).contains("skipped 2 frame(s)"),
+        "resume skips finished frames"
+    );
+    let o = run("1..5");
+    assert!(!o.status.success() && String::from_utf8_lossy(&o.stderr).contains("within 0..2"));
+    std::fs::remove_dir_all(&out).ok();
+}

@@ -528,6 +528,7 @@ fn render_command_writes_exr_frames() {
         reference_spp: Some(2),
         png: true,
         resume: false,
+        sequence_json: None,
         out: out.clone(),
     };
     render_command(&args).unwrap();

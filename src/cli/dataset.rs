@@ -142,22 +142,19 @@ pub(super) fn run(a: &DatasetArgs) -> Result<()> {
             reference_spp: Some(a.reference_spp),
             png: false,
             resume: true,
-            out: dir.clone(),
+            // The keys of the training loader (training/ssr/data.py).
+            sequence_json: Some(
+                serde_json::json!({
+                    "split": a.split, "sequence": s, "frames": a.frames,
+                    "width": a.width, "height": a.height, "spp": a.reference_spp,
+                })
+                .as_object()
+                .expect("an object")
+                .clone(),
+            ),
+            out: dir,
         };
         render_command(&args)?;
-        // The dataset keys of the training loader (training/ssr/data.py), over the render's.
-        let jpath = dir.join("sequence.json");
-        let mut json: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(&jpath)?)
-            .with_context(|| format!("{}: not valid JSON", jpath.display()))?;
-        let o = json.as_object_mut().context("sequence.json is an object")?;
-        o.insert("split".into(), a.split.clone().into());
-        o.insert("sequence".into(), s.into());
-        o.insert("frames".into(), a.frames.into());
-        o.insert("width".into(), a.width.into());
-        o.insert("height".into(), a.height.into());
-        o.insert("spp".into(), a.reference_spp.into());
-        o.remove("first_frame");
-        std::fs::write(&jpath, serde_json::to_string_pretty(&json)?)?;
     }
     Ok(())
 }

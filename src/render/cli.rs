@@ -59,6 +59,10 @@ pub struct RenderArgs {
     /// Skip frames whose EXR already exists (resume an interrupted render).
     #[arg(long)]
     pub resume: bool,
+    /// Extra keys for `sequence.json` (set by `subpixel dataset`). When given, every shard
+    /// writes the same complete `sequence.json` before rendering its frames.
+    #[arg(skip)]
+    pub sequence_json: Option<serde_json::Map<String, serde_json::Value>>,
     /// Output folder.
     #[arg(long)]
     pub out: PathBuf,
@@ -251,7 +255,7 @@ fn write_sequence_json(
     h: u32,
     far: f32,
 ) -> Result<()> {
-    let json = serde_json::json!({
+    let mut json = serde_json::json!({
         "scene": args.scene,
         "scene_name": scene.name,
         "mode": args.mode,
@@ -265,7 +269,11 @@ fn write_sequence_json(
         "max_depth": args.max_depth,
         "far": far,
     });
-    let name = if args.first_frame == 0 {
+    if let (Some(extra), Some(o)) = (&args.sequence_json, json.as_object_mut()) {
+        o.remove("first_frame");
+        o.extend(extra.clone());
+    }
+    let name = if args.first_frame == 0 || args.sequence_json.is_some() {
         "sequence.json".to_string()
     } else {
         format!("sequence_{:04}.json", args.first_frame)
@@ -276,20 +284,10 @@ fn write_sequence_json(
     Ok(())
 }
 
-/// Tonemapped (Reinhard, gamma 2.2) 8-bit preview of an HDR tensor's first 3 channels.
+/// Tonemapped 8-bit preview of an HDR tensor's first 3 channels (the tonemap of the
+/// metrics, DESIGN §7).
 pub fn tonemap_png(path: &Path, t: &HostTensor) -> Result<()> {
-    let mut img = image::RgbImage::new(t.width, t.height);
-    for y in 0..t.height {
-        for x in 0..t.width {
-            let c = |k: u32| {
-                let v = t.at(x, y, k.min(t.channels - 1)).max(0.0);
-                ((v / (1.0 + v)).powf(1.0 / 2.2) * 255.0).round() as u8
-            };
-            img.put_pixel(x, y, image::Rgb([c(0), c(1), c(2)]));
-        }
-    }
-    img.save(path)
-        .with_context(|| format!("cannot write {}", path.display()))
+    Ok(crate::io::png::write_png_row(path, &[t])?)
 }
 
 fn write_png(path: &Path, f: &FrameFile) -> Result<()> {
