@@ -102,7 +102,63 @@ fn denoise_then_eval_a_frame_folder() {
     assert!(v["psnr"].as_f64().unwrap() > 50.0, "{v}");
     assert!(v["ssim"].as_f64().unwrap() > 0.999, "{v}");
     assert!(v["temporal"].as_f64().unwrap() < 1e-3, "{v}");
-    // Scoring the input against the same reference is much worse.
+    // The Table 1 layout over a dataset root with two methods.
+    let root = tmp("table-root");
+    let pred = tmp("table-pred");
+    let seq = root.join("test/golden_test_000");
+    std::fs::create_dir_all(&seq).unwrap();
+    std::fs::write(seq.join("sequence.json"), r#"{"scene": "builtin:golden"}"#).unwrap();
+    for i in 0..3 {
+        let name = format!("frame_{i:04}.exr");
+        std::fs::copy(input.join(&name), seq.join(&name)).unwrap();
+        let ssr_dir = pred.join("ssr/test/golden_test_000");
+        let in_dir = pred.join("input/test/golden_test_000");
+        std::fs::create_dir_all(&ssr_dir).unwrap();
+        std::fs::create_dir_all(&in_dir).unwrap();
+        std::fs::copy(out.join(&name), ssr_dir.join(&name)).unwrap();
+        let raw = read_frame(&input.join(&name)).unwrap().frame.unwrap().color;
+        write_frame(
+            &in_dir.join(&name),
+            &FrameFile {
+                pred: Some(raw),
+                ..Default::default()
+            },
+        )
+        .unwrap();
+    }
+    let o = bin()
+        .args(["eval", "--table", "--json", "--pred"])
+        .arg(&pred)
+        .arg("--ref")
+        .arg(&root)
+        .output()
+        .unwrap();
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let v: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
+    let psnr = |m: usize| v[m]["scenes"]["golden"]["psnr"].as_f64().unwrap();
+    assert_eq!(
+        (v[0]["method"].as_str(), v[1]["method"].as_str()),
+        (Some("input"), Some("ssr"))
+    );
+    assert!(
+        psnr(1) > psnr(0) + 10.0,
+        "the raw input scores far below the matching prediction: {v}"
+    );
+    let o = bin()
+        .args(["eval", "--table", "--pred"])
+        .arg(&pred)
+        .arg("--ref")
+        .arg(&root)
+        .output()
+        .unwrap();
+    let md = String::from_utf8_lossy(&o.stdout);
+    assert!(
+        md.contains("| method | golden | mean |") && md.contains("| ssr |"),
+        "{md}"
+    );
+    for d in [&root, &pred] {
+        std::fs::remove_dir_all(d).ok();
+    }
     std::fs::remove_dir_all(&input).ok();
     std::fs::remove_dir_all(&out).ok();
 }

@@ -10,13 +10,21 @@ use crate::metrics;
 
 #[derive(clap::Args)]
 pub(super) struct EvalArgs {
-    /// Folder of predictions: frame_NNNN.exr with `pred.R pred.G pred.B`.
+    /// Folder of predictions: frame_NNNN.exr with `pred.R pred.G pred.B`. With `--table`, a
+    /// root holding one folder per method: PRED/METHOD/SPLIT/SEQUENCE/frame_NNNN.exr.
     #[arg(long)]
     pred: PathBuf,
     /// Folder of references: frame_NNNN.exr with `reference.R..` (and `motion.X motion.Y`
-    /// for the temporal error), e.g. a dataset sequence.
+    /// for the temporal error), e.g. a dataset sequence. With `--table`, the dataset root.
     #[arg(long = "ref")]
     reference: PathBuf,
+    /// The paper's Table 1 layout: a row per method, a column per scene (PSNR / SSIM,
+    /// mean over the split's sequences), as markdown.
+    #[arg(long)]
+    table: bool,
+    /// Split scored with `--table`.
+    #[arg(long, default_value = "test")]
+    split: String,
     /// Print JSON instead of a table.
     #[arg(long)]
     json: bool,
@@ -96,7 +104,106 @@ pub fn score(pred: &std::path::Path, reference: &std::path::Path) -> Result<Scor
     })
 }
 
+/// Scores every method folder of `pred` on every sequence of `root/split`: rows (method,
+/// scene -> (PSNR, SSIM, sequences)).
+type TableRows = Vec<(String, std::collections::BTreeMap<String, (f64, f64, usize)>)>;
+
+fn table(pred: &std::path::Path, root: &std::path::Path, split: &str) -> Result<(Vec<String>, TableRows)> {
+    let seq_root = root.join(split);
+    let mut seqs: Vec<PathBuf> = std::fs::read_dir(&seq_root)
+        .map_err(|e| anyhow::anyhow!("{}: {e}", seq_root.display()))?
+        .filter_map(|e| e.ok().map(|e| e.path()))
+        .filter(|p| p.join("sequence.json").is_file())
+        .collect();
+    seqs.sort();
+    if seqs.is_empty() {
+        bail!(
+            "{}: no sequences (folders with sequence.json)",
+            seq_root.display()
+        );
+    }
+    let mut methods: Vec<PathBuf> = std::fs::read_dir(pred)
+        .map_err(|e| anyhow::anyhow!("{}: {e}", pred.display()))?
+        .filter_map(|e| e.ok().map(|e| e.path()))
+        .filter(|p| p.join(split).is_dir())
+        .collect();
+    methods.sort();
+    let mut scenes = std::collections::BTreeSet::new();
+    let mut rows = Vec::new();
+    for m in &methods {
+        let mut per: std::collections::BTreeMap<String, (f64, f64, usize)> = Default::default();
+        for s in &seqs {
+            let p = m.join(split).join(s.file_name().expect("a folder"));
+            if !p.is_dir() {
+                continue;
+            }
+            let json: serde_json::Value =
+                serde_json::from_str(&std::fs::read_to_string(s.join("sequence.json"))?)?;
+            let scene = json["scene"]
+                .as_str()
+                .unwrap_or("?")
+                .trim_start_matches("builtin:")
+                .to_string();
+            let sc = score(&p, s)?;
+            let e = per.entry(scene.clone()).or_default();
+            e.0 += sc.psnr;
+            e.1 += sc.ssim;
+            e.2 += 1;
+            scenes.insert(scene);
+        }
+        let name = m.file_name().expect("a folder").to_string_lossy().to_string();
+        rows.push((name, per));
+    }
+    Ok((scenes.into_iter().collect(), rows))
+}
+
 pub(super) fn run(a: &EvalArgs) -> Result<()> {
+    if a.table {
+        let (scenes, rows) = table(&a.pred, &a.reference, &a.split)?;
+        if a.json {
+            let v: Vec<_> = rows
+                .iter()
+                .map(|(m, per)| {
+                    let cells: serde_json::Map<String, serde_json::Value> = per
+                        .iter()
+                        .map(|(s, (p, q, n))| (s.clone(), serde_json::json!({"psnr": p / *n as f64, "ssim": q / *n as f64, "sequences": n})))
+                        .collect();
+                    serde_json::json!({"method": m, "scenes": cells})
+                })
+                .collect();
+            println!("{}", serde_json::to_string_pretty(&v)?);
+            return Ok(());
+        }
+        println!("| method | {} | mean |", scenes.join(" | "));
+        println!("|---|{}---|", "---|".repeat(scenes.len()));
+        for (m, per) in &rows {
+            let mut cells = Vec::new();
+            let (mut sp, mut ss, mut k) = (0.0, 0.0, 0);
+            for sc in &scenes {
+                match per.get(sc) {
+                    Some((p, q, n)) => {
+                        let (p, q) = (p / *n as f64, q / *n as f64);
+                        cells.push(format!("{p:.2} / {q:.4}"));
+                        sp += p;
+                        ss += q;
+                        k += 1;
+                    }
+                    None => cells.push("-".into()),
+                }
+            }
+            let mean = if k > 0 {
+                format!("{:.2} / {:.4}", sp / k as f64, ss / k as f64)
+            } else {
+                "-".into()
+            };
+            println!("| {m} | {} | {mean} |", cells.join(" | "));
+        }
+        println!(
+            "\nPSNR (dB) / SSIM on tonemapped 8-bit images, mean over the {} sequences of each scene.",
+            a.split
+        );
+        return Ok(());
+    }
     let s = score(&a.pred, &a.reference)?;
     if a.json {
         println!("{}", serde_json::to_string_pretty(&s)?);
