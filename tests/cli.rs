@@ -307,3 +307,29 @@ fn dataset_shards_resume_and_write_the_loader_keys() {
     assert!(!o.status.success() && String::from_utf8_lossy(&o.stderr).contains("within 0..2"));
     std::fs::remove_dir_all(&out).ok();
 }
+
+#[test]
+fn bench_frame_times_every_stage_in_both_modes() {
+    let o = bin()
+        .args([
+            "bench", "frame", "--sizes", "16x12", "--frames", "2", "--warmup", "1", "--json",
+        ])
+        .output()
+        .unwrap();
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let v: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
+    let rows = v["results"].as_array().unwrap();
+    assert_eq!(rows.len(), 2);
+    assert_eq!(
+        (rows[0]["mode"].as_str(), rows[1]["mode"].as_str()),
+        (Some("quarter"), Some("full"))
+    );
+    let names: Vec<&str> = rows[0]["stages"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|s| s[0].as_str().unwrap())
+        .collect();
+    assert_eq!(names, ["gbuffer", "trace", "pack", "tfa", "unet", "output"]);
+    assert!(rows[0]["ssr_flops"].as_u64().unwrap() > 0);
+}

@@ -1,6 +1,7 @@
 //! Benchmarks: kernels in isolation, the denoiser, the whole frame.
 
 pub mod denoise;
+pub mod frame;
 pub mod kernels;
 mod peak;
 

@@ -9,6 +9,8 @@ use crate::gpu::{AdapterKind, Gpu};
 
 #[derive(Subcommand)]
 pub(super) enum BenchCommand {
+    /// The whole frame (the default): G-buffer, trace, TFA, U-Net per stage, quarter vs full.
+    Frame(FrameBenchArgs),
     /// Each network kernel in isolation.
     Kernels(KernelsArgs),
     /// The SSR network: per layer (FLOPs, ms, GFLOP/s) and per stage (TFA, U-Net).
@@ -39,6 +41,28 @@ pub(super) struct KernelsArgs {
     json: bool,
 }
 
+#[derive(clap::Args, Default)]
+pub(super) struct FrameBenchArgs {
+    /// Sizes, WxH (default 1920x1080 and 2048x1024, or 128x128 on a CPU adapter).
+    #[arg(long, value_delimiter = ',')]
+    sizes: Vec<String>,
+    /// Scene.
+    #[arg(long, default_value = "builtin:cornell")]
+    scene: String,
+    /// Weights (default: shipped, else random weights of the default config: timing only).
+    #[arg(long)]
+    weights: Option<std::path::PathBuf>,
+    /// Timed frames (default 100 on a GPU, 3 on a CPU adapter).
+    #[arg(long)]
+    frames: Option<u32>,
+    /// Untimed warm-up frames.
+    #[arg(long, default_value_t = 5)]
+    warmup: u32,
+    /// Print JSON instead of a table.
+    #[arg(long)]
+    json: bool,
+}
+
 #[derive(clap::Args)]
 pub(super) struct DenoiseBenchArgs {
     /// Frame width (default 1920, or 128 on a CPU adapter).
@@ -62,13 +86,61 @@ pub(super) struct DenoiseBenchArgs {
     json: bool,
 }
 
-pub(super) fn run(what: BenchCommand) -> Result<()> {
+pub(super) fn run(what: Option<BenchCommand>) -> Result<()> {
+    let what = what.unwrap_or(BenchCommand::Frame(FrameBenchArgs {
+        scene: "builtin:cornell".into(),
+        warmup: 5,
+        ..Default::default()
+    }));
     if let BenchCommand::Render(a) = &what {
         return crate::render::cli::bench_render_command(a);
     }
     let gpu = Gpu::new()?;
     let cpu = gpu.kind() == AdapterKind::Cpu;
     match what {
+        BenchCommand::Frame(a) => {
+            let sizes: Vec<String> = if a.sizes.is_empty() {
+                if cpu {
+                    vec!["128x128".into()]
+                } else {
+                    vec!["1920x1080".into(), "2048x1024".into()]
+                }
+            } else {
+                a.sizes.clone()
+            };
+            let frames = a.frames.unwrap_or(if cpu { 3 } else { 100 });
+            let weights = super::weights_or_random(a.weights.as_deref())?;
+            let scene = crate::render::load_scene(&a.scene)?;
+            let gs = crate::render::GpuScene::new(&gpu, &scene)?;
+            let mut rows = Vec::new();
+            for s in &sizes {
+                let (w, h) = s
+                    .split_once('x')
+                    .and_then(|(w, h)| Some((w.parse::<u32>().ok()?, h.parse::<u32>().ok()?)))
+                    .ok_or_else(|| anyhow::anyhow!("--sizes: '{s}' is not WxH"))?;
+                for mode in [crate::render::Mode::Quarter, crate::render::Mode::Full] {
+                    rows.push(crate::bench::frame::bench_frame(
+                        &gpu,
+                        &scene,
+                        &gs,
+                        &weights,
+                        (w, h),
+                        mode,
+                        (a.warmup, frames),
+                    )?);
+                }
+            }
+            if a.json {
+                println!(
+                    "{}",
+                    serde_json::to_string_pretty(
+                        &serde_json::json!({"adapter": gpu.describe(), "results": rows})
+                    )?
+                );
+            } else {
+                print!("{}", crate::bench::frame::table(&gpu.describe(), &rows));
+            }
+        }
         BenchCommand::Kernels(a) => {
             let iterations = a.iterations.unwrap_or(if cpu { 5 } else { 100 });
             let opts = KernelBenchOptions {

@@ -37,10 +37,10 @@ enum Command {
     Denoise(denoise::DenoiseArgs),
     /// Score predictions against references (PSNR, SSIM, RMSE, relMSE, temporal error).
     Eval(eval::EvalArgs),
-    /// Time kernels, the denoiser or the whole frame.
+    /// Time the whole frame per stage (default), or kernels, the denoiser, the renderer.
     Bench {
         #[command(subcommand)]
-        what: bench::BenchCommand,
+        what: Option<bench::BenchCommand>,
     },
 }
 
