@@ -341,8 +341,13 @@ impl App {
         let img = frame.display.read_rgba()?;
         // A blank (uniform) image means nothing was drawn: say so rather than save it silently.
         let lum = |p: &image::Rgba<u8>| p.0[0] as u32 + p.0[1] as u32 + p.0[2] as u32;
-        let (lo, hi) = img.pixels().fold((u32::MAX, 0), |(l, h), p| (l.min(lum(p)), h.max(lum(p))));
-        anyhow::ensure!(hi > lo + 6, "the rendered image is blank (uniform colour); not saving it");
+        let (lo, hi) = img
+            .pixels()
+            .fold((u32::MAX, 0), |(l, h), p| (l.min(lum(p)), h.max(lum(p))));
+        anyhow::ensure!(
+            hi > lo + 6,
+            "the rendered image is blank (uniform colour); not saving it"
+        );
         img.save(&self.args.screenshot)
             .with_context(|| format!("cannot write {}", self.args.screenshot.display()))?;
         println!("saved {}", self.args.screenshot.display());
