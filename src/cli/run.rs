@@ -78,7 +78,7 @@ pub(super) fn run(a: &RunArgs) -> Result<()> {
     scene.warn_approximations();
     let gs = GpuScene::new(&gpu, &scene)?;
     let path = CameraPath::from_spec(
-        &"orbit".parse().expect("known path"),
+        &"flythrough".parse().expect("known path"),
         &scene.camera,
         a.seed,
         a.frames,
