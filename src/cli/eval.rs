@@ -127,7 +127,13 @@ fn table(pred: &std::path::Path, root: &std::path::Path, split: &str) -> Result<
         .filter_map(|e| e.ok().map(|e| e.path()))
         .filter(|p| p.join(split).is_dir())
         .collect();
-    methods.sort();
+    // The paper's row order, then any other method alphabetically.
+    const ORDER: [&str; 5] = ["input", "accumulation", "rae", "nsrr", "ssr"];
+    let rank = |p: &PathBuf| {
+        let n = p.file_name().map(|f| f.to_string_lossy().to_string()).unwrap_or_default();
+        (ORDER.iter().position(|o| *o == n).unwrap_or(ORDER.len()), n)
+    };
+    methods.sort_by_key(rank);
     let mut scenes = std::collections::BTreeSet::new();
     let mut rows = Vec::new();
     for m in &methods {
