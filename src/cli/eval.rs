@@ -130,7 +130,10 @@ fn table(pred: &std::path::Path, root: &std::path::Path, split: &str) -> Result<
     // The paper's row order, then any other method alphabetically.
     const ORDER: [&str; 5] = ["input", "accumulation", "rae", "nsrr", "ssr"];
     let rank = |p: &PathBuf| {
-        let n = p.file_name().map(|f| f.to_string_lossy().to_string()).unwrap_or_default();
+        let n = p
+            .file_name()
+            .map(|f| f.to_string_lossy().to_string())
+            .unwrap_or_default();
         (ORDER.iter().position(|o| *o == n).unwrap_or(ORDER.len()), n)
     };
     methods.sort_by_key(rank);
