@@ -23,7 +23,7 @@ use glam::Vec3;
 use subpixel::gpu::{AdapterKind, Gpu, Profiler};
 use subpixel::nn::{Tensor, ops};
 use subpixel::render::{Camera, CameraPath, FrameSettings, GpuScene, Mode, Tracer, load_scene};
-use subpixel::ssr::{Denoiser, FrameInputs, Granularity, Weights};
+use subpixel::ssr::{Denoiser, Granularity, Weights};
 use subpixel::view::{Display, DisplayMode, View};
 use winit::application::ApplicationHandler;
 use winit::event::{ElementState, MouseButton, MouseScrollDelta, WindowEvent};
@@ -222,14 +222,7 @@ impl App {
             .tracer
             .encode_frame(&mut enc, &self.scene, &settings, Some(&mut self.profiler))?;
         let b = &frame.tracer.buffers;
-        let inputs = FrameInputs {
-            color_mask: &b.color_mask.buffer,
-            albedo_depth: &b.albedo_depth.buffer,
-            normal_metallic: &b.normal_metallic.buffer,
-            shadow_roughness: &b.shadow_roughness.buffer,
-            transparent: &b.transparent.buffer,
-            motion: &b.motion.buffer,
-        };
+        let inputs = b.inputs();
         frame
             .denoiser
             .denoise_profiled(&mut enc, &inputs, Some(&mut self.profiler), Granularity::Stage)?;

@@ -3,7 +3,7 @@
 use crate::error::Result;
 use crate::gpu::{Gpu, Profiler, Stats};
 use crate::render::{CameraPath, DEFAULT_MAX_DEPTH, FrameSettings, GpuScene, Mode, Scene, Tracer};
-use crate::ssr::{Denoiser, FrameInputs, Granularity, Weights};
+use crate::ssr::{Denoiser, Granularity, Weights};
 
 /// Stages of a frame, in order.
 pub const STAGES: [&str; 6] = ["gbuffer", "trace", "pack", "tfa", "unet", "output"];
@@ -65,14 +65,7 @@ pub fn bench_frame(
         let mut enc = gpu.device.create_command_encoder(&Default::default());
         tracer.encode_frame(&mut enc, gs, &s, Some(&mut prof))?;
         let b = &tracer.buffers;
-        let inputs = FrameInputs {
-            color_mask: &b.color_mask.buffer,
-            albedo_depth: &b.albedo_depth.buffer,
-            normal_metallic: &b.normal_metallic.buffer,
-            shadow_roughness: &b.shadow_roughness.buffer,
-            transparent: &b.transparent.buffer,
-            motion: &b.motion.buffer,
-        };
+        let inputs = b.inputs();
         den.denoise_profiled(&mut enc, &inputs, Some(&mut prof), Granularity::Stage)?;
         prof.resolve(&mut enc);
         let t0 = std::time::Instant::now();

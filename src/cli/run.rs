@@ -10,7 +10,7 @@ use crate::io::png::write_png_row;
 use crate::metrics;
 use crate::nn::{HostTensor, Tensor};
 use crate::render::{CameraPath, DEFAULT_MAX_DEPTH, FrameSettings, GpuScene, Mode, Tracer, load_scene};
-use crate::ssr::{Denoiser, FrameInputs, Granularity, Weights};
+use crate::ssr::{Denoiser, Granularity, Weights};
 
 #[derive(clap::Args)]
 pub(super) struct RunArgs {
@@ -108,14 +108,7 @@ pub(super) fn run(a: &RunArgs) -> Result<()> {
         let mut enc = gpu.device.create_command_encoder(&Default::default());
         tracer.encode_frame(&mut enc, &gs, &settings, Some(&mut prof))?;
         let b = &tracer.buffers;
-        let inputs = FrameInputs {
-            color_mask: &b.color_mask.buffer,
-            albedo_depth: &b.albedo_depth.buffer,
-            normal_metallic: &b.normal_metallic.buffer,
-            shadow_roughness: &b.shadow_roughness.buffer,
-            transparent: &b.transparent.buffer,
-            motion: &b.motion.buffer,
-        };
+        let inputs = b.inputs();
         den.denoise_profiled(&mut enc, &inputs, Some(&mut prof), Granularity::Stage)?;
         prof.resolve(&mut enc);
         gpu.queue.submit([enc.finish()]);

@@ -139,6 +139,18 @@ pub struct FrameBuffers {
 }
 
 impl FrameBuffers {
+    /// The buffers as the denoiser's [`crate::ssr::FrameInputs`] (the same layout).
+    pub fn inputs(&self) -> crate::ssr::FrameInputs<'_> {
+        crate::ssr::FrameInputs {
+            color_mask: &self.color_mask.buffer,
+            albedo_depth: &self.albedo_depth.buffer,
+            normal_metallic: &self.normal_metallic.buffer,
+            shadow_roughness: &self.shadow_roughness.buffer,
+            transparent: &self.transparent.buffer,
+            motion: &self.motion.buffer,
+        }
+    }
+
     /// Zeroed buffers of `width x height`.
     pub fn new(gpu: &Gpu, width: u32, height: u32) -> Result<Self> {
         let t = |name: &str| Tensor::new(gpu, name, width, height, 4);
