@@ -42,7 +42,7 @@ pub fn bench_frame(
     mode: Mode,
     (warmup, frames): (u32, u32),
 ) -> Result<FrameBench> {
-    let tracer = Tracer::new(gpu, w, h)?;
+    let mut tracer = Tracer::new(gpu, w, h)?;
     tracer.compile()?;
     let mut den = Denoiser::with_gpu(gpu, weights, w, h)?;
     let n = warmup + frames;

@@ -269,7 +269,7 @@ impl KernelRegistry {
             self.device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
                 label: Some(&format!("subpixel.{name}.params")),
                 contents: params,
-                usage: wgpu::BufferUsages::UNIFORM,
+                usage: wgpu::BufferUsages::UNIFORM | wgpu::BufferUsages::COPY_DST,
             })
         });
         let mut entries = Vec::new();
@@ -302,7 +302,7 @@ impl KernelRegistry {
             pipeline,
             bind_group,
             groups,
-            _uniform: uniform,
+            uniform,
         })
     }
 }
@@ -317,10 +317,19 @@ pub struct Dispatch {
     bind_group: wgpu::BindGroup,
     /// Workgroup counts.
     pub groups: [u32; 3],
-    _uniform: Option<wgpu::Buffer>,
+    uniform: Option<wgpu::Buffer>,
 }
 
 impl Dispatch {
+    /// Rewrites the uniform parameters in place (same size as when bound), so a dispatch
+    /// whose parameters change every frame is built once. Like `Queue::write_buffer`, it
+    /// takes effect at the next submission: record the dispatch once per submission.
+    pub fn write_params(&self, queue: &wgpu::Queue, params: &[u8]) {
+        if let Some(u) = &self.uniform {
+            queue.write_buffer(u, 0, params);
+        }
+    }
+
     /// Records the dispatch into `pass`.
     pub fn record(&self, pass: &mut wgpu::ComputePass<'_>) {
         pass.set_pipeline(&self.pipeline);

@@ -220,6 +220,8 @@ pub struct Tracer {
     pub buffers: FrameBuffers,
     counters: wgpu::Buffer,
     scratch: Option<(Tensor, Tensor)>,
+    /// G-buffer and trace dispatches of `encode_frame`, for (scene BVH buffer, mode).
+    frame_dispatches: Option<(wgpu::Buffer, Mode, Dispatch, Dispatch)>,
     /// Most paths one reference dispatch traces (more samples are split into passes): keeps
     /// each dispatch short for the driver.
     pub paths_per_pass: u64,
@@ -277,6 +279,7 @@ impl Tracer {
             counters,
             scratch: None,
             paths_per_pass: PATHS_PER_PASS,
+            frame_dispatches: None,
         })
     }
 
@@ -382,7 +385,7 @@ impl Tracer {
     /// Records one quarter or full frame (G-buffer pass labelled `gbuffer`, trace pass
     /// labelled `trace`) into `encoder`, timing both with `profiler` when given.
     pub fn encode_frame(
-        &self,
+        &mut self,
         encoder: &mut wgpu::CommandEncoder,
         scene: &GpuScene,
         s: &FrameSettings,
@@ -393,12 +396,23 @@ impl Tracer {
                 "encode_frame records quarter and full frames; reference frames use render".into(),
             ));
         }
-        let gb = self.gbuffer_dispatch(scene, s)?;
-        let b = &self.buffers;
-        let tr = self.trace_dispatch(scene, s, [0, 1], &b.color_mask, &b.shadow_roughness)?;
+        // The two dispatches are built once per scene and mode; every frame only rewrites
+        // their (shared) parameters. One encode_frame per submission, as write_params says.
+        let cached =
+            matches!(&self.frame_dispatches, Some((n, m, _, _)) if *n == scene.nodes && *m == s.mode);
+        if !cached {
+            let gb = self.gbuffer_dispatch(scene, s)?;
+            let b = &self.buffers;
+            let tr = self.trace_dispatch(scene, s, [0, 1], &b.color_mask, &b.shadow_roughness)?;
+            self.frame_dispatches = Some((scene.nodes.clone(), s.mode, gb, tr));
+        }
+        let params = self.params(s, [0, 1]);
+        let (_, _, gb, tr) = self.frame_dispatches.as_ref().expect("built above");
+        gb.write_params(&self.gpu.queue, bytemuck::bytes_of(&params));
+        tr.write_params(&self.gpu.queue, bytemuck::bytes_of(&params));
         encoder.clear_buffer(&self.counters, 0, None);
-        Self::pass(encoder, &gb, profiler.as_deref_mut(), "gbuffer");
-        Self::pass(encoder, &tr, profiler, "trace");
+        Self::pass(encoder, gb, profiler.as_deref_mut(), "gbuffer");
+        Self::pass(encoder, tr, profiler, "trace");
         Ok(())
     }
 
