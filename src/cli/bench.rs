@@ -93,11 +93,13 @@ pub(super) fn run(what: Option<BenchCommand>) -> Result<()> {
         ..Default::default()
     }));
     if let BenchCommand::Render(a) = &what {
+        // The renderer's benchmark picks its own adapter and defaults.
         return crate::render::cli::bench_render_command(a);
     }
     let gpu = Gpu::new()?;
     let cpu = gpu.kind() == AdapterKind::Cpu;
     match what {
+        BenchCommand::Render(_) => {} // returned above
         BenchCommand::Frame(a) => {
             let sizes: Vec<String> = if a.sizes.is_empty() {
                 if cpu {
@@ -193,7 +195,6 @@ pub(super) fn run(what: Option<BenchCommand>) -> Result<()> {
                 print!("{}", denoise_table(&b));
             }
         }
-        BenchCommand::Render(_) => unreachable!("handled above"),
     }
     Ok(())
 }
