@@ -515,11 +515,11 @@ fn main() -> Result<()> {
     let (lo, hi) = scene.bounds();
     let extent = (hi - lo).length().max(1e-3);
     let far = scene.far_distance([&scene.camera.position]);
+    let gpu_scene = GpuScene::new(&gpu, &scene)?;
     let path = scene
         .camera_path
         .as_ref()
-        .map(|spec| CameraPath::from_spec(spec, &scene.camera, 1, 240));
-    let gpu_scene = GpuScene::new(&gpu, &scene)?;
+        .map(|spec| CameraPath::from_spec(spec, &scene.camera, 1, 240, &gpu_scene.bvh));
     let event_loop = EventLoop::new()?;
     event_loop.set_control_flow(ControlFlow::Poll);
     let mut app = App {

@@ -81,7 +81,7 @@ fn every_scene_loads_and_renders() {
         let (fw, fh) = scene.film;
         let w = 24u32;
         let h = ((w as f32 * fh as f32 / fw as f32).round() as u32).max(4);
-        let path = CameraPath::from_spec(&"flythrough".parse().unwrap(), &scene.camera, 1, 3);
+        let path = CameraPath::from_spec(&"flythrough".parse().unwrap(), &scene.camera, 1, 3, &gs.bvh);
         let far = scene.far_distance([&scene.camera.position]);
         let mut t = Tracer::new(&g, w, h).unwrap();
         let mut total = 0.0f64;

@@ -46,7 +46,13 @@ pub fn bench_frame(
     tracer.compile()?;
     let mut den = Denoiser::with_gpu(gpu, weights, w, h)?;
     let n = warmup + frames;
-    let path = CameraPath::from_spec(&"orbit".parse().expect("known path"), &scene.camera, 1, n);
+    let path = CameraPath::from_spec(
+        &"orbit".parse().expect("known path"),
+        &scene.camera,
+        1,
+        n,
+        &gs.bvh,
+    );
     let eyes: Vec<_> = (0..n).map(|f| path.camera(f).position).collect();
     let far = scene.far_distance(eyes.iter().chain([&scene.camera.position]));
     let mut prof = Profiler::new(gpu, 16);

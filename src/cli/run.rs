@@ -82,6 +82,7 @@ pub(super) fn run(a: &RunArgs) -> Result<()> {
         &scene.camera,
         a.seed,
         a.frames,
+        &gs.bvh,
     );
     let eyes: Vec<_> = (0..a.frames).map(|f| path.camera(f).position).collect();
     let far = scene.far_distance(eyes.iter().chain([&scene.camera.position]));

@@ -61,6 +61,12 @@ pub fn cwbvh_depth(bvh: &CwBvh) -> u32 {
     max
 }
 
+impl crate::render::camera::RayProbe for SceneBvh {
+    fn first_hit(&self, origin: Vec3, dir: Vec3, tmax: f32) -> Option<f32> {
+        self.intersect(origin, dir, tmax).map(|(_, t)| t)
+    }
+}
+
 impl SceneBvh {
     /// Builds the CWBVH of triangles `tris` (vertex positions by index) of scene `name`.
     /// Degenerate triangles (zero area, non-finite) are left out; none left, or a tree too

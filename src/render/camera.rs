@@ -126,6 +126,56 @@ impl std::str::FromStr for CameraPathSpec {
     }
 }
 
+/// Ray queries against a scene, for camera paths generated inside it.
+pub trait RayProbe {
+    /// Distance to the first surface along the unit direction `dir` from `origin` within
+    /// `tmax`, if any.
+    fn first_hit(&self, origin: Vec3, dir: Vec3, tmax: f32) -> Option<f32>;
+}
+
+/// Empty space: nothing is ever hit.
+impl RayProbe for () {
+    fn first_hit(&self, _origin: Vec3, _dir: Vec3, _tmax: f32) -> Option<f32> {
+        None
+    }
+}
+
+/// The position `home + s * offset` for the largest `s` in 1, 1/2, 1/4, ... (down to 0, the
+/// home position itself) such that the move from `prev` is clear of geometry by a margin
+/// and the view towards `target` is not blocked within a quarter of `focus`. The margin is
+/// 5% of `focus`, also checked along the six axes around the position.
+fn clear_position(
+    probe: &dyn RayProbe,
+    home: Vec3,
+    prev: Vec3,
+    offset: Vec3,
+    target: Vec3,
+    focus: f32,
+) -> Vec3 {
+    let margin = 0.05 * focus;
+    let segment_clear = |a: Vec3, b: Vec3| {
+        let d = b - a;
+        let len = d.length();
+        len < 1e-9 * focus || probe.first_hit(a, d / len, len + margin).is_none()
+    };
+    let view_clear = |p: Vec3| {
+        let d = (target - p).normalize_or_zero();
+        d == Vec3::ZERO || probe.first_hit(p, d, 0.25 * focus).is_none()
+    };
+    let mut s = 1.0f32;
+    for _ in 0..10 {
+        let p = home + offset * s;
+        let room = [Vec3::X, Vec3::NEG_X, Vec3::Y, Vec3::NEG_Y, Vec3::Z, Vec3::NEG_Z]
+            .iter()
+            .all(|&d| probe.first_hit(p, d, margin).is_none());
+        if room && segment_clear(home, p) && segment_clear(prev, p) && view_clear(p) {
+            return p;
+        }
+        s *= 0.5;
+    }
+    home
+}
+
 /// A concrete camera path: a camera per frame.
 #[derive(Debug, Clone, PartialEq)]
 pub enum CameraPath {
@@ -192,7 +242,17 @@ impl CameraPath {
     /// `seed` only (and the base camera): orbits of different seeds sweep disjoint arcs
     /// (seed 0 starts at the base camera, then alternating sides), fly-throughs visit
     /// different random key positions.
-    pub fn from_spec(spec: &CameraPathSpec, base: &Camera, seed: u64, frames: u32) -> Self {
+    ///
+    /// `probe` answers ray queries against the scene (a [`crate::render::bvh::SceneBvh`], or
+    /// `&()` for empty space): generated fly-through keys never move through geometry and
+    /// never stand right in front of a wall.
+    pub fn from_spec(
+        spec: &CameraPathSpec,
+        base: &Camera,
+        seed: u64,
+        frames: u32,
+        probe: &dyn RayProbe,
+    ) -> Self {
         match spec {
             CameraPathSpec::Static => CameraPath::Static(*base),
             CameraPathSpec::Orbit { degrees_per_frame } => {
@@ -228,22 +288,32 @@ impl CameraPath {
                 let mut rng = SplitMix::new(seed ^ 0xf1f1_7ab1e);
                 let fpk = frames_per_key.max(1.0);
                 let n = 2 + (frames as f32 / fpk).ceil() as usize;
-                let dist = base.position.distance(base.target).max(1e-6);
                 let (r, u, f) = base.basis();
-                let amp = 0.08 * dist;
+                // The scale of the motion is the distance to what the camera looks at (its
+                // target where the view ray hits nothing): scenes whose target is only a unit
+                // direction move as much as those whose target is the object looked at.
+                let look = base.position.distance(base.target).max(1e-6);
+                let focus = probe
+                    .first_hit(base.position, f, f32::INFINITY)
+                    .unwrap_or(look)
+                    .max(1e-6);
+                let aim = base.position + f * focus;
+                let amp = 0.08 * focus;
                 let mut keys = Vec::with_capacity(n);
+                let mut prev = base.position;
                 for i in 0..n {
                     // Key 0 is the base camera jittered; later keys drift forward a little.
-                    let drift = f * (0.03 * dist * i as f32) * rng.signed().signum();
-                    let p = base.position
-                        + drift
+                    let drift = f * (0.03 * focus * i as f32) * rng.signed().signum();
+                    let offset = drift
                         + r * (amp * rng.signed())
                         + u * (0.5 * amp * rng.signed())
                         + f * (0.5 * amp * rng.signed());
-                    let t = base.target + r * (amp * rng.signed()) + u * (0.5 * amp * rng.signed());
+                    let target = aim + r * (amp * rng.signed()) + u * (0.5 * amp * rng.signed());
+                    let position = clear_position(probe, base.position, prev, offset, target, focus);
+                    prev = position;
                     keys.push(Camera {
-                        position: p,
-                        target: t,
+                        position,
+                        target,
                         ..*base
                     });
                 }
@@ -326,9 +396,9 @@ mod tests {
     fn paths_are_deterministic_and_differ_per_seed() {
         for spec in ["orbit", "flythrough"] {
             let spec: CameraPathSpec = spec.parse().unwrap();
-            let a = CameraPath::from_spec(&spec, &base(), 7, 60);
-            let b = CameraPath::from_spec(&spec, &base(), 7, 60);
-            let c = CameraPath::from_spec(&spec, &base(), 8, 60);
+            let a = CameraPath::from_spec(&spec, &base(), 7, 60, &());
+            let b = CameraPath::from_spec(&spec, &base(), 7, 60, &());
+            let c = CameraPath::from_spec(&spec, &base(), 8, 60, &());
             assert_eq!(a, b);
             for f in [0, 13, 59] {
                 assert_eq!(a.camera(f), b.camera(f));
@@ -340,13 +410,85 @@ mod tests {
         }
     }
 
+    /// A closed box `[-1, 1]^3` of 12 triangles.
+    fn box_room() -> crate::render::bvh::SceneBvh {
+        let v: Vec<Vec3> = (0..8)
+            .map(|i| Vec3::new([-1.0, 1.0][i & 1], [-1.0, 1.0][(i >> 1) & 1], [-1.0, 1.0][i >> 2]))
+            .collect();
+        let quads = [
+            [0, 1, 3, 2],
+            [4, 6, 7, 5],
+            [0, 4, 5, 1],
+            [2, 3, 7, 6],
+            [0, 2, 6, 4],
+            [1, 5, 7, 3],
+        ];
+        let tris: Vec<[u32; 3]> = quads
+            .iter()
+            .flat_map(|q| [[q[0], q[1], q[2]], [q[0], q[2], q[3]]])
+            .collect();
+        crate::render::bvh::SceneBvh::build("box", &v, &tris).unwrap()
+    }
+
+    #[test]
+    fn flythrough_stays_inside_a_room() {
+        // A camera close to the wall behind it and to the one on its right: unconstrained
+        // keys would leave the room; constrained ones stay inside with a margin, and still move.
+        let room = box_room();
+        let cam = Camera {
+            position: Vec3::new(0.88, 0.0, 0.85),
+            target: Vec3::new(-1.0, 0.0, 0.85),
+            up: Vec3::Y,
+            yfov: 0.8,
+        };
+        let spec: CameraPathSpec = "flythrough".parse().unwrap();
+        let (mut moved, mut would_leave, mut total) = (0, 0, 0);
+        for seed in 0..40 {
+            let free = CameraPath::from_spec(&spec, &cam, seed, 48, &());
+            let CameraPath::Keyframes { keys: free_keys, .. } = &free else {
+                unreachable!()
+            };
+            would_leave += free_keys
+                .iter()
+                .filter(|k| k.position.abs().max_element() > 1.0)
+                .count();
+            let path = CameraPath::from_spec(&spec, &cam, seed, 48, &room);
+            let CameraPath::Keyframes { keys, .. } = &path else {
+                unreachable!()
+            };
+            for k in keys {
+                assert!(
+                    k.position.abs().max_element() < 1.0 - 0.05,
+                    "seed {seed}: key {k:?}"
+                );
+                moved += usize::from(k.position.distance(cam.position) > 1e-3);
+                // Nothing blocks the view within a quarter of the focus distance (1.93).
+                let d = (k.target - k.position).normalize();
+                assert!(
+                    room.intersect(k.position, d, 0.25 * 1.93).is_none(),
+                    "seed {seed}"
+                );
+            }
+            for f in 0..48 {
+                let p = path.camera(f).position;
+                assert!(p.abs().max_element() < 1.0, "seed {seed} frame {f}: {p}");
+            }
+        }
+        assert!(
+            would_leave > 10,
+            "the test camera is not close enough to the walls"
+        );
+        assert!(2 * moved > total, "constrained keys should still move ({moved} of {total})");
+    }
+
     #[test]
     fn orbit_arcs_of_different_seeds_are_disjoint() {
         let spec: CameraPathSpec = "orbit".parse().unwrap();
         let frames = 40;
         let arcs: Vec<(f32, f32)> = (0..6)
             .map(|s| {
-                let CameraPath::Orbit { start, step, .. } = CameraPath::from_spec(&spec, &base(), s, frames)
+                let CameraPath::Orbit { start, step, .. } =
+                    CameraPath::from_spec(&spec, &base(), s, frames, &())
                 else {
                     unreachable!()
                 };

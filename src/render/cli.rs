@@ -151,7 +151,13 @@ pub fn render_command(args: &RenderArgs) -> Result<()> {
     );
     let load_time = t0.elapsed();
     let spec = path_for(&scene, &args.path, args.first_frame + args.frames);
-    let path = CameraPath::from_spec(&spec, &scene.camera, args.seed, args.first_frame + args.frames);
+    let path = CameraPath::from_spec(
+        &spec,
+        &scene.camera,
+        args.seed,
+        args.first_frame + args.frames,
+        &gs.bvh,
+    );
     let horizon: Vec<_> = (0..FAR_HORIZON.max(args.first_frame + args.frames))
         .map(|f| path.camera(f).position)
         .collect();
@@ -319,6 +325,7 @@ pub fn bench_render_command(args: &BenchRenderArgs) -> Result<()> {
         &scene.camera,
         1,
         frames + args.warmup,
+        &gs.bvh,
     );
     let far = scene.far_distance([&scene.camera.position]);
     let mut results = Vec::new();
