@@ -44,14 +44,25 @@ fn display_matches_reference() {
             ..Default::default()
         },
     ];
-    for (i, v) in views.iter().enumerate() {
+    // Every view of (a, b), then sources swapped: parameters are rewritten in place while
+    // the sources stay, the bind group is rebuilt when they change.
+    let cases = views
+        .iter()
+        .map(|v| (v, false))
+        .chain([(&views[2], true), (&views[4], false)]);
+    for (i, (v, swap)) in cases.enumerate() {
+        let (ta, tb, a, b) = if swap {
+            (&tb, &ta, &b, &a)
+        } else {
+            (&ta, &tb, &a, &b)
+        };
         let mut enc = g.device.create_command_encoder(&Default::default());
-        disp.draw(&mut enc, &ta, Some(&tb), v).unwrap();
+        disp.draw(&mut enc, ta, Some(tb), v).unwrap();
         g.queue.submit([enc.finish()]);
         let img = disp.read_rgba().unwrap();
         for y in 0..h {
             for x in 0..w {
-                let want = reference_pixel(&a, &b, v, w, h, x, y);
+                let want = reference_pixel(a, b, v, w, h, x, y);
                 let got = img.get_pixel(x, y).0;
                 for c in 0..3 {
                     // One 8-bit step: pow/exp differ in the last ulp between GPU and CPU.

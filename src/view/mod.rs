@@ -86,25 +86,34 @@ fn font_words() -> Vec<u32> {
         .collect()
 }
 
+/// Largest overlay: columns per line and lines (longer text is cut off).
+pub const TEXT_MAX: (u32, u32) = (96, 32);
+
 fn text_grid(lines: &[String]) -> (u32, u32, Vec<u32>) {
-    let cols = lines.iter().map(|l| l.chars().count()).max().unwrap_or(0) as u32;
+    let lines = &lines[..lines.len().min(TEXT_MAX.1 as usize)];
+    let cols = (lines.iter().map(|l| l.chars().count()).max().unwrap_or(0) as u32).min(TEXT_MAX.0);
     let rows = lines.len() as u32;
     let mut grid = vec![b' ' as u32; (cols * rows).max(1) as usize];
     for (r, l) in lines.iter().enumerate() {
-        for (c, ch) in l.chars().enumerate() {
+        for (c, ch) in l.chars().take(cols as usize).enumerate() {
             grid[r * cols as usize + c] = if ch.is_ascii() { ch as u32 } else { b'?' as u32 };
         }
     }
     (cols, rows, grid)
 }
 
-/// The display target and its resources.
+/// The display target and its resources. Drawing allocates nothing: the overlay text and
+/// the parameters are written into buffers made once, and the kernel's bind group is kept
+/// while the sources stay the same.
 pub struct Display {
     gpu: Gpu,
     font: wgpu::Buffer,
+    text: wgpu::Buffer,
     target: wgpu::Texture,
     width: u32,
     height: u32,
+    /// The last dispatch and the source buffers it binds.
+    cached: std::sync::Mutex<Option<(wgpu::Buffer, wgpu::Buffer, crate::gpu::Dispatch)>>,
 }
 
 impl Display {
@@ -121,6 +130,12 @@ impl Display {
             label: Some("subpixel.view.font"),
             contents: bytemuck::cast_slice(&font_words()),
             usage: wgpu::BufferUsages::STORAGE,
+        });
+        let text = gpu.device.create_buffer(&wgpu::BufferDescriptor {
+            label: Some("subpixel.view.text"),
+            size: (TEXT_MAX.0 * TEXT_MAX.1 * 4) as u64,
+            usage: wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_DST,
+            mapped_at_creation: false,
         });
         let target = gpu.device.create_texture(&wgpu::TextureDescriptor {
             label: Some("subpixel.view.target"),
@@ -141,9 +156,11 @@ impl Display {
         Ok(Self {
             gpu: gpu.clone(),
             font,
+            text,
             target,
             width,
             height,
+            cached: std::sync::Mutex::new(None),
         })
     }
 
@@ -152,7 +169,9 @@ impl Display {
         &self.target
     }
 
-    /// Records drawing `a` (and `b` right of `view.split_x`) with the overlay.
+    /// Records drawing `a` (and `b` right of `view.split_x`) with the overlay (at most
+    /// [`TEXT_MAX`] columns and lines). The text and parameters are written with queue
+    /// writes, which take effect at the next submission: submit between two draws.
     pub fn draw(
         &self,
         encoder: &mut wgpu::CommandEncoder,
@@ -175,15 +194,11 @@ impl Display {
             ));
         }
         let (cols, rows, grid) = text_grid(&view.text);
-        use wgpu::util::DeviceExt;
-        let text = self
-            .gpu
-            .device
-            .create_buffer_init(&wgpu::util::BufferInitDescriptor {
-                label: Some("subpixel.view.text"),
-                contents: bytemuck::cast_slice(&grid),
-                usage: wgpu::BufferUsages::STORAGE,
-            });
+        if !grid.is_empty() {
+            self.gpu
+                .queue
+                .write_buffer(&self.text, 0, bytemuck::cast_slice(&grid));
+        }
         let (mode, scale_b) = match view.mode {
             DisplayMode::Radiance => (0, 1.0),
             DisplayMode::Signed(s) => (1, s),
@@ -206,21 +221,32 @@ impl Display {
             scale_b,
             _pad: [0; 2],
         };
-        let tv = self.target.create_view(&Default::default());
-        let d = self.gpu.kernels.dispatch_with(
-            "view/display",
-            &Specialisation::none(),
-            bytemuck::bytes_of(&params),
-            &[
-                a.buffer.as_entire_binding(),
-                b.buffer.as_entire_binding(),
-                text.as_entire_binding(),
-                self.font.as_entire_binding(),
-                wgpu::BindingResource::TextureView(&tv),
-            ],
-            [self.width.div_ceil(8), self.height.div_ceil(8), 1],
-        )?;
-        d.encode(encoder);
+        let mut cached = self.cached.lock().unwrap_or_else(|e| e.into_inner());
+        match &*cached {
+            Some((ca, cb, d)) if *ca == a.buffer && *cb == b.buffer => {
+                d.write_params(&self.gpu.queue, bytemuck::bytes_of(&params));
+            }
+            _ => {
+                let tv = self.target.create_view(&Default::default());
+                let d = self.gpu.kernels.dispatch_with(
+                    "view/display",
+                    &Specialisation::none(),
+                    bytemuck::bytes_of(&params),
+                    &[
+                        a.buffer.as_entire_binding(),
+                        b.buffer.as_entire_binding(),
+                        self.text.as_entire_binding(),
+                        self.font.as_entire_binding(),
+                        wgpu::BindingResource::TextureView(&tv),
+                    ],
+                    [self.width.div_ceil(8), self.height.div_ceil(8), 1],
+                )?;
+                *cached = Some((a.buffer.clone(), b.buffer.clone(), d));
+            }
+        }
+        if let Some((_, _, d)) = &*cached {
+            d.encode(encoder);
+        }
         Ok(())
     }
 
@@ -311,4 +337,21 @@ pub fn reference_pixel(
         };
     }
     rgb.map(|c| (c * 255.0).round() as u8)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn overlay_text_is_cut_to_the_buffer() {
+        let long: Vec<String> = (0..40).map(|i| format!("{i:>3} {}", "x".repeat(200))).collect();
+        let (cols, rows, grid) = text_grid(&long);
+        assert_eq!((cols, rows), TEXT_MAX);
+        assert_eq!(grid.len(), (TEXT_MAX.0 * TEXT_MAX.1) as usize);
+        assert_eq!(grid[..3], [b' ' as u32, b' ' as u32, b'0' as u32]);
+        let (cols, rows, grid) = text_grid(&["ab".into(), "é".into()]);
+        assert_eq!((cols, rows), (2, 2));
+        assert_eq!(grid, [b'a' as u32, b'b' as u32, b'?' as u32, b' ' as u32]);
+    }
 }
