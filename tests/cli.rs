@@ -294,7 +294,10 @@ fn dataset_shards_resume_and_write_the_loader_keys() {
     }
     let json: serde_json::Value =
         serde_json::from_str(&std::fs::read_to_string(seq.join("sequence.json")).unwrap()).unwrap();
-    let want = serde_json::json!({"split": "val", "sequence": 0, "frames": 2, "width": 8, "spp": 2});
+    let want = serde_json::json!({
+        "scene": "cornell-empty", "scene_source": "builtin:cornell-empty",
+        "split": "val", "sequence": 0, "frames": 2, "width": 8, "spp": 2,
+    });
     for (k, v) in want.as_object().unwrap() {
         assert_eq!(&json[k], v, "sequence.json key {k}");
     }

@@ -145,6 +145,9 @@ pub(super) fn run(a: &DatasetArgs) -> Result<()> {
             // The keys of the training loader (training/ssr/data.py).
             sequence_json: Some(
                 serde_json::json!({
+                    // Scenes are known by their short name (the folder prefix), whatever
+                    // path was given; `scene_source` keeps the path.
+                    "scene": slug, "scene_source": a.scene,
                     "split": a.split, "sequence": s, "frames": a.frames,
                     "width": a.width, "height": a.height, "spp": a.reference_spp,
                 })

@@ -6,7 +6,8 @@ Layout (the contract with the Rust renderer):
     ROOT/{train,val,test}/{sequence}/frame_NNNN.exr      (4 digits, from 0000)
 
 `sequence.json` = {"scene", "split", "sequence", "frames", "width", "height", "spp", "seed",
-"camera_path"}. Every frame is one float32 multi-channel EXR with the channels of
+"camera_path"}; `scene` is the scene's short name (`cornell` for `builtin:cornell`,
+`staircase2` for `.../staircase2/scene.json`), the name `--scenes` selects. Every frame is one float32 multi-channel EXR with the channels of
 EXR_CHANNELS (the buffers of DESIGN section 3 plus `reference`, the N-spp radiance).
 
 `SequenceDataset` is a map-style torch Dataset whose index is a `WindowKey`
