@@ -1,10 +1,13 @@
 #!/usr/bin/env bash
 # Rebuilds the paper's Table 1 layout for our scenes (rows: input, accumulation, RAE, NSRR,
-# SSR; columns: scenes; test sequences only) from a dataset rendered by `subpixel dataset`.
+# SSR, then SSR's per-scene models; columns: scenes; test sequences only) from a dataset
+# rendered by `subpixel dataset`.
 #
-#   training/table1.sh DATASET PRED [SSR_WEIGHTS] [RAE_WEIGHTS] [NSRR_WEIGHTS]
+#   training/table1.sh DATASET PRED [SSR_WEIGHTS] [RAE_WEIGHTS] [NSRR_WEIGHTS] [PER_SCENE_DIR]
 #
-# Runs the PyTorch models (and the non-learned baselines) over DATASET/test with
+# Defaults: the shipped weights/ssr.safetensors, weights/baselines/{rae,nsrr}.safetensors and,
+# for the per-scene row, weights/ssr-SCENE.safetensors for each test scene that has one.
+# Runs the PyTorch baselines (and the non-learned ones) over DATASET/test with
 # `python -m ssr.evaluate`, the WGSL engine's SSR with `subpixel denoise`, then scores
 # everything with `subpixel eval --table`. Missing baseline weights are skipped.
 set -euo pipefail
@@ -13,16 +16,23 @@ root="$(cd "$here/.." && pwd)"
 data="$(realpath "$1")"
 pred="$(realpath -m "$2")"
 ssr="$(realpath "${3:-$root/weights/ssr.safetensors}")"
-rae="${4:-}"
-nsrr="${5:-}"
+rae="${4:-$root/weights/baselines/rae.safetensors}"
+nsrr="${5:-$root/weights/baselines/nsrr.safetensors}"
+per_scene="${6:-$root/weights}"
 py="${PYTHON:-$HOME/.cache/subpixel/venv/bin/python}"
 models=(input accumulation)
-[ -n "$rae" ] && models+=("rae=$(realpath "$rae")")
-[ -n "$nsrr" ] && models+=("nsrr=$(realpath "$nsrr")")
+[ -f "$rae" ] && models+=("rae=$(realpath "$rae")")
+[ -f "$nsrr" ] && models+=("nsrr=$(realpath "$nsrr")")
 (cd "$here" && "$py" -m ssr.evaluate --data "$data" --split test --out "$pred" --models "${models[@]}" --no-metrics)
 cargo build --release --quiet --manifest-path "$root/Cargo.toml"
+bin="$root/target/release/subpixel"
 for seq in "$data"/test/*/; do
   name="$(basename "$seq")"
-  "$root/target/release/subpixel" denoise --weights "$ssr" --input "$seq" --out "$pred/ssr/test/$name" >/dev/null
+  "$bin" denoise --weights "$ssr" --input "$seq" --out "$pred/ssr/test/$name" >/dev/null
+  scene="${name%_test_*}"
+  if [ -f "$per_scene/ssr-$scene.safetensors" ]; then
+    "$bin" denoise --weights "$per_scene/ssr-$scene.safetensors" --input "$seq" \
+      --out "$pred/ssr-per-scene/test/$name" >/dev/null
+  fi
 done
-"$root/target/release/subpixel" eval --table --pred "$pred" --ref "$data" --split test
+"$bin" eval --table --pred "$pred" --ref "$data" --split test

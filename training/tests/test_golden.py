@@ -80,7 +80,12 @@ def test_sizes_names_shapes(generated):
 
 
 def test_committed_files_match_generator(generated):
-    """tests/data is what the generator writes (inputs and weights exactly, the rest to float noise)."""
+    """tests/data is what the generator writes, to float rounding.
+
+    Not bit for bit: torch's CPU kernels behind randn, uniform_, exp and norm round differently per
+    instruction set (scalar, AVX2, AVX-512), so another machine writes weights and inputs that differ
+    in the last bits (up to ~2e-6 measured with ATEN_CPU_CAPABILITY=default against avx2), and the
+    network's tensors follow. Same-machine runs are byte-identical (test_reproducible_bytes)."""
     a, _ = generated
     for name in FILES:
         path = os.path.join(DATA, name)
@@ -90,10 +95,7 @@ def test_committed_files_match_generator(generated):
         assert got_meta == want_meta, name
         assert sorted(got) == sorted(want), name
         for k in want:
-            if name == "golden_weights.safetensors" or k in golden.GOLDEN_INPUTS:
-                assert torch.equal(got[k], want[k]), (name, k)
-            else:
-                torch.testing.assert_close(got[k], want[k], rtol=1e-5, atol=1e-5, msg=f"{name}: {k}")
+            torch.testing.assert_close(got[k], want[k], rtol=1e-5, atol=1e-5, msg=f"{name}: {k}")
 
 
 def test_inputs_follow_the_contract(generated):
