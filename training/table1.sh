@@ -6,7 +6,8 @@
 #   training/table1.sh DATASET PRED [SSR_WEIGHTS] [RAE_WEIGHTS] [NSRR_WEIGHTS] [PER_SCENE_DIR]
 #
 # Defaults: the shipped weights/ssr.safetensors, weights/baselines/{rae,nsrr}.safetensors and,
-# for the per-scene row, weights/ssr-SCENE.safetensors for each test scene that has one.
+# for the per-scene row, weights/ssr-SCENE.safetensors for each test scene that has one; every
+# other SSR model in the baselines folder (ssr-NAME.safetensors) adds a row named ssr-NAME.
 # Runs the PyTorch baselines (and the non-learned ones) over DATASET/test with
 # `python -m ssr.evaluate`, the WGSL engine's SSR with `subpixel denoise`, then scores
 # everything with `subpixel eval --table`. Missing baseline weights are skipped.
@@ -29,6 +30,11 @@ bin="$root/target/release/subpixel"
 for seq in "$data"/test/*/; do
   name="$(basename "$seq")"
   "$bin" denoise --weights "$ssr" --input "$seq" --out "$pred/ssr/test/$name" >/dev/null
+  for extra in "$(dirname "$rae")"/ssr-*.safetensors; do
+    [ -f "$extra" ] || continue
+    "$bin" denoise --weights "$extra" --input "$seq" \
+      --out "$pred/$(basename "$extra" .safetensors)/test/$name" >/dev/null
+  done
   scene="${name%_test_*}"
   if [ -f "$per_scene/ssr-$scene.safetensors" ]; then
     "$bin" denoise --weights "$per_scene/ssr-$scene.safetensors" --input "$seq" \
