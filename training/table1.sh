@@ -27,18 +27,17 @@ models=(input accumulation)
 (cd "$here" && "$py" -m ssr.evaluate --data "$data" --split test --out "$pred" --models "${models[@]}" --no-metrics)
 cargo build --release --quiet --manifest-path "$root/Cargo.toml"
 bin="$root/target/release/subpixel"
+# denoise WEIGHTS METHOD: the engine's output for sequence $seq as PRED/METHOD/test/$name.
+denoise() { "$bin" denoise --weights "$1" --input "$seq" --out "$pred/$2/test/$name" >/dev/null; }
 for seq in "$data"/test/*/; do
   name="$(basename "$seq")"
-  "$bin" denoise --weights "$ssr" --input "$seq" --out "$pred/ssr/test/$name" >/dev/null
+  denoise "$ssr" ssr
   for extra in "$(dirname "$rae")"/ssr-*.safetensors; do
-    [ -f "$extra" ] || continue
-    "$bin" denoise --weights "$extra" --input "$seq" \
-      --out "$pred/$(basename "$extra" .safetensors)/test/$name" >/dev/null
+    if [ -f "$extra" ]; then denoise "$extra" "$(basename "$extra" .safetensors)"; fi
   done
   scene="${name%_test_*}"
   if [ -f "$per_scene/ssr-$scene.safetensors" ]; then
-    "$bin" denoise --weights "$per_scene/ssr-$scene.safetensors" --input "$seq" \
-      --out "$pred/ssr-per-scene/test/$name" >/dev/null
+    denoise "$per_scene/ssr-$scene.safetensors" ssr-per-scene
   fi
 done
 "$bin" eval --table --pred "$pred" --ref "$data" --split test

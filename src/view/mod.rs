@@ -194,11 +194,9 @@ impl Display {
             ));
         }
         let (cols, rows, grid) = text_grid(&view.text);
-        if !grid.is_empty() {
-            self.gpu
-                .queue
-                .write_buffer(&self.text, 0, bytemuck::cast_slice(&grid));
-        }
+        self.gpu
+            .queue
+            .write_buffer(&self.text, 0, bytemuck::cast_slice(&grid));
         let (mode, scale_b) = match view.mode {
             DisplayMode::Radiance => (0, 1.0),
             DisplayMode::Signed(s) => (1, s),
@@ -225,6 +223,7 @@ impl Display {
         match &*cached {
             Some((ca, cb, d)) if *ca == a.buffer && *cb == b.buffer => {
                 d.write_params(&self.gpu.queue, bytemuck::bytes_of(&params));
+                d.encode(encoder);
             }
             _ => {
                 let tv = self.target.create_view(&Default::default());
@@ -241,11 +240,9 @@ impl Display {
                     ],
                     [self.width.div_ceil(8), self.height.div_ceil(8), 1],
                 )?;
+                d.encode(encoder);
                 *cached = Some((a.buffer.clone(), b.buffer.clone(), d));
             }
-        }
-        if let Some((_, _, d)) = &*cached {
-            d.encode(encoder);
         }
         Ok(())
     }
