@@ -1,16 +1,19 @@
 #!/usr/bin/env bash
-# Rebuilds the paper's Table 1 layout for our scenes (rows: input, accumulation, RAE, NSRR,
-# SSR, then SSR's per-scene models; columns: scenes; test sequences only) from a dataset
-# rendered by `subpixel dataset`.
+# Rebuilds the paper's Table 1 layout for our scenes (rows: input, hold-filled, accumulation,
+# RAE, NSRR, OIDN (a), OIDN (b), SSR, then SSR's other and per-scene models; columns: scenes;
+# every cell PSNR / SSIM / temporal error; test sequences only) from a dataset rendered by
+# `subpixel dataset`.
 #
 #   training/table1.sh DATASET PRED [SSR_WEIGHTS] [RAE_WEIGHTS] [NSRR_WEIGHTS] [PER_SCENE_DIR]
 #
 # Defaults: the shipped weights/ssr.safetensors, weights/baselines/{rae,nsrr}.safetensors and,
 # for the per-scene row, weights/ssr-SCENE.safetensors for each test scene that has one; every
 # other SSR model in the baselines folder (ssr-NAME.safetensors) adds a row named ssr-NAME.
-# Runs the PyTorch baselines (and the non-learned ones) over DATASET/test with
-# `python -m ssr.evaluate`, the WGSL engine's SSR with `subpixel denoise`, then scores
-# everything with `subpixel eval --table`. Missing baseline weights are skipped.
+# Runs the PyTorch baselines, the non-learned ones and Intel OIDN (pyoidn, CPU; see
+# training/README.md) over DATASET/test with `python -m ssr.evaluate`, the WGSL engine's SSR
+# with `subpixel denoise`, then scores everything with `subpixel eval --table`. Missing
+# baseline weights are skipped; OIDN (b), which denoises the 1-spp frame `full.RGB`, runs only
+# when the dataset's first test frame has those channels. A missing pyoidn is an error.
 set -euo pipefail
 here="$(cd "$(dirname "$0")" && pwd)"
 root="$(cd "$here/.." && pwd)"
@@ -21,9 +24,17 @@ rae="${4:-$root/weights/baselines/rae.safetensors}"
 nsrr="${5:-$root/weights/baselines/nsrr.safetensors}"
 per_scene="${6:-$root/weights}"
 py="${PYTHON:-$HOME/.cache/subpixel/venv/bin/python}"
-models=(input accumulation)
+models=(input hold accumulation)
 [ -f "$rae" ] && models+=("rae=$(realpath "$rae")")
 [ -f "$nsrr" ] && models+=("nsrr=$(realpath "$nsrr")")
+models+=(oidn-a)
+seqs=("$data"/test/*/)
+first="${seqs[0]}frame_0000.exr"
+if (cd "$here" && "$py" -m ssr.oidn --has-full "$first"); then
+  models+=(oidn-b)
+else
+  echo "table1.sh: skipping the OIDN (b) row (no 1-spp frame in the dataset)" >&2
+fi
 (cd "$here" && "$py" -m ssr.evaluate --data "$data" --split test --out "$pred" --models "${models[@]}" --no-metrics)
 cargo build --release --quiet --manifest-path "$root/Cargo.toml"
 bin="$root/target/release/subpixel"

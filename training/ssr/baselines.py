@@ -29,6 +29,17 @@ Learned (trainable with `python -m ssr.train --model rae|nsrr`, same losses as S
 Non-learned references (evaluate.py only):
 
   InputBaseline         the raw 1/4-spp input: `color` as it is (0 at untraced pixels).
+  HoldBaseline          "hold-filled": the 1/4-spp frame whose untraced pixels hold that
+                        pixel's last traced sample (no reprojection: the value stays where it
+                        was traced, whatever the camera did since). Traced pixels (mask 1)
+                        show this frame's sample, a black sample included. A pixel not traced
+                        yet in the sequence (frames 0-2) takes this frame's sample of its 2x2
+                        tile (the mean of the tile's traced pixels: exactly one in a whole
+                        tile); in a partial tile at the right/bottom edge of an odd-sized frame
+                        with no traced pixel this frame, the mean of this frame's samples in
+                        its 3x3 neighbourhood; with none there either, 0. From frame 3 on every
+                        pixel of a whole tile has been traced. Works at any size (no padding).
+                        This is also the colour OIDN (a) denoises (oidn.py).
   AccumulationBaseline  reprojected temporal accumulation, an exponential moving average
                         over the traced samples with alpha = 0.1, on demodulated radiance
                         d = color / (albedo + 0.00316), remodulated with the current albedo:
@@ -270,6 +281,43 @@ class InputBaseline(_SequenceMixin, nn.Module):
         return {"output": _clean(frame["color"]), "state": None}
 
 
+def _tile_sum(x: torch.Tensor) -> torch.Tensor:
+    """Sum over each 2x2 tile (tiles from the top-left corner; a partial tile at the
+    right/bottom edge sums what it has), broadcast back to every pixel of the tile."""
+    h, w = x.shape[-2:]
+    xp = F.pad(x, (0, w % 2, 0, h % 2))
+    s = F.avg_pool2d(xp, 2, stride=2) * 4.0
+    return s.repeat_interleave(2, dim=-2).repeat_interleave(2, dim=-1)[..., :h, :w]
+
+
+class HoldBaseline(_SequenceMixin, nn.Module):
+    """Hold-filled 1/4-spp frame: every pixel shows its last traced sample (module doc)."""
+
+    NAME = "hold"
+    pad_multiple = 1  # works at any size: evaluate.py runs it on the unpadded frame
+
+    def forward(self, frame: Dict[str, torch.Tensor], state=None) -> Dict[str, object]:
+        color, mask = frame["color"], frame["mask"]
+        if color.dim() != 4 or color.shape[1] != 3 or mask.shape != (color.shape[0], 1, *color.shape[2:]):
+            raise ValueError(f"hold: `color` must be [N, 3, H, W] and `mask` [N, 1, H, W], got {list(color.shape)} and {list(mask.shape)}")
+        traced = (mask > 0.5).to(color.dtype)
+        sample = _clean(color) * traced
+        if state is None:
+            held, have = torch.zeros_like(sample), torch.zeros_like(traced)
+        else:
+            held, have = state
+        held = torch.where(traced > 0, sample, held)
+        have = torch.maximum(have, traced)
+        # pixels never traced: this frame's sample of their tile, else of their 3x3 neighbourhood
+        tile_n = _tile_sum(traced)
+        tile = _tile_sum(sample) / torch.clamp(tile_n, min=1.0)
+        box_n = F.avg_pool2d(F.pad(traced, (1, 1, 1, 1)), 3, stride=1)
+        box = F.avg_pool2d(F.pad(sample, (1, 1, 1, 1)), 3, stride=1) / torch.clamp(box_n, min=1e-6)
+        fill = torch.where(tile_n > 0, tile, torch.where(box_n > 0, box, torch.zeros_like(box)))
+        out = torch.where(have > 0, held, fill)
+        return {"output": out, "have": have, "state": (held, have)}
+
+
 class AccumulationBaseline(_SequenceMixin, nn.Module):
     """Reprojected EMA of the traced samples with a depth/normal validity test (module doc)."""
 
@@ -315,7 +363,7 @@ class AccumulationBaseline(_SequenceMixin, nn.Module):
 
 LEARNED = {"ssr": SSRModel, "rae": RAEModel, "nsrr": NSRRModel}
 CONFIGS = {"ssr": SSRConfig, "rae": RAEConfig, "nsrr": NSRRConfig}
-NON_LEARNED = {"input": InputBaseline, "accumulation": AccumulationBaseline}
+NON_LEARNED = {"input": InputBaseline, "hold": HoldBaseline, "accumulation": AccumulationBaseline}
 
 
 def build_model(name: str, config: Optional[dict] = None) -> nn.Module:

@@ -1,20 +1,21 @@
 """Runs models over a dataset split and writes their predictions for `subpixel eval`.
 
     python -m ssr.evaluate --data ROOT --split test --out PRED \\
-        --models input accumulation ssr=runs/ssr/weights.safetensors rae=runs/rae/weights.safetensors
+        --models input hold accumulation oidn-a ssr=runs/ssr/weights.safetensors rae=runs/rae/weights.safetensors
 
 A model is `NAME=PATH` (an SSR or baseline weights file: the format is read from its
-metadata) or one of the non-learned references `input` / `accumulation` (also as
-`NAME=input`). Every model runs over every sequence of the split from frame 0 with an empty
-history, at full resolution (padded to a multiple of 4 by edge replication, as the engine
-does, and cropped back), and writes
+metadata) or one of the non-learned references `input` / `hold` / `accumulation` /
+`oidn-a` / `oidn-b` (baselines.py, oidn.py; also as `NAME=input`). Every model runs over
+every sequence of the split from frame 0 with an empty history, at full resolution (padded
+to a multiple of 4 by edge replication, as the engine does, and cropped back; `hold` and
+the OIDN rows run on the unpadded frame), and writes
 
     PRED/NAME/SPLIT/SEQUENCE/frame_NNNN.exr      channels pred.R pred.G pred.B (float32)
     PRED/NAME/SPLIT/SEQUENCE/sequence.json       a copy of the dataset's
     PRED/NAME/SPLIT/SEQUENCE/prediction.json     {"model", "weights", "format"}
 
 so `subpixel eval --pred PRED/NAME --ref ROOT` scores them. It also prints its own table
-(PSNR / SSIM on tonemapped 8-bit images per scene, metrics.py) and, with --json, writes every
+(PSNR / SSIM / temporal error per scene, metrics.py) and, with --json, writes every
 per-sequence metric (psnr, ssim, rmse, relmse, temporal) to a file.
 """
 
@@ -36,26 +37,33 @@ from .baselines import NON_LEARNED, load_model
 from .data import DatasetError, SequenceDataset, frame_name, pad_frame, write_exr
 from .export import WeightsError
 from .metrics import image_metrics, mean_metrics, temporal_error
+from .oidn import OIDN_MODELS, OIDNUnavailable
+
+REFERENCES = {**NON_LEARNED, **OIDN_MODELS}
+"""The non-learned rows, by name: a callable returning the model."""
 
 PRED_SUFFIXES = {"pred": ("R", "G", "B")}
 
 
 def parse_model_spec(spec: str) -> Tuple[str, str]:
-    """`NAME=PATH`, `NAME=input|accumulation`, or a bare `input` / `accumulation`."""
+    """`NAME=PATH`, `NAME=REFERENCE`, or a bare REFERENCE (input, hold, accumulation, oidn-a,
+    oidn-b)."""
     if "=" in spec:
         name, value = spec.split("=", 1)
-    elif spec in NON_LEARNED:
+    elif spec in REFERENCES:
         name, value = spec, spec
     else:
-        raise ValueError(f"model spec {spec!r}: expected NAME=PATH or one of {sorted(NON_LEARNED)}")
+        raise ValueError(f"model spec {spec!r}: expected NAME=PATH or one of {sorted(REFERENCES)}")
     if not name or not value or "/" in name or name.startswith("."):
         raise ValueError(f"model spec {spec!r}: bad name or value")
     return name, value
 
 
 def make_model(value: str, device: torch.device) -> Tuple[nn.Module, dict]:
-    if value in NON_LEARNED:
-        return NON_LEARNED[value]().to(device).eval(), {"format": f"non-learned-{value}", "weights": None}
+    if value in REFERENCES:
+        model = REFERENCES[value]().to(device).eval()
+        info = model.info() if hasattr(model, "info") else {"format": f"non-learned-{value}", "weights": None}
+        return model, info
     model, meta = load_model(value, device="cpu")
     return model.to(device).eval(), {"format": meta["format"], "weights": os.path.abspath(value), "provenance": meta["provenance"]}
 
@@ -73,8 +81,13 @@ def run_model(
     progress: bool = True,
 ) -> List[dict]:
     """Runs one model over every sequence; writes predictions under out/name (if out);
-    returns per-sequence metric dicts {"sequence", "scene", "frames", psnr, ssim, ...}."""
+    returns per-sequence metric dicts {"sequence", "scene", "frames", psnr, ssim, ...}.
+
+    A model may set `pad_multiple` (default 4: the engine's padding; 1: no padding) and
+    `read_extra(frame_path) -> {buffer: CHW tensor}` for buffers beyond data.BUFFERS."""
     rows = []
+    multiple = getattr(model, "pad_multiple", 4)
+    read_extra = getattr(model, "read_extra", None)
     for si, seq in enumerate(ds.sequences):
         t0 = time.time()
         folder = os.path.join(out, name, seq.split, seq.name) if out else None
@@ -89,8 +102,10 @@ def run_model(
         n = seq.frames if frames is None else min(frames, seq.frames)
         for t in range(n):
             f = ds.full_frame(si, t)
+            if read_extra is not None:
+                f.update(read_extra(seq.frame_path(t)))
             fb = {k: v.unsqueeze(0).to(device) for k, v in f.items()}
-            padded, (h, w) = pad_frame(fb)
+            padded, (h, w) = pad_frame(fb, multiple)
             r = model(padded, state)
             state = r["state"]
             pred = r["output"][0, :, :h, :w].float().cpu()
@@ -108,7 +123,7 @@ def run_model(
             row["temporal"] = float(np.mean(temporal)) if temporal else 0.0
         rows.append(row)
         if progress:
-            extra = f"  PSNR {row['psnr']:.2f}  SSIM {row['ssim']:.4f}" if metrics else ""
+            extra = f"  PSNR {row['psnr']:.2f}  SSIM {row['ssim']:.4f}  temporal {row['temporal']:.5f}" if metrics else ""
             print(f"  {name:14s} {seq.id:30s} {n:4d} frames {time.time() - t0:7.1f} s{extra}", flush=True)
     return rows
 
@@ -133,14 +148,14 @@ def format_table(summary: Dict[str, Dict[str, dict]], split: str) -> str:
     if not models:
         return "(no results)\n"
     scenes = [s for s in summary[models[0]] if s != "mean"] + ["mean"]
-    width = max(16, *(len(s) + 2 for s in scenes))
-    lines = [f"PSNR (dB) / SSIM on {split}, tonemapped 8-bit (Uncharted 2 filmic, gamma 2.2)"]
+    width = max(26, *(len(s) + 2 for s in scenes))
+    lines = [f"PSNR (dB) / SSIM / temporal error on {split}, tonemapped (Uncharted 2 filmic, gamma 2.2; PSNR, SSIM 8-bit)"]
     lines.append(f"{'model':14s}" + "".join(f"{s:>{width}s}" for s in scenes))
     for m in models:
         cells = []
         for s in scenes:
             v = summary[m].get(s)
-            cells.append(f"{v['psnr']:.2f} / {v['ssim']:.4f}" if v else "-")
+            cells.append(f"{v['psnr']:.2f} / {v['ssim']:.4f} / {v['temporal']:.4f}" if v else "-")
         lines.append(f"{m:14s}" + "".join(f"{c:>{width}s}" for c in cells))
     lines.append("")
     lines.append(f"{'model':14s}{'RMSE':>12s}{'relMSE':>12s}{'temporal':>12s}   (HDR; temporal: tonemapped L1, mean of scenes)")
@@ -154,7 +169,7 @@ def main(argv=None) -> int:
     ap = argparse.ArgumentParser(prog="python -m ssr.evaluate", description=__doc__.split("\n\n")[0])
     ap.add_argument("--data", required=True, help="dataset root")
     ap.add_argument("--split", default="test", choices=["train", "val", "test"])
-    ap.add_argument("--models", nargs="+", required=True, help="NAME=WEIGHTS.safetensors, input, accumulation")
+    ap.add_argument("--models", nargs="+", required=True, help="NAME=WEIGHTS.safetensors, input, hold, accumulation, oidn-a, oidn-b")
     ap.add_argument("--out", default=None, help="prediction root (PRED/NAME/SPLIT/SEQ/frame_NNNN.exr); none: no files")
     ap.add_argument("--scenes", nargs="+", default=None)
     ap.add_argument("--frames", type=int, default=None, help="at most this many frames per sequence")
@@ -173,7 +188,11 @@ def main(argv=None) -> int:
     try:
         ds = SequenceDataset(args.data, args.split, window=1, crop=None, flips=False, scenes=args.scenes)
         models = [(n, *make_model(v, device)) for n, v in specs]
-    except (DatasetError, WeightsError, FileNotFoundError) as err:
+        frames = [s.frame_path(t) for s in ds.sequences for t in range(s.frames if args.frames is None else min(args.frames, s.frames))]
+        for _, model, _ in models:
+            if hasattr(model, "check_frames"):  # oidn-b: every frame has its 1-spp colour
+                model.check_frames(frames)
+    except (DatasetError, WeightsError, FileNotFoundError, OIDNUnavailable) as err:
         print(f"error: {err}", file=sys.stderr)
         return 1
     print(f"{len(ds.sequences)} {args.split} sequences ({', '.join(ds.scenes)}), {len(models)} models, device {device}")

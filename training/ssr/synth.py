@@ -4,9 +4,12 @@ Each sequence pans a camera over an infinite procedural plane (textured albedo, 
 lighting with a few HDR highlights) at a constant sub-pixel velocity v, so the motion of
 every pixel is exactly v (prev_pos = pos + v) and warps matter. `reference` is the clean
 radiance, `color` a 1/4-spp noisy sample of it (log-normal noise, mean 1) at the traced
-pixels of the DESIGN pattern, `shadow` the light at the traced pixels.
+pixels of the DESIGN pattern, `shadow` the light at the traced pixels. With `full`, frames
+also get `full` (channels full.R full.G full.B): a 1-spp sample at every pixel (the same
+noise model, from a separate generator, so the other buffers do not change), what OIDN (b)
+denoises.
 
-    python -m ssr.synth --out ROOT [--train 2 --val 1 --test 1 --frames 8 --width 32 --height 32]
+    python -m ssr.synth --out ROOT [--train 2 --val 1 --test 1 --frames 8 --width 32 --height 32] [--full]
 """
 
 from __future__ import annotations
@@ -23,9 +26,13 @@ from .data import frame_name, write_exr
 from .model import TILE_OFFSETS
 
 
-def make_sequence(width: int, height: int, frames: int, seed: int, scene_seed: int = 0) -> List[Dict[str, np.ndarray]]:
-    """Frames as dicts of float32 [C, H, W] arrays with every buffer of data.BUFFERS."""
+def make_sequence(
+    width: int, height: int, frames: int, seed: int, scene_seed: int = 0, full: bool = False
+) -> List[Dict[str, np.ndarray]]:
+    """Frames as dicts of float32 [C, H, W] arrays with every buffer of data.BUFFERS (and
+    `full`, the 1-spp colour, with `full`)."""
     rng = np.random.default_rng(seed)
+    frng = np.random.default_rng(20_000 + seed)
     srng = np.random.default_rng(10_000 + scene_seed)
     palette = srng.uniform(0.1, 0.9, size=(4, 3)).astype(np.float32)
     period = float(srng.uniform(6.0, 10.0))
@@ -67,12 +74,23 @@ def make_sequence(width: int, height: int, frames: int, seed: int, scene_seed: i
             "motion": np.stack([np.full((height, width), v[0]), np.full((height, width), v[1])]).astype(np.float32),
             "reference": reference.astype(np.float32),
         }
+        if full:
+            frame["full"] = (reference * frng.lognormal(-0.125, 0.5, size=(3, height, width))).astype(np.float32)
         out.append(frame)
     return out
 
 
 def write_sequence(
-    folder: str, split: str, index: int, frames: int, width: int, height: int, seed: int, scene: str = "synthetic", scene_seed: int = 0
+    folder: str,
+    split: str,
+    index: int,
+    frames: int,
+    width: int,
+    height: int,
+    seed: int,
+    scene: str = "synthetic",
+    scene_seed: int = 0,
+    full: bool = False,
 ) -> str:
     os.makedirs(folder, exist_ok=True)
     meta = {
@@ -88,8 +106,8 @@ def write_sequence(
     }
     with open(os.path.join(folder, "sequence.json"), "w") as f:
         json.dump(meta, f, indent=2)
-    for t, fr in enumerate(make_sequence(width, height, frames, seed, scene_seed)):
-        write_exr(os.path.join(folder, frame_name(t)), fr)
+    for t, fr in enumerate(make_sequence(width, height, frames, seed, scene_seed, full)):
+        write_exr(os.path.join(folder, frame_name(t)), fr, {"full": ("R", "G", "B")})
     return folder
 
 
@@ -101,6 +119,7 @@ def write_dataset(
     height: int = 32,
     scenes: Optional[List[str]] = None,
     seed: int = 0,
+    full: bool = False,
 ) -> str:
     """Writes ROOT/{split}/{scene}_{i:03d}/ for every scene and split; returns root."""
     splits = splits if splits is not None else {"train": 2, "val": 1, "test": 1}
@@ -110,7 +129,7 @@ def write_dataset(
         for split, count in splits.items():
             for i in range(count):
                 folder = os.path.join(root, split, f"{scene}_{i:03d}")
-                write_sequence(folder, split, i, frames, width, height, seed * 1000 + k, scene, si)
+                write_sequence(folder, split, i, frames, width, height, seed * 1000 + k, scene, si, full)
                 k += 1
     return root
 
@@ -126,8 +145,9 @@ def main(argv=None) -> int:
     ap.add_argument("--height", type=int, default=32)
     ap.add_argument("--scenes", nargs="+", default=["synthetic"])
     ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--full", action="store_true", help="also write the 1-spp colour (full.R full.G full.B)")
     a = ap.parse_args(argv)
-    write_dataset(a.out, {"train": a.train, "val": a.val, "test": a.test}, a.frames, a.width, a.height, a.scenes, a.seed)
+    write_dataset(a.out, {"train": a.train, "val": a.val, "test": a.test}, a.frames, a.width, a.height, a.scenes, a.seed, a.full)
     print(f"wrote {a.out}")
     return 0
 

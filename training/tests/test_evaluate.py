@@ -36,7 +36,7 @@ def test_evaluate_writes_predictions_and_table(dataset, tmp_path, capsys):
                  "--models", "input", "accumulation", f"ssr={ssr}", f"nsrr={nsrr}"])  # fmt: skip
     assert rc == 0
     text = capsys.readouterr().out
-    assert "PSNR (dB) / SSIM on test" in text
+    assert "PSNR (dB) / SSIM / temporal error on test" in text
     for name in ("input", "accumulation", "ssr", "nsrr"):
         folder = os.path.join(out, name, "test", "synthetic_000")
         files = sorted(f for f in os.listdir(folder) if f.endswith(".exr"))
