@@ -18,8 +18,8 @@ pub(super) struct EvalArgs {
     /// for the temporal error), e.g. a dataset sequence. With `--table`, the dataset root.
     #[arg(long = "ref")]
     reference: PathBuf,
-    /// The paper's Table 1 layout: a row per method, a column per scene (PSNR / SSIM,
-    /// mean over the split's sequences), as markdown.
+    /// The paper's Table 1 layout: a row per method, a column per scene (PSNR / SSIM /
+    /// temporal error, mean over the split's sequences), as markdown.
     #[arg(long)]
     table: bool,
     /// Split scored with `--table`.
@@ -104,9 +104,50 @@ pub fn score(pred: &std::path::Path, reference: &std::path::Path) -> Result<Scor
     })
 }
 
+/// One method x scene cell of the table: sums over the scene's sequences.
+#[derive(Debug, Default, Clone, Copy)]
+struct Cell {
+    /// Sum of the sequences' PSNR (dB).
+    psnr: f64,
+    /// Sum of the sequences' SSIM.
+    ssim: f64,
+    /// Sum of the temporal errors of the sequences that have one.
+    temporal: f64,
+    /// Sequences with a temporal error (more than one frame, references with motion).
+    temporal_n: usize,
+    /// Sequences scored.
+    sequences: usize,
+}
+
+impl Cell {
+    /// Adds one sequence's (or, for the mean column, one scene's) scores.
+    fn add(&mut self, psnr: f64, ssim: f64, temporal: Option<f64>) {
+        self.psnr += psnr;
+        self.ssim += ssim;
+        if let Some(t) = temporal {
+            self.temporal += t;
+            self.temporal_n += 1;
+        }
+        self.sequences += 1;
+    }
+
+    /// Means over the scene's sequences: (PSNR, SSIM, temporal error if any).
+    fn mean(&self) -> (f64, f64, Option<f64>) {
+        let n = self.sequences.max(1) as f64;
+        let t = (self.temporal_n > 0).then(|| self.temporal / self.temporal_n as f64);
+        (self.psnr / n, self.ssim / n, t)
+    }
+}
+
+/// `PSNR / SSIM / temporal` of a table cell (`-` for a missing temporal error).
+fn cell_text(p: f64, q: f64, t: Option<f64>) -> String {
+    let t = t.map_or_else(|| "-".into(), |t| format!("{t:.4}"));
+    format!("{p:.2} / {q:.4} / {t}")
+}
+
 /// Scores every method folder of `pred` on every sequence of `root/split`: rows (method,
-/// scene -> (PSNR, SSIM, sequences)).
-type TableRows = Vec<(String, std::collections::BTreeMap<String, (f64, f64, usize)>)>;
+/// scene -> cell).
+type TableRows = Vec<(String, std::collections::BTreeMap<String, Cell>)>;
 
 fn table(pred: &std::path::Path, root: &std::path::Path, split: &str) -> Result<(Vec<String>, TableRows)> {
     let seq_root = root.join(split);
@@ -127,8 +168,18 @@ fn table(pred: &std::path::Path, root: &std::path::Path, split: &str) -> Result<
         .filter_map(|e| e.ok().map(|e| e.path()))
         .filter(|p| p.join(split).is_dir())
         .collect();
-    // The paper's row order, then any other method alphabetically.
-    const ORDER: [&str; 5] = ["input", "accumulation", "rae", "nsrr", "ssr"];
+    // The issue's row order (the paper's plus hold-filled and OIDN), then any other method
+    // alphabetically.
+    const ORDER: [&str; 8] = [
+        "input",
+        "hold",
+        "accumulation",
+        "rae",
+        "nsrr",
+        "oidn-a",
+        "oidn-b",
+        "ssr",
+    ];
     let rank = |p: &PathBuf| {
         let n = p
             .file_name()
@@ -140,7 +191,7 @@ fn table(pred: &std::path::Path, root: &std::path::Path, split: &str) -> Result<
     let mut scenes = std::collections::BTreeSet::new();
     let mut rows = Vec::new();
     for m in &methods {
-        let mut per: std::collections::BTreeMap<String, (f64, f64, usize)> = Default::default();
+        let mut per: std::collections::BTreeMap<String, Cell> = Default::default();
         for s in &seqs {
             let p = m.join(split).join(s.file_name().expect("a folder"));
             if !p.is_dir() {
@@ -154,10 +205,9 @@ fn table(pred: &std::path::Path, root: &std::path::Path, split: &str) -> Result<
                 .trim_start_matches("builtin:")
                 .to_string();
             let sc = score(&p, s)?;
-            let e = per.entry(scene.clone()).or_default();
-            e.0 += sc.psnr;
-            e.1 += sc.ssim;
-            e.2 += 1;
+            per.entry(scene.clone())
+                .or_default()
+                .add(sc.psnr, sc.ssim, sc.temporal);
             scenes.insert(scene);
         }
         let name = m.file_name().expect("a folder").to_string_lossy().to_string();
@@ -175,7 +225,11 @@ pub(super) fn run(a: &EvalArgs) -> Result<()> {
                 .map(|(m, per)| {
                     let cells: serde_json::Map<String, serde_json::Value> = per
                         .iter()
-                        .map(|(s, (p, q, n))| (s.clone(), serde_json::json!({"psnr": p / *n as f64, "ssim": q / *n as f64, "sequences": n})))
+                        .map(|(s, c)| {
+                            let (p, q, t) = c.mean();
+                            let v = serde_json::json!({"psnr": p, "ssim": q, "temporal": t, "sequences": c.sequences});
+                            (s.clone(), v)
+                        })
                         .collect();
                     serde_json::json!({"method": m, "scenes": cells})
                 })
@@ -187,28 +241,31 @@ pub(super) fn run(a: &EvalArgs) -> Result<()> {
         println!("|---|{}---|", "---|".repeat(scenes.len()));
         for (m, per) in &rows {
             let mut cells = Vec::new();
-            let (mut sp, mut ss, mut k) = (0.0, 0.0, 0);
+            // Means over the scenes: every scene for PSNR and SSIM, those with a temporal
+            // error for it.
+            let mut mean = Cell::default();
             for sc in &scenes {
                 match per.get(sc) {
-                    Some((p, q, n)) => {
-                        let (p, q) = (p / *n as f64, q / *n as f64);
-                        cells.push(format!("{p:.2} / {q:.4}"));
-                        sp += p;
-                        ss += q;
-                        k += 1;
+                    Some(c) => {
+                        let (p, q, t) = c.mean();
+                        cells.push(cell_text(p, q, t));
+                        mean.add(p, q, t);
                     }
                     None => cells.push("-".into()),
                 }
             }
-            let mean = if k > 0 {
-                format!("{:.2} / {:.4}", sp / k as f64, ss / k as f64)
+            let mean = if mean.sequences > 0 {
+                let (p, q, t) = mean.mean();
+                cell_text(p, q, t)
             } else {
                 "-".into()
             };
             println!("| {m} | {} | {mean} |", cells.join(" | "));
         }
         println!(
-            "\nPSNR (dB) / SSIM on tonemapped 8-bit images, mean over the {} sequences of each scene.",
+            "\nPSNR (dB) / SSIM on tonemapped 8-bit images / temporal error (mean |(p_t - W(p_t-1)) - \
+             (r_t - W(r_t-1))| on tonemapped [0, 1] values), mean over the {} sequences of each \
+             scene; a temporal error of - means a single frame or no motion vectors.",
             a.split
         );
         return Ok(());
@@ -234,4 +291,25 @@ pub(super) fn run(a: &EvalArgs) -> Result<()> {
         );
     }
     Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn cells_average_psnr_ssim_and_the_temporal_errors_they_have() {
+        let mut c = Cell::default();
+        c.add(30.0, 0.9, Some(0.02));
+        c.add(32.0, 0.8, None);
+        c.add(34.0, 0.7, Some(0.04));
+        let (p, q, t) = c.mean();
+        assert!((p - 32.0).abs() < 1e-12 && (q - 0.8).abs() < 1e-12);
+        assert!((t.unwrap_or(0.0) - 0.03).abs() < 1e-12, "only sequences with one");
+        assert_eq!(cell_text(p, q, t), "32.00 / 0.8000 / 0.0300");
+        let mut single = Cell::default();
+        single.add(25.0, 0.5, None);
+        assert_eq!(single.mean().2, None);
+        assert_eq!(cell_text(25.0, 0.5, None), "25.00 / 0.5000 / -");
+    }
 }
