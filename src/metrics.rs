@@ -99,6 +99,23 @@ pub fn ssim(pred: &HostTensor, reference: &HostTensor) -> f64 {
     total / n as f64
 }
 
+/// Noise of a reference of `spp` samples: the [`psnr`] between the means of its two halves
+/// of samples (`0 .. spp / 2` in `first_half`, the rest recovered from the full mean
+/// `reference`). The full reference's own error to the converged image is about 6 dB lower
+/// in MSE terms (half the variance of each half, and the halves' difference has twice it).
+pub fn reference_halves_psnr(reference: &HostTensor, first_half: &HostTensor, spp: u32) -> f64 {
+    let half = (spp / 2) as f32;
+    let rest = spp as f32 - half;
+    if half == 0.0 || rest <= 0.0 {
+        return f64::NAN;
+    }
+    let mut second = reference.clone();
+    for (o, a) in second.data.iter_mut().zip(&first_half.data) {
+        *o = (spp as f32 * *o - half * a) / rest;
+    }
+    psnr(first_half, &second)
+}
+
 /// Root mean squared error on HDR values.
 pub fn rmse(pred: &HostTensor, reference: &HostTensor) -> f64 {
     same_shape(pred, reference);

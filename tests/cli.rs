@@ -55,7 +55,7 @@ fn golden_folder(dir: &Path) {
         let f = FrameFile {
             frame: Some(frame),
             reference: Some(t("output")),
-            pred: None,
+            ..Default::default()
         };
         write_frame(&dir.join(format!("frame_{i:04}.exr")), &f).unwrap();
     }

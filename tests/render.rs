@@ -509,39 +509,78 @@ fn textured_room_renders() {
     assert!(mean(f.color.data.iter().copied()) > 0.01);
 }
 
-/// `subpixel render` writes readable EXR frames with every channel.
+/// `subpixel render` writes readable EXR frames with every channel on both backends, with
+/// the reference's noise measured from its halves; resuming with other parameters is refused.
 #[test]
 fn render_command_writes_exr_frames() {
+    use subpixel::render::Backend;
     use subpixel::render::cli::{RenderArgs, render_command};
-    let out = std::env::temp_dir().join(format!("subpixel-render-cli-{}", std::process::id()));
-    let args = RenderArgs {
-        scene: "builtin:cornell-empty".into(),
-        mode: Mode::Quarter,
-        spp: 1,
-        frames: 2,
-        first_frame: 0,
-        width: Some(9),
-        height: Some(7),
-        max_depth: 3,
-        seed: 5,
-        path: Some("orbit".parse().unwrap()),
-        reference_spp: Some(2),
-        png: true,
-        resume: false,
-        sequence_json: None,
-        out: out.clone(),
-    };
-    render_command(&args).unwrap();
-    for f in 0..2 {
-        let frame = subpixel::io::exr::read_frame(&out.join(format!("frame_{f:04}.exr"))).unwrap();
-        assert_eq!(frame.frame.as_ref().unwrap().size().unwrap(), (9, 7));
-        assert!(frame.reference.is_some());
-        assert!(out.join(format!("frame_{f:04}.png")).is_file());
+    for backend in [Backend::Gpu, Backend::Cpu] {
+        let out = std::env::temp_dir().join(format!(
+            "subpixel-render-cli-{}-{}",
+            backend.name(),
+            std::process::id()
+        ));
+        std::fs::remove_dir_all(&out).ok();
+        let mut args = RenderArgs {
+            scene: "builtin:cornell-empty".into(),
+            mode: Mode::Quarter,
+            spp: 1,
+            frames: 2,
+            first_frame: 0,
+            width: Some(9),
+            height: Some(7),
+            max_depth: 3,
+            seed: 5,
+            path: Some("orbit".parse().unwrap()),
+            reference_spp: Some(8),
+            png: true,
+            resume: false,
+            backend,
+            full_spp: true,
+            sequence_json: None,
+            out: out.clone(),
+        };
+        render_command(&args).unwrap();
+        for f in 0..2 {
+            let frame = subpixel::io::exr::read_frame(&out.join(format!("frame_{f:04}.exr"))).unwrap();
+            assert_eq!(frame.frame.as_ref().unwrap().size().unwrap(), (9, 7));
+            assert!(frame.reference.is_some() && frame.reference_half.is_some() && frame.full.is_some());
+            // The 1-spp frame traces every pixel; the quarter frame a quarter of them.
+            let full = frame.full.unwrap();
+            assert!(
+                full.data.iter().filter(|v| **v > 0.0).count()
+                    > frame
+                        .frame
+                        .unwrap()
+                        .color
+                        .data
+                        .iter()
+                        .filter(|v| **v > 0.0)
+                        .count()
+            );
+            assert!(out.join(format!("frame_{f:04}.png")).is_file());
+        }
+        let seq: serde_json::Value =
+            serde_json::from_str(&std::fs::read_to_string(out.join("sequence.json")).unwrap()).unwrap();
+        assert_eq!(seq["camera_path"], "orbit");
+        assert_eq!(seq["backend"], backend.name());
+        let noise = &seq["reference_noise"];
+        assert_eq!(noise["frames"], 2, "{seq}");
+        let psnr = noise["mean_psnr_db"].as_f64().unwrap();
+        assert!(psnr > 5.0 && psnr < 60.0, "halves PSNR {psnr}");
+        // Resume with another size: refused, naming the parameter; with the same: skipped.
+        args.resume = true;
+        args.width = Some(8);
+        let e = render_command(&args).unwrap_err().to_string();
+        assert!(
+            e.contains("resolution") && e.contains(&out.display().to_string()),
+            "{e}"
+        );
+        args.width = Some(9);
+        render_command(&args).unwrap();
+        std::fs::remove_dir_all(&out).ok();
     }
-    let seq: serde_json::Value =
-        serde_json::from_str(&std::fs::read_to_string(out.join("sequence.json")).unwrap()).unwrap();
-    assert_eq!(seq["camera_path"], "orbit");
-    std::fs::remove_dir_all(&out).ok();
 }
 
 fn test_env(w: u32, h: u32, rot_deg: f32) -> subpixel::render::scene::Environment {

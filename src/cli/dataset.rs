@@ -1,7 +1,9 @@
 //! `subpixel dataset`: training / validation / test sequences for SSR (DESIGN §6).
 //!
 //! Layout: `OUT/{split}/{scene}_{split}_{NNN}/frame_NNNN.exr` (1/4-spp inputs, every buffer
-//! of DESIGN §3, and the `reference` channels) plus `sequence.json`. Each sequence follows
+//! of DESIGN §3, the `reference` channels, `reference_half` (the mean of the reference's first
+//! half of samples, whose PSNR against the second half is recorded as `reference_noise` in
+//! `sequence.json`) and `full` (a 1-spp frame of the same camera)) plus `sequence.json`. Each sequence follows
 //! its own fly-through camera path, generated from a seed that depends on the scene, the
 //! split and the sequence number, so the splits never share a camera path.
 
@@ -10,7 +12,7 @@ use std::path::PathBuf;
 use anyhow::{Context, Result, bail};
 
 use crate::render::cli::{RenderArgs, render_command};
-use crate::render::{DEFAULT_MAX_DEPTH, Mode};
+use crate::render::{Backend, DEFAULT_MAX_DEPTH, Mode};
 
 #[derive(clap::Args)]
 pub(super) struct DatasetArgs {
@@ -42,6 +44,10 @@ pub(super) struct DatasetArgs {
     /// between machines.
     #[arg(long)]
     frame_range: Option<String>,
+    /// Renderer: auto (the WGSL tracer on a real GPU, its CPU twin when the adapter is a
+    /// CPU driver or there is none), cpu or gpu.
+    #[arg(long, value_enum, default_value_t = Backend::Auto)]
+    backend: Backend,
     /// Output root.
     #[arg(long)]
     out: PathBuf,
@@ -142,6 +148,10 @@ pub(super) fn run(a: &DatasetArgs) -> Result<()> {
             reference_spp: Some(a.reference_spp),
             png: false,
             resume: true,
+            backend: a.backend,
+            // A 1-spp frame of the same camera: the four-times-the-samples input of
+            // baselines (OIDN on 1 spp); cheap next to the reference.
+            full_spp: true,
             // The keys of the training loader (training/ssr/data.py).
             sequence_json: Some(
                 serde_json::json!({

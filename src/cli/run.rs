@@ -8,8 +8,9 @@ use anyhow::{Context, Result, bail};
 use crate::gpu::{AdapterKind, Gpu, Profiler};
 use crate::io::png::write_png_row;
 use crate::metrics;
-use crate::nn::{HostTensor, Tensor};
-use crate::render::{CameraPath, DEFAULT_MAX_DEPTH, FrameSettings, GpuScene, Mode, Tracer, load_scene};
+use crate::render::{
+    Backend, CameraPath, DEFAULT_MAX_DEPTH, FrameRenderer, FrameSettings, GpuScene, Mode, Tracer, load_scene,
+};
 use crate::ssr::{Denoiser, Granularity, Weights};
 
 #[derive(clap::Args)]
@@ -38,6 +39,11 @@ pub(super) struct RunArgs {
     /// Seed of the camera path and the sampler.
     #[arg(long, default_value_t = 7)]
     seed: u64,
+    /// Renderer of the references: auto (the WGSL tracer on a real GPU, its CPU twin on a
+    /// CPU adapter), cpu or gpu. The 1/4-spp inputs always come from the WGSL tracer, as in
+    /// an embedding.
+    #[arg(long, value_enum, default_value_t = Backend::Auto)]
+    backend: Backend,
 }
 
 impl RunArgs {
@@ -88,7 +94,8 @@ pub(super) fn run(a: &RunArgs) -> Result<()> {
     let far = scene.far_distance(eyes.iter().chain([&scene.camera.position]));
     let mut tracer = Tracer::new(&gpu, w, h)?;
     let mut den = Denoiser::with_gpu(&gpu, &weights, w, h)?;
-    let reference = Tensor::new(&gpu, "run.reference", w, h, 4)?;
+    let mut reference = FrameRenderer::new(&scene, a.backend, Some(&gpu), w, h)?;
+    println!("references: {} backend", reference.backend().name());
     std::fs::create_dir_all(&a.out).with_context(|| format!("cannot create {}", a.out.display()))?;
     let mut prof = Profiler::new(&gpu, 16);
     let mut rows = Vec::new();
@@ -118,9 +125,7 @@ pub(super) fn run(a: &RunArgs) -> Result<()> {
         prof.collect(&gpu)?;
         let input = tracer.buffers.download(&gpu)?.color;
         let ssr = den.read_output()?;
-        tracer.render_reference(&gs, &settings, spp, &reference)?;
-        let r4 = reference.read(&gpu)?;
-        let rref = HostTensor::from_fn(w, h, 3, |x, y, c| r4.at(x, y, c));
+        let rref = reference.reference(&settings, spp)?.mean(spp);
         write_png_row(&a.out.join(format!("frame_{f:04}.png")), &[&input, &ssr, &rref])?;
         rows.push([
             metrics::psnr(&input, &rref),

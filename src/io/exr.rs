@@ -1,7 +1,8 @@
 //! One multi-channel f32 EXR per frame, channels named `buffer.C` (DESIGN §3, §6):
 //! `color.R color.G color.B mask.Y albedo.R.. normal.X normal.Y normal.Z shadow.R..
 //! transparent.R.. depth.Y metallic.Y roughness.Y motion.X motion.Y`, plus optional
-//! `reference.R..` (the N-spp reference) and `pred.R..` (a denoised prediction).
+//! `reference.R..` (the N-spp reference), `reference_half.R..` (the mean of its first half of
+//! samples, for its noise), `full.R..` (a 1-spp frame) and `pred.R..` (a denoised prediction).
 
 use std::collections::HashMap;
 use std::path::Path;
@@ -33,6 +34,11 @@ pub struct FrameFile {
     pub reference: Option<HostTensor>,
     /// A prediction (`pred.*`), when present.
     pub pred: Option<HostTensor>,
+    /// The mean of the first half of the reference's samples (`reference_half.*`): with
+    /// `reference` it measures the reference's own noise.
+    pub reference_half: Option<HostTensor>,
+    /// A 1-spp full-resolution colour of the same camera (`full.*`), for baselines.
+    pub full: Option<HostTensor>,
 }
 
 /// Writes named HWC tensors of one size as f32 channels `name.SUFFIX`.
@@ -150,6 +156,12 @@ pub fn write_frame(path: &Path, f: &FrameFile) -> Result<()> {
     if let Some(p) = &f.pred {
         tensors.push(("pred", p));
     }
+    if let Some(r) = &f.reference_half {
+        tensors.push(("reference_half", r));
+    }
+    if let Some(t) = &f.full {
+        tensors.push(("full", t));
+    }
     write_tensors(path, &tensors)
 }
 
@@ -160,6 +172,8 @@ pub fn read_frame(path: &Path) -> Result<FrameFile> {
     let get = |name: &str, c: u32| gather(path, w, h, &chans, name, c);
     let reference = get("reference", 3)?;
     let pred = get("pred", 3)?;
+    let reference_half = get("reference_half", 3)?;
+    let full = get("full", 3)?;
     let names = [
         "color",
         "mask",
@@ -206,6 +220,8 @@ pub fn read_frame(path: &Path) -> Result<FrameFile> {
         frame,
         reference,
         pred,
+        reference_half,
+        full,
     })
 }
 
@@ -238,6 +254,10 @@ mod tests {
         let f = FrameFile {
             frame: Some(frame(7, 5)),
             reference: Some(HostTensor::from_fn(7, 5, 3, |x, _, c| x as f32 * 1e3 + c as f32)),
+            reference_half: Some(HostTensor::from_fn(7, 5, 3, |x, y, c| {
+                x as f32 - y as f32 * 0.5 + c as f32
+            })),
+            full: Some(HostTensor::from_fn(7, 5, 3, |x, y, c| (x + y * c) as f32 * 0.25)),
             pred: None,
         };
         write_frame(&path, &f).unwrap();

@@ -6,6 +6,7 @@ use std::time::Instant;
 
 use anyhow::{Context, Result, bail};
 
+use super::backend::{Backend, FrameRenderer};
 use super::camera::{CameraPath, CameraPathSpec};
 use super::gpu_scene::GpuScene;
 use super::loader::load_scene;
@@ -13,7 +14,7 @@ use super::scene::Scene;
 use super::tracer::{DEFAULT_MAX_DEPTH, FrameSettings, Mode, Tracer};
 use crate::gpu::{AdapterKind, Gpu, Profiler, StageStats};
 use crate::io::exr::FrameFile;
-use crate::nn::{HostTensor, Tensor};
+use crate::nn::HostTensor;
 
 /// `subpixel render`: path trace a scene into one multi-channel EXR per frame.
 #[derive(Debug, Clone, clap::Args)]
@@ -59,6 +60,14 @@ pub struct RenderArgs {
     /// Skip frames whose EXR already exists (resume an interrupted render).
     #[arg(long)]
     pub resume: bool,
+    /// Renderer: auto (the WGSL tracer on a real GPU, its CPU twin when the adapter is a
+    /// CPU driver or there is none), cpu or gpu.
+    #[arg(long, value_enum, default_value_t = Backend::Auto)]
+    pub backend: Backend,
+    /// Also store a 1-spp full-resolution colour of every frame (`full` channels: four
+    /// times the samples of a quarter frame, for baselines such as OIDN).
+    #[arg(long)]
+    pub full_spp: bool,
     /// Extra keys for `sequence.json` (set by `subpixel dataset`). When given, every shard
     /// writes the same complete `sequence.json` before rendering its frames.
     #[arg(skip)]
@@ -89,6 +98,13 @@ pub struct BenchRenderArgs {
     /// Largest number of path segments.
     #[arg(long, default_value_t = DEFAULT_MAX_DEPTH)]
     pub max_depth: u32,
+    /// Backend to measure: cpu or gpu (default: both, side by side).
+    #[arg(long, value_enum)]
+    pub backend: Option<Backend>,
+    /// Samples per pixel of the reference frame whose throughput (paths/s, Mrays/s) is
+    /// compared between backends.
+    #[arg(long, default_value_t = 16)]
+    pub spp: u32,
     /// Print JSON instead of a table.
     #[arg(long)]
     pub json: bool,
@@ -114,6 +130,10 @@ fn spec_name(s: &CameraPathSpec) -> &'static str {
     }
 }
 
+/// Keys of `sequence.json` that describe how frames were made without changing what they
+/// hold: a resumed render may differ in them.
+const SEQUENCE_INFO_KEYS: &[&str] = &["first_frame", "backend", "reference_noise"];
+
 /// Frames over which the depth normalisation is computed, whatever the shard.
 const FAR_HORIZON: u32 = 1024;
 
@@ -122,6 +142,23 @@ pub fn render_command(args: &RenderArgs) -> Result<()> {
     if args.frames == 0 {
         bail!("--frames must be at least 1");
     }
+    if args.spp == 0 {
+        bail!("--spp must be at least 1");
+    }
+    if args.reference_spp == Some(0) {
+        bail!("--reference-spp must be at least 1");
+    }
+    if args.max_depth == 0 {
+        bail!("--max-depth must be at least 1 (1 = emitters seen directly)");
+    }
+    let Some(end_frame) = args.first_frame.checked_add(args.frames) else {
+        bail!(
+            "--first-frame {} + --frames {} is past the largest frame index {}",
+            args.first_frame,
+            args.frames,
+            u32::MAX
+        );
+    };
     let scene = load_scene(&args.scene)?;
     scene.warn_approximations();
     let (w, h) = (
@@ -132,44 +169,35 @@ pub fn render_command(args: &RenderArgs) -> Result<()> {
         bail!("image size {w}x{h}: width and height must be positive");
     }
     std::fs::create_dir_all(&args.out).with_context(|| format!("cannot create {}", args.out.display()))?;
-    let gpu = Gpu::new()?;
-    eprintln!("adapter: {}", gpu.describe());
+    let gpu = open_gpu(args.backend)?;
     let t0 = Instant::now();
-    let gs = GpuScene::new(&gpu, &scene)?;
+    let mut renderer = FrameRenderer::new(&scene, args.backend, gpu.as_ref(), w, h)?;
+    let backend = renderer.backend();
+    match (&gpu, backend) {
+        (Some(g), Backend::Gpu) => eprintln!("backend: gpu ({})", g.describe()),
+        _ => eprintln!("backend: cpu ({} threads)", rayon::current_num_threads()),
+    }
+    let load_time = t0.elapsed();
+    let packed = renderer.packed();
     eprintln!(
         "scene {}: {} triangles, BVH {:.1} ms ({:.2} Mtri/s), {} emissive triangles, environment: {}",
         scene.name,
-        gs.triangle_count(),
-        gs.bvh.build_time.as_secs_f64() * 1e3,
-        gs.triangle_count() as f64 / gs.bvh.build_time.as_secs_f64().max(1e-9) / 1e6,
-        gs.emissive_triangles,
+        packed.triangle_count(),
+        packed.bvh.build_time.as_secs_f64() * 1e3,
+        packed.triangle_count() as f64 / packed.bvh.build_time.as_secs_f64().max(1e-9) / 1e6,
+        packed.emissive_triangles,
         scene
             .environment
             .as_ref()
             .map(|e| e.source.display().to_string())
             .unwrap_or_else(|| "none".into())
     );
-    let load_time = t0.elapsed();
-    let spec = path_for(&scene, &args.path, args.first_frame + args.frames);
-    let path = CameraPath::from_spec(
-        &spec,
-        &scene.camera,
-        args.seed,
-        args.first_frame + args.frames,
-        &gs.bvh,
-    );
-    let horizon: Vec<_> = (0..FAR_HORIZON.max(args.first_frame + args.frames))
+    let spec = path_for(&scene, &args.path, end_frame);
+    let path = CameraPath::from_spec(&spec, &scene.camera, args.seed, end_frame, &packed.bvh);
+    let horizon: Vec<_> = (0..FAR_HORIZON.max(end_frame))
         .map(|f| path.camera(f).position)
         .collect();
     let far = scene.far_distance(horizon.iter().chain([&scene.camera.position]));
-    let mut tracer = Tracer::new(&gpu, w, h)?;
-    let t_compile = Instant::now();
-    tracer.compile()?;
-    let compile_time = t_compile.elapsed();
-    let reference = match args.reference_spp {
-        Some(_) => Some(Tensor::new(&gpu, "reference", w, h, 4)?),
-        None => None,
-    };
     write_sequence_json(args, &scene, &spec, w, h, far)?;
 
     let bar = indicatif::ProgressBar::new(args.frames as u64);
@@ -179,7 +207,7 @@ pub fn render_command(args: &RenderArgs) -> Result<()> {
         )
         .expect("valid template"),
     );
-    let (mut rays, mut samples, mut gpu_secs) = (0u64, 0u64, 0f64);
+    let (mut rays, mut samples, mut render_secs) = (0u64, 0u64, 0f64);
     let mut skipped = 0;
     for k in 0..args.frames {
         let f = args.first_frame + k;
@@ -200,19 +228,30 @@ pub fn render_command(args: &RenderArgs) -> Result<()> {
             far,
         };
         let t = Instant::now();
-        let stats = tracer.render(&gs, &settings)?;
+        let (frame, stats) = renderer.frame(&settings)?;
         rays += stats.rays;
         samples += stats.samples;
         let mut host = FrameFile {
-            frame: Some(tracer.buffers.download(&gpu)?),
+            frame: Some(frame),
             ..Default::default()
         };
-        if let (Some(spp), Some(r)) = (args.reference_spp, &reference) {
-            rays += tracer.render_reference(&gs, &settings, spp, r)?;
+        if let Some(spp) = args.reference_spp {
+            let r = renderer.reference(&settings, spp)?;
+            rays += r.rays;
             samples += w as u64 * h as u64 * spp as u64;
-            host.reference = Some(super::tracer::channels(&r.read(&gpu)?, &[0, 1, 2]));
+            host.reference = Some(r.mean(spp));
+            host.reference_half = Some(r.first);
         }
-        gpu_secs += t.elapsed().as_secs_f64();
+        if args.full_spp {
+            let (full, stats) = renderer.frame(&FrameSettings {
+                mode: Mode::Full,
+                ..settings
+            })?;
+            rays += stats.rays;
+            samples += stats.samples;
+            host.full = Some(full.color);
+        }
+        render_secs += t.elapsed().as_secs_f64();
         // Written under a temporary name first, so an interrupted render leaves no
         // truncated frame for --resume to skip.
         let tmp = args.out.join(format!("frame_{f:04}.partial.exr"));
@@ -222,19 +261,26 @@ pub fn render_command(args: &RenderArgs) -> Result<()> {
         if args.png {
             write_png(&args.out.join(format!("frame_{f:04}.png")), &host)?;
         }
-        bar.set_message(format!("{:.1} Mrays/s", rays as f64 / gpu_secs.max(1e-9) / 1e6));
+        bar.set_message(format!(
+            "{:.1} Mrays/s",
+            rays as f64 / render_secs.max(1e-9) / 1e6
+        ));
         bar.inc(1);
     }
     bar.finish();
+    if args.reference_spp.is_some() {
+        update_reference_noise(&args.out)?;
+    }
     if skipped > 0 {
         println!("skipped {skipped} frame(s) already in {}", args.out.display());
     }
     let rendered = args.frames - skipped;
     println!(
-        "rendered {} frame(s) of {} at {w}x{h}, mode {:?}{}: {} rays, {} samples in {:.3} s \
-         ({:.2} Mrays/s, {:.3} s per frame; scene load + BVH {:.3} s, kernel compilation {:.3} s) -> {}",
+        "rendered {} frame(s) of {} at {w}x{h} on the {} backend, mode {:?}{}: {} rays, {} samples in {:.3} s \
+         ({:.2} Mrays/s, {:.3} s per frame; scene load + BVH {:.3} s) -> {}",
         rendered,
         scene.name,
+        backend.name(),
         args.mode,
         if args.mode == Mode::Reference {
             format!(" {} spp", args.spp)
@@ -243,13 +289,85 @@ pub fn render_command(args: &RenderArgs) -> Result<()> {
         },
         rays,
         samples,
-        gpu_secs,
-        rays as f64 / gpu_secs.max(1e-9) / 1e6,
-        gpu_secs / rendered.max(1) as f64,
+        render_secs,
+        rays as f64 / render_secs.max(1e-9) / 1e6,
+        render_secs / rendered.max(1) as f64,
         load_time.as_secs_f64(),
-        compile_time.as_secs_f64(),
         args.out.display()
     );
+    Ok(())
+}
+
+/// Opens the adapter when `backend` may use it: always for `gpu`, for `auto` when one can
+/// be opened (none means the CPU backend), never for `cpu`.
+pub fn open_gpu(backend: Backend) -> Result<Option<Gpu>> {
+    match backend {
+        Backend::Cpu => Ok(None),
+        Backend::Gpu => Ok(Some(Gpu::new()?)),
+        Backend::Auto => match Gpu::new() {
+            Ok(g) => Ok(Some(g)),
+            Err(e) => {
+                log::warn!("no GPU adapter ({e}); rendering on the CPU");
+                Ok(None)
+            }
+        },
+    }
+}
+
+/// PSNR (tonemapped, DESIGN §7) between the two halves of each reference in `dir`, from
+/// the `reference` and `reference_half` channels of its frames, written into
+/// `sequence.json` as `reference_noise` (per frame, mean and minimum).
+pub fn update_reference_noise(dir: &Path) -> Result<()> {
+    let json_path = dir.join("sequence.json");
+    let Ok(text) = std::fs::read_to_string(&json_path) else {
+        return Ok(()); // a shard's own sequence_NNNN.json: nothing shared to update
+    };
+    let mut json: serde_json::Value =
+        serde_json::from_str(&text).with_context(|| format!("cannot parse {}", json_path.display()))?;
+    let spp = json.get("reference_spp").and_then(|v| v.as_u64()).unwrap_or(0) as u32;
+    let mut per_frame = serde_json::Map::new();
+    let mut files: Vec<PathBuf> = std::fs::read_dir(dir)
+        .with_context(|| format!("cannot list {}", dir.display()))?
+        .filter_map(|e| e.ok().map(|e| e.path()))
+        .filter(|p| {
+            let n = p.file_name().and_then(|n| n.to_str()).unwrap_or("");
+            n.starts_with("frame_") && n.ends_with(".exr") && !n.ends_with(".partial.exr")
+        })
+        .collect();
+    files.sort();
+    let mut values = Vec::new();
+    for f in &files {
+        let ff = crate::io::exr::read_frame(f)?;
+        let (Some(r), Some(a)) = (ff.reference, ff.reference_half) else {
+            continue;
+        };
+        let psnr = crate::metrics::reference_halves_psnr(&r, &a, spp);
+        let name = f.file_stem().and_then(|n| n.to_str()).unwrap_or("").to_string();
+        per_frame.insert(name, serde_json::json!(psnr));
+        values.push(psnr);
+    }
+    if values.is_empty() {
+        return Ok(());
+    }
+    let finite: Vec<f64> = values.iter().copied().filter(|v| v.is_finite()).collect();
+    let mean = finite.iter().sum::<f64>() / finite.len().max(1) as f64;
+    let min = values.iter().copied().fold(f64::INFINITY, f64::min);
+    if let Some(o) = json.as_object_mut() {
+        o.insert(
+            "reference_noise".into(),
+            serde_json::json!({
+                "measure": "PSNR (dB, tonemapped 8-bit) between the means of samples 0..spp/2 and spp/2..spp",
+                "frames": values.len(),
+                "mean_psnr_db": mean,
+                "min_psnr_db": min,
+                "per_frame": per_frame,
+            }),
+        );
+    }
+    let tmp = dir.join("sequence.json.partial");
+    std::fs::write(&tmp, serde_json::to_string_pretty(&json)?)
+        .with_context(|| format!("cannot write {}", tmp.display()))?;
+    std::fs::rename(&tmp, &json_path).with_context(|| format!("cannot write {}", json_path.display()))?;
     Ok(())
 }
 
@@ -274,6 +392,8 @@ fn write_sequence_json(
         "first_frame": args.first_frame,
         "max_depth": args.max_depth,
         "far": far,
+        "backend": args.backend.name(),
+        "full_spp": args.full_spp,
     });
     if let (Some(extra), Some(o)) = (&args.sequence_json, json.as_object_mut()) {
         o.remove("first_frame");
@@ -285,8 +405,42 @@ fn write_sequence_json(
         format!("sequence_{:04}.json", args.first_frame)
     };
     let p = args.out.join(name);
-    std::fs::write(&p, serde_json::to_string_pretty(&json)?)
-        .with_context(|| format!("cannot write {}", p.display()))?;
+    // Resuming (or another shard of the same sequence) must not mix frames rendered with
+    // other parameters.
+    if let Ok(text) = std::fs::read_to_string(&p)
+        && let Ok(old) = serde_json::from_str::<serde_json::Value>(&text)
+        && let (Some(old), Some(new)) = (old.as_object(), json.as_object_mut())
+    {
+        let has_frames = std::fs::read_dir(&args.out)
+            .map(|d| {
+                d.filter_map(|e| e.ok())
+                    .any(|e| e.file_name().to_string_lossy().ends_with(".exr"))
+            })
+            .unwrap_or(false);
+        if has_frames {
+            for (k, v) in new.iter() {
+                if SEQUENCE_INFO_KEYS.contains(&k.as_str()) {
+                    continue;
+                }
+                if let Some(o) = old.get(k)
+                    && o != v
+                {
+                    bail!(
+                        "{} holds frames rendered with {k} = {o}, not {v}: render into another folder, \
+                         or delete it to start over",
+                        args.out.display()
+                    );
+                }
+            }
+        }
+        if let Some(noise) = old.get("reference_noise") {
+            new.insert("reference_noise".into(), noise.clone());
+        }
+    }
+    let tmp = p.with_extension("json.partial");
+    std::fs::write(&tmp, serde_json::to_string_pretty(&json)?)
+        .with_context(|| format!("cannot write {}", tmp.display()))?;
+    std::fs::rename(&tmp, &p).with_context(|| format!("cannot write {}", p.display()))?;
     Ok(())
 }
 
@@ -309,15 +463,163 @@ struct ModeTiming {
     mrays_per_s: f64,
 }
 
-/// Times the G-buffer and trace stages in quarter and full mode.
+/// Throughput of one backend on a reference frame.
+#[derive(Debug, serde::Serialize)]
+struct Throughput {
+    backend: &'static str,
+    threads: Option<usize>,
+    paths: u64,
+    rays: u64,
+    seconds: f64,
+    mpaths_per_s: f64,
+    mrays_per_s: f64,
+}
+
+/// Renders one `spp`-sample reference of `scene` with `backend` after a 1-spp warm-up and
+/// returns its throughput (wall time of the render, download included).
+fn reference_throughput(
+    scene: &Scene,
+    backend: Backend,
+    gpu: Option<&Gpu>,
+    (width, height): (u32, u32),
+    spp: u32,
+    max_depth: u32,
+) -> Result<Throughput> {
+    let mut r = FrameRenderer::new(scene, backend, gpu, width, height)?;
+    let far = scene.far_distance([&scene.camera.position]);
+    let mut s = FrameSettings::new(scene.camera, Mode::Reference, far);
+    s.max_depth = max_depth;
+    s.spp = 1;
+    r.frame(&s)?;
+    s.spp = spp.max(1);
+    s.seed = 1;
+    let t = Instant::now();
+    let (_, stats) = r.frame(&s)?;
+    let seconds = t.elapsed().as_secs_f64();
+    let paths = stats.samples;
+    Ok(Throughput {
+        backend: r.backend().name(),
+        threads: (r.backend() == Backend::Cpu).then(rayon::current_num_threads),
+        paths,
+        rays: stats.rays,
+        seconds,
+        mpaths_per_s: paths as f64 / seconds.max(1e-12) / 1e6,
+        mrays_per_s: stats.rays as f64 / seconds.max(1e-12) / 1e6,
+    })
+}
+
+/// `subpixel bench render`: the GPU tracer's stages in quarter and full mode, then the
+/// reference throughput of each backend side by side.
 pub fn bench_render_command(args: &BenchRenderArgs) -> Result<()> {
-    let gpu = Gpu::new()?;
+    let backends = match args.backend {
+        None | Some(Backend::Auto) => vec![Backend::Gpu, Backend::Cpu],
+        Some(b) => vec![b],
+    };
+    let gpu = if backends.contains(&Backend::Gpu) {
+        Some(Gpu::new()?)
+    } else {
+        None
+    };
+    let cpu_adapter = gpu.as_ref().is_none_or(|g| g.kind() == AdapterKind::Cpu);
+    let width = args.width.unwrap_or(if cpu_adapter { 256 } else { 1920 });
+    let height = args.height.unwrap_or(if cpu_adapter { 144 } else { 1080 });
+    let scene = load_scene(&args.scene)?;
+    let stages = match &gpu {
+        Some(g) => Some(gpu_stage_timing(args, g, &scene, width, height)?),
+        None => None,
+    };
+    let mut throughput = Vec::new();
+    for &b in &backends {
+        throughput.push(reference_throughput(
+            &scene,
+            b,
+            gpu.as_ref(),
+            (width, height),
+            args.spp,
+            args.max_depth,
+        )?);
+    }
+    let ratio = match (
+        throughput.iter().find(|t| t.backend == "cpu"),
+        throughput.iter().find(|t| t.backend == "gpu"),
+    ) {
+        (Some(c), Some(g)) => Some(c.mpaths_per_s / g.mpaths_per_s.max(1e-12)),
+        _ => None,
+    };
+    if args.json {
+        let out = serde_json::json!({
+            "adapter": gpu.as_ref().map(|g| g.describe()),
+            "scene": scene.name,
+            "width": width, "height": height,
+            "max_depth": args.max_depth,
+            "gpu_stages": stages,
+            "reference_spp": args.spp,
+            "reference_throughput": throughput,
+            "cpu_over_gpu_paths_per_s": ratio,
+        });
+        println!("{}", serde_json::to_string_pretty(&out)?);
+        return Ok(());
+    }
+    if let Some(st) = &stages {
+        st.print();
+        println!();
+    }
+    println!(
+        "reference throughput: {} {width}x{height}, {} spp, max depth {} (wall time of one frame after a warm-up)",
+        scene.name, args.spp, args.max_depth
+    );
+    println!(
+        "{:<8} {:>8} {:>12} {:>12} {:>10} {:>10} {:>10}",
+        "backend", "threads", "paths", "rays", "seconds", "Mpaths/s", "Mrays/s"
+    );
+    for t in &throughput {
+        println!(
+            "{:<8} {:>8} {:>12} {:>12} {:>10.3} {:>10.3} {:>10.2}",
+            t.backend,
+            t.threads.map(|n| n.to_string()).unwrap_or_else(|| "-".into()),
+            t.paths,
+            t.rays,
+            t.seconds,
+            t.mpaths_per_s,
+            t.mrays_per_s
+        );
+    }
+    if let Some(r) = ratio {
+        println!("cpu / gpu: {r:.1}x the paths per second");
+    }
+    if let Some(g) = &gpu {
+        println!("adapter: {}", g.describe());
+    }
+    Ok(())
+}
+
+/// Per-stage GPU timings of quarter and full frames.
+#[derive(Debug, serde::Serialize)]
+struct StageTiming {
+    adapter: String,
+    scene: String,
+    width: u32,
+    height: u32,
+    frames: u32,
+    warmup: u32,
+    max_depth: u32,
+    modes: Vec<ModeTiming>,
+    speedup_trace: Option<f64>,
+    speedup_total: Option<f64>,
+}
+
+/// Times the G-buffer and trace stages in quarter and full mode on the GPU.
+fn gpu_stage_timing(
+    args: &BenchRenderArgs,
+    gpu: &Gpu,
+    scene: &Scene,
+    width: u32,
+    height: u32,
+) -> Result<StageTiming> {
     let cpu = gpu.kind() == AdapterKind::Cpu;
     let frames = args.frames.unwrap_or(if cpu { 3 } else { 100 }).max(1);
-    let width = args.width.unwrap_or(if cpu { 256 } else { 1920 });
-    let height = args.height.unwrap_or(if cpu { 144 } else { 1080 });
-    let scene = load_scene(&args.scene)?;
-    let gs = GpuScene::new(&gpu, &scene)?;
+    let gpu = gpu.clone();
+    let gs = GpuScene::new(&gpu, scene)?;
     let mut tracer = Tracer::new(&gpu, width, height)?;
     tracer.compile()?;
     let path = CameraPath::from_spec(
@@ -387,62 +689,75 @@ pub fn bench_render_command(args: &BenchRenderArgs) -> Result<()> {
     let total = |m: usize| Some(stage(m, "gbuffer")? + stage(m, "trace")?);
     let speedup_trace = stage(1, "trace").zip(stage(0, "trace")).map(|(f, q)| f / q);
     let speedup_total = total(1).zip(total(0)).map(|(f, q)| f / q);
-    if args.json {
-        let out = serde_json::json!({
-            "adapter": gpu.describe(),
-            "scene": scene.name,
-            "width": width, "height": height,
-            "frames": frames, "max_depth": args.max_depth,
-            "modes": results,
-            "speedup_trace": speedup_trace,
-            "speedup_total": speedup_total,
-        });
-        println!("{}", serde_json::to_string_pretty(&out)?);
-        return Ok(());
-    }
-    println!(
-        "{} | {} {}x{}, {frames} frames (+{} warm-up), max depth {}",
-        gpu.describe(),
-        scene.name,
+    Ok(StageTiming {
+        adapter: gpu.describe(),
+        scene: scene.name.clone(),
         width,
         height,
-        args.warmup,
-        args.max_depth
-    );
-    let timed = results
-        .first()
-        .and_then(|r| r.stages.first())
-        .map(|s| s.gpu)
-        .unwrap_or(false);
-    println!(
-        "times in ms ({}), median / p95",
-        if timed { "GPU timestamps" } else { "CPU wall" }
-    );
-    println!(
-        "{:<8} {:>18} {:>18} {:>12} {:>10}",
-        "mode", "gbuffer", "trace", "total", "Mrays/s"
-    );
-    for (i, r) in results.iter().enumerate() {
-        let f = |n: &str| {
-            r.stages
-                .iter()
-                .find(|s| s.name == n)
-                .map(|s| format!("{:.3} / {:.3}", s.stats.median_ms, s.stats.p95_ms))
-                .unwrap_or_else(|| "-".into())
-        };
-        println!(
-            "{:<8} {:>18} {:>18} {:>12} {:>10.1}",
-            format!("{:?}", r.mode).to_lowercase(),
-            f("gbuffer"),
-            f("trace"),
-            total(i).map(|t| format!("{t:.3}")).unwrap_or_else(|| "-".into()),
-            r.mrays_per_s
-        );
+        frames,
+        warmup: args.warmup,
+        max_depth: args.max_depth,
+        modes: results,
+        speedup_trace,
+        speedup_total,
+    })
+}
+
+impl StageTiming {
+    fn stage(&self, m: usize, n: &str) -> Option<f64> {
+        self.modes[m]
+            .stages
+            .iter()
+            .find(|s| s.name == n)
+            .map(|s| s.stats.median_ms)
     }
-    if let (Some(t), Some(a)) = (speedup_trace, speedup_total) {
-        println!(
-            "quarter vs full: trace {t:.2}x faster, gbuffer + trace {a:.2}x (paper: 12.79 ms -> 4.35 ms, 2.94x)"
-        );
+
+    fn total(&self, m: usize) -> Option<f64> {
+        Some(self.stage(m, "gbuffer")? + self.stage(m, "trace")?)
     }
-    Ok(())
+
+    fn print(&self) {
+        println!(
+            "{} | {} {}x{}, {} frames (+{} warm-up), max depth {}",
+            self.adapter, self.scene, self.width, self.height, self.frames, self.warmup, self.max_depth
+        );
+        let timed = self
+            .modes
+            .first()
+            .and_then(|r| r.stages.first())
+            .map(|s| s.gpu)
+            .unwrap_or(false);
+        println!(
+            "gpu backend, times in ms ({}), median / p95",
+            if timed { "GPU timestamps" } else { "CPU wall" }
+        );
+        println!(
+            "{:<8} {:>18} {:>18} {:>12} {:>10}",
+            "mode", "gbuffer", "trace", "total", "Mrays/s"
+        );
+        for (i, r) in self.modes.iter().enumerate() {
+            let f = |n: &str| {
+                r.stages
+                    .iter()
+                    .find(|s| s.name == n)
+                    .map(|s| format!("{:.3} / {:.3}", s.stats.median_ms, s.stats.p95_ms))
+                    .unwrap_or_else(|| "-".into())
+            };
+            println!(
+                "{:<8} {:>18} {:>18} {:>12} {:>10.1}",
+                format!("{:?}", r.mode).to_lowercase(),
+                f("gbuffer"),
+                f("trace"),
+                self.total(i)
+                    .map(|t| format!("{t:.3}"))
+                    .unwrap_or_else(|| "-".into()),
+                r.mrays_per_s
+            );
+        }
+        if let (Some(t), Some(a)) = (self.speedup_trace, self.speedup_total) {
+            println!(
+                "quarter vs full: trace {t:.2}x faster, gbuffer + trace {a:.2}x (paper: 12.79 ms -> 4.35 ms, 2.94x)"
+            );
+        }
+    }
 }

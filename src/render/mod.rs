@@ -15,20 +15,26 @@
 //! # Ok(()) }
 //! ```
 
+pub mod backend;
 pub mod builtin;
 pub mod bvh;
 pub mod camera;
 pub mod cli;
+pub mod cpu;
 pub mod gpu_scene;
 pub mod loader;
+pub mod packed;
 pub mod scene;
 pub mod tracer;
 
+pub use backend::{Backend, FrameRenderer, GpuFrameRenderer};
 pub use camera::{Camera, CameraPath, CameraPathSpec};
+pub use cpu::{CpuTracer, ReferenceHalves};
 pub use gpu_scene::GpuScene;
 pub use loader::load_scene;
+pub use packed::PackedScene;
 pub use scene::{Material, Scene};
 pub use tracer::{
-    DEFAULT_MAX_DEPTH, FrameBuffers, FrameSettings, FrameStats, Mode, PARAM_SIZES, TILE_OFFSETS, Tracer,
-    query_rays, tile_offset,
+    DEFAULT_MAX_DEPTH, FrameBuffers, FrameSettings, FrameStats, Mode, PARAM_SIZES, REFERENCE_SEED_XOR,
+    TILE_OFFSETS, Tracer, query_rays, tile_offset,
 };

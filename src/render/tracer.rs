@@ -41,6 +41,9 @@ pub fn tile_offset(frame: u32) -> (u32, u32) {
     TILE_OFFSETS[(frame % 4) as usize]
 }
 
+/// Seed variation of references (so a frame's reference never shares its samples).
+pub const REFERENCE_SEED_XOR: u32 = 0x9e37_79b9;
+
 /// Default `max_depth`: the largest number of path segments (1 = emitters seen directly,
 /// 2 = direct lighting, 3 = one indirect bounce, ...).
 pub const DEFAULT_MAX_DEPTH: u32 = 8;
@@ -438,7 +441,7 @@ impl Tracer {
         Self::pass(&mut enc, &gb, None, "gbuffer");
         self.gpu.queue.submit([enc.finish()]);
         let b = &self.buffers;
-        let rays = self.accumulate(scene, s, s.spp, &b.color_mask, &b.shadow_roughness)?;
+        let rays = self.accumulate(scene, s, 0, s.spp, &b.color_mask, &b.shadow_roughness)?;
         Ok(FrameStats {
             rays,
             samples: w * h * s.spp.max(1) as u64,
@@ -467,24 +470,74 @@ impl Tracer {
         }
         let s = FrameSettings {
             mode: Mode::Reference,
-            seed: s.seed ^ 0x9e37_79b9,
+            seed: s.seed ^ REFERENCE_SEED_XOR,
             ..*s
         };
         let (shadow, _) = self.scratch.as_ref().expect("created above");
-        self.accumulate(scene, &s, spp, out, shadow)
+        self.accumulate(scene, &s, 0, spp, out, shadow)
     }
 
+    /// As [`Tracer::render_reference`], and also returns the two halves of the samples
+    /// (samples `0 .. spp / 2` and `spp / 2 .. spp`, 3 channels each) whose difference
+    /// measures the reference's noise; `out` holds the full reference.
+    pub fn render_reference_halves(
+        &mut self,
+        scene: &GpuScene,
+        s: &FrameSettings,
+        spp: u32,
+        out: &Tensor,
+    ) -> Result<super::cpu::ReferenceHalves> {
+        let spp = spp.max(1);
+        let half = spp / 2;
+        let mut rays = 0;
+        let mut first = None;
+        if half > 0 {
+            rays += self.render_reference(scene, s, half, out)?;
+            first = Some(channels(&out.read(&self.gpu)?, &[0, 1, 2]));
+        } else {
+            self.render_reference(scene, s, 1, out)?;
+        }
+        // Continue the same accumulation (samples half .. spp) in place.
+        let rs = FrameSettings {
+            mode: Mode::Reference,
+            seed: s.seed ^ REFERENCE_SEED_XOR,
+            ..*s
+        };
+        let (shadow, _) = self.scratch.as_ref().expect("created by render_reference");
+        if half > 0 {
+            rays += self.accumulate(scene, &rs, half, spp - half, out, shadow)?;
+        }
+        let full = channels(&out.read(&self.gpu)?, &[0, 1, 2]);
+        let Some(first) = first else {
+            return Ok(super::cpu::ReferenceHalves {
+                first: full.clone(),
+                second: full,
+                rays,
+            });
+        };
+        // full = (half * first + (spp - half) * second) / spp.
+        let (a, b) = (half as f32, (spp - half) as f32);
+        let mut second = full;
+        for (o, f) in second.data.iter_mut().zip(&first.data) {
+            *o = (spp as f32 * *o - a * f) / b;
+        }
+        Ok(super::cpu::ReferenceHalves { first, second, rays })
+    }
+
+    /// Adds samples `start .. start + spp` to `color` (which holds the mean of the `start`
+    /// samples before them).
     fn accumulate(
         &self,
         scene: &GpuScene,
         s: &FrameSettings,
+        start: u32,
         spp: u32,
         color: &Tensor,
         shadow: &Tensor,
     ) -> Result<u64> {
-        let spp = spp.max(1);
+        let spp = start + spp.max(1);
         let per = samples_per_pass(self.width(), self.height(), spp, self.paths_per_pass);
-        let mut done = 0;
+        let mut done = start;
         let mut rays = 0u64;
         let s = FrameSettings {
             mode: Mode::Reference,

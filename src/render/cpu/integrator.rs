@@ -1,0 +1,240 @@
+//! Twin of `wgsl/trace/pathtrace.wgsl` and `wgsl/trace/gbuffer.wgsl`: one path (NEE + MIS,
+//! Russian roulette, Beer-Lambert media, alpha cut-outs), the mean of a pixel's jittered
+//! samples, the G-buffers of primary visibility, and the pinhole camera.
+
+use glam::{Vec2, Vec3};
+
+use super::bsdf::{bsdf_eval, bsdf_sample};
+use super::common::{BIG, NO_HIT, Rng, finite3, max3, offset_ray, rng_seed};
+use super::lights::{
+    EnvInfo, env_pdf, env_radiance, env_select_prob, has_lights, mis_power, sample_light, tri_light_pdf,
+};
+use super::material::surface_at;
+use super::traverse::{occluded, traverse};
+use crate::render::camera::GpuCamera;
+use crate::render::packed::{MAT_THIN, PackedScene};
+
+/// What the kernels read per frame (the CPU side of WGSL `FrameParams`).
+#[derive(Debug, Clone, Copy)]
+pub(crate) struct Params {
+    pub cam: GpuCamera,
+    pub prev: GpuCamera,
+    pub width: u32,
+    pub height: u32,
+    pub frame: u32,
+    pub seed: u32,
+    pub max_depth: u32,
+    pub far: f32,
+}
+
+#[inline]
+fn v3(v: [f32; 4]) -> Vec3 {
+    Vec3::new(v[0], v[1], v[2])
+}
+
+/// Unit direction through continuous pixel position `px` (WGSL `camera_dir`).
+pub(crate) fn camera_dir(c: &GpuCamera, px: Vec2, size: Vec2) -> Vec3 {
+    let ndc = Vec2::new(2.0 * px.x / size.x - 1.0, 1.0 - 2.0 * px.y / size.y);
+    let x = ndc.x * c.pos[3] * c.right[3];
+    let y = ndc.y * c.pos[3];
+    (v3(c.fwd) + x * v3(c.right) + y * v3(c.up)).normalize()
+}
+
+/// Continuous pixel position of point (or direction) `p`; `None` behind the camera (WGSL
+/// `camera_project`).
+pub(crate) fn camera_project(c: &GpuCamera, p: Vec3, is_dir: bool, size: Vec2) -> Option<Vec2> {
+    let v = if is_dir { p } else { p - v3(c.pos) };
+    let z = v.dot(v3(c.fwd));
+    if !(z > 1.0e-12) {
+        return None;
+    }
+    let x = v.dot(v3(c.right)) / (z * c.pos[3] * c.right[3]);
+    let y = v.dot(v3(c.up)) / (z * c.pos[3]);
+    Some(Vec2::new((x + 1.0) * 0.5 * size.x, (1.0 - y) * 0.5 * size.y))
+}
+
+/// Radiance of one path and the NEE sample of its first hit.
+#[derive(Debug, Clone, Copy, Default)]
+pub(crate) struct PathResult {
+    pub radiance: Vec3,
+    pub shadow: Vec3,
+}
+
+/// One path from `o` along `d0` (WGSL `trace_path`).
+pub(crate) fn trace_path(
+    sc: &PackedScene,
+    ei: &EnvInfo,
+    max_depth: u32,
+    o: Vec3,
+    d0: Vec3,
+    rng: &mut Rng,
+    rays: &mut u64,
+) -> PathResult {
+    let mut res = PathResult::default();
+    let mut ro = o;
+    let mut rd = d0;
+    let mut skip = NO_HIT;
+    let mut thr = Vec3::ONE;
+    let mut prev_pdf = 0.0;
+    let mut sigma = Vec3::ZERO;
+    let lights_on = has_lights(sc);
+    let mut depth = 1;
+    while depth <= max_depth {
+        let hit = traverse(sc, ro, rd, BIG, false, skip, rays);
+        if hit.prim == NO_HIT {
+            if ei.present {
+                let w = if depth > 1 {
+                    mis_power(prev_pdf, env_select_prob(sc) * env_pdf(sc, ei, rd))
+                } else {
+                    1.0
+                };
+                res.radiance += thr * env_radiance(sc, ei, rd) * w;
+            }
+            break;
+        }
+        if sigma.cmpgt(Vec3::ZERO).any() {
+            thr *= (-sigma * hit.t).exp();
+        }
+        let s = surface_at(sc, &hit, rd);
+        if s.emission.cmpgt(Vec3::ZERO).any() {
+            let w = if depth > 1 {
+                mis_power(prev_pdf, tri_light_pdf(sc, hit.prim, hit.t, s.ng.dot(-rd)))
+            } else {
+                1.0
+            };
+            res.radiance += thr * s.emission * w;
+        }
+        if depth >= max_depth {
+            break;
+        }
+        let wo = -rd;
+        let ul = rng.next3();
+        if lights_on && let Some(ls) = sample_light(sc, ei, s.p, ul) {
+            let (ev, ev_pdf) = bsdf_eval(&s, wo, ls.wi);
+            if ev.cmpgt(Vec3::ZERO).any() || depth == 1 {
+                let side = if ls.wi.dot(s.ng) > 0.0 { s.ng } else { -s.ng };
+                let org = offset_ray(s.p, side);
+                let tmax = if ls.dist >= BIG { BIG } else { ls.dist * 0.9999 };
+                if !occluded(sc, org, ls.wi, tmax, s.prim, rays) {
+                    let w = mis_power(ls.pdf, ev_pdf);
+                    res.radiance += thr * ev * ls.le * (w / ls.pdf);
+                    if depth == 1 {
+                        res.shadow = ls.le;
+                    }
+                }
+            }
+        }
+        let Some(bs) = bsdf_sample(&s, wo, rng.next3()) else {
+            break;
+        };
+        thr *= bs.weight;
+        prev_pdf = bs.pdf;
+        if bs.transmitted && s.transmission > 0.0 && s.flags & MAT_THIN == 0 {
+            sigma = if s.front && s.attenuation.w > 0.0 {
+                -s.attenuation
+                    .truncate()
+                    .clamp(Vec3::splat(1.0e-6), Vec3::ONE)
+                    .ln()
+                    / s.attenuation.w
+            } else {
+                Vec3::ZERO
+            };
+        }
+        ro = offset_ray(s.p, if bs.transmitted { -s.ng } else { s.ng });
+        rd = bs.wi;
+        skip = hit.prim;
+        if depth >= 3 {
+            let q = max3(thr).min(0.95);
+            if rng.next() >= q {
+                break;
+            }
+            thr /= q;
+        }
+        if !finite3(thr) {
+            break;
+        }
+        depth += 1;
+    }
+    if !finite3(res.radiance) {
+        res.radiance = Vec3::ZERO;
+    }
+    res
+}
+
+/// Mean of samples `first .. first + count` of pixel (x, y) (WGSL `pixel_samples`).
+#[allow(clippy::too_many_arguments)]
+pub(crate) fn pixel_samples(
+    sc: &PackedScene,
+    ei: &EnvInfo,
+    p: &Params,
+    x: u32,
+    y: u32,
+    first: u32,
+    count: u32,
+    rays: &mut u64,
+) -> PathResult {
+    let size = Vec2::new(p.width as f32, p.height as f32);
+    let mut sum = PathResult::default();
+    for k in 0..count {
+        let mut rng = Rng(rng_seed(y * p.width + x, p.frame, first + k, p.seed));
+        let [jx, jy] = rng.next2();
+        let d = camera_dir(&p.cam, Vec2::new(x as f32 + jx, y as f32 + jy), size);
+        let r = trace_path(sc, ei, p.max_depth, v3(p.cam.pos), d, &mut rng, rays);
+        sum.radiance += r.radiance;
+        sum.shadow += r.shadow;
+    }
+    let inv = 1.0 / count.max(1) as f32;
+    PathResult {
+        radiance: sum.radiance * inv,
+        shadow: sum.shadow * inv,
+    }
+}
+
+/// The G-buffer values of one pixel (WGSL `gbuffer.wgsl`): albedo+depth, normal+metallic,
+/// roughness, transparent, motion.
+#[derive(Debug, Clone, Copy)]
+pub(crate) struct GbufferPixel {
+    pub albedo_depth: [f32; 4],
+    pub normal_metallic: [f32; 4],
+    pub roughness: f32,
+    pub transparent: [f32; 3],
+    pub motion: [f32; 2],
+}
+
+pub(crate) fn gbuffer_pixel(sc: &PackedScene, p: &Params, x: u32, y: u32, rays: &mut u64) -> GbufferPixel {
+    let size = Vec2::new(p.width as f32, p.height as f32);
+    let pos = Vec2::new(x as f32 + 0.5, y as f32 + 0.5);
+    let d = camera_dir(&p.cam, pos, size);
+    let hit = traverse(sc, v3(p.cam.pos), d, BIG, false, NO_HIT, rays);
+    let (mut g, prev) = if hit.prim == NO_HIT {
+        (
+            GbufferPixel {
+                albedo_depth: [1.0; 4],
+                normal_metallic: [0.0; 4],
+                roughness: 0.0,
+                transparent: [0.0; 3],
+                motion: [0.0; 2],
+            },
+            camera_project(&p.prev, d, true, size),
+        )
+    } else {
+        let s = surface_at(sc, &hit, d);
+        let depth = ((s.p - v3(p.cam.pos)).dot(v3(p.cam.fwd)) / p.far).clamp(0.0, 1.0);
+        let t = s.base * s.transmission;
+        (
+            GbufferPixel {
+                albedo_depth: [s.base.x, s.base.y, s.base.z, depth],
+                normal_metallic: [s.ns.x, s.ns.y, s.ns.z, s.metallic],
+                roughness: s.roughness,
+                transparent: [t.x, t.y, t.z],
+                motion: [0.0; 2],
+            },
+            camera_project(&p.prev, s.p, false, size),
+        )
+    };
+    g.motion = match prev {
+        Some(q) => [q.x - pos.x, q.y - pos.y],
+        None => [-1.0e6, -1.0e6],
+    };
+    g
+}

@@ -1,0 +1,223 @@
+//! Twin of `wgsl/trace/lib/lights.wgsl`: next-event estimation on emissive triangles (by
+//! power) and the environment (importance sampled from its CDFs), and the MIS weights.
+
+use glam::Vec3;
+
+use super::common::{BIG, PI, TWO_PI, luminance};
+use super::material::{interp_uv, material_emission, material_of, tri_info, tri_vec};
+use crate::render::packed::{ENV_HDR, PackedScene};
+
+#[inline]
+fn v3(v: [f32; 4]) -> Vec3 {
+    Vec3::new(v[0], v[1], v[2])
+}
+
+/// Power heuristic weight of the strategy with pdf `a` against `b`.
+#[inline]
+pub(crate) fn mis_power(a: f32, b: f32) -> f32 {
+    let a2 = a * a;
+    let b2 = b * b;
+    if a2 + b2 <= 0.0 { 0.0 } else { a2 / (a2 + b2) }
+}
+
+/// The environment's lookup tables, read once per scene.
+#[derive(Debug, Clone, Copy)]
+pub(crate) struct EnvInfo {
+    pub w: u32,
+    pub h: u32,
+    pub total: f32,
+    pub present: bool,
+    pub floor: f32,
+}
+
+impl EnvInfo {
+    pub fn new(sc: &PackedScene) -> Self {
+        let e = sc.env[0];
+        Self {
+            w: e[0].to_bits(),
+            h: e[1].to_bits(),
+            total: e[2],
+            present: e[3].to_bits() != 0,
+            floor: sc.env[1][0],
+        }
+    }
+}
+
+/// Light-list header values.
+#[inline]
+pub(crate) fn light_count(sc: &PackedScene) -> u32 {
+    sc.lights[0][0].to_bits()
+}
+
+#[inline]
+pub(crate) fn env_select_prob(sc: &PackedScene) -> f32 {
+    sc.lights[0][2]
+}
+
+#[inline]
+fn env_local(sc: &PackedScene, d: Vec3) -> Vec3 {
+    Vec3::new(v3(sc.env[2]).dot(d), v3(sc.env[3]).dot(d), v3(sc.env[4]).dot(d))
+}
+
+fn env_pixel(sc: &PackedScene, ei: &EnvInfo, d: Vec3) -> (u32, u32) {
+    let l = env_local(sc, d);
+    let u = l.x.atan2(-l.z) / TWO_PI;
+    let u = u - u.floor();
+    let v = l.y.clamp(-1.0, 1.0).acos() / PI;
+    (
+        ((u * ei.w as f32) as u32).min(ei.w - 1),
+        ((v * ei.h as f32) as u32).min(ei.h - 1),
+    )
+}
+
+/// Radiance of the environment towards direction `d` (nearest texel).
+pub(crate) fn env_radiance(sc: &PackedScene, ei: &EnvInfo, d: Vec3) -> Vec3 {
+    if !ei.present {
+        return Vec3::ZERO;
+    }
+    let (x, y) = env_pixel(sc, ei, d);
+    v3(sc.env[ENV_HDR + (ei.h + y * ei.w + x) as usize])
+}
+
+fn env_pixel_pdf(sc: &PackedScene, ei: &EnvInfo, px: (u32, u32), sin_t: f32) -> f32 {
+    let rgb = v3(sc.env[ENV_HDR + (ei.h + px.1 * ei.w + px.0) as usize]);
+    let row_sin = (PI * (px.1 as f32 + 0.5) / ei.h as f32).sin();
+    let weight = (luminance(rgb) + ei.floor) * row_sin;
+    let pmf = weight / ei.total;
+    pmf * ei.w as f32 * ei.h as f32 / (2.0 * PI * PI * sin_t.max(1.0e-6))
+}
+
+/// Solid-angle pdf of sampling direction `d` from the environment.
+pub(crate) fn env_pdf(sc: &PackedScene, ei: &EnvInfo, d: Vec3) -> f32 {
+    if !ei.present {
+        return 0.0;
+    }
+    let l = env_local(sc, d);
+    let sin_t = (1.0 - l.y * l.y).max(0.0).sqrt();
+    env_pixel_pdf(sc, ei, env_pixel(sc, ei, d), sin_t)
+}
+
+/// First index in `[0, n)` whose inclusive CDF `cdf(i)` exceeds `u`.
+#[inline]
+fn search(n: u32, u: f32, cdf: impl Fn(u32) -> f32) -> u32 {
+    let (mut lo, mut hi) = (0u32, n - 1);
+    while lo < hi {
+        let mid = (lo + hi) / 2;
+        if cdf(mid) > u {
+            hi = mid;
+        } else {
+            lo = mid + 1;
+        }
+    }
+    lo
+}
+
+/// One light sample (WGSL `LightSample`).
+#[derive(Debug, Clone, Copy)]
+pub(crate) struct LightSample {
+    pub wi: Vec3,
+    /// Distance to the light point ([`BIG`] for the environment).
+    pub dist: f32,
+    /// Emitted radiance towards the shading point.
+    pub le: Vec3,
+    /// Solid-angle pdf, light choice included.
+    pub pdf: f32,
+}
+
+fn env_sample(sc: &PackedScene, ei: &EnvInfo, u: [f32; 2]) -> Option<LightSample> {
+    let (w, h) = (ei.w, ei.h);
+    let marg = |j: u32| sc.env[ENV_HDR + j as usize][0];
+    let j = search(h, u[1], marg);
+    let c0 = if j > 0 { marg(j - 1) } else { 0.0 };
+    let c1 = marg(j);
+    let fv = ((u[1] - c0) / (c1 - c0).max(1.0e-12)).clamp(0.0, 0.99999);
+    let base = ENV_HDR + (h + j * w) as usize;
+    let cond = |i: u32| sc.env[base + i as usize][3];
+    let i = search(w, u[0], cond);
+    let r0 = if i > 0 { cond(i - 1) } else { 0.0 };
+    let r1 = cond(i);
+    let fu = ((u[0] - r0) / (r1 - r0).max(1.0e-12)).clamp(0.0, 0.99999);
+    let uu = (i as f32 + fu) / w as f32;
+    let vv = (j as f32 + fv) / h as f32;
+    let theta = PI * vv;
+    let phi = TWO_PI * uu;
+    let sin_t = theta.sin();
+    let l = Vec3::new(sin_t * phi.sin(), theta.cos(), -sin_t * phi.cos());
+    let d = Vec3::new(v3(sc.env[5]).dot(l), v3(sc.env[6]).dot(l), v3(sc.env[7]).dot(l)).normalize();
+    let pdf = env_pixel_pdf(sc, ei, (i, j), sin_t);
+    (pdf > 0.0).then(|| LightSample {
+        wi: d,
+        dist: BIG,
+        le: v3(sc.env[base + i as usize]),
+        pdf,
+    })
+}
+
+/// Solid-angle pdf with which [`sample_light`] picks the point on emissive triangle `prim`
+/// seen at distance `dist` under `cos_l`.
+pub(crate) fn tri_light_pdf(sc: &PackedScene, prim: u32, dist: f32, cos_l: f32) -> f32 {
+    let total = sc.lights[0][1];
+    if light_count(sc) == 0 || total <= 0.0 || cos_l <= 0.0 {
+        return 0.0;
+    }
+    let m = material_of(sc, tri_info(sc, prim));
+    (1.0 - env_select_prob(sc)) * m.emissive[3] * dist * dist / (total * cos_l)
+}
+
+fn sample_tri_light(sc: &PackedScene, p: Vec3, u: Vec3) -> Option<LightSample> {
+    let n = light_count(sc);
+    let k = search(n, u.z, |k| sc.lights[1 + k as usize][1]);
+    let entry = sc.lights[1 + k as usize];
+    let prim = entry[0].to_bits();
+    let pmf = entry[2];
+    let area = entry[3];
+    let info = tri_info(sc, prim);
+    let v0 = tri_vec(sc, prim, 0);
+    let e1 = tri_vec(sc, prim, 1);
+    let e2 = tri_vec(sc, prim, 2);
+    let su = u.x.sqrt();
+    let bu = su * (1.0 - u.y);
+    let bv = su * u.y;
+    let q = v0 - e1 * bu + e2 * bv;
+    let ng = (-e1.cross(e2)).normalize();
+    let mut wi = q - p;
+    let dist = wi.length();
+    if !(dist > 0.0) || !(area > 0.0) {
+        return None;
+    }
+    wi /= dist;
+    let cos_l = ng.dot(-wi);
+    if cos_l <= 1.0e-6 {
+        return None;
+    }
+    let m = material_of(sc, info);
+    let pdf = (1.0 - env_select_prob(sc)) * pmf * dist * dist / (area * cos_l);
+    (pdf > 0.0).then(|| LightSample {
+        wi,
+        dist,
+        le: material_emission(sc, m, interp_uv(sc, info, bu, bv)),
+        pdf,
+    })
+}
+
+/// One light sample from `p`: the environment with probability [`env_select_prob`], else an
+/// emissive triangle by power.
+pub(crate) fn sample_light(sc: &PackedScene, ei: &EnvInfo, p: Vec3, u: Vec3) -> Option<LightSample> {
+    let pe = env_select_prob(sc);
+    if u.z < pe {
+        return env_sample(sc, ei, [u.x, u.y]).map(|mut s| {
+            s.pdf *= pe;
+            s
+        });
+    }
+    if light_count(sc) == 0 {
+        return None;
+    }
+    let uz = ((u.z - pe) / (1.0 - pe).max(1.0e-12)).clamp(0.0, 0.999_999_94);
+    sample_tri_light(sc, p, Vec3::new(u.x, u.y, uz))
+}
+
+/// The scene has something NEE can sample.
+pub(crate) fn has_lights(sc: &PackedScene) -> bool {
+    light_count(sc) > 0 || env_select_prob(sc) > 0.0
+}

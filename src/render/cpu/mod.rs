@@ -1,0 +1,240 @@
+//! The CPU twin of the WGSL path tracer: the same integrator (materials and textures, BSDF
+//! sampling and evaluation, light sampling, MIS, Russian roulette, alpha cut-outs,
+//! dielectrics) and the same G-buffers, in Rust over obvhs's CPU CWBVH traversal, reading
+//! the same [`PackedScene`] arrays as the GPU and drawing the same PCG random numbers, in
+//! parallel over all cores (rayon). For a seed it is deterministic, whatever the thread
+//! count. Each file mirrors one WGSL library file.
+//!
+//! ```
+//! # fn main() -> subpixel::Result<()> {
+//! use subpixel::render::{CpuTracer, FrameSettings, Mode, PackedScene, load_scene};
+//! let scene = load_scene("builtin:cornell")?;
+//! let packed = PackedScene::new(&scene, u64::MAX)?;
+//! let far = scene.far_distance([&scene.camera.position]);
+//! let tracer = CpuTracer::new(16, 16)?;
+//! let (frame, stats) = tracer.render(&packed, &FrameSettings::new(scene.camera, Mode::Full, far))?;
+//! assert_eq!(frame.color.width, 16);
+//! assert!(stats.rays >= 256);
+//! # Ok(()) }
+//! ```
+
+// The twin keeps WGSL's NaN-rejecting comparisons (`!(x > 0.0)` is true for NaN) as written.
+#![allow(clippy::neg_cmp_op_on_partial_ord)]
+
+mod bsdf;
+mod common;
+mod integrator;
+mod lights;
+mod material;
+mod traverse;
+
+use rayon::prelude::*;
+
+use super::packed::PackedScene;
+use super::tracer::{FrameSettings, FrameStats, Mode, tile_offset};
+use crate::error::{Error, Result};
+use crate::frame::HostFrame;
+use crate::nn::HostTensor;
+use integrator::{Params, gbuffer_pixel, pixel_samples};
+use lights::EnvInfo;
+
+/// One pixel's buffers: colour+mask, albedo+depth, normal+metallic, shadow+roughness,
+/// transparent, motion.
+type PixelBuffers = ([f32; 4], [f32; 4], [f32; 4], [f32; 4], [f32; 3], [f32; 2]);
+
+/// Renders frames of one size on the CPU.
+#[derive(Debug, Clone)]
+pub struct CpuTracer {
+    width: u32,
+    height: u32,
+}
+
+/// A reference rendered as two independent halves of its samples: their mean is the
+/// reference, their difference measures its noise.
+#[derive(Debug, Clone)]
+pub struct ReferenceHalves {
+    /// Mean of samples `0 .. spp / 2` (3 channels).
+    pub first: HostTensor,
+    /// Mean of samples `spp / 2 .. spp` (3 channels).
+    pub second: HostTensor,
+    /// Rays traced.
+    pub rays: u64,
+}
+
+impl ReferenceHalves {
+    /// The reference: the mean of all `spp` samples (the halves weighted by their counts).
+    pub fn mean(&self, spp: u32) -> HostTensor {
+        let a = (spp / 2) as f32 / spp.max(1) as f32;
+        let mut out = self.first.clone();
+        for (o, s) in out.data.iter_mut().zip(&self.second.data) {
+            *o = a * *o + (1.0 - a) * s;
+        }
+        out
+    }
+}
+
+impl CpuTracer {
+    /// A tracer for `width x height` frames.
+    pub fn new(width: u32, height: u32) -> Result<Self> {
+        if width == 0 || height == 0 {
+            return Err(Error::Invalid(format!(
+                "image size {width}x{height}: width and height must be positive"
+            )));
+        }
+        Ok(Self { width, height })
+    }
+
+    /// Width.
+    pub fn width(&self) -> u32 {
+        self.width
+    }
+
+    /// Height.
+    pub fn height(&self) -> u32 {
+        self.height
+    }
+
+    fn params(&self, s: &FrameSettings, seed: u32) -> Params {
+        Params {
+            cam: s.camera.gpu(self.width, self.height),
+            prev: s.prev_camera.gpu(self.width, self.height),
+            width: self.width,
+            height: self.height,
+            frame: s.frame,
+            seed,
+            max_depth: s.max_depth.max(1),
+            far: s.far.max(1e-6),
+        }
+    }
+
+    /// Renders frame `s` (every buffer of the data contract), as [`super::Tracer::render`]
+    /// does on the GPU: quarter and full frames trace one sample per traced pixel, reference
+    /// frames `s.spp` samples per pixel.
+    pub fn render(&self, scene: &PackedScene, s: &FrameSettings) -> Result<(HostFrame, FrameStats)> {
+        let (w, h) = (self.width, self.height);
+        let p = self.params(s, s.seed);
+        let ei = EnvInfo::new(scene);
+        let (dx, dy) = tile_offset(s.frame);
+        let spp = match s.mode {
+            Mode::Reference => s.spp.max(1),
+            _ => 1,
+        };
+        let traced = |x: u32, y: u32| match s.mode {
+            Mode::Quarter => x % 2 == dx && y % 2 == dy,
+            _ => true,
+        };
+        // One row per task: (rays, per-pixel buffers).
+        let rows: Vec<(u64, Vec<PixelBuffers>)> = (0..h)
+            .into_par_iter()
+            .map(|y| {
+                let mut rays = 0u64;
+                let mut row = Vec::with_capacity(w as usize);
+                for x in 0..w {
+                    let g = gbuffer_pixel(scene, &p, x, y, &mut rays);
+                    let (cm, sh) = if traced(x, y) {
+                        let r = pixel_samples(scene, &ei, &p, x, y, 0, spp, &mut rays);
+                        (r.radiance.extend(1.0).to_array(), r.shadow.to_array())
+                    } else {
+                        ([0.0; 4], [0.0; 3])
+                    };
+                    row.push((
+                        cm,
+                        g.albedo_depth,
+                        g.normal_metallic,
+                        [sh[0], sh[1], sh[2], g.roughness],
+                        g.transparent,
+                        g.motion,
+                    ));
+                }
+                (rays, row)
+            })
+            .collect();
+        let n = (w * h) as usize;
+        let mut f = HostFrame {
+            color: HostTensor::zeros(w, h, 3),
+            mask: HostTensor::zeros(w, h, 1),
+            albedo: HostTensor::zeros(w, h, 3),
+            normal: HostTensor::zeros(w, h, 3),
+            shadow: HostTensor::zeros(w, h, 3),
+            transparent: HostTensor::zeros(w, h, 3),
+            depth: HostTensor::zeros(w, h, 1),
+            metallic: HostTensor::zeros(w, h, 1),
+            roughness: HostTensor::zeros(w, h, 1),
+            motion: HostTensor::zeros(w, h, 2),
+        };
+        let mut rays = 0;
+        let mut i = 0;
+        for (r, row) in rows {
+            rays += r;
+            for (cm, ad, nm, sr, tr, mv) in row {
+                f.color.data[3 * i..3 * i + 3].copy_from_slice(&cm[..3]);
+                f.mask.data[i] = cm[3];
+                f.albedo.data[3 * i..3 * i + 3].copy_from_slice(&ad[..3]);
+                f.depth.data[i] = ad[3];
+                f.normal.data[3 * i..3 * i + 3].copy_from_slice(&nm[..3]);
+                f.metallic.data[i] = nm[3];
+                f.shadow.data[3 * i..3 * i + 3].copy_from_slice(&sr[..3]);
+                f.roughness.data[i] = sr[3];
+                f.transparent.data[3 * i..3 * i + 3].copy_from_slice(&tr);
+                f.motion.data[2 * i..2 * i + 2].copy_from_slice(&mv);
+                i += 1;
+            }
+        }
+        debug_assert_eq!(i, n);
+        let samples = match s.mode {
+            Mode::Quarter => (w.div_ceil(2) as u64) * (h.div_ceil(2) as u64),
+            _ => n as u64 * spp as u64,
+        };
+        Ok((f, FrameStats { rays, samples }))
+    }
+
+    /// Radiance of samples `first .. first + count` per pixel of frame `s` with `seed`.
+    fn radiance(
+        &self,
+        scene: &PackedScene,
+        s: &FrameSettings,
+        seed: u32,
+        first: u32,
+        count: u32,
+    ) -> (HostTensor, u64) {
+        let (w, h) = (self.width, self.height);
+        let p = self.params(s, seed);
+        let ei = EnvInfo::new(scene);
+        let rows: Vec<(u64, Vec<f32>)> = (0..h)
+            .into_par_iter()
+            .map(|y| {
+                let mut rays = 0u64;
+                let mut row = Vec::with_capacity(3 * w as usize);
+                for x in 0..w {
+                    let r = pixel_samples(scene, &ei, &p, x, y, first, count, &mut rays);
+                    row.extend(r.radiance.to_array());
+                }
+                (rays, row)
+            })
+            .collect();
+        let rays = rows.iter().map(|r| r.0).sum();
+        let data = rows.into_iter().flat_map(|r| r.1).collect();
+        (HostTensor::from_vec(w, h, 3, data), rays)
+    }
+
+    /// An `spp`-sample reference of frame `s` (independent of the frame's own samples: the
+    /// seed is varied as on the GPU), rendered as two halves.
+    pub fn render_reference(
+        &self,
+        scene: &PackedScene,
+        s: &FrameSettings,
+        spp: u32,
+    ) -> Result<ReferenceHalves> {
+        let spp = spp.max(1);
+        let seed = s.seed ^ super::tracer::REFERENCE_SEED_XOR;
+        let half = spp / 2;
+        let (first, r1) = self.radiance(scene, s, seed, 0, half);
+        let (second, r2) = self.radiance(scene, s, seed, half, spp - half);
+        let first = if half == 0 { second.clone() } else { first };
+        Ok(ReferenceHalves {
+            first,
+            second,
+            rays: r1 + r2,
+        })
+    }
+}

@@ -1,0 +1,107 @@
+//! Twin of `wgsl/trace/lib/bvh.wgsl` over obvhs's own CPU CWBVH traversal: closest and any
+//! hit, the triangle a ray leaves from skipped, alpha-masked triangles tested against their
+//! material's cutoff, and the same Moeller-Trumbore test as the GPU.
+
+use glam::{Vec3, Vec3A};
+use obvhs::ray::{Ray, RayHit};
+
+use super::common::{BIG, NO_HIT};
+use super::material::{alpha_passes, tri_vec};
+use crate::render::packed::{PackedScene, TRI_FLAG_ALPHA};
+
+/// A ray hit (WGSL `Hit`): `prim` is the BVH-order triangle, [`NO_HIT`] on a miss; `u`, `v`
+/// the barycentric weights of v1 and v2.
+#[derive(Debug, Clone, Copy)]
+pub(crate) struct Hit {
+    pub t: f32,
+    pub prim: u32,
+    pub u: f32,
+    pub v: f32,
+}
+
+/// `(t, u, v)` of the hit of triangle `prim` within `[tmin, tmax]`, as `intersect_tri`.
+#[inline]
+fn intersect_tri(
+    sc: &PackedScene,
+    prim: u32,
+    o: Vec3,
+    d: Vec3,
+    tmin: f32,
+    tmax: f32,
+) -> Option<(f32, f32, f32)> {
+    let v0 = tri_vec(sc, prim, 0);
+    let e1 = tri_vec(sc, prim, 1);
+    let e2 = tri_vec(sc, prim, 2);
+    let n = e1.cross(e2);
+    let c = v0 - o;
+    let r = d.cross(c);
+    let det = n.dot(d);
+    if det == 0.0 {
+        return None;
+    }
+    let inv_det = 1.0 / det;
+    let u = r.dot(e2) * inv_det;
+    let v = r.dot(e1) * inv_det;
+    let w = 1.0 - u - v;
+    if (u.to_bits() | v.to_bits() | w.to_bits()) & 0x8000_0000 != 0 {
+        return None;
+    }
+    let t = n.dot(c) * inv_det;
+    (t >= tmin && t <= tmax).then_some((t, u, v))
+}
+
+/// Closest hit (or, with `any_hit`, any hit) along `o + t d` for `t` in `[0, tmax]`, ignoring
+/// triangle `skip`. Counts one ray in `rays`.
+pub(crate) fn traverse(
+    sc: &PackedScene,
+    o: Vec3,
+    d: Vec3,
+    tmax: f32,
+    any_hit: bool,
+    skip: u32,
+    rays: &mut u64,
+) -> Hit {
+    *rays += 1;
+    let mut best = Hit {
+        t: tmax.min(BIG),
+        prim: NO_HIT,
+        u: 0.0,
+        v: 0.0,
+    };
+    let bvh = &sc.bvh.bvh;
+    if bvh.nodes.is_empty() {
+        return best;
+    }
+    let ray = Ray::new(Vec3A::from(o), Vec3A::from(d), 0.0, best.t);
+    let mut test = |r: &Ray, id: usize| -> f32 {
+        let prim = id as u32;
+        if prim == skip {
+            return f32::INFINITY;
+        }
+        let Some((t, u, v)) = intersect_tri(sc, prim, o, d, 0.0, r.tmax) else {
+            return f32::INFINITY;
+        };
+        if t >= r.tmax {
+            return f32::INFINITY;
+        }
+        let info = sc.tris[4 * id + 3][3].to_bits();
+        if info & TRI_FLAG_ALPHA != 0 && !alpha_passes(sc, prim, u, v) {
+            return f32::INFINITY;
+        }
+        best = Hit { t, prim, u, v };
+        t
+    };
+    if any_hit {
+        bvh.ray_traverse_miss(ray, &mut test);
+    } else {
+        let mut hit = RayHit::none();
+        bvh.ray_traverse(ray, &mut hit, &mut test);
+    }
+    best
+}
+
+/// Whether anything blocks the segment from `o` along unit `d` up to `dist`.
+#[inline]
+pub(crate) fn occluded(sc: &PackedScene, o: Vec3, d: Vec3, dist: f32, skip: u32, rays: &mut u64) -> bool {
+    traverse(sc, o, d, dist, true, skip, rays).prim != NO_HIT
+}
