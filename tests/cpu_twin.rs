@@ -7,49 +7,12 @@
 
 mod common;
 
-use std::sync::Arc;
-
 use common::gpu;
+use common::twin::{assert_references_agree, assert_same_seed_frames_match, cpu_frame, packed, settings};
 use subpixel::frame::HostFrame;
-use subpixel::nn::HostTensor;
 use subpixel::render::builtin;
 use subpixel::render::scene::{Material, Scene};
-use subpixel::render::{CpuTracer, FrameSettings, GpuScene, Mode, PackedScene, Tracer, load_scene};
-
-fn packed(scene: &Scene) -> Arc<PackedScene> {
-    Arc::new(PackedScene::new(scene, u64::MAX).unwrap())
-}
-
-fn settings(scene: &Scene, mode: Mode, spp: u32, seed: u32) -> FrameSettings {
-    let mut s = FrameSettings::new(scene.camera, mode, scene.far_distance([&scene.camera.position]));
-    s.spp = spp;
-    s.seed = seed;
-    s.frame = 5;
-    // A previous camera a little to the side: non-trivial motion vectors.
-    let (r, _, _) = scene.camera.basis();
-    let d = 0.02 * (scene.camera.target - scene.camera.position).length();
-    s.prev_camera.position += r * d;
-    s.prev_camera.target += r * d;
-    s
-}
-
-fn gpu_frame(gs: &GpuScene, w: u32, h: u32, s: &FrameSettings) -> HostFrame {
-    let g = gpu();
-    let mut t = Tracer::new(&g, w, h).unwrap();
-    t.render(gs, s).unwrap();
-    t.buffers.download(&g).unwrap()
-}
-
-fn cpu_frame(p: &PackedScene, w: u32, h: u32, s: &FrameSettings) -> HostFrame {
-    CpuTracer::new(w, h).unwrap().render(p, s).unwrap().0
-}
-
-fn channel_means(t: &HostTensor) -> Vec<f64> {
-    let c = t.channels as usize;
-    (0..c)
-        .map(|k| t.data.iter().skip(k).step_by(c).map(|&v| v as f64).sum::<f64>() / (t.data.len() / c) as f64)
-        .collect()
-}
+use subpixel::render::{CpuTracer, GpuScene, Mode, Tracer, load_scene};
 
 /// The scenes every agreement test covers.
 fn builtin_scenes() -> Vec<Scene> {
@@ -64,136 +27,15 @@ fn builtin_scenes() -> Vec<Scene> {
 #[test]
 fn gbuffers_and_same_seed_paths_match_the_gpu() {
     for scene in builtin_scenes() {
-        let p = packed(&scene);
-        let gs = GpuScene::upload(&gpu(), p.clone()).unwrap();
-        for mode in [Mode::Quarter, Mode::Full] {
-            let (w, h) = (24, 20);
-            let s = settings(&scene, mode, 1, 7);
-            let g = gpu_frame(&gs, w, h, &s);
-            let c = cpu_frame(&p, w, h, &s);
-            for (name, gt, ct) in [
-                ("mask", &g.mask, &c.mask),
-                ("albedo", &g.albedo, &c.albedo),
-                ("normal", &g.normal, &c.normal),
-                ("depth", &g.depth, &c.depth),
-                ("metallic", &g.metallic, &c.metallic),
-                ("roughness", &g.roughness, &c.roughness),
-                ("transparent", &g.transparent, &c.transparent),
-                ("motion", &g.motion, &c.motion),
-            ] {
-                let bad = gt
-                    .data
-                    .iter()
-                    .zip(&ct.data)
-                    .filter(|(a, b)| (*a - *b).abs() > 1e-4 + 1e-4 * b.abs())
-                    .count();
-                assert_eq!(bad, 0, "{} {mode:?}: {bad} values of '{name}' differ", scene.name);
-            }
-            // Colour and NEE shadow: the same random numbers give the same paths, up to
-            // paths that diverge through float rounding (a different branch taken).
-            for (name, gt, ct) in [("color", &g.color, &c.color), ("shadow", &g.shadow, &c.shadow)] {
-                let n = (w * h) as usize;
-                let same = (0..n)
-                    .filter(|&i| {
-                        (0..3).all(|k| {
-                            let (a, b) = (gt.data[3 * i + k], ct.data[3 * i + k]);
-                            (a - b).abs() <= 1e-3 * (1.0 + b.abs())
-                        })
-                    })
-                    .count();
-                eprintln!("{} {mode:?} {name}: {same}/{n} pixels identical", scene.name);
-                assert!(
-                    same as f64 >= 0.95 * n as f64,
-                    "{} {mode:?} {name}: only {same}/{n} pixels agree",
-                    scene.name
-                );
-            }
-        }
+        assert_same_seed_frames_match(&scene, 24, 20);
     }
 }
 
-/// High-spp references differ only by noise: per-channel means within 1.5 %, and the PSNR
-/// between a CPU and a GPU render (different seeds) no lower, beyond 0.5 dB, than between
-/// two GPU renders with different seeds.
+/// High-spp references differ only by noise (see [`assert_references_agree`]).
 #[test]
 fn references_agree_up_to_noise() {
     for scene in builtin_scenes() {
-        let p = packed(&scene);
-        let gs = GpuScene::upload(&gpu(), p.clone()).unwrap();
-        let (w, h, spp) = (24, 24, 128);
-        let g1 = gpu_frame(&gs, w, h, &settings(&scene, Mode::Reference, spp, 1));
-        let g2 = gpu_frame(&gs, w, h, &settings(&scene, Mode::Reference, spp, 2));
-        let g3 = gpu_frame(&gs, w, h, &settings(&scene, Mode::Reference, spp, 5));
-        let c3 = cpu_frame(&p, w, h, &settings(&scene, Mode::Reference, spp, 3));
-        let c6 = cpu_frame(&p, w, h, &settings(&scene, Mode::Reference, spp, 6));
-        // PSNR from the mean MSE over pairs (one pair's PSNR is itself noisy): the three GPU
-        // pairs against the six CPU x GPU pairs, all of different seeds.
-        let pooled = |pairs: &[(&HostTensor, &HostTensor)]| {
-            let mse = pairs
-                .iter()
-                .map(|(a, b)| 10f64.powf(-subpixel::metrics::psnr(a, b) / 10.0))
-                .sum::<f64>()
-                / pairs.len() as f64;
-            -10.0 * mse.log10()
-        };
-        let gg = pooled(&[
-            (&g1.color, &g2.color),
-            (&g1.color, &g3.color),
-            (&g2.color, &g3.color),
-        ]);
-        let cg = pooled(&[
-            (&c3.color, &g1.color),
-            (&c3.color, &g2.color),
-            (&c3.color, &g3.color),
-            (&c6.color, &g1.color),
-            (&c6.color, &g2.color),
-            (&c6.color, &g3.color),
-        ]);
-        eprintln!("{}: PSNR GPU-GPU {gg:.2} dB, CPU-GPU {cg:.2} dB", scene.name);
-        assert!(
-            cg >= gg - 0.5,
-            "{}: CPU-GPU PSNR {cg:.2} dB vs GPU-GPU {gg:.2} dB",
-            scene.name
-        );
-        // Means: the two GPU renders against a long CPU render. Their difference is noise
-        // whose standard error `se` is estimated from the two GPU renders' per-pixel
-        // differences (pixels are independent). Within 1.5 % is asked; where the affordable
-        // sample count leaves more noise than that (heavy-tailed caustics), the difference
-        // must stay within 4 standard errors.
-        let big = cpu_frame(&p, w, h, &settings(&scene, Mode::Reference, 8 * spp, 4));
-        let (m1, m2, mc) = (
-            channel_means(&g1.color),
-            channel_means(&g2.color),
-            channel_means(&big.color),
-        );
-        let n = (w * h) as usize;
-        for k in 0..3 {
-            let mg = 0.5 * (m1[k] + m2[k]);
-            // Var of one render's mean: mean(d^2) / (2 n); the pooled GPU mean halves it;
-            // the CPU mean (8x the samples) adds 1/8 of one render's.
-            let d2 = (0..n)
-                .map(|i| ((g1.color.data[3 * i + k] - g2.color.data[3 * i + k]) as f64).powi(2))
-                .sum::<f64>()
-                / n as f64;
-            let var_one = d2 / (2.0 * n as f64);
-            let se = (var_one / 2.0 + var_one / 8.0).sqrt();
-            let diff = (mg - mc[k]).abs();
-            eprintln!(
-                "{} channel {k}: GPU {mg:.5} (seeds {:.5} {:.5}), CPU {:.5}: difference {:.2} %, standard error {:.2} %",
-                scene.name,
-                m1[k],
-                m2[k],
-                mc[k],
-                100.0 * diff / mc[k],
-                100.0 * se / mc[k]
-            );
-            assert!(
-                diff <= (0.015 * mc[k].abs()).max(4.0 * se),
-                "{} channel {k}: GPU mean {mg} vs CPU {} (standard error {se})",
-                scene.name,
-                mc[k]
-            );
-        }
+        assert_references_agree(&scene, 24, 24, 128);
     }
 }
 

@@ -125,3 +125,21 @@ fn every_scene_loads_and_renders() {
         );
     }
 }
+
+/// The CPU twin agrees with the WGSL tracer on every shared scene: G-buffers to float
+/// tolerance, same-seed paths, and references that differ only by noise.
+#[test]
+#[ignore]
+fn cpu_twin_agrees_on_every_scene() {
+    for dir in scene_folders() {
+        let name = dir.display().to_string();
+        let scene = load_scene(&name).unwrap_or_else(|e| panic!("{e}"));
+        let (fw, fh) = scene.film;
+        let w = 32u32;
+        let h = ((w as f32 * fh as f32 / fw as f32).round() as u32).max(4);
+        let t0 = std::time::Instant::now();
+        common::twin::assert_same_seed_frames_match(&scene, w, h);
+        common::twin::assert_references_agree(&scene, w, h, 128);
+        eprintln!("{name}: CPU twin agrees ({:.1} s)", t0.elapsed().as_secs_f64());
+    }
+}

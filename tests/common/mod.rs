@@ -1,6 +1,8 @@
 //! Helpers shared by the GPU integration tests.
 #![allow(dead_code)]
 
+pub mod twin;
+
 use rand::{Rng, SeedableRng, rngs::StdRng};
 use subpixel::gpu::Gpu;
 use subpixel::nn::HostTensor;
