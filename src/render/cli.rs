@@ -406,7 +406,7 @@ fn write_sequence_json(
     };
     let p = args.out.join(name);
     // Resuming (or another shard of the same sequence) must not mix frames rendered with
-    // other parameters.
+    // other parameters; a plain render overwrites.
     if let Ok(text) = std::fs::read_to_string(&p)
         && let Ok(old) = serde_json::from_str::<serde_json::Value>(&text)
         && let (Some(old), Some(new)) = (old.as_object(), json.as_object_mut())
@@ -417,7 +417,7 @@ fn write_sequence_json(
                     .any(|e| e.file_name().to_string_lossy().ends_with(".exr"))
             })
             .unwrap_or(false);
-        if has_frames {
+        if has_frames && args.resume {
             for (k, v) in new.iter() {
                 if SEQUENCE_INFO_KEYS.contains(&k.as_str()) {
                     continue;

@@ -20,7 +20,7 @@ pub(crate) struct Hit {
 }
 
 /// `(t, u, v)` of the hit of triangle `prim` within `[tmin, tmax]`, as `intersect_tri`.
-#[inline]
+#[inline(always)]
 fn intersect_tri(
     sc: &PackedScene,
     prim: u32,
@@ -73,7 +73,9 @@ pub(crate) fn traverse(
         return best;
     }
     let ray = Ray::new(Vec3A::from(o), Vec3A::from(d), 0.0, best.t);
-    let mut test = |r: &Ray, id: usize| -> f32 {
+    // The candidate test: the GPU's triangle test, then the skip and alpha rules. Passed by
+    // value so that obvhs's traversal inlines it.
+    let test = |r: &Ray, id: usize, best: &mut Hit| -> f32 {
         let prim = id as u32;
         if prim == skip {
             return f32::INFINITY;
@@ -88,14 +90,14 @@ pub(crate) fn traverse(
         if info & TRI_FLAG_ALPHA != 0 && !alpha_passes(sc, prim, u, v) {
             return f32::INFINITY;
         }
-        best = Hit { t, prim, u, v };
+        *best = Hit { t, prim, u, v };
         t
     };
     if any_hit {
-        bvh.ray_traverse_miss(ray, &mut test);
+        bvh.ray_traverse_miss(ray, |r, id| test(r, id, &mut best));
     } else {
         let mut hit = RayHit::none();
-        bvh.ray_traverse(ray, &mut hit, &mut test);
+        bvh.ray_traverse(ray, &mut hit, |r, id| test(r, id, &mut best));
     }
     best
 }
