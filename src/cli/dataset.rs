@@ -25,6 +25,9 @@ pub(super) struct DatasetArgs {
     /// Number of sequences.
     #[arg(long, default_value_t = 4)]
     sequences: u32,
+    /// Render only sequences FIRST..SEQUENCES (to share sequences between machines).
+    #[arg(long, default_value_t = 0)]
+    first_sequence: u32,
     /// Frames per sequence.
     #[arg(long, default_value_t = 16)]
     frames: u32,
@@ -123,8 +126,15 @@ pub(super) fn run(a: &DatasetArgs) -> Result<()> {
         Some(r) => parse_range(r, a.frames)?,
         None => (0, a.frames),
     };
+    if a.first_sequence >= a.sequences {
+        bail!(
+            "--first-sequence {} must be below --sequences {}",
+            a.first_sequence,
+            a.sequences
+        );
+    }
     let slug = scene_slug(&a.scene);
-    for s in 0..a.sequences {
+    for s in a.first_sequence..a.sequences {
         let name = format!("{slug}_{}_{s:03}", a.split);
         let dir = a.out.join(&a.split).join(&name);
         let seed = sequence_seed(&slug, &a.split, s);

@@ -1,0 +1,100 @@
+#!/usr/bin/env bash
+# The generic dataset (issues 10 and 11): many distinct scenes at 128x128 with clean
+# references, rendered by the CPU twin on a machine without a GPU, resumable and sharded.
+#
+#   training/dataset_recipe.sh OUT [PHASE ...]
+#
+# PHASES (default: all, in this order, so that a partial run is already useful):
+#   heldout  test split of the held-out scenes (living-room, flight-helmet, barn-lamp:
+#            2 sequences each) and of 20 procedural test seeds (1 sequence each)
+#   val      validation split: the 6 training scenes and 10 procedural validation seeds
+#   train    training split, round-robin (one more sequence of every scene per round):
+#            6 fixed scenes x 5 sequences + 60 procedural seeds x 2 sequences = 150
+#            sequences of 8 frames = 1,200 frames over 66 scenes
+#   test     test split of the 6 training scenes (1 sequence each)
+#
+# Held-out scenes never enter train or val, neither as scenes nor as props. Procedural
+# seeds of the three splits are disjoint ranges; every sequence of every split flies its
+# own camera path (seeded by scene, split and number).
+#
+# Environment: SUBPIXEL (the binary, default target/release/subpixel), SCENES (default
+# ../shared/scenes), SPP (reference samples, default 1024), SIZE (default 128),
+# FRAMES (default 8), SHARD=K/N (this machine renders the sequences whose hash is K mod N;
+# run the same command with 0/N .. N-1/N on N machines and merge the OUT folders), PROCEDURAL=0 (skip procedural
+# scenes, e.g. before they exist). Finished frames are skipped, so re-running continues;
+# each frame is written atomically. Logs go to stdout: run it with nohup, e.g.
+#   nohup training/dataset_recipe.sh ~/work-data/ds > ~/work-data/ds.log 2>&1 &
+set -euo pipefail
+here="$(cd "$(dirname "$0")" && pwd)"
+root="$(cd "$here/.." && pwd)"
+out="${1:?usage: dataset_recipe.sh OUT [heldout|val|train|test ...]}"
+shift
+phases=("$@")
+[ ${#phases[@]} -eq 0 ] && phases=(heldout val train test)
+bin="${SUBPIXEL:-$root/target/release/subpixel}"
+scenes="${SCENES:-$root/../shared/scenes}"
+spp="${SPP:-1024}"
+size="${SIZE:-128}"
+frames="${FRAMES:-8}"
+shard="${SHARD:-0/1}"
+shard_k="${shard%/*}"
+shard_n="${shard#*/}"
+procedural="${PROCEDURAL:-1}"
+[ -x "$bin" ] || { echo "no binary at $bin: run 'cargo build --release' first" >&2; exit 1; }
+
+fixed=(builtin:cornell builtin:room "$scenes/cbox" "$scenes/cornell-box" "$scenes/dining-room" "$scenes/staircase2")
+held_out=("$scenes/living-room" "$scenes/flight-helmet" "$scenes/barn-lamp")
+# Props for procedural scenes: glTF files of training scenes only.
+props=(--props "$scenes/cornell-box" --props "$scenes/cbox" --props "$scenes/staircase2")
+
+# render SCENE SPLIT K [EXTRA...]: sequence K of SCENE's SPLIT, when it is this shard's (a
+# stable hash of scene, split and K picks the shard).
+render() {
+  local scene="$1" split="$2" k="$3"
+  shift 3
+  local h
+  h=$(printf '%s %s %s' "$scene" "$split" "$k" | cksum | cut -d' ' -f1)
+  if [ $((h % shard_n)) -ne "$shard_k" ]; then
+    return 0
+  fi
+  echo "== $(date -u +%FT%TZ) $split $scene sequence $k"
+  "$bin" dataset --scene "$scene" --split "$split" --first-sequence "$k" --sequences "$((k + 1))" \
+    --frames "$frames" --width "$size" --height "$size" --reference-spp "$spp" --backend cpu \
+    --out "$out" "$@"
+}
+proc() { echo "builtin:procedural:$1"; }
+
+for phase in "${phases[@]}"; do
+  case "$phase" in
+    heldout)
+      for k in 0 1; do
+        for s in "${held_out[@]}"; do render "$s" test "$k"; done
+      done
+      if [ "$procedural" = 1 ]; then
+        for seed in $(seq 1000000 1000019); do render "$(proc "$seed")" test 0 "${props[@]}"; done
+      fi
+      ;;
+    val)
+      for s in "${fixed[@]}"; do render "$s" val 0; done
+      if [ "$procedural" = 1 ]; then
+        for seed in $(seq 500000 500009); do render "$(proc "$seed")" val 0 "${props[@]}"; done
+      fi
+      ;;
+    train)
+      for k in 0 1 2 3 4; do
+        for s in "${fixed[@]}"; do render "$s" train "$k"; done
+        if [ "$procedural" = 1 ] && [ "$k" -le 1 ]; then
+          for seed in $(seq 0 59); do render "$(proc "$seed")" train "$k" "${props[@]}"; done
+        fi
+      done
+      ;;
+    test)
+      for s in "${fixed[@]}"; do render "$s" test 0; done
+      ;;
+    *)
+      echo "unknown phase '$phase' (heldout, val, train, test)" >&2
+      exit 2
+      ;;
+  esac
+done
+echo "== $(date -u +%FT%TZ) done: $out"
