@@ -266,6 +266,16 @@ pub fn render_command(args: &RenderArgs) -> Result<()> {
             rays as f64 / render_secs.max(1e-9) / 1e6
         ));
         bar.inc(1);
+        if bar.is_hidden() {
+            // No terminal (a background job's log): one line per frame instead of the bar.
+            println!(
+                "frame {f} written in {:.1} s ({}/{} of this run, {:.2} Mrays/s)",
+                t.elapsed().as_secs_f64(),
+                k + 1,
+                args.frames,
+                rays as f64 / render_secs.max(1e-9) / 1e6
+            );
+        }
     }
     bar.finish();
     if args.reference_spp.is_some() {
