@@ -336,3 +336,91 @@ fn bench_frame_times_every_stage_in_both_modes() {
     assert_eq!(names, ["gbuffer", "trace", "pack", "tfa", "unet", "output"]);
     assert!(rows[0]["ssr_flops"].as_u64().unwrap() > 0);
 }
+
+/// Out-of-range arguments are clear errors, never a panic or a silently different render.
+#[test]
+fn range_arguments_are_refused() {
+    let out = tmp("ranges");
+    let o = |args: &[&str]| bin().args(args).output().unwrap();
+    let out_s = out.to_str().unwrap();
+    for (args, want) in [
+        (vec!["bench", "frame", "--frames", "0"], "--frames"),
+        (vec!["bench", "denoise", "--frames", "0"], "--frames"),
+        (vec!["bench", "render", "--frames", "0"], "--frames"),
+        (
+            vec![
+                "render",
+                "--scene",
+                "builtin:cornell",
+                "--mode",
+                "reference",
+                "--spp",
+                "0",
+                "--out",
+                out_s,
+            ],
+            "--spp must be at least 1",
+        ),
+        (
+            vec![
+                "render",
+                "--scene",
+                "builtin:cornell",
+                "--reference-spp",
+                "0",
+                "--out",
+                out_s,
+            ],
+            "--reference-spp must be at least 1",
+        ),
+        (
+            vec![
+                "render",
+                "--scene",
+                "builtin:cornell",
+                "--max-depth",
+                "0",
+                "--out",
+                out_s,
+            ],
+            "--max-depth",
+        ),
+        (
+            vec![
+                "render",
+                "--scene",
+                "builtin:cornell",
+                "--first-frame",
+                "4294967295",
+                "--frames",
+                "2",
+                "--out",
+                out_s,
+            ],
+            "--first-frame",
+        ),
+        (
+            vec![
+                "dataset",
+                "--scene",
+                "builtin:cornell",
+                "--split",
+                "val",
+                "--sequences",
+                "2",
+                "--first-sequence",
+                "2",
+                "--out",
+                out_s,
+            ],
+            "--first-sequence",
+        ),
+    ] {
+        let r = o(&args);
+        let stderr = String::from_utf8_lossy(&r.stderr);
+        assert!(!r.status.success(), "{args:?} succeeded");
+        assert!(stderr.contains(want), "{args:?}: {stderr}");
+        assert!(!stderr.contains("panicked"), "{args:?}: {stderr}");
+    }
+    std::fs::remove_dir_all(&out).ok();
+}

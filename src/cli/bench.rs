@@ -53,7 +53,7 @@ pub(super) struct FrameBenchArgs {
     #[arg(long)]
     weights: Option<std::path::PathBuf>,
     /// Timed frames (default 100 on a GPU, 3 on a CPU adapter).
-    #[arg(long)]
+    #[arg(long, value_parser = clap::value_parser!(u32).range(1..))]
     frames: Option<u32>,
     /// Untimed warm-up frames.
     #[arg(long, default_value_t = 5)]
@@ -76,7 +76,7 @@ pub(super) struct DenoiseBenchArgs {
     #[arg(long)]
     weights: Option<std::path::PathBuf>,
     /// Timed frames (default 100 on a GPU, 5 on a CPU adapter).
-    #[arg(long)]
+    #[arg(long, value_parser = clap::value_parser!(u32).range(1..))]
     frames: Option<u32>,
     /// Untimed warm-up frames.
     #[arg(long, default_value_t = 5)]

@@ -90,7 +90,7 @@ pub struct BenchRenderArgs {
     #[arg(long)]
     pub height: Option<u32>,
     /// Timed frames per mode (default: 100 on a GPU, 3 on a CPU adapter).
-    #[arg(long)]
+    #[arg(long, value_parser = clap::value_parser!(u32).range(1..))]
     pub frames: Option<u32>,
     /// Untimed warm-up frames per mode.
     #[arg(long, default_value_t = 2)]
