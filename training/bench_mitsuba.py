@@ -551,6 +551,7 @@ def run_benchmark(
         dr.set_thread_count(threads_used)
 
     median = statistics.median(times)
+    utilisation = statistics.median(c / t for c, t in zip(cpu_times, times))
     llvm_version = None
     if jit and variant.startswith("llvm"):
         try:
@@ -575,7 +576,10 @@ def run_benchmark(
         "median_s": round(median, 4),
         "paths_per_s": width * height * spp / median,
         "cpu_time_s": [round(t, 4) for t in cpu_times],
-        "cpu_utilisation": round(statistics.median(c / t for c, t in zip(cpu_times, times)), 3),
+        "cpu_utilisation": round(utilisation, 3),
+        # The render threads got well under their cores: other processes were running, so
+        # paths/s understates Mitsuba's speed on an idle machine. Re-run when it is idle.
+        "contended": bool(jit and utilisation < 0.9 * min(threads_used, os.cpu_count() or 1)),
         "kernels_compiled_in_timed_runs": compiled if jit else None,
         "jit_kernel_ms": [round(t, 1) for t in kernel_ms] if jit else None,
         "warmup_s": round(warmup_s, 3),
@@ -613,6 +617,11 @@ def format_report(r: dict) -> str:
         f"  load average before/after: {r['loadavg_before']} / {r['loadavg_after']}",
         f"  image mean RGB: {r['image_mean_rgb']}",
     ]
+    if r.get("contended"):
+        lines.append(
+            "  WARNING: the render used %.2f of %d cores: the machine was busy, so this "
+            "understates the idle speed; re-run on an idle machine" % (r["cpu_utilisation"], r["threads"])
+        )
     if r.get("image_out"):
         lines.append(f"  wrote {r['image_out']}")
     return "\n".join(lines)
@@ -649,6 +658,12 @@ def main(argv=None) -> int:
         out=args.out,
     )
     result["command"] = " ".join([os.path.basename(sys.executable), *sys.argv])
+    if result["contended"]:
+        print(
+            "bench_mitsuba: warning: CPU utilisation %.2f with %d threads: the machine was busy"
+            % (result["cpu_utilisation"], result["threads"]),
+            file=sys.stderr,
+        )
     if args.json:
         print(json.dumps(result))
     else:
