@@ -21,12 +21,13 @@ pub mod camera;
 pub mod cli;
 pub mod gpu_scene;
 pub mod loader;
+pub mod procedural;
 pub mod scene;
 pub mod tracer;
 
 pub use camera::{Camera, CameraPath, CameraPathSpec};
 pub use gpu_scene::GpuScene;
-pub use loader::load_scene;
+pub use loader::{SceneOptions, load_scene, load_scene_with};
 pub use scene::{Material, Scene};
 pub use tracer::{
     DEFAULT_MAX_DEPTH, FrameBuffers, FrameSettings, FrameStats, Mode, PARAM_SIZES, TILE_OFFSETS, Tracer,
