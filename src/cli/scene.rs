@@ -176,10 +176,12 @@ fn summary(scene: &Scene, generated: Option<&Generated>) -> Result<()> {
     if let Some(info) = generated {
         let v = &info.view;
         println!(
-            "  view check: {:.0}% geometry, {:.0}% objects, {:.0}% of hits directly lit, clearance {:.2}",
+            "  view check: {:.0}% geometry, {:.0}% objects, {:.0}% of hits directly lit, {:.0}% nearer than \
+             0.5, clearance ahead {:.2}",
             100.0 * v.geometry,
             100.0 * v.objects,
             100.0 * v.lit,
+            100.0 * v.near,
             v.clearance
         );
     }

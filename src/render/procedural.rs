@@ -14,6 +14,8 @@
 //! a **camera path** ([`Scene::camera_path`]: static, orbits and fly-throughs, slow and fast,
 //! and fly-throughs with cuts).
 //!
+//! The enclosure kind is `Enclosure::ALL[seed % 4]` (room, open ground, corridor, steps), so
+//! any run of consecutive seeds covers every kind evenly; the rest is drawn from the seed.
 //! Everything is a function of the seed (and of the props given): the generator uses a
 //! seeded SplitMix64, never the clock or a global generator. A generated scene is checked
 //! with the CPU BVH from its camera ([`check_view`]): enough of the view must be geometry,
@@ -206,7 +208,9 @@ pub fn generate_with(seed: u64, lib: &mut PropLibrary) -> Result<Generated> {
             mix(seed ^ mix(attempt as u64 ^ 0x5eed_0f_a77e_3b7))
         };
         let mut b = Builder::new(seed, sub, lib);
-        b.build();
+        // The seed picks the enclosure round-robin (consecutive seeds cover every kind);
+        // retries keep it.
+        b.build(Enclosure::ALL[(seed % Enclosure::ALL.len() as u64) as usize]);
         if sabotaged(attempt) {
             // Test hook: this attempt loses its lights.
             for m in &mut b.scene.materials {
@@ -1506,8 +1510,8 @@ impl<'a> Builder<'a> {
 
     // --- Enclosures ------------------------------------------------------------------
 
-    fn build(&mut self) {
-        let kind = Enclosure::ALL[self.rng.weighted(&[3.0, 2.5, 2.0, 2.0])];
+    /// Builds the scene of enclosure kind `kind`.
+    fn build(&mut self, kind: Enclosure) {
         self.enclosure = kind;
         match kind {
             Enclosure::Room => self.room(),
@@ -2374,7 +2378,14 @@ impl<'a> Builder<'a> {
             return;
         }
         let fi = self.rng.index(nf);
-        let whole = self.lib.files[fi].groups.len() <= 1 || self.rng.chance(0.5);
+        // Big files (whole rooms) mostly give one of their material groups.
+        let file = &self.lib.files[fi];
+        let p_whole = if file.scene.geometry.triangles.len() > 20_000 {
+            0.15
+        } else {
+            0.5
+        };
+        let whole = file.groups.len() <= 1 || self.rng.chance(p_whole);
         let group = if whole {
             None
         } else {
@@ -2631,13 +2642,30 @@ impl<'a> Builder<'a> {
         match self.rng.weighted(&[1.5, 2.0, 2.5, 2.0, 2.0]) {
             0 => CameraPathSpec::Static,
             1 => {
-                let clear = (0..48).all(|i| {
-                    let a = i as f32 / 48.0 * std::f32::consts::TAU;
-                    let rel = cam.position - cam.target;
+                // The whole circle: every step of it clear of geometry, room around every
+                // position, and the target in view from most of them (objects may pass in
+                // front of it).
+                let rel = cam.position - cam.target;
+                let on_circle = |i: u32| {
+                    let a = i as f32 / 96.0 * std::f32::consts::TAU;
                     let (s, c) = a.sin_cos();
-                    let p = cam.target + Vec3::new(c * rel.x + s * rel.z, rel.y, -s * rel.x + c * rel.z);
-                    Self::clear_view(bvh, p, cam.target)
-                });
+                    cam.target + Vec3::new(c * rel.x + s * rel.z, rel.y, -s * rel.x + c * rel.z)
+                };
+                let mut seen = 0;
+                let mut clear = true;
+                for i in 0..96 {
+                    let (p, q) = (on_circle(i), on_circle(i + 1));
+                    let d = q - p;
+                    let step_clear = bvh
+                        .intersect(p, d.normalize_or(Vec3::X), d.length() + 0.15)
+                        .is_none();
+                    let roomy = [Vec3::X, Vec3::NEG_X, Vec3::Y, Vec3::NEG_Y, Vec3::Z, Vec3::NEG_Z]
+                        .iter()
+                        .all(|&d| bvh.intersect(p, d, 0.15).is_none());
+                    clear &= step_clear && roomy;
+                    seen += Self::clear_view(bvh, p, cam.target) as u32;
+                }
+                let clear = clear && seen >= 72;
                 if clear {
                     let deg = if slow {
                         self.rng.range(0.15, 0.5)
@@ -2815,12 +2843,17 @@ pub struct ViewCheck {
     pub light_in_view: bool,
     /// Distance to the first hit along the view direction (infinite: none).
     pub clearance: f32,
+    /// Rays that hit something closer than 0.5 (a view blocked by something right in front).
+    pub near: f32,
     /// The scene has an emitter or an environment.
     pub has_light: bool,
 }
 
 impl ViewCheck {
-    /// Whether a scene seen like this makes a useful, lit image.
+    /// Whether a scene seen like this makes a useful, lit image: there is light, at least 30%
+    /// of the view is geometry and 4% objects, 85% of the hits are front faces, 5% of the
+    /// hits are directly lit, the view is not blocked within 0.6 ahead, and at most 25% of it
+    /// is closer than 0.5.
     pub fn ok(&self) -> bool {
         self.has_light
             && self.geometry >= 0.3
@@ -2828,6 +2861,7 @@ impl ViewCheck {
             && self.front >= 0.85
             && self.lit >= 0.05
             && self.clearance > 0.6
+            && self.near <= 0.25
     }
 }
 
@@ -2874,7 +2908,7 @@ pub fn check_view(
     };
     let scale = (scene.bounds().1 - scene.bounds().0).length().max(1e-3);
     let eps = 1e-4 * scale;
-    let (mut hits, mut obj, mut front, mut lit) = (0u32, 0u32, 0u32, 0u32);
+    let (mut hits, mut obj, mut front, mut lit, mut near) = (0u32, 0u32, 0u32, 0u32, 0u32);
     let mut light_in_view = false;
     let mut rng = Rng::new(0x71e7);
     for j in 0..N {
@@ -2889,6 +2923,7 @@ pub fn check_view(
                 continue;
             };
             hits += 1;
+            near += (t < 0.5) as u32;
             let tri = bvh.order[slot as usize] as usize;
             if objects.as_ref().is_none_or(|r| r.contains(&tri)) {
                 obj += 1;
@@ -2970,6 +3005,7 @@ pub fn check_view(
         lit: lit as f32 / hits.max(1) as f32,
         light_in_view,
         clearance,
+        near: near as f32 / total,
         has_light,
     }
 }
