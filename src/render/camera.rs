@@ -533,7 +533,10 @@ impl CameraPath {
             CameraPath::Cuts {
                 shots,
                 frames_per_shot,
-            } => frame > 0 && frame % frames_per_shot == 0 && (frame / frames_per_shot) < shots.len() as u32,
+            } => {
+                let n = (*frames_per_shot).max(1);
+                frame > 0 && frame.is_multiple_of(n) && (frame / n) < shots.len() as u32
+            }
             _ => false,
         }
     }

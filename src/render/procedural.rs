@@ -205,7 +205,7 @@ pub fn generate_with(seed: u64, lib: &mut PropLibrary) -> Result<Generated> {
         let sub = if attempt == 0 {
             seed
         } else {
-            mix(seed ^ mix(attempt as u64 ^ 0x5eed_0f_a77e_3b7))
+            mix(seed ^ mix(attempt as u64 ^ 0x0005_eed0_fa77_e3b7))
         };
         let mut b = Builder::new(seed, sub, lib);
         // The seed picks the enclosure round-robin (consecutive seeds cover every kind);
@@ -968,7 +968,7 @@ impl<'a> Builder<'a> {
                 for y in 0..TEX {
                     for x in 0..TEX {
                         let i = (y * TEX + x) as usize;
-                        let on = ((x / cell) + (y / cell)) % 2 == 0;
+                        let on = ((x / cell) + (y / cell)).is_multiple_of(2);
                         let n = fbm(x as f32, y as f32, 16, 3, seed);
                         col[i] = if on { a } else { b } * (1.0 - variation * 0.5 + variation * n);
                         let edge = (x % cell)
