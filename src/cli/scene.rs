@@ -176,6 +176,15 @@ fn summary(scene: &Scene, generated: Option<&Generated>) -> Result<()> {
     if let Some(info) = generated {
         let v = &info.view;
         println!(
+            "  exposure: estimated mean radiance {:.3} (direct light only){}",
+            v.estimate,
+            if info.light_gain != 1.0 {
+                format!(", every light scaled by {:.3}", info.light_gain)
+            } else {
+                String::new()
+            }
+        );
+        println!(
             "  view check: {:.0}% geometry, {:.0}% objects, {:.0}% of hits directly lit, {:.0}% nearer than \
              0.5, clearance ahead {:.2}",
             100.0 * v.geometry,

@@ -23,6 +23,10 @@
 //! or the environment) must reach a part of what the camera sees. A seed whose scene fails
 //! is retried with sub-seeds derived from it, so the result is still deterministic and never
 //! an all-black image; after [`MAX_ATTEMPTS`] a simple, always valid fallback scene is used.
+//! The same check estimates the image's mean radiance from direct light
+//! ([`ViewCheck::estimate`]); outside [`EXPOSURE_RANGE`] every emitter and the environment
+//! are scaled by one factor ([`Generated::light_gain`]), so scenes are neither near-black
+//! nor blown out while their lights keep their power ratios.
 //!
 //! Props ([`SceneOptions::props`](super::loader::SceneOptions)) are explicit paths (glTF/glb
 //! files, `.hdr`/`.exr` environment maps, or folders searched for both); a broken or
@@ -42,6 +46,10 @@ use crate::error::{Error, Result};
 
 /// Scenes tried per seed (the first, then sub-seeds) before the fallback scene is used.
 pub const MAX_ATTEMPTS: u32 = 12;
+
+/// Estimated mean image radiance (direct light only, see [`ViewCheck::estimate`]) that needs
+/// no exposure change; outside it, all lights are scaled to a mean of 0.15-0.4.
+pub const EXPOSURE_RANGE: (f32, f32) = (0.08, 0.7);
 
 /// Film size of procedural scenes.
 pub const FILM: (u32, u32) = (256, 256);
@@ -166,8 +174,11 @@ pub struct Generated {
     pub attempt: u32,
     /// Warnings (props skipped, environment maps that could not be read); also logged.
     pub warnings: Vec<String>,
-    /// The view check of the scene camera.
+    /// The view check of the scene camera (its estimate after the exposure gain).
     pub view: ViewCheck,
+    /// Factor applied to every emitter and the environment so the estimated image mean
+    /// ([`ViewCheck::estimate`]) lies in [`EXPOSURE_RANGE`] (1: none was needed).
+    pub light_gain: f32,
     /// Triangles of the objects (the rest is the enclosure and its lights).
     pub object_triangles: std::ops::Range<usize>,
 }
@@ -1282,8 +1293,16 @@ impl<'a> Builder<'a> {
                     ][self.rng.weighted(&[3.0, 2.0, 3.0, 1.0, 1.0])];
                     self.textured(p, "floor")
                 }
-                1 => self.plain(false),
-                2 => self.plain(true),
+                1 => {
+                    let mut m = self.plain(false);
+                    brighten(&mut m, 0.2);
+                    m
+                }
+                2 => {
+                    let mut m = self.plain(true);
+                    brighten(&mut m, 0.2);
+                    m
+                }
                 _ => {
                     let mut m = self.metal();
                     m.roughness = m.roughness.max(0.3);
@@ -1293,7 +1312,7 @@ impl<'a> Builder<'a> {
             Use::Wall => match self.rng.weighted(&[5.0, 3.0, 1.0]) {
                 0 => {
                     let mut m = self.plain(false);
-                    m.base_color[..3].iter_mut().for_each(|c| *c = c.max(0.2));
+                    brighten(&mut m, 0.3);
                     m
                 }
                 1 => {
@@ -1306,7 +1325,11 @@ impl<'a> Builder<'a> {
                     ][self.rng.weighted(&[3.0, 2.0, 2.0, 2.0, 1.0])];
                     self.textured(p, "wall")
                 }
-                _ => self.plain(true),
+                _ => {
+                    let mut m = self.plain(true);
+                    brighten(&mut m, 0.3);
+                    m
+                }
             },
             Use::Closed | Use::Open => {
                 let w = [
@@ -2193,7 +2216,8 @@ impl<'a> Builder<'a> {
         let (tw, td) = (self.rng.range(0.5, 1.0), self.rng.range(0.4, 0.7));
         let th = self.rng.range(0.45, 0.8);
         let r = Vec2::new(tw, td).length();
-        let Some(p) = self.spot(r, th + 0.6) else {
+        // Its footprint ends just below the top, so things can stand on it.
+        let Some(p) = self.spot(r, th - 0.01) else {
             return;
         };
         let m = self.random_material(Use::Closed);
@@ -2601,9 +2625,25 @@ impl<'a> Builder<'a> {
                 break;
             }
         }
-        let Some(view) = view else {
+        let Some(mut view) = view else {
             return Ok(None);
         };
+        // Exposure: lights scaled so the estimated image is neither near-black nor blown out
+        // (the power ratios between lights, and the variety within the range, are kept).
+        let mut light_gain = 1.0;
+        if !(EXPOSURE_RANGE.0..=EXPOSURE_RANGE.1).contains(&view.estimate) {
+            let target = self.rng.range(0.15, 0.4);
+            light_gain = (target / view.estimate).clamp(1.0 / 50.0, 50.0);
+            for m in &mut self.scene.materials {
+                for e in &mut m.emissive {
+                    *e *= light_gain;
+                }
+            }
+            if let Some(e) = &mut self.scene.environment {
+                e.scale *= light_gain;
+            }
+            view.estimate *= light_gain;
+        }
         self.scene.camera = camera;
         self.scene.camera_path = Some(self.camera_path(&bvh));
         Ok(Some(Generated {
@@ -2614,6 +2654,7 @@ impl<'a> Builder<'a> {
             attempt,
             warnings: Vec::new(),
             view,
+            light_gain,
             object_triangles: self.object_tris,
         }))
     }
@@ -2808,6 +2849,23 @@ impl<'a> Builder<'a> {
     }
 }
 
+/// Scales a material's base colour up so its luminance is at least `min` (large surfaces
+/// that are almost black make dark, noisy images).
+fn brighten(m: &mut Material, min: f32) {
+    let c = Vec3::new(m.base_color[0], m.base_color[1], m.base_color[2]);
+    let l = luminance(c);
+    let c = if l < min {
+        if l > 1e-3 {
+            (c * (min / l)).min(Vec3::splat(0.95))
+        } else {
+            Vec3::splat(min)
+        }
+    } else {
+        c
+    };
+    m.base_color[..3].copy_from_slice(&c.to_array());
+}
+
 /// Mean radiance (luminance, times the scale) of an environment over the sphere, weighted
 /// by solid angle.
 pub fn mean_radiance(e: &Environment) -> f32 {
@@ -2847,13 +2905,18 @@ pub struct ViewCheck {
     pub near: f32,
     /// The scene has an emitter or an environment.
     pub has_light: bool,
+    /// Estimated mean radiance (luminance) of the image, from direct light only: emitters
+    /// and sky seen directly (clamped at 4), plus albedo / pi times the direct irradiance
+    /// (emitters sampled by power, the environment by cosine-distributed directions) at the
+    /// first opaque hit. Indirect light comes on top, so the real image is brighter.
+    pub estimate: f32,
 }
 
 impl ViewCheck {
     /// Whether a scene seen like this makes a useful, lit image: there is light, at least 30%
     /// of the view is geometry and 4% objects, 85% of the hits are front faces, 5% of the
-    /// hits are directly lit, the view is not blocked within 0.6 ahead, and at most 25% of it
-    /// is closer than 0.5.
+    /// hits are directly lit (and the direct-light estimate is positive), the view is not
+    /// blocked within 0.6 ahead, and at most 25% of it is closer than 0.5.
     pub fn ok(&self) -> bool {
         self.has_light
             && self.geometry >= 0.3
@@ -2862,6 +2925,7 @@ impl ViewCheck {
             && self.lit >= 0.05
             && self.clearance > 0.6
             && self.near <= 0.25
+            && self.estimate > 0.0
     }
 }
 
@@ -2877,8 +2941,39 @@ pub fn check_view(
     let (w, h) = scene.film;
     let g = &scene.geometry;
     let mats = &scene.materials;
-    let emissive: Vec<usize> = (0..g.triangles.len())
-        .filter(|&t| mats[g.materials[t] as usize].emitted_luminance(&scene.textures) > 0.0)
+    let emitted: Vec<f32> = mats
+        .iter()
+        .map(|m| m.emitted_luminance(&scene.textures))
+        .collect();
+    let tri_area = |t: usize| {
+        let [a, b, c] = g.triangles[t].map(|i| g.positions[i as usize]);
+        0.5 * (b - a).cross(c - a).length()
+    };
+    // Emissive triangles with their cumulative power.
+    let mut emissive = Vec::new();
+    let mut cdf = Vec::new();
+    let mut power = 0.0f32;
+    for t in 0..g.triangles.len() {
+        let l = emitted[g.materials[t] as usize];
+        let area = tri_area(t);
+        if l > 0.0 && area > 0.0 {
+            power += l * area;
+            emissive.push(t);
+            cdf.push(power);
+        }
+    }
+    // Diffuse albedo (luminance) of each material: base colour times its texture's mean;
+    // metals count half their reflectance.
+    let albedo: Vec<f32> = mats
+        .iter()
+        .map(|m| {
+            let mut c = Vec3::new(m.base_color[0], m.base_color[1], m.base_color[2]);
+            if let Some(t) = m.base_color_texture.and_then(|t| scene.textures.get(t as usize)) {
+                c *= t.mean_rgb();
+            }
+            let l = luminance(c).clamp(0.0, 1.0);
+            if m.metallic >= 0.5 { 0.5 * l } else { l }
+        })
         .collect();
     let env_power = scene.environment.as_ref().map(mean_radiance).unwrap_or(0.0);
     let has_light = !emissive.is_empty() || env_power > 0.0;
@@ -2909,6 +3004,8 @@ pub fn check_view(
     let scale = (scene.bounds().1 - scene.bounds().0).length().max(1e-3);
     let eps = 1e-4 * scale;
     let (mut hits, mut obj, mut front, mut lit, mut near) = (0u32, 0u32, 0u32, 0u32, 0u32);
+    let mut estimate = 0.0f64;
+    let env = scene.environment.as_ref();
     let mut light_in_view = false;
     let mut rng = Rng::new(0x71e7);
     for j in 0..N {
@@ -2920,6 +3017,9 @@ pub fn check_view(
             let d = camera.ray_dir(px, w, h);
             let Some((slot, t)) = bvh.intersect(camera.position, d, f32::INFINITY) else {
                 light_in_view |= env_power > 0.0;
+                if let Some(e) = env {
+                    estimate += luminance(e.radiance(d)).min(4.0) as f64;
+                }
                 continue;
             };
             hits += 1;
@@ -2933,9 +3033,10 @@ pub fn check_view(
             if n.dot(d) < 0.0 || m.double_sided || m.transmission > 0.0 {
                 front += 1;
             }
-            if m.emitted_luminance(&scene.textures) > 0.0 {
+            if emitted[g.materials[tri] as usize] > 0.0 {
                 light_in_view = true;
                 lit += 1;
+                estimate += emitted[g.materials[tri] as usize].min(4.0) as f64;
                 continue;
             }
             // Direct light at the first opaque hit along the ray.
@@ -2951,34 +3052,43 @@ pub fn check_view(
                 n = -n;
             }
             let p = camera.position + d * t + n * eps;
-            let mut is_lit = false;
-            // Emitters: up to 8 triangles.
-            let k = emissive.len();
-            for s in 0..k.min(8) {
-                let e = emissive[(s * k / 8.min(k) + rng.index(k.div_ceil(8))).min(k - 1)];
-                let [a, b, c] = g.triangles[e].map(|i| g.positions[i as usize]);
-                let (u, v) = (rng.f(), rng.f());
-                let (u, v) = if u + v > 1.0 { (1.0 - u, 1.0 - v) } else { (u, v) };
-                let q = a + (b - a) * u + (c - a) * v;
-                let to = q - p;
-                let dist = to.length();
-                let dir = to / dist.max(1e-9);
-                let en = tri_normal(e);
-                if dir.dot(n) <= 0.0 || en.dot(-dir) <= 0.0 {
-                    continue;
+            let mut irradiance = 0.0f32;
+            // Emitters: 8 points chosen by power (triangle by power, uniform on it).
+            const EMITTER_SAMPLES: u32 = 8;
+            if power > 0.0 {
+                for _ in 0..EMITTER_SAMPLES {
+                    let x = rng.f() * power;
+                    let k = cdf.partition_point(|&c| c <= x).min(emissive.len() - 1);
+                    let e = emissive[k];
+                    let [a, b, c] = g.triangles[e].map(|i| g.positions[i as usize]);
+                    let (u, v) = (rng.f(), rng.f());
+                    let (u, v) = if u + v > 1.0 { (1.0 - u, 1.0 - v) } else { (u, v) };
+                    let q = a + (b - a) * u + (c - a) * v;
+                    let to = q - p;
+                    let dist2 = to.length_squared().max(1e-8);
+                    let dist = dist2.sqrt();
+                    let dir = to / dist;
+                    let en = tri_normal(e);
+                    let (cos_p, cos_e) = (dir.dot(n), en.dot(-dir));
+                    if cos_p <= 0.0 || cos_e <= 0.0 {
+                        continue;
+                    }
+                    if opaque_hit(p, dir, dist * (1.0 - 1e-3)).is_none_or(|(h, _)| h == e) {
+                        // L cos cos / d^2 over the pdf (l area / power) / area.
+                        irradiance += power * cos_p * cos_e / dist2;
+                    }
                 }
-                if opaque_hit(p, dir, dist * (1.0 - 1e-3)).is_none_or(|(h, _)| h == e) {
-                    is_lit = true;
-                    break;
-                }
+                irradiance /= EMITTER_SAMPLES as f32;
             }
             // Environment: 24 cosine-distributed directions.
-            if !is_lit && env_power > 0.0 {
+            let mut is_lit = irradiance > 0.0;
+            if let Some(e) = env.filter(|_| env_power > 0.0) {
                 let (tx, ty) = {
                     let a = if n.x.abs() < 0.9 { Vec3::X } else { Vec3::Y };
                     let tx = n.cross(a).normalize();
                     (tx, n.cross(tx))
                 };
+                let mut sum = 0.0;
                 for _ in 0..24 {
                     let (r1, r2) = (rng.f(), rng.f());
                     let (s, c) = (std::f32::consts::TAU * r1).sin_cos();
@@ -2986,11 +3096,13 @@ pub fn check_view(
                     let dir = (tx * (rr * c) + ty * (rr * s) + n * (1.0 - r2).max(0.0).sqrt()).normalize();
                     if opaque_hit(p, dir, f32::INFINITY).is_none() {
                         is_lit = true;
-                        break;
+                        sum += luminance(e.radiance(dir));
                     }
                 }
+                irradiance += std::f32::consts::PI * sum / 24.0;
             }
             lit += is_lit as u32;
+            estimate += (albedo[g.materials[tri] as usize] * irradiance / std::f32::consts::PI) as f64;
         }
     }
     let total = (N * N) as f32;
@@ -3007,6 +3119,7 @@ pub fn check_view(
         clearance,
         near: near as f32 / total,
         has_light,
+        estimate: (estimate / total as f64) as f32,
     }
 }
 
@@ -3129,6 +3242,13 @@ mod tests {
             }
             assert!(hit >= 16, "seed {seed}: only {hit} of 64 rays hit geometry");
             assert!(g.view.ok(), "seed {seed}: {:?}", g.view);
+            // Exposure: the direct-light estimate of the image mean is never near-black.
+            assert!(
+                g.view.estimate >= 0.02 && g.view.estimate <= 2.0,
+                "seed {seed}: estimate {} (gain {})",
+                g.view.estimate,
+                g.light_gain
+            );
             enclosures.insert(g.enclosure);
             for (k, _) in material_kinds(s) {
                 kinds.insert(k);
