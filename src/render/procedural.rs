@@ -2575,7 +2575,9 @@ impl<'a> Builder<'a> {
             {
                 continue;
             }
-            if p.distance(target) < 1.2 {
+            // Far enough, and looking down no steeper than about 50 degrees.
+            let flat = Vec2::new(p.x - target.x, p.z - target.z).length();
+            if p.distance(target) < 1.2 || p.y - target.y > 1.2 * flat {
                 continue;
             }
             best = Some(p);
@@ -2929,6 +2931,43 @@ impl ViewCheck {
     }
 }
 
+/// The brightest part of an environment (texels above 20 times its mean), as a directional
+/// light: luminance-weighted mean direction and the irradiance it gives at normal incidence.
+struct Sun {
+    dir: Vec3,
+    irradiance: f32,
+    /// Scaled luminance above which a texel belongs to the sun.
+    threshold: f32,
+}
+
+fn sun_of(e: &Environment) -> Option<Sun> {
+    let mean = mean_radiance(e) / e.scale.max(1e-12);
+    if mean.is_nan() || mean <= 0.0 {
+        return None;
+    }
+    let threshold = 20.0 * mean;
+    let (mut dir, mut irr) = (Vec3::ZERO, 0.0f32);
+    let (w, h) = (e.width as f32, e.height as f32);
+    for y in 0..e.height {
+        let theta = (y as f32 + 0.5) / h * std::f32::consts::PI;
+        let texel_sr = theta.sin() * (std::f32::consts::PI / h) * (std::f32::consts::TAU / w);
+        for x in 0..e.width {
+            let l = luminance(Vec3::from(e.pixels[(y * e.width + x) as usize]));
+            if l > threshold {
+                let phi = (x as f32 + 0.5) / w * std::f32::consts::TAU;
+                let d = Vec3::new(theta.sin() * phi.sin(), theta.cos(), -theta.sin() * phi.cos());
+                dir += d * l * texel_sr;
+                irr += l * texel_sr;
+            }
+        }
+    }
+    (irr > 0.0).then(|| Sun {
+        dir: (e.to_world * dir).normalize_or(Vec3::Y),
+        irradiance: irr * e.scale,
+        threshold: threshold * e.scale,
+    })
+}
+
 /// Checks the view of `camera` on `scene` with its CPU BVH `bvh`; `objects` is the range of
 /// object triangles, if known.
 pub fn check_view(
@@ -3006,6 +3045,7 @@ pub fn check_view(
     let (mut hits, mut obj, mut front, mut lit, mut near) = (0u32, 0u32, 0u32, 0u32, 0u32);
     let mut estimate = 0.0f64;
     let env = scene.environment.as_ref();
+    let sun = env.and_then(sun_of);
     let mut light_in_view = false;
     let mut rng = Rng::new(0x71e7);
     for j in 0..N {
@@ -3088,6 +3128,16 @@ pub fn check_view(
                     let tx = n.cross(a).normalize();
                     (tx, n.cross(tx))
                 };
+                // The sun (the brightest texels) as one directional light; the cosine samples
+                // below see the rest of the sky, clamped below the sun's level.
+                if let Some(sun) = &sun {
+                    let c = sun.dir.dot(n);
+                    if c > 0.0 && opaque_hit(p, sun.dir, f32::INFINITY).is_none() {
+                        irradiance += sun.irradiance * c;
+                        is_lit = true;
+                    }
+                }
+                let cap = sun.as_ref().map_or(f32::INFINITY, |s| s.threshold);
                 let mut sum = 0.0;
                 for _ in 0..24 {
                     let (r1, r2) = (rng.f(), rng.f());
@@ -3096,7 +3146,7 @@ pub fn check_view(
                     let dir = (tx * (rr * c) + ty * (rr * s) + n * (1.0 - r2).max(0.0).sqrt()).normalize();
                     if opaque_hit(p, dir, f32::INFINITY).is_none() {
                         is_lit = true;
-                        sum += luminance(e.radiance(dir));
+                        sum += luminance(e.radiance(dir)).min(cap);
                     }
                 }
                 irradiance += std::f32::consts::PI * sum / 24.0;
