@@ -5,6 +5,7 @@ mod dataset;
 mod denoise;
 mod eval;
 mod run;
+mod scene;
 
 use std::path::{Path, PathBuf};
 use std::process::ExitCode;
@@ -37,6 +38,8 @@ enum Command {
     Denoise(denoise::DenoiseArgs),
     /// Score predictions against references (PSNR, SSIM, RMSE, relMSE, temporal error).
     Eval(eval::EvalArgs),
+    /// Summarise a scene (procedural ones included) and write a path-traced preview PNG.
+    Scene(scene::SceneArgs),
     /// Time the whole frame per stage (default), or kernels, the denoiser, the renderer.
     Bench {
         #[command(subcommand)]
@@ -54,6 +57,7 @@ pub fn main() -> ExitCode {
         Some(Command::Dataset(a)) => dataset::run(&a),
         Some(Command::Denoise(a)) => denoise::run(&a),
         Some(Command::Eval(a)) => eval::run(&a),
+        Some(Command::Scene(a)) => scene::run(&a),
         Some(Command::Bench { what }) => bench::run(what),
         None => run::run(&run::RunArgs::default_args()),
     };

@@ -1,5 +1,13 @@
 //! Pinhole cameras and camera paths (static, orbit, keyframed fly-through with Catmull-Rom
-//! interpolation), deterministic from a seed.
+//! interpolation, optionally cut into shots), deterministic from a seed.
+//!
+//! **Cuts and motion vectors.** A fly-through with `cut_every: Some(n)` jumps to another
+//! viewpoint every `n` frames ([`CameraPath::is_cut`] says where). The renderer computes
+//! motion vectors from the previous frame's camera, so at a cut frame they reproject each
+//! pixel into the *previous shot's* camera: geometrically correct, but most history they
+//! point to shows something else or lies off screen. They do not pretend continuity, and a
+//! denoiser has to reject that history (SSR's TFA learns to, given cuts in its training
+//! data). A consumer that prefers to restart its history can test [`CameraPath::is_cut`].
 
 use bytemuck::{Pod, Zeroable};
 use glam::{Vec2, Vec3};
@@ -104,24 +112,73 @@ pub enum CameraPathSpec {
     FlyThrough {
         /// Explicit key cameras; `None`: generated.
         keys: Option<Vec<Camera>>,
-        /// Frames between consecutive keys.
+        /// Frames between consecutive keys: the speed (small: fast, large: slow).
         frames_per_key: f32,
+        /// Cut to another viewpoint every this many frames (`None`: one continuous shot).
+        /// Shot `s` covers frames `s*n .. (s+1)*n`. With explicit keys, shot `s` starts at
+        /// key `s` (modulo their number) and flies on towards the next ones; generated shots
+        /// start from viewpoints around what the scene camera looks at (shot 0: the scene
+        /// camera), each a generated fly-through of its own. Motion vectors at a cut frame
+        /// refer to the previous shot's camera (see the module documentation).
+        cut_every: Option<u32>,
     },
 }
 
+/// Frames between generated fly-through keys when not given.
+pub const DEFAULT_FRAMES_PER_KEY: f32 = 24.0;
+/// Frames per shot of `cuts` when not given.
+pub const DEFAULT_CUT_EVERY: u32 = 16;
+
 impl std::str::FromStr for CameraPathSpec {
     type Err = String;
+    /// `static`, `orbit[:DEG_PER_FRAME]`, `flythrough[:FRAMES_PER_KEY]` or
+    /// `cuts[:FRAMES_PER_SHOT[:FRAMES_PER_KEY]]` (a generated fly-through that cuts to another
+    /// viewpoint every `FRAMES_PER_SHOT` frames).
     fn from_str(s: &str) -> Result<Self, String> {
-        match s {
-            "static" => Ok(Self::Static),
-            "orbit" => Ok(Self::Orbit {
-                degrees_per_frame: None,
+        let mut parts = s.split(':');
+        let name = parts.next().unwrap_or_default();
+        let args: Vec<&str> = parts.collect();
+        let bad = || {
+            format!(
+                "unknown camera path '{s}' (static, orbit[:DEG_PER_FRAME], flythrough[:FRAMES_PER_KEY] \
+                 or cuts[:FRAMES_PER_SHOT[:FRAMES_PER_KEY]])"
+            )
+        };
+        let num = |i: usize| -> Result<Option<f32>, String> {
+            match args.get(i) {
+                None => Ok(None),
+                Some(a) => match a.parse::<f32>() {
+                    Ok(v) if v.is_finite() => Ok(Some(v)),
+                    _ => Err(format!("camera path '{s}': '{a}' is not a number")),
+                },
+            }
+        };
+        let positive = |v: Option<f32>, what: &str| -> Result<Option<f32>, String> {
+            match v {
+                Some(v) if v < 1.0 => Err(format!("camera path '{s}': {what} must be at least 1")),
+                v => Ok(v),
+            }
+        };
+        match name {
+            "static" if args.is_empty() => Ok(Self::Static),
+            "orbit" if args.len() <= 1 => Ok(Self::Orbit {
+                degrees_per_frame: num(0)?,
             }),
-            "flythrough" | "fly-through" | "fly" => Ok(Self::FlyThrough {
+            "flythrough" | "fly-through" | "fly" if args.len() <= 1 => Ok(Self::FlyThrough {
                 keys: None,
-                frames_per_key: 24.0,
+                frames_per_key: positive(num(0)?, "frames per key")?.unwrap_or(DEFAULT_FRAMES_PER_KEY),
+                cut_every: None,
             }),
-            _ => Err(format!("unknown camera path '{s}' (static, orbit or flythrough)")),
+            "cuts" if args.len() <= 2 => Ok(Self::FlyThrough {
+                keys: None,
+                frames_per_key: positive(num(1)?, "frames per key")?.unwrap_or(DEFAULT_FRAMES_PER_KEY),
+                cut_every: Some(
+                    positive(num(0)?, "frames per shot")?
+                        .map(|v| v.round() as u32)
+                        .unwrap_or(DEFAULT_CUT_EVERY),
+                ),
+            }),
+            _ => Err(bad()),
         }
     }
 }
@@ -176,6 +233,73 @@ fn clear_position(
     home
 }
 
+/// Another viewpoint on what `base` looks at, for a cut: the base camera swung about its
+/// focus point (the first surface along its view, else its target) by 40-140 degrees either
+/// way, at 0.7-1.2 times the distance and a little higher or lower. A candidate is kept when
+/// the straight move from the base camera to it is clear of geometry (so it never stands
+/// outside the room the base camera is in), it has room around it and an unobstructed view
+/// of the focus point; after 12 failed candidates the view turns about the base position
+/// instead, and at worst the base camera is kept.
+fn shot_viewpoint(base: &Camera, probe: &dyn RayProbe, rng: &mut SplitMix) -> Camera {
+    let (_, _, f) = base.basis();
+    let look = base.position.distance(base.target).max(1e-6);
+    let focus = probe
+        .first_hit(base.position, f, f32::INFINITY)
+        .unwrap_or(look)
+        .max(1e-6);
+    let aim = base.position + f * focus;
+    let margin = 0.05 * focus;
+    let roomy = |p: Vec3| {
+        [Vec3::X, Vec3::NEG_X, Vec3::Y, Vec3::NEG_Y, Vec3::Z, Vec3::NEG_Z]
+            .iter()
+            .all(|&d| probe.first_hit(p, d, margin).is_none())
+    };
+    for _ in 0..12 {
+        let angle = (40.0 + 100.0 * rng.next_f32()).to_radians() * rng.signed().signum();
+        let dist = 0.7 + 0.5 * rng.next_f32();
+        let lift = 0.2 * focus * rng.signed();
+        let rel = base.position - aim;
+        let (s, c) = angle.sin_cos();
+        let rotated = Vec3::new(c * rel.x + s * rel.z, rel.y, -s * rel.x + c * rel.z) * dist;
+        let p = aim + rotated + Vec3::Y * lift;
+        let to = aim - p;
+        let len = to.length();
+        if !p.is_finite() || len < 1e-6 {
+            continue;
+        }
+        // Reachable from the base camera in a straight line (so never outside the room
+        // the base camera stands in), with room around it and a clear view of the focus.
+        let step = p - base.position;
+        let reach = step.length();
+        let reachable = reach < 1e-6
+            || probe
+                .first_hit(base.position, step / reach, reach + margin)
+                .is_none();
+        let clear = probe.first_hit(p, to / len, 0.9 * len).is_none();
+        if clear && reachable && roomy(p) {
+            return Camera {
+                position: p,
+                target: aim,
+                ..*base
+            };
+        }
+    }
+    for _ in 0..6 {
+        let angle = (30.0 + 60.0 * rng.next_f32()).to_radians() * rng.signed().signum();
+        let (s, c) = angle.sin_cos();
+        let d = Vec3::new(c * f.x + s * f.z, f.y, -s * f.x + c * f.z);
+        if let Some(t) = probe.first_hit(base.position, d, f32::INFINITY)
+            && t > 0.25 * focus
+        {
+            return Camera {
+                target: base.position + d * t,
+                ..*base
+            };
+        }
+    }
+    *base
+}
+
 /// A concrete camera path: a camera per frame.
 #[derive(Debug, Clone, PartialEq)]
 pub enum CameraPath {
@@ -198,6 +322,15 @@ pub enum CameraPath {
         keys: Vec<Camera>,
         /// Frames between keys.
         frames_per_key: f32,
+    },
+    /// Shots of `frames_per_shot` frames each, with a cut (a jump) between them. Frame `f`
+    /// is frame `f % frames_per_shot` of shot `f / frames_per_shot` (the last shot holds
+    /// for frames past the end).
+    Cuts {
+        /// The shots (at least 1).
+        shots: Vec<CameraPath>,
+        /// Frames per shot (at least 1).
+        frames_per_shot: u32,
     },
 }
 
@@ -253,6 +386,22 @@ impl CameraPath {
         frames: u32,
         probe: &dyn RayProbe,
     ) -> Self {
+        if let CameraPathSpec::FlyThrough {
+            keys,
+            frames_per_key,
+            cut_every: Some(n),
+        } = spec
+        {
+            return Self::cuts(
+                keys.as_deref(),
+                *frames_per_key,
+                (*n).max(1),
+                base,
+                seed,
+                frames,
+                probe,
+            );
+        }
         match spec {
             CameraPathSpec::Static => CameraPath::Static(*base),
             CameraPathSpec::Orbit { degrees_per_frame } => {
@@ -280,6 +429,7 @@ impl CameraPath {
             CameraPathSpec::FlyThrough {
                 keys: Some(keys),
                 frames_per_key,
+                ..
             } if keys.len() >= 2 => CameraPath::Keyframes {
                 keys: keys.clone(),
                 frames_per_key: frames_per_key.max(1.0),
@@ -325,9 +475,94 @@ impl CameraPath {
         }
     }
 
+    /// The shots of a fly-through with cuts every `n` frames: `ceil(frames / n)` of them.
+    fn cuts(
+        keys: Option<&[Camera]>,
+        frames_per_key: f32,
+        n: u32,
+        base: &Camera,
+        seed: u64,
+        frames: u32,
+        probe: &dyn RayProbe,
+    ) -> Self {
+        let count = frames.max(1).div_ceil(n).clamp(1, 4096) as usize;
+        let fpk = frames_per_key.max(1.0);
+        let shots = match keys {
+            Some([]) => vec![CameraPath::Static(*base)],
+            Some([only]) => vec![CameraPath::Static(*only)],
+            Some(keys) => (0..count)
+                .map(|s| {
+                    let k = s % keys.len();
+                    let rotated: Vec<Camera> = keys[k..].iter().chain(&keys[..k]).copied().collect();
+                    CameraPath::Keyframes {
+                        keys: rotated,
+                        frames_per_key: fpk,
+                    }
+                })
+                .collect(),
+            None => {
+                let mut rng = SplitMix::new(seed ^ 0xc075_c075);
+                let single = CameraPathSpec::FlyThrough {
+                    keys: None,
+                    frames_per_key: fpk,
+                    cut_every: None,
+                };
+                (0..count)
+                    .map(|s| {
+                        let shot_base = if s == 0 {
+                            *base
+                        } else {
+                            shot_viewpoint(base, probe, &mut rng)
+                        };
+                        let shot_seed = seed.wrapping_mul(0x9e37_79b9_7f4a_7c15).wrapping_add(s as u64);
+                        CameraPath::from_spec(&single, &shot_base, shot_seed, n, probe)
+                    })
+                    .collect()
+            }
+        };
+        CameraPath::Cuts {
+            shots,
+            frames_per_shot: n,
+        }
+    }
+
+    /// Whether frame `frame` starts a new shot (a cut: the camera jumps, and the motion
+    /// vectors of this frame refer to the previous shot's camera).
+    pub fn is_cut(&self, frame: u32) -> bool {
+        match self {
+            CameraPath::Cuts {
+                shots,
+                frames_per_shot,
+            } => {
+                let n = (*frames_per_shot).max(1);
+                frame > 0 && frame.is_multiple_of(n) && (frame / n) < shots.len() as u32
+            }
+            _ => false,
+        }
+    }
+
     /// Camera of frame `frame`.
     pub fn camera(&self, frame: u32) -> Camera {
         match self {
+            CameraPath::Cuts {
+                shots,
+                frames_per_shot,
+            } => {
+                let n = (*frames_per_shot).max(1);
+                let s = (frame / n) as usize;
+                match shots.get(s) {
+                    Some(shot) => shot.camera(frame % n),
+                    None => match shots.last() {
+                        Some(last) => last.camera(frame - (shots.len() as u32 - 1) * n),
+                        None => Camera {
+                            position: Vec3::ZERO,
+                            target: Vec3::NEG_Z,
+                            up: Vec3::Y,
+                            yfov: 1.0,
+                        },
+                    },
+                }
+            }
             CameraPath::Static(c) => *c,
             CameraPath::Orbit {
                 base,
@@ -507,6 +742,118 @@ mod tests {
                 assert!(a.1 < b.0 || b.1 < a.0, "seeds {i} and {j} overlap: {a:?} {b:?}");
             }
         }
+    }
+
+    #[test]
+    fn path_specs_parse_with_speeds_and_cuts() {
+        let p = |s: &str| s.parse::<CameraPathSpec>();
+        assert_eq!(p("static"), Ok(CameraPathSpec::Static));
+        assert_eq!(
+            p("orbit:2.5"),
+            Ok(CameraPathSpec::Orbit {
+                degrees_per_frame: Some(2.5)
+            })
+        );
+        assert_eq!(
+            p("flythrough:8"),
+            Ok(CameraPathSpec::FlyThrough {
+                keys: None,
+                frames_per_key: 8.0,
+                cut_every: None
+            })
+        );
+        assert_eq!(
+            p("cuts"),
+            Ok(CameraPathSpec::FlyThrough {
+                keys: None,
+                frames_per_key: DEFAULT_FRAMES_PER_KEY,
+                cut_every: Some(DEFAULT_CUT_EVERY)
+            })
+        );
+        assert_eq!(
+            p("cuts:10:48"),
+            Ok(CameraPathSpec::FlyThrough {
+                keys: None,
+                frames_per_key: 48.0,
+                cut_every: Some(10)
+            })
+        );
+        for bad in [
+            "cuts:0",
+            "flythrough:0.5",
+            "orbit:x",
+            "static:1",
+            "spiral",
+            "cuts:1:2:3",
+        ] {
+            assert!(p(bad).is_err(), "{bad}");
+        }
+    }
+
+    #[test]
+    fn generated_cuts_jump_between_shots_and_move_within() {
+        let room = box_room();
+        let cam = Camera {
+            position: Vec3::new(0.5, 0.0, 0.6),
+            target: Vec3::new(-1.0, -0.2, -0.5),
+            up: Vec3::Y,
+            yfov: 0.8,
+        };
+        let spec: CameraPathSpec = "cuts:12:6".parse().unwrap();
+        let path = CameraPath::from_spec(&spec, &cam, 3, 60, &room);
+        let again = CameraPath::from_spec(&spec, &cam, 3, 60, &room);
+        assert_eq!(path, again, "deterministic");
+        let CameraPath::Cuts {
+            shots,
+            frames_per_shot,
+        } = &path
+        else {
+            panic!("{path:?}")
+        };
+        assert_eq!((shots.len(), *frames_per_shot), (5, 12));
+        assert!(path.camera(0).position.distance(cam.position) < 0.5);
+        let (mut jumps, mut within) = (0.0f32, 0.0f32);
+        for f in 1..60 {
+            let (a, b) = (path.camera(f), path.camera(f - 1));
+            let step = a.position.distance(b.position) + a.target.distance(b.target);
+            if path.is_cut(f) {
+                jumps = jumps.max(step);
+                assert_eq!(f % 12, 0);
+            } else {
+                within = within.max(step);
+                assert_ne!(f % 12, 0);
+            }
+            // Every shot stays inside the room.
+            let p = path.camera(f).position;
+            assert!(p.abs().max_element() < 1.0, "frame {f}: {p}");
+        }
+        assert!(
+            jumps > 5.0 * within,
+            "cuts jump ({jumps}) much farther than frames move ({within})"
+        );
+        // Explicit keys: shot s starts at key s.
+        let keys: Vec<Camera> = (0..3)
+            .map(|i| Camera {
+                position: Vec3::new(i as f32, 0.0, 5.0),
+                ..base()
+            })
+            .collect();
+        let spec = CameraPathSpec::FlyThrough {
+            keys: Some(keys.clone()),
+            frames_per_key: 30.0,
+            cut_every: Some(10),
+        };
+        let path = CameraPath::from_spec(&spec, &base(), 0, 40, &());
+        for s in 0..4u32 {
+            let k = &keys[s as usize % 3];
+            assert!(
+                path.camera(10 * s).position.distance(k.position) < 1e-5,
+                "shot {s}"
+            );
+            assert_eq!(path.is_cut(10 * s), s > 0);
+        }
+        // Frames past the last shot continue it rather than jumping.
+        assert!(!path.is_cut(40) && !path.is_cut(50));
     }
 
     #[test]

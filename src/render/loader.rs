@@ -34,7 +34,30 @@ fn file_err(path: &Path, message: impl Into<String>) -> Error {
     }
 }
 
-/// Loads `builtin:NAME`, a `scene.json`, a folder holding one, or a `.gltf`/`.glb` file.
+/// Options of [`load_scene_with`].
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct SceneOptions {
+    /// Props for `builtin:procedural:SEED`: `.gltf`/`.glb` files (their meshes become
+    /// objects), `.hdr`/`.exr` lat-long environment maps, or folders searched recursively for
+    /// both. Only these paths are used (never an implicit scan of a scenes folder), so
+    /// held-out scenes stay out by not naming them. Ignored, with a warning, by other scenes.
+    pub props: Vec<PathBuf>,
+}
+
+/// [`load_scene`] with options: `builtin:procedural:SEED` takes its props from `options`
+/// (see [`super::procedural`]); other scenes load as with [`load_scene`].
+pub fn load_scene_with(spec: &str, options: &SceneOptions) -> Result<Scene> {
+    if let Some(seed) = spec.strip_prefix("builtin:procedural:") {
+        return super::procedural::procedural(super::procedural::parse_seed(seed)?, options);
+    }
+    if !options.props.is_empty() {
+        log::warn!("props are used by builtin:procedural:SEED scenes only; ignored for {spec}");
+    }
+    load_scene(spec)
+}
+
+/// Loads `builtin:NAME` (including `builtin:procedural:SEED`, without props), a
+/// `scene.json`, a folder holding one, or a `.gltf`/`.glb` file.
 pub fn load_scene(spec: &str) -> Result<Scene> {
     if let Some(name) = spec.strip_prefix("builtin:") {
         return builtin(name);
@@ -102,7 +125,9 @@ struct CamSpec {
 
 /// Optional `camera_path` of `scene.json` (an extension of the README schema):
 /// `{"type": "orbit", "degrees_per_frame": 0.5}` or
-/// `{"type": "flythrough", "frames_per_key": 24, "keys": [{"position": [..], "target": [..]}, ..]}`.
+/// `{"type": "flythrough", "frames_per_key": 24, "keys": [{"position": [..], "target": [..]}, ..]}`,
+/// optionally with `"cut_every": 16` (a cut to another viewpoint every 16 frames, see
+/// [`CameraPathSpec::FlyThrough`]).
 #[derive(Debug, Deserialize)]
 #[serde(tag = "type", rename_all = "lowercase")]
 enum PathSpec {
@@ -116,6 +141,8 @@ enum PathSpec {
         frames_per_key: Option<f32>,
         #[serde(default)]
         keys: Option<Vec<KeySpec>>,
+        #[serde(default)]
+        cut_every: Option<u32>,
     },
 }
 
@@ -189,7 +216,11 @@ pub fn load_sidecar(path: &Path) -> Result<Scene> {
     scene.camera_path = side.camera_path.map(|p| match p {
         PathSpec::Static => CameraPathSpec::Static,
         PathSpec::Orbit { degrees_per_frame } => CameraPathSpec::Orbit { degrees_per_frame },
-        PathSpec::Flythrough { frames_per_key, keys } => CameraPathSpec::FlyThrough {
+        PathSpec::Flythrough {
+            frames_per_key,
+            keys,
+            cut_every,
+        } => CameraPathSpec::FlyThrough {
             keys: keys.map(|k| {
                 k.iter()
                     .map(|k| Camera {
@@ -199,9 +230,26 @@ pub fn load_sidecar(path: &Path) -> Result<Scene> {
                     })
                     .collect()
             }),
-            frames_per_key: frames_per_key.unwrap_or(24.0),
+            frames_per_key: frames_per_key.unwrap_or(super::camera::DEFAULT_FRAMES_PER_KEY),
+            cut_every,
         },
     });
+    if let Some(CameraPathSpec::FlyThrough {
+        frames_per_key,
+        cut_every,
+        ..
+    }) = &scene.camera_path
+    {
+        if !(frames_per_key.is_finite() && *frames_per_key >= 1.0) {
+            return Err(scene_err(
+                path,
+                format!("camera_path.frames_per_key {frames_per_key} must be at least 1"),
+            ));
+        }
+        if *cut_every == Some(0) {
+            return Err(scene_err(path, "camera_path.cut_every must be at least 1"));
+        }
+    }
     Ok(scene)
 }
 

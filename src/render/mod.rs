@@ -24,6 +24,7 @@ pub mod cpu;
 pub mod gpu_scene;
 pub mod loader;
 pub mod packed;
+pub mod procedural;
 pub mod scene;
 pub mod tracer;
 
@@ -31,7 +32,7 @@ pub use backend::{Backend, FrameRenderer, GpuFrameRenderer};
 pub use camera::{Camera, CameraPath, CameraPathSpec};
 pub use cpu::{CpuTracer, ReferenceHalves};
 pub use gpu_scene::GpuScene;
-pub use loader::load_scene;
+pub use loader::{SceneOptions, load_scene, load_scene_with};
 pub use packed::PackedScene;
 pub use scene::{Material, Scene};
 pub use tracer::{
