@@ -538,6 +538,8 @@ fn render_command_writes_exr_frames() {
             resume: false,
             backend,
             full_spp: true,
+            props: Vec::new(),
+            fallback_path: None,
             sequence_json: None,
             out: out.clone(),
         };

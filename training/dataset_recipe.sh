@@ -44,8 +44,10 @@ procedural="${PROCEDURAL:-1}"
 
 fixed=(builtin:cornell builtin:room "$scenes/cbox" "$scenes/cornell-box" "$scenes/dining-room" "$scenes/staircase2")
 held_out=("$scenes/living-room" "$scenes/flight-helmet" "$scenes/barn-lamp")
-# Props for procedural scenes: glTF files of training scenes only.
-props=(--props "$scenes/cornell-box" --props "$scenes/cbox" --props "$scenes/staircase2")
+# Props for procedural scenes: glTF files of training scenes and the environment map of a
+# training scene (dining-room's); nothing of a held-out scene.
+props=(--props "$scenes/cornell-box" --props "$scenes/cbox" --props "$scenes/staircase2"
+  --props "$scenes/dining-room/env.hdr")
 
 # render SCENE SPLIT K [EXTRA...]: sequence K of SCENE's SPLIT, when it is this shard's (a
 # stable hash of scene, split and K picks the shard).

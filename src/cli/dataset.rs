@@ -51,6 +51,10 @@ pub(super) struct DatasetArgs {
     /// CPU driver or there is none), cpu or gpu.
     #[arg(long, value_enum, default_value_t = Backend::Auto)]
     backend: Backend,
+    /// Props for procedural scenes (glTF files, environment maps or folders of them;
+    /// repeatable). Name only scenes allowed in training: held-out scenes must not be props.
+    #[arg(long)]
+    props: Vec<PathBuf>,
     /// Output root.
     #[arg(long)]
     out: PathBuf,
@@ -154,7 +158,10 @@ pub(super) fn run(a: &DatasetArgs) -> Result<()> {
             height: Some(a.height),
             max_depth: a.max_depth,
             seed,
-            path: Some("flythrough".parse().expect("known path")),
+            // The scene's own camera path when it has one (procedural scenes: static, orbits,
+            // slow and fast fly-throughs, cuts), else a fly-through generated from the seed.
+            path: None,
+            fallback_path: Some("flythrough".parse().expect("known path")),
             reference_spp: Some(a.reference_spp),
             png: false,
             resume: true,
@@ -162,6 +169,7 @@ pub(super) fn run(a: &DatasetArgs) -> Result<()> {
             // A 1-spp frame of the same camera: the four-times-the-samples input of
             // baselines (OIDN on 1 spp); cheap next to the reference.
             full_spp: true,
+            props: a.props.clone(),
             // The keys of the training loader (training/ssr/data.py).
             sequence_json: Some(
                 serde_json::json!({

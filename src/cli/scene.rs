@@ -5,13 +5,11 @@ use std::path::PathBuf;
 
 use anyhow::{Context, Result, bail};
 
-use crate::gpu::Gpu;
-use crate::nn::Tensor;
 use crate::render::bvh::SceneBvh;
 use crate::render::camera::{CameraPath, CameraPathSpec};
 use crate::render::procedural::{self, Generated, PropLibrary, material_kinds, mean_radiance};
 use crate::render::scene::{Scene, luminance};
-use crate::render::{DEFAULT_MAX_DEPTH, FrameSettings, GpuScene, SceneOptions, Tracer, load_scene_with};
+use crate::render::{Backend, DEFAULT_MAX_DEPTH, FrameRenderer, FrameSettings, SceneOptions, load_scene_with};
 
 #[derive(Debug, clap::Args)]
 pub(super) struct SceneArgs {
@@ -26,6 +24,10 @@ pub(super) struct SceneArgs {
     /// Write a path-traced preview PNG here.
     #[arg(long)]
     preview: Option<PathBuf>,
+    /// Renderer of the preview: auto (GPU on a real GPU, the CPU twin on a CPU adapter or
+    /// without one), cpu or gpu.
+    #[arg(long, value_enum, default_value_t = Backend::Auto)]
+    backend: Backend,
     /// Preview width.
     #[arg(long, default_value_t = 128)]
     width: u32,
@@ -228,21 +230,20 @@ pub(super) fn run(a: &SceneArgs) -> Result<()> {
         let bvh = SceneBvh::build(&scene.name, &scene.geometry.positions, &scene.geometry.triangles)?;
         CameraPath::from_spec(&spec, &scene.camera, 0, a.frame + 1, &bvh).camera(a.frame)
     };
-    let gpu = Gpu::new()?;
-    let gs = GpuScene::new(&gpu, &scene)?;
-    let mut tracer = Tracer::new(&gpu, a.width, a.height)?;
+    let gpu = crate::render::cli::open_gpu(a.backend)?;
+    let mut renderer = FrameRenderer::new(&scene, a.backend, gpu.as_ref(), a.width, a.height)?;
     let far = scene.far_distance([&camera.position]);
     let settings = FrameSettings {
         max_depth: a.max_depth,
         ..FrameSettings::new(camera, crate::render::Mode::Reference, far)
     };
-    let image = Tensor::new(&gpu, "preview", a.width, a.height, 4)?;
     let t = std::time::Instant::now();
-    let rays = tracer.render_reference(&gs, &settings, a.spp, &image)?;
-    let host = image.read(&gpu)?;
+    let reference = renderer.reference(&settings, a.spp)?;
+    let rays = reference.rays;
+    let host = reference.mean(a.spp);
     let mean: f64 = (0..a.width * a.height)
         .map(|i| {
-            let px = &host.data[4 * i as usize..4 * i as usize + 3];
+            let px = &host.data[3 * i as usize..3 * i as usize + 3];
             luminance(glam::Vec3::new(px[0], px[1], px[2])) as f64
         })
         .sum::<f64>()
@@ -256,7 +257,10 @@ pub(super) fn run(a: &SceneArgs) -> Result<()> {
         a.width,
         a.height,
         a.spp,
-        gpu.describe(),
+        match (&gpu, renderer.backend()) {
+            (Some(g), Backend::Gpu) => g.describe(),
+            _ => format!("the CPU twin ({} threads)", rayon::current_num_threads()),
+        },
         t.elapsed().as_secs_f64(),
         rays,
         mean,

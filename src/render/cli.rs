@@ -68,10 +68,18 @@ pub struct RenderArgs {
     /// times the samples of a quarter frame, for baselines such as OIDN).
     #[arg(long)]
     pub full_spp: bool,
+    /// Camera path when neither `--path` nor the scene gives one (set by `subpixel
+    /// dataset`: a fly-through whatever the shard's frame count).
+    #[arg(skip)]
+    pub fallback_path: Option<CameraPathSpec>,
     /// Extra keys for `sequence.json` (set by `subpixel dataset`). When given, every shard
     /// writes the same complete `sequence.json` before rendering its frames.
     #[arg(skip)]
     pub sequence_json: Option<serde_json::Map<String, serde_json::Value>>,
+    /// Props for procedural scenes: glTF/glb files, `.hdr`/`.exr` environment maps, or
+    /// folders searched for them (repeatable; nothing is scanned unless named here).
+    #[arg(long)]
+    pub props: Vec<PathBuf>,
     /// Output folder.
     #[arg(long)]
     pub out: PathBuf,
@@ -110,9 +118,15 @@ pub struct BenchRenderArgs {
     pub json: bool,
 }
 
-fn path_for(scene: &Scene, arg: &Option<CameraPathSpec>, frames: u32) -> CameraPathSpec {
+fn path_for(
+    scene: &Scene,
+    arg: &Option<CameraPathSpec>,
+    fallback: &Option<CameraPathSpec>,
+    frames: u32,
+) -> CameraPathSpec {
     arg.clone()
         .or_else(|| scene.camera_path.clone())
+        .or_else(|| fallback.clone())
         .unwrap_or_else(|| {
             if frames <= 1 {
                 CameraPathSpec::Static
@@ -159,7 +173,12 @@ pub fn render_command(args: &RenderArgs) -> Result<()> {
             u32::MAX
         );
     };
-    let scene = load_scene(&args.scene)?;
+    let scene = super::load_scene_with(
+        &args.scene,
+        &super::SceneOptions {
+            props: args.props.clone(),
+        },
+    )?;
     scene.warn_approximations();
     let (w, h) = (
         args.width.unwrap_or(scene.film.0),
@@ -192,7 +211,7 @@ pub fn render_command(args: &RenderArgs) -> Result<()> {
             .map(|e| e.source.display().to_string())
             .unwrap_or_else(|| "none".into())
     );
-    let spec = path_for(&scene, &args.path, end_frame);
+    let spec = path_for(&scene, &args.path, &args.fallback_path, end_frame);
     let path = CameraPath::from_spec(&spec, &scene.camera, args.seed, end_frame, &packed.bvh);
     let horizon: Vec<_> = (0..FAR_HORIZON.max(end_frame))
         .map(|f| path.camera(f).position)
@@ -404,6 +423,7 @@ fn write_sequence_json(
         "far": far,
         "backend": args.backend.name(),
         "full_spp": args.full_spp,
+        "props": args.props.iter().map(|p| p.display().to_string()).collect::<Vec<_>>(),
     });
     if let (Some(extra), Some(o)) = (&args.sequence_json, json.as_object_mut()) {
         o.remove("first_frame");
