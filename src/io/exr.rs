@@ -83,12 +83,57 @@ pub fn write_tensors(path: &Path, tensors: &[(&str, &HostTensor)]) -> Result<()>
         .map_err(|e| err(format!("cannot write EXR: {e}")))
 }
 
+/// Most bytes the decoded channels of one EXR may take (f32 samples).
+pub const MAX_DECODED_BYTES: u64 = 4 << 30;
+
+/// Checks an EXR's headers before anything is decoded: a regular file whose every part
+/// has a plausible size (the decoded f32 channels within [`MAX_DECODED_BYTES`]) and an
+/// offset table that fits in the file. A corrupt or hostile header (a 50 KB file claiming
+/// 100000 x 100000 pixels) is an error naming the file instead of a huge allocation.
+pub fn check_header(path: &Path) -> Result<()> {
+    let err = |m: String| Error::File {
+        path: path.to_path_buf(),
+        message: m,
+    };
+    let meta = std::fs::metadata(path).map_err(|e| err(format!("cannot read EXR: {e}")))?;
+    if !meta.is_file() {
+        return Err(err("cannot read EXR: not a regular file".into()));
+    }
+    let len = meta.len();
+    let headers = exr::meta::MetaData::read_from_file(path, false)
+        .map_err(|e| err(format!("cannot read EXR: {e}")))?
+        .headers;
+    for h in headers.iter() {
+        let (w, hh) = (h.layer_size.0 as u64, h.layer_size.1 as u64);
+        let channels = h.channels.list.len() as u64;
+        let bytes = w.saturating_mul(hh).saturating_mul(channels).saturating_mul(4);
+        if bytes > MAX_DECODED_BYTES {
+            return Err(err(format!(
+                "cannot read EXR: its header claims {w}x{hh} pixels of {channels} channels \
+                 ({:.1} GiB decoded), more than the {} GiB limit",
+                bytes as f64 / (1u64 << 30) as f64,
+                MAX_DECODED_BYTES >> 30
+            )));
+        }
+        let table = (h.chunk_count as u64).saturating_mul(8);
+        if table > len {
+            return Err(err(format!(
+                "cannot read EXR: its header claims {} chunks, whose offset table alone needs \
+                 {table} bytes, but the file has {len} bytes (truncated or corrupt)",
+                h.chunk_count
+            )));
+        }
+    }
+    Ok(())
+}
+
 /// Reads every channel of an EXR: `(width, height, name -> samples)`.
 pub fn read_channels(path: &Path) -> Result<(u32, u32, HashMap<String, Vec<f32>>)> {
     let err = |m: String| Error::File {
         path: path.to_path_buf(),
         message: m,
     };
+    check_header(path)?;
     let image = read()
         .no_deep_data()
         .largest_resolution_level()
@@ -269,6 +314,47 @@ mod tests {
         };
         write_frame(&path, &p).unwrap();
         assert_eq!(read_frame(&path).unwrap(), p);
+        std::fs::remove_dir_all(&dir).ok();
+    }
+
+    /// A small file whose header claims 100000 x 100000 pixels is refused before decoding.
+    #[test]
+    fn header_bombs_are_refused() {
+        let dir = std::env::temp_dir().join(format!("subpixel-exr-bomb-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let path = dir.join("frame_0000.exr");
+        write_frame(
+            &path,
+            &FrameFile {
+                frame: Some(frame(16, 16)),
+                ..Default::default()
+            },
+        )
+        .unwrap();
+        let mut bytes = std::fs::read(&path).unwrap();
+        // dataWindow (box2i: xmin, ymin, xmax, ymax) -> 0, 0, 99999, 99999.
+        let key = b"dataWindow\0box2i\0";
+        let at = bytes.windows(key.len()).position(|w| w == key).unwrap() + key.len() + 4;
+        for (k, v) in [0i32, 0, 99_999, 99_999].iter().enumerate() {
+            bytes[at + 4 * k..at + 4 * k + 4].copy_from_slice(&v.to_le_bytes());
+        }
+        std::fs::write(&path, &bytes).unwrap();
+        assert!(bytes.len() < 100_000);
+        let e = read_frame(&path).unwrap_err().to_string();
+        assert!(e.contains("frame_0000.exr") && e.contains("100000x100000"), "{e}");
+        // A FIFO (or any non-regular file) is refused without blocking.
+        #[cfg(unix)]
+        {
+            let fifo = dir.join("fifo.exr");
+            let ok = std::process::Command::new("mkfifo")
+                .arg(&fifo)
+                .status()
+                .map(|s| s.success());
+            if ok.unwrap_or(false) {
+                let e = read_frame(&fifo).unwrap_err().to_string();
+                assert!(e.contains("not a regular file"), "{e}");
+            }
+        }
         std::fs::remove_dir_all(&dir).ok();
     }
 
