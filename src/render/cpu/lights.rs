@@ -32,6 +32,20 @@ pub(crate) struct EnvInfo {
     pub floor: f32,
     /// Conditional CDF of texel (i, j) at `j * w + i`.
     cond: Vec<f32>,
+    /// Per row j, at `j * (GUIDE + 1) + k`: the first texel whose conditional CDF exceeds
+    /// `k / GUIDE` (`w - 1` when none does). The texel sampled for `u` lies between the
+    /// entries of `floor(u * GUIDE)` and the next, so the binary search runs over a few
+    /// cached entries instead of the whole row, and finds the same texel.
+    guide: Vec<u32>,
+}
+
+/// Buckets of the per-row guide tables.
+const GUIDE: usize = 32;
+
+/// Threshold of guide bucket `k` (f32, as the searches compare).
+#[inline]
+fn guide_threshold(k: usize) -> f32 {
+    k as f32 / GUIDE as f32
 }
 
 impl EnvInfo {
@@ -40,7 +54,7 @@ impl EnvInfo {
         let (w, h) = (e[0].to_bits(), e[1].to_bits());
         let present = e[3].to_bits() != 0;
         let base = ENV_HDR + h as usize;
-        let cond = if present {
+        let cond: Vec<f32> = if present {
             sc.env[base..base + (w * h) as usize]
                 .iter()
                 .map(|t| t[3])
@@ -48,6 +62,20 @@ impl EnvInfo {
         } else {
             Vec::new()
         };
+        let mut guide = Vec::new();
+        if present {
+            guide.reserve(h as usize * (GUIDE + 1));
+            for row in cond.chunks_exact(w as usize) {
+                let mut i = 0usize;
+                for k in 0..=GUIDE {
+                    let t = guide_threshold(k);
+                    while i + 1 < row.len() && row[i] <= t {
+                        i += 1;
+                    }
+                    guide.push(i as u32);
+                }
+            }
+        }
         Self {
             w,
             h,
@@ -55,6 +83,7 @@ impl EnvInfo {
             present,
             floor: sc.env[1][0],
             cond,
+            guide,
         }
     }
 }
@@ -150,7 +179,17 @@ fn env_sample(sc: &PackedScene, ei: &EnvInfo, u: [f32; 2]) -> Option<LightSample
     let base = ENV_HDR + (h + j * w) as usize;
     let row = &ei.cond[(j * w) as usize..((j + 1) * w) as usize];
     let cond = |i: u32| row[i as usize];
-    let i = search(w, u[0], cond);
+    // The guide bucket k with threshold(k) <= u < threshold(k + 1).
+    let mut k = ((u[0] * GUIDE as f32) as usize).min(GUIDE - 1);
+    while k > 0 && guide_threshold(k) > u[0] {
+        k -= 1;
+    }
+    while k + 1 < GUIDE && guide_threshold(k + 1) <= u[0] {
+        k += 1;
+    }
+    let g = &ei.guide[j as usize * (GUIDE + 1)..];
+    let (lo, hi) = (g[k], g[k + 1]);
+    let i = lo + search(hi - lo + 1, u[0], |m| cond(lo + m));
     let r0 = if i > 0 { cond(i - 1) } else { 0.0 };
     let r1 = cond(i);
     let fu = ((u[0] - r0) / (r1 - r0).max(1.0e-12)).clamp(0.0, 0.99999);
