@@ -66,14 +66,7 @@ impl EnvInfo {
         if present {
             guide.reserve(h as usize * (GUIDE + 1));
             for row in cond.chunks_exact(w as usize) {
-                let mut i = 0usize;
-                for k in 0..=GUIDE {
-                    let t = guide_threshold(k);
-                    while i + 1 < row.len() && row[i] <= t {
-                        i += 1;
-                    }
-                    guide.push(i as u32);
-                }
+                guide.extend(guide_row(row));
             }
         }
         Self {
@@ -157,6 +150,32 @@ fn search(n: u32, u: f32, cdf: impl Fn(u32) -> f32) -> u32 {
     lo
 }
 
+/// Guide table of one CDF row (see [`EnvInfo`]).
+fn guide_row(row: &[f32]) -> impl Iterator<Item = u32> + '_ {
+    let mut i = 0usize;
+    (0..=GUIDE).map(move |k| {
+        let t = guide_threshold(k);
+        while i + 1 < row.len() && row[i] <= t {
+            i += 1;
+        }
+        i as u32
+    })
+}
+
+/// [`search`] over `row` (an inclusive CDF), restricted by its guide table `guide`.
+fn guided_search(row: &[f32], guide: &[u32], u: f32) -> u32 {
+    // The bucket k with threshold(k) <= u < threshold(k + 1).
+    let mut k = ((u * GUIDE as f32) as usize).min(GUIDE - 1);
+    while k > 0 && guide_threshold(k) > u {
+        k -= 1;
+    }
+    while k + 1 < GUIDE && guide_threshold(k + 1) <= u {
+        k += 1;
+    }
+    let (lo, hi) = (guide[k], guide[k + 1]);
+    lo + search(hi - lo + 1, u, |m| row[(lo + m) as usize])
+}
+
 /// One light sample (WGSL `LightSample`).
 #[derive(Debug, Clone, Copy)]
 pub(crate) struct LightSample {
@@ -179,17 +198,11 @@ fn env_sample(sc: &PackedScene, ei: &EnvInfo, u: [f32; 2]) -> Option<LightSample
     let base = ENV_HDR + (h + j * w) as usize;
     let row = &ei.cond[(j * w) as usize..((j + 1) * w) as usize];
     let cond = |i: u32| row[i as usize];
-    // The guide bucket k with threshold(k) <= u < threshold(k + 1).
-    let mut k = ((u[0] * GUIDE as f32) as usize).min(GUIDE - 1);
-    while k > 0 && guide_threshold(k) > u[0] {
-        k -= 1;
-    }
-    while k + 1 < GUIDE && guide_threshold(k + 1) <= u[0] {
-        k += 1;
-    }
-    let g = &ei.guide[j as usize * (GUIDE + 1)..];
-    let (lo, hi) = (g[k], g[k + 1]);
-    let i = lo + search(hi - lo + 1, u[0], |m| cond(lo + m));
+    let i = guided_search(
+        row,
+        &ei.guide[j as usize * (GUIDE + 1)..(j as usize + 1) * (GUIDE + 1)],
+        u[0],
+    );
     let r0 = if i > 0 { cond(i - 1) } else { 0.0 };
     let r1 = cond(i);
     let fu = ((u[0] - r0) / (r1 - r0).max(1.0e-12)).clamp(0.0, 0.99999);
@@ -276,4 +289,60 @@ pub(crate) fn sample_light(sc: &PackedScene, ei: &EnvInfo, p: Vec3, u: Vec3) -> 
 /// The scene has something NEE can sample.
 pub(crate) fn has_lights(sc: &PackedScene) -> bool {
     light_count(sc) > 0 || env_select_prob(sc) > 0.0
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::render::cpu::common::Rng;
+
+    /// The guided search finds the texel of the plain binary search (WGSL's), for rows with
+    /// flat stretches, steps, zero-weight texels and narrow spikes.
+    #[test]
+    fn guided_search_matches_binary_search() {
+        let mut rng = Rng(3);
+        for w in [1usize, 2, 7, 64, 2048] {
+            for kind in 0..4 {
+                let weights: Vec<f64> = (0..w)
+                    .map(|i| match kind {
+                        0 => 1.0,
+                        1 => {
+                            if rng.next() < 0.5 {
+                                0.0
+                            } else {
+                                rng.next() as f64
+                            }
+                        }
+                        2 => {
+                            if i == w / 3 {
+                                1000.0
+                            } else {
+                                0.001
+                            }
+                        }
+                        _ => (rng.next() as f64).powi(8),
+                    })
+                    .collect();
+                let total: f64 = weights.iter().sum::<f64>().max(1e-30);
+                let mut acc = 0.0;
+                let mut row: Vec<f32> = weights
+                    .iter()
+                    .map(|x| {
+                        acc += x;
+                        (acc / total) as f32
+                    })
+                    .collect();
+                *row.last_mut().unwrap() = 1.0;
+                let guide: Vec<u32> = guide_row(&row).collect();
+                let mut us: Vec<f32> = (0..2000).map(|_| rng.next()).collect();
+                us.extend((0..=GUIDE).map(guide_threshold));
+                us.extend(row.iter().copied());
+                for u in us {
+                    let u = u.min(0.999_999_94);
+                    let want = search(w as u32, u, |i| row[i as usize]);
+                    assert_eq!(guided_search(&row, &guide, u), want, "w {w} kind {kind} u {u}");
+                }
+            }
+        }
+    }
 }
