@@ -246,8 +246,10 @@ impl App {
             frame.reference_spp += 1;
         }
         if self.view == ViewKind::Accumulated {
-            let a_acc = frame.denoiser.network().tensor("a_acc").expect("a_acc exists");
-            ops::remodulate(&self.gpu, a_acc, a_acc, 3, &frame.accumulated)?.encode(&mut enc);
+            let net = frame.denoiser.network();
+            let a_acc = net.tensor("a_acc").expect("a_acc exists");
+            let exposure = net.tensor("exposure").expect("exposure exists");
+            ops::remodulate(&self.gpu, a_acc, a_acc, 3, exposure, &frame.accumulated)?.encode(&mut enc);
         }
         let net = frame.denoiser.network();
         let ssr = net.output();

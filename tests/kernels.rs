@@ -349,11 +349,13 @@ fn demodulate_and_remodulate_match_reference_and_invert() {
             let (tc, ta) = (up(&g, "color", &color), up(&g, "albedo", &albedo));
             let e = Tensor::new(&g, "e", w, h, 3).unwrap();
             let back = Tensor::new(&g, "back", w, h, 3).unwrap();
+            let sc = [0.5f32, 2.0, 3.0]; // the exposure the SSR output is scaled by
+            let scale = up(&g, "scale", &HostTensor::from_vec(1, 1, 3, sc.to_vec()));
             ops::run(
                 &g,
                 &[
                     &ops::demodulate(&g, &tc, &ta, off, &e).unwrap(),
-                    &ops::remodulate(&g, &e, &ta, off, &back).unwrap(),
+                    &ops::remodulate(&g, &e, &ta, off, &scale, &back).unwrap(),
                 ],
             )
             .unwrap();
@@ -365,13 +367,13 @@ fn demodulate_and_remodulate_match_reference_and_invert() {
             assert_close(
                 &format!("remodulate {w}x{h}x{c}"),
                 &gb,
-                &reference::remodulate(&re, &albedo, off),
+                &reference::remodulate(&re, &albedo, off, sc),
                 ELEMENTWISE,
             );
-            // remodulate(demodulate(x)) == x for finite non-negative colour
+            // remodulate(demodulate(x)) == x * scale for finite non-negative colour
             let clean = HostTensor::from_fn(w, h, 3, |x, y, ch| {
                 let v = color.at(x, y, ch);
-                if v.is_finite() && v >= 0.0 { v } else { 0.0 }
+                (if v.is_finite() && v >= 0.0 { v } else { 0.0 }) * sc[ch as usize]
             });
             assert_close(
                 "demod/remod round trip",

@@ -177,3 +177,159 @@ fn reset_and_resize_restart_the_history() {
     let e = den.denoise_host(&random_frame(8, 8, 1)).unwrap_err().to_string();
     assert!(e.contains("8x8") && e.contains("16x12"), "{e}");
 }
+
+fn golden_v1_weights_path() -> PathBuf {
+    PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("tests/data/golden_v1_weights.safetensors")
+}
+
+/// `frame` with colour and shadow channel c multiplied by `k[c]` (a brighter or dimmer,
+/// differently coloured light).
+fn exposed(frame: &HostFrame, k: [f32; 3]) -> HostFrame {
+    let scale =
+        |t: &HostTensor| HostTensor::from_fn(t.width, t.height, 3, |x, y, c| t.at(x, y, c) * k[c as usize]);
+    HostFrame {
+        color: scale(&frame.color),
+        shadow: scale(&frame.shadow),
+        ..frame.clone()
+    }
+}
+
+/// Issue 11: the shipped (version-1) model's output brightness barely followed the light's
+/// (16x the light gave 3.6x the output), so scenes brighter or dimmer than the training
+/// scenes came out wrong. With exposure normalisation (version 2) the engine is exactly
+/// equivariant: scaling channel c of every radiance input by k_c scales output channel c by
+/// k_c, for any weights and across frames (history re-exposed).
+#[test]
+fn exposure_scaled_inputs_scale_the_output() {
+    let gpu = common::gpu();
+    let weights = Weights::load(golden_weights_path()).unwrap();
+    assert_eq!(weights.config.version, 2);
+    for k in [[7.0, 0.25, 40.0], [1e-3; 3], [300.0; 3]] {
+        let mut base = Denoiser::with_gpu(&gpu, &weights, 16, 12).unwrap();
+        let mut scaled = Denoiser::with_gpu(&gpu, &weights, 16, 12).unwrap();
+        for t in 0..3 {
+            let f = random_frame(16, 12, 10 + t);
+            let want = base.denoise_host(&f).unwrap();
+            let want = HostTensor::from_fn(16, 12, 3, |x, y, c| want.at(x, y, c) * k[c as usize]);
+            let got = scaled.denoise_host(&exposed(&f, k)).unwrap();
+            let peak = want.data.iter().fold(0f32, |m, v| m.max(v.abs()));
+            common::assert_close(
+                &format!("k {k:?} frame {t}"),
+                &got,
+                &want,
+                common::Tol {
+                    abs: 1e-5 * peak,
+                    rel: 1e-3,
+                },
+            );
+        }
+    }
+    // The shadow buffer holds the light's own radiance (an environment's sun: ~7e4, an area
+    // light: ~20); it is normalised on its own, so its magnitude alone changes nothing.
+    let mut base = Denoiser::with_gpu(&gpu, &weights, 16, 12).unwrap();
+    let mut sun = Denoiser::with_gpu(&gpu, &weights, 16, 12).unwrap();
+    for t in 0..2 {
+        let f = random_frame(16, 12, 30 + t);
+        let want = base.denoise_host(&f).unwrap();
+        let s = &f.shadow;
+        let bright = HostFrame {
+            shadow: HostTensor::from_fn(16, 12, 3, |x, y, c| s.at(x, y, c) * 5000.0),
+            ..f.clone()
+        };
+        let got = sun.denoise_host(&bright).unwrap();
+        let peak = want.data.iter().fold(0f32, |m, v| m.max(v.abs()));
+        let tol = common::Tol {
+            abs: 1e-5 * peak,
+            rel: 1e-3,
+        };
+        common::assert_close(&format!("shadow x 5000, frame {t}"), &got, &want, tol);
+    }
+    // The version-1 pipeline fails this: its output hardly follows the light.
+    let v1 = Weights::load(golden_v1_weights_path()).unwrap();
+    let f = random_frame(16, 12, 10);
+    let base = Denoiser::with_gpu(&gpu, &v1, 16, 12)
+        .unwrap()
+        .denoise_host(&f)
+        .unwrap();
+    let k = [7.0, 0.25, 40.0];
+    let scaled = Denoiser::with_gpu(&gpu, &v1, 16, 12)
+        .unwrap()
+        .denoise_host(&exposed(&f, k))
+        .unwrap();
+    let mean = |t: &HostTensor, c: u32| {
+        (0..12)
+            .flat_map(|y| (0..16).map(move |x| (x, y)))
+            .map(|(x, y)| t.at(x, y, c) as f64)
+            .sum::<f64>()
+    };
+    for c in 0..3 {
+        let ratio = mean(&scaled, c) / mean(&base, c) / k[c as usize] as f64;
+        assert!(
+            !(0.9..1.1).contains(&ratio),
+            "version 1, channel {c}: ratio {ratio}"
+        );
+    }
+}
+
+/// A camera cut without `reset()`: the new frame shows other geometry (depth halved) behind
+/// the same colours, with zero motion, so every history sample stays on screen. Version-2
+/// weights reject all of it (alpha 0, W(o) 0): the output is that of a fresh start. The
+/// version-1 pipeline blended it in (issue 11: alpha 0.55-0.86 after cuts).
+#[test]
+fn history_of_other_geometry_is_rejected_after_a_cut() {
+    let gpu = common::gpu();
+    let a = random_frame(16, 12, 20);
+    let mut b = a.clone();
+    b.depth = HostTensor::from_fn(16, 12, 1, |x, y, _| 0.5 * a.depth.at(x, y, 0));
+    b.motion = HostTensor::from_fn(16, 12, 2, |_, _, _| 0.0);
+    for (path, rejected) in [(golden_weights_path(), true), (golden_v1_weights_path(), false)] {
+        let weights = Weights::load(&path).unwrap();
+        let mut den = Denoiser::with_gpu(&gpu, &weights, 16, 12).unwrap();
+        den.denoise_host(&a).unwrap();
+        den.denoise_host(&a).unwrap();
+        let after_cut = den.denoise_host(&b).unwrap();
+        let alpha = den.network().tensor("tfa_weights").unwrap().read(&gpu).unwrap();
+        let max_alpha = (0..12)
+            .flat_map(|y| (0..16).map(move |x| (x, y)))
+            .map(|(x, y)| alpha.at(x, y, 1))
+            .fold(0f32, f32::max);
+        let mut fresh = Denoiser::with_gpu(&gpu, &weights, 16, 12).unwrap();
+        let reset = fresh.denoise_host(&b).unwrap();
+        if rejected {
+            assert_eq!(
+                max_alpha,
+                0.0,
+                "{}: history of other geometry kept",
+                path.display()
+            );
+            common::assert_close(
+                "after a cut == fresh start",
+                &after_cut,
+                &reset,
+                common::Tol { abs: 1e-5, rel: 1e-4 },
+            );
+        } else {
+            assert!(
+                max_alpha > 0.3,
+                "version 1 blends the old history in ({max_alpha})"
+            );
+            assert_ne!(after_cut, reset);
+        }
+    }
+}
+
+#[test]
+fn weights_version_must_match_the_config() {
+    let v1_meta_on_v2_config = edited(|_, m| {
+        m.insert("version".into(), "1".into());
+    });
+    let e = load_err(&v1_meta_on_v2_config);
+    assert!(e.contains("test.safetensors"), "{e}");
+    assert!(
+        e.contains("version 1 has no 'exposure' option") || e.contains("config is version 2"),
+        "{e}"
+    );
+    let v1 = Weights::load(golden_v1_weights_path()).unwrap();
+    assert_eq!(v1.metadata["version"], "1");
+    assert_eq!(v1.config, v1.config.legacy());
+}

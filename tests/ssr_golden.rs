@@ -1,6 +1,9 @@
 //! Rust/WGSL vs PyTorch parity on the golden cases written by `training/ssr/golden.py`:
 //! three consecutive 40x24 frames (so the history path runs), every intermediate compared
-//! in execution order so a failure names the layer that diverged.
+//! in execution order so a failure names the layer that diverged. Two sets: `golden_*`
+//! (version-2 config: exposure normalisation, remodulation with the current albedo,
+//! geometric history test; the light brightens 3x per frame and a block is disoccluded) and
+//! `golden_v1_*` (a version-1 config: the pipeline of version-1 weights files).
 
 mod common;
 
@@ -16,8 +19,8 @@ fn data(name: &str) -> PathBuf {
 }
 
 /// Every tensor of a golden frame file, HWC.
-fn load_frame(i: usize) -> std::collections::HashMap<String, HostTensor> {
-    let bytes = std::fs::read(data(&format!("golden_frame{i}.safetensors"))).unwrap();
+fn load_frame(prefix: &str, i: usize) -> std::collections::HashMap<String, HostTensor> {
+    let bytes = std::fs::read(data(&format!("{prefix}frame{i}.safetensors"))).unwrap();
     let st = safetensors::SafeTensors::deserialize(&bytes).unwrap();
     st.tensors()
         .into_iter()
@@ -38,6 +41,7 @@ fn load_frame(i: usize) -> std::collections::HashMap<String, HostTensor> {
 
 /// (name in the golden file, name in the engine), in execution order.
 const COMPARED: &[(&str, &str)] = &[
+    ("exposure", "exposure"),
     ("a_cur", "a_t"),
     ("warp_acc", "warp_acc"),
     ("warp_valid", "warp_valid"),
@@ -71,15 +75,25 @@ fn range(t: &HostTensor) -> f32 {
 
 #[test]
 fn denoiser_matches_pytorch_on_golden_frames() {
+    golden_parity("golden_", 2);
+}
+
+#[test]
+fn version_1_weights_run_the_version_1_pipeline() {
+    golden_parity("golden_v1_", 1);
+}
+
+fn golden_parity(prefix: &str, version: u32) {
     let gpu = common::gpu();
-    let weights = Weights::load(data("golden_weights.safetensors")).unwrap();
+    let weights = Weights::load(data(&format!("{prefix}weights.safetensors"))).unwrap();
     assert!(
         weights.is_random_init(),
         "golden weights are random-initialised test weights"
     );
+    assert_eq!(weights.config.version, version);
     let mut den = Denoiser::with_gpu(&gpu, &weights, 40, 24).unwrap();
     for i in 0..3 {
-        let g = load_frame(i);
+        let g = load_frame(prefix, i);
         let frame = HostFrame {
             color: g["color"].clone(),
             mask: g["mask"].clone(),
@@ -94,7 +108,10 @@ fn denoiser_matches_pytorch_on_golden_frames() {
         };
         let out = den.denoise_host(&frame).unwrap();
         for &(golden, engine) in COMPARED {
-            let want = &g[golden];
+            let Some(want) = g.get(golden) else {
+                assert!(version == 1 && golden == "exposure", "{prefix}: no '{golden}'");
+                continue;
+            };
             let got = den.network().tensor(engine).unwrap().read(&gpu).unwrap();
             let rel = if golden == "output" {
                 OUTPUT_TOL
@@ -105,13 +122,18 @@ fn denoiser_matches_pytorch_on_golden_frames() {
                 abs: rel * range(want),
                 rel: 0.0,
             };
-            common::assert_close(&format!("frame {i} layer '{golden}'"), &got, want, tol);
+            common::assert_close(&format!("{prefix} frame {i} layer '{golden}'"), &got, want, tol);
         }
         let tol = common::Tol {
             abs: OUTPUT_TOL * range(&g["output"]),
             rel: 0.0,
         };
-        common::assert_close(&format!("frame {i} cropped output"), &out, &g["output"], tol);
+        common::assert_close(
+            &format!("{prefix} frame {i} cropped output"),
+            &out,
+            &g["output"],
+            tol,
+        );
     }
     assert_eq!(den.sanitized_count().unwrap(), 0);
 }

@@ -20,7 +20,8 @@ On CUDA every stage is timed with CUDA events and the frame synchronised, as the
 benchmark waits for each frame; on the CPU with perf_counter.
 
 Stages (rows) line up with `subpixel bench denoise`'s per-stage table:
-  tfa    = pack (prepare_inputs: demodulate, log1p(shadow)) + warp of (A_acc, o) + TFA
+  tfa    = exposure + pack (prepare_inputs: demodulate, log1p(shadow)) + warp of (A_acc, o)
+           + history test and re-exposure + TFA (SSRModel.history, TFA)
   unet   = U-Net + remodulation (the Rust `unet` + `output` stages)
   total  = one whole frame (median/p95 of the per-frame sums)
 FLOPs count 18 Cin Cout per 3x3 conv per output pixel at the padded size (multiples of 4),
@@ -45,14 +46,12 @@ from ssr.export import load_weights  # noqa: E402
 from ssr.train import device_name  # noqa: E402
 from ssr.model import (  # noqa: E402
     A_CHANNELS,
-    ALBEDO_SLICE,
+    EXPOSURE_CHANNELS,
     RGB,
     TILE_OFFSETS,
     SSRModel,
     conv_layers,
-    prepare_inputs,
     remodulate,
-    warp,
 )
 
 MODES = ("eager", "fp16", "compile")
@@ -98,16 +97,16 @@ def stage_flops(model: SSRModel, wp: int, hp: int) -> Dict[str, int]:
 
 
 def make_stages(model: SSRModel) -> Tuple[Callable, Callable]:
-    def tfa_stage(frame, a_acc_prev, o_prev):
-        a_t, mt = prepare_inputs(frame)
-        warped, valid = warp(torch.cat([a_acc_prev, o_prev.to(a_acc_prev.dtype)], dim=1), frame["motion"])
-        warp_acc, wo = warped[:, :A_CHANNELS], warped[:, A_CHANNELS:]
-        a_acc = model.tfa(a_t, mt, warp_acc, valid)["a_acc"]
-        return a_t, mt, a_acc, wo
+    def tfa_stage(frame, a_acc_prev, o_prev, s_prev):
+        # exposure, pack, warp of (A_acc, o), history test and re-exposure (model.history), TFA
+        h = model.history(frame, (a_acc_prev, o_prev.to(a_acc_prev.dtype), s_prev))
+        a_acc = model.tfa(h["a_cur"], h["mt"], h["warp_acc"], h["warp_valid"])["a_acc"]
+        return h["a_cur"], h["mt"], a_acc, h["warp_out"], h["exposure"]
 
-    def unet_stage(a_t, mt, a_acc, wo):
+    def unet_stage(a_t, mt, a_acc, wo, s):
         o = model.unet(a_t, mt, a_acc, wo)["o"]
-        return remodulate(o.float(), a_acc[:, ALBEDO_SLICE].float()), o
+        albedo = model.remodulation_albedo(a_t, a_acc)
+        return remodulate(o.float(), albedo.float()) * s[:, :RGB], o
 
     return tfa_stage, unet_stage
 
@@ -141,6 +140,7 @@ def bench_mode(
         unet_stage = torch.compile(unet_stage, **kw)
     a_acc = torch.zeros(1, A_CHANNELS, hp, wp, device=device)
     o = torch.zeros(1, RGB, hp, wp, device=device)
+    s = torch.ones(1, EXPOSURE_CHANNELS, 1, 1, device=device)
     if channels_last:
         a_acc = a_acc.contiguous(memory_format=torch.channels_last)
         o = o.contiguous(memory_format=torch.channels_last)
@@ -156,7 +156,7 @@ def bench_mode(
         if mode == "compile":
             t0 = time.perf_counter()
             with autocast():
-                r = tfa_stage(inputs[0], a_acc, o)
+                r = tfa_stage(inputs[0], a_acc, o, s)
                 unet_stage(*r)
             sync()
             compile_s = time.perf_counter() - t0
@@ -167,17 +167,17 @@ def bench_mode(
                 ev = [torch.cuda.Event(enable_timing=True) for _ in range(3)]
                 ev[0].record()
             with autocast():
-                a_t, mt, a_acc2, wo = tfa_stage(f, a_acc, o)
+                a_t, mt, a_acc2, wo, s2 = tfa_stage(f, a_acc, o, s)
                 if cuda:
                     ev[1].record()
                 else:
                     w1 = time.perf_counter()
-                out, o2 = unet_stage(a_t, mt, a_acc2, wo)
+                out, o2 = unet_stage(a_t, mt, a_acc2, wo, s2)
             if cuda:
                 ev[2].record()
             sync()
             w2 = time.perf_counter()
-            a_acc, o = a_acc2, o2
+            a_acc, o, s = a_acc2, o2, s2
             if i < warmup:
                 continue
             if cuda:

@@ -76,6 +76,7 @@ pub fn bench_kernels(gpu: &Gpu, o: &KernelBenchOptions) -> Result<Vec<KernelTimi
     let rgb = t("rgb", w, h, 3, 8)?;
     let albedo = t("albedo", w, h, 3, 9)?;
     let rgb_out = Tensor::new(gpu, "rgb_out", w, h, 3)?;
+    let ones = Tensor::from_host(gpu, "ones", &HostTensor::from_vec(1, 1, 3, vec![1.0; 3]))?;
 
     let px = w as u64 * h as u64;
     let b = |t: &Tensor| t.bytes();
@@ -147,7 +148,7 @@ pub fn bench_kernels(gpu: &Gpu, o: &KernelBenchOptions) -> Result<Vec<KernelTimi
     });
     cases.push(Case {
         name: "remodulate".into(),
-        dispatch: ops::remodulate(gpu, &rgb, &albedo, 0, &rgb_out)?,
+        dispatch: ops::remodulate(gpu, &rgb, &albedo, 0, &ones, &rgb_out)?,
         bytes: 3 * b(&rgb),
         flops: 0,
     });

@@ -519,6 +519,7 @@ fn modulation(
     a: &Tensor,
     albedo: &Tensor,
     albedo_channel: u32,
+    scale: Option<&Tensor>,
     out: &Tensor,
 ) -> Result<Dispatch> {
     let (w, h) = (a.width, a.height);
@@ -528,6 +529,11 @@ fn modulation(
     check_size(kernel, "out", out, w, h)?;
     check_channels(kernel, "out", out, 3)?;
     distinct(kernel, out, &[a, albedo])?;
+    if let Some(s) = scale {
+        check_size(kernel, "scale", s, 1, 1)?;
+        check_min_channels(kernel, "scale", s, 3)?;
+        distinct(kernel, out, &[s])?;
+    }
     let params = ModParams {
         width: w,
         height: h,
@@ -536,11 +542,15 @@ fn modulation(
         b_offset: albedo_channel,
         _pad: [0; 3],
     };
+    let mut buffers = vec![&a.buffer, &albedo.buffer, &out.buffer];
+    if let Some(s) = scale {
+        buffers.push(&s.buffer);
+    }
     gpu.kernels.dispatch(
         kernel,
         &Specialisation::none(),
         bytemuck::bytes_of(&params),
-        &[&a.buffer, &albedo.buffer, &out.buffer],
+        &buffers,
         groups_2d(w, h, 1),
     )
 }
@@ -554,19 +564,21 @@ pub fn demodulate(
     albedo_channel: u32,
     out: &Tensor,
 ) -> Result<Dispatch> {
-    modulation(gpu, "nn/demodulate", color, albedo, albedo_channel, out)
+    modulation(gpu, "nn/demodulate", color, albedo, albedo_channel, None, out)
 }
 
-/// `out = max(exp(o) - 1, 0) * (albedo + 0.00316)` over the first 3 channels of `o` and
-/// channels `albedo_channel..albedo_channel + 3` of `albedo` (the accumulated albedo).
+/// `out = max(exp(o) - 1, 0) * (albedo + 0.00316) * scale` over the first 3 channels of `o`
+/// and channels `albedo_channel..albedo_channel + 3` of `albedo`; `scale` is a 1x1 tensor
+/// whose first 3 channels scale (SSR: the frame's colour exposure).
 pub fn remodulate(
     gpu: &Gpu,
     o: &Tensor,
     albedo: &Tensor,
     albedo_channel: u32,
+    scale: &Tensor,
     out: &Tensor,
 ) -> Result<Dispatch> {
-    modulation(gpu, "nn/remodulate", o, albedo, albedo_channel, out)
+    modulation(gpu, "nn/remodulate", o, albedo, albedo_channel, Some(scale), out)
 }
 
 /// Encodes `dispatches` (each in its own pass) and submits them; returns when done.

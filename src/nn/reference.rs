@@ -287,10 +287,12 @@ pub fn demodulate(color: &HostTensor, albedo: &HostTensor, albedo_channel: u32) 
     })
 }
 
-/// `max(exp(o) - 1, 0) * (albedo + eps)` on the first 3 channels of `o` and channels
+/// `max(exp(o) - 1, 0) * (albedo + eps) * scale` on the first 3 channels of `o` and channels
 /// `albedo_channel..+3` of `albedo`.
-pub fn remodulate(o: &HostTensor, albedo: &HostTensor, albedo_channel: u32) -> HostTensor {
+pub fn remodulate(o: &HostTensor, albedo: &HostTensor, albedo_channel: u32, scale: [f32; 3]) -> HostTensor {
     HostTensor::from_fn(o.width, o.height, 3, |x, y, c| {
-        (o.at(x, y, c).exp() - 1.0).max(0.0) * (albedo.at(x, y, albedo_channel + c).max(0.0) + ALBEDO_EPS)
+        (o.at(x, y, c).exp() - 1.0).max(0.0)
+            * (albedo.at(x, y, albedo_channel + c).max(0.0) + ALBEDO_EPS)
+            * scale[c as usize]
     })
 }

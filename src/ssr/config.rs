@@ -12,6 +12,38 @@ pub const MT_CHANNELS: u32 = 4;
 /// Channels of an RGB image.
 pub const RGB: u32 = 3;
 
+/// Config version this engine writes (and the weights file version of such configs).
+pub const CONFIG_VERSION: u32 = 2;
+
+/// Input normalisation (config `exposure`, version 2).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum ExposureMode {
+    /// Absolute radiance in (version 1).
+    None,
+    /// Per-channel exposure normalisation: colour and shadow divided by the frame's
+    /// exposure s (geometric mean of the demodulated traced samples, smoothed over frames),
+    /// the output multiplied by it; the history re-exposed when s changes.
+    Channel,
+}
+
+/// Which albedo remodulates the output (config `remodulation`, version 2).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum RemodulationAlbedo {
+    /// The accumulated albedo of A_acc (version 1).
+    Accumulated,
+    /// The current frame's albedo, the one that demodulated.
+    Current,
+}
+
+/// Which warped history is invalid (config `history`, version 2).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum HistoryTest {
+    /// Only samples off screen (version 1).
+    Screen,
+    /// Also samples whose accumulated depth or normal disagrees with the current frame's.
+    Geometry,
+}
+
 /// Widths and options of the SSR network.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct SsrConfig {
@@ -27,9 +59,19 @@ pub struct SsrConfig {
     pub upsample: String,
     /// U-Net input channels (must be 37).
     pub input_channels: u32,
-    /// Config version.
+    /// Config version: 1 (the options below are absent and mean exposure `none`,
+    /// remodulation `accumulated`, history `screen`) or 2 (they are required).
     #[serde(default)]
     pub version: u32,
+    /// Version 2: `"none"` or `"channel"` ([`ExposureMode`]).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub exposure: Option<String>,
+    /// Version 2: `"accumulated"` or `"current"` ([`RemodulationAlbedo`]).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub remodulation: Option<String>,
+    /// Version 2: `"screen"` or `"geometry"` ([`HistoryTest`]).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub history: Option<String>,
 }
 
 impl Default for SsrConfig {
@@ -41,7 +83,10 @@ impl Default for SsrConfig {
             feature_pool: "max".into(),
             upsample: "bilinear".into(),
             input_channels: 2 * A_CHANNELS + MT_CHANNELS + RGB,
-            version: 1,
+            version: CONFIG_VERSION,
+            exposure: Some("channel".into()),
+            remodulation: Some("current".into()),
+            history: Some("geometry".into()),
         }
     }
 }
@@ -79,9 +124,87 @@ impl SsrConfig {
                 self.input_channels
             ));
         }
+        match self.version {
+            1 => {
+                for (key, v) in self.options() {
+                    if v.is_some() {
+                        return bad(format!(
+                            "version 1 has no '{key}' option (it came with version 2)"
+                        ));
+                    }
+                }
+            }
+            2 => {
+                for (key, v) in self.options() {
+                    if v.is_none() {
+                        return bad(format!("version 2 needs the '{key}' option"));
+                    }
+                }
+            }
+            v => {
+                return bad(format!(
+                    "version {v}: this engine reads versions 1 and {CONFIG_VERSION}"
+                ));
+            }
+        }
         self.pool_mode()?;
         self.upsample_mode()?;
+        self.exposure_mode()?;
+        self.remodulation_albedo()?;
+        self.history_test()?;
         Ok(())
+    }
+
+    fn options(&self) -> [(&'static str, &Option<String>); 3] {
+        [
+            ("exposure", &self.exposure),
+            ("remodulation", &self.remodulation),
+            ("history", &self.history),
+        ]
+    }
+
+    /// The version-1 config of these widths (the pipeline of version-1 weights).
+    pub fn legacy(&self) -> Self {
+        Self {
+            version: 1,
+            exposure: None,
+            remodulation: None,
+            history: None,
+            ..self.clone()
+        }
+    }
+
+    /// Input normalisation (version 1: none).
+    pub fn exposure_mode(&self) -> Result<ExposureMode> {
+        match self.exposure.as_deref() {
+            None | Some("none") => Ok(ExposureMode::None),
+            Some("channel") => Ok(ExposureMode::Channel),
+            Some(o) => Err(Error::Invalid(format!(
+                "SSR config: exposure '{o}', expected \"none\" or \"channel\""
+            ))),
+        }
+    }
+
+    /// The albedo of the remodulation (version 1: accumulated).
+    pub fn remodulation_albedo(&self) -> Result<RemodulationAlbedo> {
+        match self.remodulation.as_deref() {
+            None | Some("accumulated") => Ok(RemodulationAlbedo::Accumulated),
+            Some("current") => Ok(RemodulationAlbedo::Current),
+            Some(o) => Err(Error::Invalid(format!(
+                "SSR config: remodulation '{o}', expected \"accumulated\" or \"current\""
+            ))),
+        }
+    }
+
+    /// The history test (version 1: screen).
+    pub fn history_test(&self) -> Result<HistoryTest> {
+        match self.history.as_deref() {
+            None | Some("screen") => Ok(HistoryTest::Screen),
+            Some("geometry") => Ok(HistoryTest::Geometry),
+            Some(o) => Err(Error::Invalid(format!(
+                "SSR config: history '{o}', expected \"screen\" or \"geometry\""
+            ))),
+        }
     }
 
     /// Feature pooling mode.
@@ -191,5 +314,58 @@ mod tests {
                 .to_string()
                 .contains("input_channels is 36")
         );
+        let c = SsrConfig {
+            exposure: Some("global".into()),
+            ..Default::default()
+        };
+        assert!(
+            c.validate()
+                .unwrap_err()
+                .to_string()
+                .contains("exposure 'global'")
+        );
+        let c = SsrConfig {
+            history: None,
+            ..Default::default()
+        };
+        let e = c.validate().unwrap_err().to_string();
+        assert!(e.contains("version 2 needs the 'history' option"), "{e}");
+        let c = SsrConfig {
+            version: 3,
+            ..Default::default()
+        };
+        assert!(c.validate().unwrap_err().to_string().contains("version 3"));
+    }
+
+    #[test]
+    fn version_1_configs_mean_the_v1_pipeline() {
+        let v1: SsrConfig = serde_json::from_str(
+            r#"{"enc":[16,32,28],"feature_pool":"max","input_channels":37,"k":8,"tfa_hidden":8,"upsample":"bilinear","version":1}"#,
+        )
+        .unwrap();
+        v1.validate().unwrap();
+        assert_eq!(v1, SsrConfig::default().legacy());
+        assert_eq!(v1.exposure_mode().unwrap(), ExposureMode::None);
+        assert_eq!(v1.remodulation_albedo().unwrap(), RemodulationAlbedo::Accumulated);
+        assert_eq!(v1.history_test().unwrap(), HistoryTest::Screen);
+        // written back without the version-2 keys
+        assert!(!serde_json::to_string(&v1).unwrap().contains("exposure"));
+        let bad = SsrConfig {
+            exposure: Some("channel".into()),
+            ..v1
+        };
+        let e = bad.validate().unwrap_err().to_string();
+        assert!(e.contains("version 1 has no 'exposure' option"), "{e}");
+        let d = SsrConfig::default();
+        assert_eq!(d.version, 2);
+        assert_eq!(d.exposure_mode().unwrap(), ExposureMode::Channel);
+        assert_eq!(d.remodulation_albedo().unwrap(), RemodulationAlbedo::Current);
+        assert_eq!(d.history_test().unwrap(), HistoryTest::Geometry);
+        // the engine's JSON is the trainer's (ssr/model.py SSRConfig.to_json, keys sorted)
+        let back: SsrConfig = serde_json::from_str(
+            r#"{"enc":[16,32,28],"exposure":"channel","feature_pool":"max","history":"geometry","input_channels":37,"k":8,"remodulation":"current","tfa_hidden":8,"upsample":"bilinear","version":2}"#,
+        )
+        .unwrap();
+        assert_eq!(back, d);
     }
 }

@@ -3,8 +3,9 @@
 
 use bytemuck::{Pod, Zeroable};
 
+use super::config::ExposureMode;
 pub use super::network::Granularity;
-use super::network::Network;
+use super::network::{Network, exposure_groups};
 use super::weights::Weights;
 use crate::error::{Error, Result};
 use crate::frame::HostFrame;
@@ -76,6 +77,29 @@ struct PackParams {
 
 #[repr(C)]
 #[derive(Clone, Copy, Pod, Zeroable)]
+struct ExposurePartialParams {
+    width: u32,
+    height: u32,
+    padded_width: u32,
+    padded_height: u32,
+    groups: u32,
+    _pad: [u32; 3],
+}
+
+#[repr(C)]
+#[derive(Clone, Copy, Pod, Zeroable)]
+struct ExposureFinalParams {
+    groups: u32,
+    first: u32,
+    _pad: [u32; 2],
+}
+
+/// The exposure pass: the reduction over the caller's buffers, then the update of the
+/// exposure, as on a first frame (`[1]`) or a later one (`[2]`).
+type ExposureDispatches = [Dispatch; 3];
+
+#[repr(C)]
+#[derive(Clone, Copy, Pod, Zeroable)]
 struct StoreParams {
     width: u32,
     height: u32,
@@ -87,6 +111,15 @@ struct StoreParams {
 pub const PARAM_SIZES: &[(&str, usize)] = &[
     ("ssr/pack_inputs", std::mem::size_of::<PackParams>()),
     ("ssr/store_output", std::mem::size_of::<StoreParams>()),
+    (
+        "ssr/exposure_partial",
+        std::mem::size_of::<ExposurePartialParams>(),
+    ),
+    ("ssr/exposure_final", std::mem::size_of::<ExposureFinalParams>()),
+    (
+        "ssr/history",
+        std::mem::size_of::<super::network::HistoryParams>(),
+    ),
 ];
 
 /// The SSR denoiser, embeddable in any wgpu renderer.
@@ -110,7 +143,7 @@ pub struct Denoiser {
     height: u32,
     output: wgpu::Texture,
     store: Dispatch,
-    pack: Option<(Vec<wgpu::Buffer>, Dispatch)>,
+    pack: Option<(Vec<wgpu::Buffer>, Dispatch, Option<ExposureDispatches>)>,
     sanitized: wgpu::Buffer,
     first: bool,
     frames: u64,
@@ -231,7 +264,9 @@ impl Denoiser {
         &self.net
     }
 
-    /// Forgets the history (call on a camera cut); the next frame starts afresh.
+    /// Forgets the history (call on a camera cut); the next frame starts afresh, exposure
+    /// included. Without it, history whose depth or normal disagrees with the new frame is
+    /// rejected per pixel (version-2 weights), but history that happens to agree is kept.
     pub fn reset(&mut self) {
         self.first = true;
     }
@@ -275,7 +310,12 @@ impl Denoiser {
                 label: Some("pack"),
                 timestamp_writes: profiler.as_mut().and_then(|p| p.scope("pack")),
             });
-            self.pack.as_ref().expect("bound above").1.record(&mut pass);
+            let (_, pack, exposure) = self.pack.as_ref().expect("bound above");
+            if let Some(e) = exposure {
+                e[0].record(&mut pass);
+                e[if self.first { 1 } else { 2 }].record(&mut pass);
+            }
+            pack.record(&mut pass);
         }
         self.net
             .record(encoder, self.first, profiler.as_deref_mut(), granularity);
@@ -293,7 +333,7 @@ impl Denoiser {
 
     fn bind_inputs(&mut self, inputs: &FrameInputs<'_>) -> Result<()> {
         let bufs = inputs.buffers();
-        if let Some((cached, _)) = &self.pack
+        if let Some((cached, _, _)) = &self.pack
             && cached.iter().zip(bufs).all(|(a, b)| a == b)
         {
             return Ok(());
@@ -325,8 +365,15 @@ impl Denoiser {
             padded_width: self.net.width,
             padded_height: self.net.height,
         };
+        let (partials, exposure, ratio) = self.net.exposure();
         let mut all: Vec<&wgpu::Buffer> = bufs.to_vec();
-        all.extend([&a_t.buffer, &mt.buffer, &motion.buffer, &self.sanitized]);
+        all.extend([
+            &a_t.buffer,
+            &mt.buffer,
+            &motion.buffer,
+            &self.sanitized,
+            &exposure.buffer,
+        ]);
         let d = self.gpu.kernels.dispatch(
             "ssr/pack_inputs",
             &Specialisation::none(),
@@ -334,7 +381,48 @@ impl Denoiser {
             &all,
             [self.net.width.div_ceil(8), self.net.height.div_ceil(8), 1],
         )?;
-        self.pack = Some((bufs.iter().map(|b| (*b).clone()).collect(), d));
+        let e = match self.weights.config.exposure_mode()? {
+            ExposureMode::None => None,
+            ExposureMode::Channel => {
+                let groups = exposure_groups(self.net.width, self.net.height);
+                let partial = ExposurePartialParams {
+                    width: self.width,
+                    height: self.height,
+                    padded_width: self.net.width,
+                    padded_height: self.net.height,
+                    groups,
+                    _pad: [0; 3],
+                };
+                let reduce = self.gpu.kernels.dispatch(
+                    "ssr/exposure_partial",
+                    &Specialisation::none(),
+                    bytemuck::bytes_of(&partial),
+                    &[
+                        inputs.color_mask,
+                        inputs.albedo_depth,
+                        inputs.shadow_roughness,
+                        &partials.buffer,
+                    ],
+                    [groups, 1, 1],
+                )?;
+                let update = |first: bool| {
+                    let params = ExposureFinalParams {
+                        groups,
+                        first: first as u32,
+                        _pad: [0; 2],
+                    };
+                    self.gpu.kernels.dispatch(
+                        "ssr/exposure_final",
+                        &Specialisation::none(),
+                        bytemuck::bytes_of(&params),
+                        &[&partials.buffer, &exposure.buffer, &ratio.buffer],
+                        [1, 1, 1],
+                    )
+                };
+                Some([reduce, update(true)?, update(false)?])
+            }
+        };
+        self.pack = Some((bufs.iter().map(|b| (*b).clone()).collect(), d, e));
         Ok(())
     }
 
@@ -379,7 +467,7 @@ impl Denoiser {
 
     /// Input buffers owned by the denoiser for [`Denoiser::denoise_host`] (reused).
     fn host_buffers(&mut self) -> Result<Vec<wgpu::Buffer>> {
-        if let Some((bufs, _)) = &self.pack
+        if let Some((bufs, _, _)) = &self.pack
             && bufs
                 .iter()
                 .all(|b| b.usage().contains(wgpu::BufferUsages::COPY_DST))

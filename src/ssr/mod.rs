@@ -7,7 +7,7 @@ mod network;
 mod weights;
 
 pub use crate::frame::HostFrame;
-pub use config::{LayerSpec, SsrConfig};
+pub use config::{CONFIG_VERSION, ExposureMode, HistoryTest, LayerSpec, RemodulationAlbedo, SsrConfig};
 pub use denoiser::{Denoiser, FrameInputs, Granularity, PARAM_SIZES, round_up4};
 pub use network::{INTERMEDIATES, Network};
 pub use weights::{WEIGHTS_FORMAT, WEIGHTS_VERSION, Weights};

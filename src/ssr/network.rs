@@ -4,12 +4,28 @@
 
 use std::collections::BTreeMap;
 
-use super::config::{A_CHANNELS, MT_CHANNELS, RGB, SsrConfig};
+use bytemuck::{Pod, Zeroable};
+
+use super::config::{A_CHANNELS, ExposureMode, HistoryTest, MT_CHANNELS, RGB, RemodulationAlbedo, SsrConfig};
 use super::weights::Weights;
 use crate::error::{Error, Result};
-use crate::gpu::{Dispatch, Gpu, Profiler};
+use crate::gpu::{Dispatch, Gpu, Profiler, Specialisation};
 use crate::nn::ops::{self, Conv3x3, PoolMode, TfaBlend};
 use crate::nn::{HostTensor, Tensor};
+
+#[repr(C)]
+#[derive(Clone, Copy, Pod, Zeroable)]
+pub(super) struct HistoryParams {
+    width: u32,
+    height: u32,
+    rescale: u32,
+    geometry: u32,
+}
+
+/// Workgroups of the exposure reduction's first pass (each strides over the pixels).
+pub(super) fn exposure_groups(width: u32, height: u32) -> u32 {
+    (width as u64 * height as u64).div_ceil(256).clamp(1, 256) as u32
+}
 
 /// How finely to time the network with a [`Profiler`].
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -52,6 +68,7 @@ pub struct Network {
 
 /// Names of the intermediate tensors [`Network::tensor`] exposes.
 pub const INTERMEDIATES: &[&str] = &[
+    "exposure",
     "a_t",
     "mt",
     "motion",
@@ -99,6 +116,11 @@ impl Network {
             tensors.insert(name, Tensor::new(gpu, name, w, hh, c)?);
             Ok(())
         };
+        // Exposure of the colour (rgb) and of the shadow (rgb), and its ratio to the last
+        // frame's; the reduction's partial sums (4 vec4 per workgroup).
+        add("exposure", 1, 1, 2 * RGB)?;
+        add("exposure_ratio", 1, 1, 2 * RGB)?;
+        add("exposure_partials", exposure_groups(w1, h1), 1, 16)?;
         add("a_t", w1, h1, A_CHANNELS)?;
         add("mt", w1, h1, MT_CHANNELS)?;
         add("motion", w1, h1, 2)?;
@@ -140,6 +162,10 @@ impl Network {
             Tensor::new(gpu, "o.1", w1, h1, RGB)?,
         ];
         let ones = Tensor::from_host(gpu, "ones", &HostTensor::from_fn(w1, h1, 1, |_, _, _| 1.0))?;
+        // Without exposure normalisation (version-1 weights) the exposure is 1 for good.
+        let unit = HostTensor::from_vec(1, 1, 2 * RGB, vec![1.0; 2 * RGB as usize]);
+        tensors["exposure"].write(gpu, &unit)?;
+        tensors["exposure_ratio"].write(gpu, &unit)?;
         let mut net = Self {
             config,
             width,
@@ -176,19 +202,48 @@ impl Network {
         };
         let pool = self.config.pool_mode()?;
         let up = self.config.upsample_mode()?;
-        let warps = vec![
+        let mut warps = vec![
             step(
                 "tfa",
                 "warp A_acc",
                 ops::warp(gpu, &self.a_acc[q], t("motion"), t("warp_acc"), t("warp_valid"))?,
             ),
             step(
-                "unet",
+                "tfa",
                 "warp o",
                 ops::warp(gpu, &self.o[q], t("motion"), t("warp_out"), t("warp_out_valid"))?,
             ),
         ];
+        let rescale = self.config.exposure_mode()? == ExposureMode::Channel;
+        let geometry = self.config.history_test()? == HistoryTest::Geometry;
+        if rescale || geometry {
+            // Re-expose the history and reject what disagrees with this frame's geometry.
+            let params = HistoryParams {
+                width: self.width,
+                height: self.height,
+                rescale: rescale as u32,
+                geometry: geometry as u32,
+            };
+            let d = gpu.kernels.dispatch(
+                "ssr/history",
+                &Specialisation::none(),
+                bytemuck::bytes_of(&params),
+                &[
+                    &t("a_t").buffer,
+                    &t("warp_acc").buffer,
+                    &t("warp_out").buffer,
+                    &t("warp_valid").buffer,
+                    &t("exposure_ratio").buffer,
+                ],
+                [self.width.div_ceil(8), self.height.div_ceil(8), 1],
+            )?;
+            warps.push(step("tfa", "history", d));
+        }
         let (a_t, mt) = (t("a_t"), t("mt"));
+        let (albedo, albedo_channel) = match self.config.remodulation_albedo()? {
+            RemodulationAlbedo::Current => (a_t, 3),
+            RemodulationAlbedo::Accumulated => (&self.a_acc[p], 3),
+        };
         let steps = vec![
             step(
                 "tfa",
@@ -338,7 +393,14 @@ impl Network {
             step(
                 "unet",
                 "remodulate",
-                ops::remodulate(gpu, &self.o[p], &self.a_acc[p], 3, t("output"))?,
+                ops::remodulate(
+                    gpu,
+                    &self.o[p],
+                    albedo,
+                    albedo_channel,
+                    t("exposure"),
+                    t("output"),
+                )?,
             ),
         ];
         Ok((warps, steps))
@@ -348,6 +410,16 @@ impl Network {
     /// `(A_t, MT, motion)`.
     pub fn inputs(&self) -> (&Tensor, &Tensor, &Tensor) {
         (self.t("a_t"), self.t("mt"), self.t("motion"))
+    }
+
+    /// The exposure tensors the caller's exposure pass writes before [`Network::record`]
+    /// (`ssr/exposure_partial`, `ssr/exposure_final`): `(partials, exposure, ratio)`.
+    pub fn exposure(&self) -> (&Tensor, &Tensor, &Tensor) {
+        (
+            self.t("exposure_partials"),
+            self.t("exposure"),
+            self.t("exposure_ratio"),
+        )
     }
 
     /// The remodulated output (padded size, 3 channels) of the last recorded frame.
@@ -367,6 +439,8 @@ impl Network {
 
     /// Records one frame. `first` means there is no history (first frame, camera cut,
     /// resize): the history is then the current frame itself (DESIGN §4) and W(o) is 0.
+    /// Otherwise the history is warped, re-exposed and checked against this frame's
+    /// geometry (`ssr/history`, version-2 configs) before the TFA.
     pub fn record(
         &mut self,
         encoder: &mut wgpu::CommandEncoder,

@@ -9,8 +9,10 @@ use crate::error::{Error, Result};
 
 /// Value of the `format` metadata key.
 pub const WEIGHTS_FORMAT: &str = "subpixel-ssr";
-/// Weights file version this engine reads.
-pub const WEIGHTS_VERSION: u32 = 1;
+/// Weights file version this engine writes; it reads 1 and 2. A file's version is its
+/// config's: version 1 predates exposure normalisation, remodulation with the current albedo
+/// and the geometric history test, and runs without them ([`SsrConfig::legacy`]).
+pub const WEIGHTS_VERSION: u32 = super::config::CONFIG_VERSION;
 
 /// Network weights and their provenance.
 #[derive(Debug, Clone)]
@@ -67,15 +69,15 @@ impl Weights {
                 )));
             }
         }
-        match metadata.get("version").map(|v| v.parse::<u32>()) {
-            Some(Ok(WEIGHTS_VERSION)) => {}
+        let version = match metadata.get("version").map(|v| v.parse::<u32>()) {
+            Some(Ok(v @ (1 | WEIGHTS_VERSION))) => v,
             Some(Ok(v)) => {
                 return Err(err(format!(
-                    "version {v}, this engine reads version {WEIGHTS_VERSION}"
+                    "version {v}, this engine reads versions 1 and {WEIGHTS_VERSION}"
                 )));
             }
             _ => return Err(err("metadata 'version' is missing or not an integer".into())),
-        }
+        };
         let config: SsrConfig = serde_json::from_str(
             metadata
                 .get("config")
@@ -83,6 +85,12 @@ impl Weights {
         )
         .map_err(|e| err(format!("metadata 'config' is not a valid SSR config: {e}")))?;
         config.validate().map_err(|e| err(e.to_string()))?;
+        if config.version != version {
+            return Err(err(format!(
+                "metadata 'version' is {version} but its config is version {}",
+                config.version
+            )));
+        }
         let st = safetensors::SafeTensors::deserialize(bytes).map_err(|e| {
             err(format!(
                 "not a valid safetensors file (truncated or corrupt?): {e}"
@@ -174,7 +182,7 @@ impl Weights {
         }
         let metadata = BTreeMap::from([
             ("format".to_string(), WEIGHTS_FORMAT.to_string()),
-            ("version".to_string(), WEIGHTS_VERSION.to_string()),
+            ("version".to_string(), config.version.to_string()),
             (
                 "config".to_string(),
                 serde_json::to_string(config).expect("config serialises"),

@@ -75,7 +75,7 @@ from torch import nn
 
 from .export import FORMAT as SSR_FORMAT
 from .export import WeightsError, load_weights, write_safetensors
-from .model import ALBEDO_EPS, SSRConfig, SSRModel, _check_frame, _clean, demodulate, remodulate, warp
+from .model import ALBEDO_EPS, OPTION_VALUES, SSRConfig, SSRModel, _check_frame, _clean, demodulate, remodulate, warp
 
 BASELINE_VERSION = "1"
 
@@ -371,7 +371,10 @@ def build_model(name: str, config: Optional[dict] = None) -> nn.Module:
     if name not in LEARNED:
         raise ValueError(f"unknown model {name!r} (one of {sorted(LEARNED)})")
     if name == "ssr":
-        cfg = SSRConfig.from_dict({**SSRConfig().to_dict(), **(config or {})})
+        base = SSRConfig().to_dict()
+        if (config or {}).get("version") == 1:  # the version-1 pipeline: no option keys
+            base = {k: v for k, v in base.items() if k not in OPTION_VALUES}
+        cfg = SSRConfig.from_dict({**base, **(config or {})})
         return SSRModel(cfg)
     cls = CONFIGS[name]
     cfg = _config_from_dict(cls, {**cls().to_dict(), **(config or {})})
@@ -456,5 +459,7 @@ def load_model(path: str, device: str = "cpu") -> Tuple[nn.Module, dict]:
 def loss_aux(results: Sequence[Dict[str, object]], frames: Sequence[Dict[str, torch.Tensor]]) -> Dict[str, object]:
     """`aux` for losses.total_loss from any learned model's run_sequence results."""
     last = results[-1]
-    albedo = last["a_acc"][:, 3:6] if "a_acc" in last else last["albedo_mod"]
-    return {"motion": [f["motion"] for f in frames], "o": last["o"], "albedo_acc": albedo}
+    aux = {"motion": [f["motion"] for f in frames], "o": last["o"], "albedo_mod": last["albedo_mod"]}
+    if "exposure" in last:
+        aux["exposure"] = last["exposure"]
+    return aux

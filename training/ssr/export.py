@@ -2,12 +2,16 @@
 
 `__metadata__` (all values are strings, as safetensors requires):
     format      "subpixel-ssr"
-    version     "1"                       (file format version)
-    config      JSON of SSRConfig         ({"enc":[16,32,28],"feature_pool":"max",...})
+    version     "2"                       (file format version = the config's `version`)
+    config      JSON of SSRConfig         ({"enc":[16,32,28],"exposure":"channel",...})
     provenance  JSON: {"scenes": [...], "iterations": N, ...} for trained weights, or the
                 JSON string "random-init: for tests only, not a denoiser"
     metrics     JSON object of validation metrics ({} when there are none)
     init        (random files only) JSON {"scheme": ..., "seed": N}
+
+Version 2 (exposure normalisation, remodulation with the current albedo, geometric history
+test: model.py) changed what the weights mean. Version-1 files still load: their config has
+no option keys and runs the version-1 pipeline (model.LEGACY_OPTIONS), as they were trained.
 
 Files are written by our own deterministic writer (sorted header keys, tensors in name
 order, contiguous data) so the same model gives the same bytes; the `safetensors` package
@@ -32,7 +36,9 @@ from torch import nn
 from .model import SSRConfig, SSRModel, flops_per_pixel
 
 FORMAT = "subpixel-ssr"
-FORMAT_VERSION = "1"
+FORMAT_VERSION = "2"
+"""Version written for default configs; a file's version is its config's (1 or 2)."""
+READ_VERSIONS = ("1", "2")
 RANDOM_PROVENANCE = "random-init: for tests only, not a denoiser"
 RANDOM_INIT_SCHEME = "he-normal(relu) weights, U(-0.1,0.1) biases; RGB convs: N(0,0.5/fan_in), U(0.5,1)"
 
@@ -88,7 +94,7 @@ def weights_metadata(
 ) -> Dict[str, str]:
     meta = {
         "format": FORMAT,
-        "version": FORMAT_VERSION,
+        "version": str(cfg.version),
         "config": cfg.to_json(),
         "provenance": json.dumps(provenance, sort_keys=True, separators=(",", ":")),
         "metrics": json.dumps(metrics if metrics is not None else {}, sort_keys=True, separators=(",", ":")),
@@ -188,14 +194,18 @@ def load_weights(path: str, device: str = "cpu") -> Tuple[SSRModel, dict]:
             raise WeightsError(f"{path}: no __metadata__ (expected format={FORMAT!r})")
         if raw.get("format") != FORMAT:
             raise WeightsError(f"{path}: metadata `format` is {raw.get('format')!r}, expected {FORMAT!r}")
-        if raw.get("version") != FORMAT_VERSION:
-            raise WeightsError(f"{path}: metadata `version` is {raw.get('version')!r}, expected {FORMAT_VERSION!r}")
+        if raw.get("version") not in READ_VERSIONS:
+            raise WeightsError(
+                f"{path}: metadata `version` is {raw.get('version')!r}, this code reads versions {list(READ_VERSIONS)}"
+            )
         if "config" not in raw:
             raise WeightsError(f"{path}: metadata has no `config`")
         try:
             cfg = SSRConfig.from_json(raw["config"])
         except ValueError as err:
             raise WeightsError(f"{path}: metadata `config`: {err}") from None
+        if str(cfg.version) != raw["version"]:
+            raise WeightsError(f"{path}: metadata `version` is {raw['version']!r} but its config is version {cfg.version}")
         provenance = _parse_json(raw, "provenance", path)
         metrics = _parse_json(raw, "metrics", path)
 

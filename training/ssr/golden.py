@@ -3,10 +3,17 @@
     cd training && python -m ssr.golden --out ../tests/data
 
 writes
-    golden_weights.safetensors   random-initialised weights (seed 6), see ssr.export
+    golden_weights.safetensors   random-initialised weights (seed 6), see ssr.export, of the
+                                 default config (version 2)
     golden_frame{0,1,2}.safetensors
                                  three consecutive 40x24 frames: inputs, every intermediate
                                  and the output, run as one sequence (frame 0 has no history)
+    golden_v1_weights.safetensors, golden_v1_frame{0,1,2}.safetensors
+                                 the same for a version-1 config (the pipeline of version-1
+                                 weights files: no exposure normalisation, remodulation with the
+                                 accumulated albedo, off-screen history test only) on the
+                                 version-1 inputs (random per-pixel geometry): the files the
+                                 version-1 code wrote, byte for byte but for their names
 
 Every tensor in a frame file is float32, HWC ([H, W, C]) with the logical (unpadded)
 channel count. Names: GOLDEN_INPUTS + GOLDEN_INTERMEDIATES (+ enc1/enc2/enc3, extras
@@ -26,7 +33,7 @@ import torch
 import torch.nn.functional as F
 
 from .export import export_random, safetensors_bytes, write_bytes
-from .model import FRAME_CHANNELS, TILE_OFFSETS, SSRModel, quarter_mask
+from .model import FRAME_CHANNELS, LEGACY_OPTIONS, TILE_OFFSETS, SSRConfig, SSRModel, quarter_mask
 
 WIDTH, HEIGHT, FRAMES = 40, 24, 3
 # Seed 6, not 0: with enc = [16, 32, 28] seed 0 leaves o >= 0 everywhere in frame 0, so the
@@ -36,6 +43,8 @@ WEIGHTS_SEED = 6
 INPUT_SEED = 1
 WEIGHTS_FILE = "golden_weights.safetensors"
 MAX_FILE_BYTES = 1 << 20
+LEGACY_PREFIX = "golden_v1_"
+"""File name prefix of the version-1 set (golden_v1_weights, golden_v1_frame{t})."""
 
 GOLDEN_INPUTS = list(FRAME_CHANNELS)  # color mask albedo normal shadow transparent depth metallic roughness motion
 GOLDEN_INTERMEDIATES = [
@@ -54,9 +63,19 @@ GOLDEN_INTERMEDIATES = [
     "output",
 ]
 GOLDEN_EXTRAS = ["enc1", "enc2", "enc3"]
+GOLDEN_V2 = ["exposure"]
+"""Version 2 only: the frame's exposure s (colour rgb, shadow rgb), [1, 1, 6]."""
 
 
-def make_frames(seed: int = INPUT_SEED, height: int = HEIGHT, width: int = WIDTH, count: int = FRAMES) -> List[Dict[str, torch.Tensor]]:
+def _smooth(g: torch.Generator, c: int, h: int, w: int) -> torch.Tensor:
+    """A smooth random field [1, c, h, w] in [-1, 1]: a coarse grid, bilinearly upsampled."""
+    coarse = torch.rand(1, c, max(2, h // 8), max(2, w // 8), generator=g) * 2.0 - 1.0
+    return F.interpolate(coarse, size=(h, w), mode="bilinear", align_corners=True)
+
+
+def make_frames(
+    seed: int = INPUT_SEED, height: int = HEIGHT, width: int = WIDTH, count: int = FRAMES, geometry: str = "coherent"
+) -> List[Dict[str, torch.Tensor]]:
     """Random but plausible frames (NCHW, batch 1) following DESIGN section 3.
 
     color/shadow are HDR (log-normal) and 0 where mask = 0 (shadow also 0 at some traced
@@ -64,9 +83,22 @@ def make_frames(seed: int = INPUT_SEED, height: int = HEIGHT, width: int = WIDTH
     pixels; depth/metallic/roughness in [0, 1]. Motion (pixels) is sub-pixel random, with a
     zero block, an integer block, ~10% of pixels thrown far off screen, and exact boundary
     cases (p.x = 0, valid; p.x = W, invalid) in rows 16..19.
+
+    geometry "coherent" (default): depth and normal are smooth fields shared by every frame,
+    so most warped history agrees with the current frame, except in a block per frame t >= 1
+    (rows 2..9, 8 columns moving with t) whose depth is halved and normal turned:
+    a disocclusion the history test must reject; and the light gets 3x brighter every frame
+    (colour and shadow x 3^t), so the exposure moves and the history is re-exposed. "random":
+    per-pixel random depth and normal every frame, constant light (the version-1 golden inputs).
     """
+    if geometry not in ("coherent", "random"):
+        raise ValueError(f"make_frames: geometry must be 'coherent' or 'random', got {geometry!r}")
     g = torch.Generator().manual_seed(int(seed))
     h, w = height, width
+    if geometry == "coherent":
+        gg = torch.Generator().manual_seed(int(seed) + 1000)
+        static_depth = 0.55 + 0.3 * _smooth(gg, 1, h, w)
+        static_normal = F.normalize(_smooth(gg, 3, h, w) * 0.3 + torch.tensor([0.0, 0.0, 1.0]).view(1, 3, 1, 1), dim=1)
 
     def u(c: int) -> torch.Tensor:
         return torch.rand(1, c, h, w, generator=g)
@@ -93,6 +125,15 @@ def make_frames(seed: int = INPUT_SEED, height: int = HEIGHT, width: int = WIDTH
         motion[:, 1, 8:12, 0:10] = 2.0
         motion[:, :, 16:20, 0] = torch.tensor([-0.5, 0.0]).view(1, 2, 1)  # p.x = 0: valid
         motion[:, :, 16:20, w - 1] = torch.tensor([0.5, 0.0]).view(1, 2, 1)  # p.x = W: invalid
+        if geometry == "coherent":
+            color = color * 3.0**t
+            shadow = shadow * 3.0**t
+            depth = static_depth.clone()
+            normal = static_normal.clone()
+            if t >= 1:
+                x0 = (12 + 6 * t) % max(1, w - 8)
+                depth[:, :, 2:10, x0 : x0 + 8] *= 0.5
+                normal[:, :, 2:10, x0 : x0 + 8] = F.normalize(normal[:, :, 2:10, x0 : x0 + 8] + torch.tensor([1.0, 0.0, 0.0]).view(1, 3, 1, 1), dim=1)
         frames.append(
             {
                 "color": color,
@@ -117,6 +158,11 @@ def hwc(t: torch.Tensor) -> torch.Tensor:
     return t[0].permute(1, 2, 0).contiguous().to(torch.float32)
 
 
+def golden_names(cfg: SSRConfig) -> List[str]:
+    """The intermediates a golden frame of this config holds (beyond the inputs)."""
+    return GOLDEN_INTERMEDIATES + GOLDEN_EXTRAS + (GOLDEN_V2 if cfg.version >= 2 else [])
+
+
 @torch.no_grad()
 def golden_tensors(model: SSRModel, frames: List[Dict[str, torch.Tensor]]) -> List[Dict[str, torch.Tensor]]:
     """Runs the frames as one sequence; per frame, name -> HWC tensor."""
@@ -124,23 +170,23 @@ def golden_tensors(model: SSRModel, frames: List[Dict[str, torch.Tensor]]) -> Li
     out = []
     for frame, r in zip(frames, model.run_sequence(frames)):
         d = {k: hwc(frame[k]) for k in GOLDEN_INPUTS}
-        for k in GOLDEN_INTERMEDIATES + GOLDEN_EXTRAS:
+        for k in golden_names(model.cfg):
             d[k] = hwc(r[k])
         out.append(d)
     return out
 
 
-def frame_metadata(t: int, width: int, height: int, weights_seed: int, input_seed: int) -> Dict[str, str]:
+def frame_metadata(t: int, width: int, height: int, weights_seed: int, input_seed: int, prefix: str = "golden_", version: int = 2) -> Dict[str, str]:
     return {
         "format": "subpixel-ssr-golden",
-        "version": "1",
+        "version": str(version),
         "frame": str(t),
         "frames": str(FRAMES),
         "width": str(width),
         "height": str(height),
         "tile_offset": json.dumps(list(TILE_OFFSETS[t % 4])),
-        "history": "none (first frame)" if t == 0 else f"golden_frame{t - 1}",
-        "weights": WEIGHTS_FILE,
+        "history": "none (first frame)" if t == 0 else f"{prefix}frame{t - 1}",
+        "weights": f"{prefix}weights.safetensors",
         "weights_seed": str(weights_seed),
         "input_seed": str(input_seed),
         "layout": "HWC float32, logical (unpadded) channels",
@@ -177,16 +223,24 @@ def check_spread(tensors: Dict[str, torch.Tensor], t: int) -> None:
 
 
 def generate(out_dir: str, weights_seed: int = WEIGHTS_SEED, input_seed: int = INPUT_SEED, verbose: bool = True) -> List[str]:
-    """Writes the weights and frame files into out_dir; returns their paths."""
+    """Writes both sets (version 2, then the version-1 set) into out_dir; returns their paths."""
+    paths = _generate_set(out_dir, "golden_", SSRConfig(), "coherent", weights_seed, input_seed, verbose)
+    legacy = SSRConfig(version=1, **LEGACY_OPTIONS)
+    return paths + _generate_set(out_dir, LEGACY_PREFIX, legacy, "random", weights_seed, input_seed, verbose)
+
+
+def _generate_set(
+    out_dir: str, prefix: str, cfg: SSRConfig, geometry: str, weights_seed: int, input_seed: int, verbose: bool
+) -> List[str]:
     os.makedirs(out_dir, exist_ok=True)
-    weights_path = os.path.join(out_dir, WEIGHTS_FILE)
-    model, _ = export_random(weights_path, weights_seed)
-    frames = make_frames(input_seed, HEIGHT, WIDTH, FRAMES)
+    weights_path = os.path.join(out_dir, f"{prefix}weights.safetensors")
+    model, _ = export_random(weights_path, weights_seed, cfg)
+    frames = make_frames(input_seed, HEIGHT, WIDTH, FRAMES, geometry)
     paths = [weights_path]
     for t, tensors in enumerate(golden_tensors(model, frames)):
         check_spread(tensors, t)
-        path = os.path.join(out_dir, f"golden_frame{t}.safetensors")
-        data = safetensors_bytes(tensors, frame_metadata(t, WIDTH, HEIGHT, weights_seed, input_seed))
+        path = os.path.join(out_dir, f"{prefix}frame{t}.safetensors")
+        data = safetensors_bytes(tensors, frame_metadata(t, WIDTH, HEIGHT, weights_seed, input_seed, prefix, cfg.version))
         if len(data) >= MAX_FILE_BYTES:
             raise RuntimeError(f"{path}: {len(data)} bytes, over the 1 MB limit")
         write_bytes(path, data)

@@ -12,9 +12,11 @@ Sequences are T = 5 frames. `preds` and `refs` are radiance (linear HDR, the rem
           pixels whose warp is valid, on log1p-compressed radiance (HDR-robust)
     l_a   albedo loss, last frame only: L1 in the log-demodulated space where the network
           predicts, between its raw output o_{T-1} and the reference demodulated by the same
-          accumulated albedo the model remodulates with:
-              l_a = mean | o - log(1 + r / (albedo_acc + 0.00316)) |
-          (o = demodulate(r, albedo_acc) is exactly the prediction that remodulates to r).
+          albedo (and exposure s) the model remodulates with:
+              l_a = mean | o - log(1 + (r / s) / (albedo_mod + 0.00316)) |
+          (o = demodulate(r / s, albedo_mod) is exactly the prediction that remodulates to r;
+          albedo_mod is the current albedo for config v2, the accumulated one for v1, s = 1
+          without exposure normalisation).
           It supervises o directly, including where remodulation clamps exp(o) - 1 < 0 and
           radiance losses give no gradient, and it weighs dark-albedo regions fairly.
 
@@ -30,7 +32,7 @@ from typing import Dict, Optional, Sequence, Tuple, Union
 import torch
 import torch.nn.functional as F
 
-from .model import ALBEDO_SLICE, demodulate, warp
+from .model import demodulate, warp
 
 FRAME_WEIGHTS: Tuple[float, ...] = (0.05, 0.25, 0.5, 0.75, 1.0)
 LAMBDAS: Dict[str, float] = {"s": 0.7, "t": 0.1, "e": 0.2, "wt": 0.4, "a": 5.0}
@@ -131,9 +133,12 @@ def warped_temporal_loss(preds: Frames, refs: Frames, motion: Frames) -> torch.T
     return diff.sum() / torch.clamp(count, min=1.0)
 
 
-def albedo_loss(o: torch.Tensor, ref: torch.Tensor, albedo_acc: torch.Tensor) -> torch.Tensor:
-    """l_a = mean |o - log(1 + ref / (albedo_acc + 0.00316))| (last frame, log-demodulated space)."""
-    return (o - demodulate(ref, albedo_acc)).abs().mean()
+def albedo_loss(o: torch.Tensor, ref: torch.Tensor, albedo_mod: torch.Tensor, exposure: Optional[torch.Tensor] = None) -> torch.Tensor:
+    """l_a = mean |o - log(1 + (ref / s) / (albedo_mod + 0.00316))| (last frame, log-demodulated
+    space; s = the colour exposure, channels 0..2 of `exposure` [N, 6, 1, 1], 1 when None)."""
+    if exposure is not None:
+        ref = ref / exposure[:, :3]  # the colour exposure (channels 3..5 are the shadow's)
+    return (o - demodulate(ref, albedo_mod)).abs().mean()
 
 
 def total_loss(
@@ -148,13 +153,14 @@ def total_loss(
     preds, refs: radiance [N, T, 3, H, W] (or lists). aux:
         motion      [N, T, 2, H, W] (or list): each frame's motion
         o           [N, 3, H, W]: the last frame's log-demodulated prediction
-        albedo_acc  [N, 3, H, W]: the last frame's accumulated albedo (A_acc channels 3..5)
+        albedo_mod  [N, 3, H, W]: the albedo the last frame was remodulated with
+        exposure    (optional) [N, 6, 1, 1]: the last frame's exposure (output = remodulate(o) * s[:, :3])
     """
     lam = dict(LAMBDAS if lambdas is None else lambdas)
     p, r = _stack(preds, "preds"), _stack(refs, "refs")
     if p.shape != r.shape:
         raise ValueError(f"preds {list(p.shape)} and refs {list(r.shape)} differ")
-    for key in ("motion", "o", "albedo_acc"):
+    for key in ("motion", "o", "albedo_mod"):
         if key not in aux:
             raise KeyError(f"total_loss: aux has no `{key}`")
     parts = {
@@ -162,7 +168,7 @@ def total_loss(
         "l_t": temporal_loss(p, r, frame_weights),
         "l_e": edge_loss(p, r, frame_weights),
         "l_wt": warped_temporal_loss(p, r, aux["motion"]),
-        "l_a": albedo_loss(aux["o"], r[:, -1], aux["albedo_acc"]),
+        "l_a": albedo_loss(aux["o"], r[:, -1], aux["albedo_mod"], aux.get("exposure")),
     }
     total = lam["s"] * parts["l_s"] + lam["t"] * parts["l_t"] + lam["e"] * parts["l_e"]
     total = total + lam["wt"] * parts["l_wt"] + lam["a"] * parts["l_a"]
@@ -181,6 +187,7 @@ def sequence_loss(
     aux = {
         "motion": [f["motion"] for f in frames],
         "o": results[-1]["o"],
-        "albedo_acc": results[-1]["a_acc"][:, ALBEDO_SLICE],
+        "albedo_mod": results[-1]["albedo_mod"],
+        "exposure": results[-1]["exposure"],
     }
     return total_loss(preds, refs, aux, frame_weights, lambdas)

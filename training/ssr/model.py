@@ -9,8 +9,24 @@ Tensors are NCHW float32. A frame is a dict of full-resolution buffers (DESIGN s
     depth(1) metallic(1) roughness(1) motion(2)
 
 `SSRModel.forward(frame, state)` denoises one frame given the recurrent state
-`(a_acc_prev, o_prev)` (or None for the first frame of a sequence) and returns a dict
-with the output and every intermediate (the golden generator and training share it).
+`(a_acc_prev, o_prev, exposure_prev)` (or None for the first frame of a sequence) and returns
+a dict with the output and every intermediate (the golden generator and training share it).
+
+Config version 2 (the default) adds three things that version-1 weights did not have
+(issue 11; version-1 files still load and run the version-1 pipeline):
+
+* `exposure = "channel"`: per-channel exposure normalisation. Every frame measures
+  g_c = exp(mean ln d_c) over the traced pixels with d_c > 0, d = color / (albedo + eps)
+  (the geometric mean of the demodulated samples), and likewise for the shadow buffer
+  (d = shadow), smooths both in log space over frames (`EXPOSURE_RATE`), divides colour and
+  shadow by their exposure before the network and multiplies the output by the colour's;
+  the history is re-expressed in the new exposure (`rescale_log`). The whole pipeline is
+  then equivariant to per-channel radiance scaling (of lights, of colour and shadow
+  together or apart).
+* `remodulation = "current"`: remodulate with the albedo that demodulated (the current
+  frame's), not the accumulated one.
+* `history = "geometry"`: warped history whose depth or normal disagrees with the current
+  frame is invalid like an off-screen sample (alpha = 0, W(o) = 0).
 """
 
 from __future__ import annotations
@@ -59,7 +75,32 @@ FRAME_CHANNELS: Dict[str, int] = {
 TILE_OFFSETS: Tuple[Tuple[int, int], ...] = ((0, 0), (1, 1), (1, 0), (0, 1))
 """(dx, dy) of the traced pixel inside each 2x2 tile for frame t: TILE_OFFSETS[t % 4]."""
 
-CONFIG_VERSION = 1
+CONFIG_VERSION = 2
+"""Config (and weights file) version this code writes; version 1 is read as LEGACY_OPTIONS."""
+
+LEGACY_OPTIONS: Dict[str, str] = {"exposure": "none", "remodulation": "accumulated", "history": "screen"}
+"""What version-1 weights were trained with: absolute radiance in, output remodulated with the
+accumulated albedo, history rejected only off screen."""
+
+OPTION_VALUES: Dict[str, Tuple[str, ...]] = {
+    "exposure": ("none", "channel"),
+    "remodulation": ("accumulated", "current"),
+    "history": ("screen", "geometry"),
+}
+
+EXPOSURE_RATE = 0.1
+"""Per-frame rate of the exposure's exponential moving average in log space."""
+
+HISTORY_DEPTH_TOL = 0.1
+"""History is inconsistent where |W(depth_acc) - depth| > HISTORY_DEPTH_TOL * depth ..."""
+
+HISTORY_NORMAL_TOL = 0.25
+"""... or |W(normal_acc) - normal|^2 > HISTORY_NORMAL_TOL (cos < 0.875 for unit normals)."""
+
+E_SLICE = slice(0, 3)
+SHADOW_SLICE = slice(9, 12)
+NORMAL_SLICE = slice(6, 9)
+DEPTH_CHANNEL = 12
 
 
 # ----------------------------------------------------------------------------- config
@@ -76,6 +117,9 @@ class SSRConfig:
     upsample: str = "bilinear"  # "bilinear" | "nearest": upsampling of I3, I2
     input_channels: int = A_CHANNELS + MT_CHANNELS + A_CHANNELS + RGB  # 37
     version: int = CONFIG_VERSION
+    exposure: str = "channel"  # "none" | "channel": per-channel exposure normalisation
+    remodulation: str = "current"  # "accumulated" | "current": albedo of the remodulation
+    history: str = "geometry"  # "screen" | "geometry": which warped history is invalid
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "enc", tuple(int(c) for c in self.enc))
@@ -99,11 +143,17 @@ class SSRConfig:
         expected = A_CHANNELS + MT_CHANNELS + A_CHANNELS + RGB
         if self.input_channels != expected:
             raise ValueError(f"config: `input_channels` must be {expected}, got {self.input_channels!r}")
-        if self.version != CONFIG_VERSION:
-            raise ValueError(f"config: unsupported `version` {self.version!r} (this code reads {CONFIG_VERSION})")
+        if self.version not in (1, CONFIG_VERSION):
+            raise ValueError(f"config: unsupported `version` {self.version!r} (this code reads 1 and {CONFIG_VERSION})")
+        for key, values in OPTION_VALUES.items():
+            v = getattr(self, key)
+            if v not in values:
+                raise ValueError(f"config: `{key}` must be one of {list(values)}, got {v!r}")
+            if self.version == 1 and v != LEGACY_OPTIONS[key]:
+                raise ValueError(f"config: version 1 has no `{key}` option (it means {LEGACY_OPTIONS[key]!r}), got {v!r}")
 
     def to_dict(self) -> dict:
-        return {
+        d = {
             "enc": list(self.enc),
             "feature_pool": self.feature_pool,
             "input_channels": self.input_channels,
@@ -112,6 +162,9 @@ class SSRConfig:
             "upsample": self.upsample,
             "version": self.version,
         }
+        if self.version >= 2:
+            d.update({k: getattr(self, k) for k in OPTION_VALUES})
+        return d
 
     def to_json(self) -> str:
         return json.dumps(self.to_dict(), sort_keys=True, separators=(",", ":"))
@@ -121,6 +174,15 @@ class SSRConfig:
         if not isinstance(d, dict):
             raise ValueError(f"config: expected a JSON object, got {type(d).__name__}")
         known = {"tfa_hidden", "k", "enc", "feature_pool", "upsample", "input_channels", "version"}
+        version = d.get("version")
+        if version == 1:
+            options = dict(LEGACY_OPTIONS)
+            present = sorted(set(OPTION_VALUES) & set(d))
+            if present:
+                raise ValueError(f"config: version 1 has no option(s) {present} (they came with version 2)")
+        else:
+            known |= set(OPTION_VALUES)
+            options = {k: d.get(k) for k in OPTION_VALUES}
         unknown = sorted(set(d) - known)
         if unknown:
             raise ValueError(f"config: unknown key(s) {unknown}")
@@ -137,7 +199,8 @@ class SSRConfig:
             feature_pool=d["feature_pool"],
             upsample=d["upsample"],
             input_channels=d["input_channels"],
-            version=d["version"],
+            version=version,
+            **options,
         )
 
     @classmethod
@@ -165,9 +228,10 @@ def demodulate(color: torch.Tensor, albedo: torch.Tensor) -> torch.Tensor:
     return torch.log(1.0 + _clean(color) / (_clean(albedo) + ALBEDO_EPS))
 
 
-def remodulate(o: torch.Tensor, albedo_acc: torch.Tensor) -> torch.Tensor:
-    """out = clamp(exp(o) - 1, min=0) * (clamp(albedo_acc, min=0) + 0.00316)."""
-    return torch.clamp(torch.exp(o) - 1.0, min=0.0) * (torch.clamp(albedo_acc, min=0.0) + ALBEDO_EPS)
+def remodulate(o: torch.Tensor, albedo: torch.Tensor) -> torch.Tensor:
+    """out = clamp(exp(o) - 1, min=0) * (clamp(albedo, min=0) + 0.00316) (SSRModel multiplies by
+    the exposure after this)."""
+    return torch.clamp(torch.exp(o) - 1.0, min=0.0) * (torch.clamp(albedo, min=0.0) + ALBEDO_EPS)
 
 
 def quarter_mask(height: int, width: int, t: int, *, dtype=torch.float32) -> torch.Tensor:
@@ -195,15 +259,72 @@ def _check_frame(frame: Dict[str, torch.Tensor]) -> Tuple[int, int, int]:
     return n, h, w
 
 
-def prepare_inputs(frame: Dict[str, torch.Tensor]) -> Tuple[torch.Tensor, torch.Tensor]:
+EXPOSURE_CHANNELS = 6
+"""The exposure s: [colour r, g, b, shadow r, g, b]."""
+
+
+def _log_exposure(frame: Dict[str, torch.Tensor]) -> Tuple[torch.Tensor, torch.Tensor]:
+    """(mean ln d_c over the traced pixels with d_c > 0, whether there is one), [N, 6, 1, 1] each,
+    d = [clean(color) / (clean(albedo) + eps), clean(shadow)] (wgsl/ssr/exposure_*.wgsl)."""
+    d = torch.cat([_clean(frame["color"]) / (_clean(frame["albedo"]) + ALBEDO_EPS), _clean(frame["shadow"])], dim=1)
+    traced = _clean(frame["mask"]) > 0.5
+    pos = traced & (d > 0)
+    ln = torch.where(pos, torch.log(torch.where(pos, d, torch.ones_like(d))), torch.zeros_like(d))
+    total = ln.sum(dim=(2, 3), keepdim=True)
+    count = pos.to(d.dtype).sum(dim=(2, 3), keepdim=True)
+    have = count > 0
+    return torch.where(have, total / torch.clamp(count, min=1.0), torch.zeros_like(total)), have
+
+
+def frame_exposure(frame: Dict[str, torch.Tensor]) -> torch.Tensor:
+    """g_c = exp(mean ln d_c) over the traced pixels with d_c > 0 (1 where there is none),
+    [N, 6, 1, 1]: demodulated colour rgb, shadow rgb."""
+    lg, _ = _log_exposure(frame)
+    return torch.exp(lg)
+
+
+def update_exposure(frame: Dict[str, torch.Tensor], prev: Optional[torch.Tensor]) -> torch.Tensor:
+    """This frame's exposure s [N, 6, 1, 1]: g on the first frame (prev None), then
+    exp(ln s_prev + EXPOSURE_RATE (ln g - ln s_prev)); a channel without a positive traced
+    sample keeps s_prev (1 on a first frame)."""
+    lg, have = _log_exposure(frame)
+    if prev is None:
+        return torch.exp(lg)
+    lp = torch.log(prev)
+    return torch.exp(torch.where(have, lp + EXPOSURE_RATE * (lg - lp), lp))
+
+
+def rescale_log(v: torch.Tensor, ratio: torch.Tensor) -> torch.Tensor:
+    """Re-expresses log values v = ln(1 + x / s_prev) in the exposure s: ln(1 + (exp(v) - 1) ratio),
+    ratio = s_prev / s (per channel, broadcast). Values v <= 0 (radiance 0 after remodulation's
+    clamp) are kept as they are."""
+    pos = torch.clamp(v, min=0.0)  # the unused branch stays finite (no NaN gradients)
+    return torch.where(v > 0, torch.log(1.0 + (torch.exp(pos) - 1.0) * ratio), v)
+
+
+def history_consistent(warp_acc: torch.Tensor, a_t: torch.Tensor) -> torch.Tensor:
+    """[N, 1, H, W] bool: the warped accumulated depth and normal agree with this frame's
+    (|dd| <= HISTORY_DEPTH_TOL depth and |dn|^2 <= HISTORY_NORMAL_TOL)."""
+    d = a_t[:, DEPTH_CHANNEL : DEPTH_CHANNEL + 1]
+    dd = (warp_acc[:, DEPTH_CHANNEL : DEPTH_CHANNEL + 1] - d).abs()
+    dn = ((warp_acc[:, NORMAL_SLICE] - a_t[:, NORMAL_SLICE]) ** 2).sum(dim=1, keepdim=True)
+    return (dd <= HISTORY_DEPTH_TOL * d) & (dn <= HISTORY_NORMAL_TOL)
+
+
+def prepare_inputs(frame: Dict[str, torch.Tensor], exposure: Optional[torch.Tensor] = None) -> Tuple[torch.Tensor, torch.Tensor]:
     """Builds A_t (15 ch) and MT (4 ch) from a frame's buffers.
 
     A_t = [e(3), albedo(3), normal(3), log1p(clamp(shadow, min=0))(3), depth, metallic, roughness]
     MT  = [mask(1), transparent(3)]
+    With `exposure` s ([N, 6, 1, 1]), colour is divided by s[:, :3] and shadow by s[:, 3:] first.
     """
     _check_frame(frame)
-    e = demodulate(frame["color"], frame["albedo"])
-    shadow = torch.log1p(torch.clamp(frame["shadow"], min=0.0))
+    color, shadow = frame["color"], frame["shadow"]
+    if exposure is not None:
+        color = _clean(color) / exposure[:, :RGB]
+        shadow = _clean(shadow) / exposure[:, RGB:]
+    e = demodulate(color, frame["albedo"])
+    shadow = torch.log1p(torch.clamp(shadow, min=0.0))
     a_t = torch.cat(
         [e, frame["albedo"], frame["normal"], shadow, frame["depth"], frame["metallic"], frame["roughness"]],
         dim=1,
@@ -363,8 +484,9 @@ class UNet(nn.Module):
         return {"enc1": enc1, "enc2": enc2, "enc3": enc3, "i3": i3, "i2": i2, "o": o}
 
 
-State = Tuple[torch.Tensor, torch.Tensor]
-"""Recurrent state carried between frames: (A_acc_t [N, 15, H, W], o_t [N, 3, H, W])."""
+State = Tuple[torch.Tensor, torch.Tensor, torch.Tensor]
+"""Recurrent state carried between frames: (A_acc_t [N, 15, H, W], o_t [N, 3, H, W],
+exposure s_t [N, 6, 1, 1])."""
 
 
 class SSRModel(nn.Module):
@@ -379,44 +501,80 @@ class SSRModel(nn.Module):
     def forward(self, frame: Dict[str, torch.Tensor], state: Optional[State] = None) -> Dict[str, object]:
         """Denoises one frame.
 
-        frame: dict of NCHW buffers (FRAME_CHANNELS); state: (a_acc_prev, o_prev) or None for
-        the first frame of a sequence (then W(A_acc_prev) := A_t, valid := 1, W(o_prev) := 0).
+        frame: dict of NCHW buffers (FRAME_CHANNELS); state: (a_acc_prev, o_prev, exposure_prev)
+        or None for the first frame of a sequence (then W(A_acc_prev) := A_t, valid := 1,
+        W(o_prev) := 0).
 
-        Returns a dict with `output` (remodulated radiance, [N, 3, H, W]), `state` (the next
-        frame's state) and every intermediate: a_cur, mt, warp_acc, warp_valid, ref_feat,
-        emb_cur, emb_prev, tfa_weights, a_acc, warp_out, enc1, enc2, enc3, i3, i2, o.
+        Returns a dict with `output` (radiance, [N, 3, H, W]), `state` (the next frame's state)
+        and every intermediate: exposure, a_cur, mt, warp_acc, warp_valid, ref_feat, emb_cur,
+        emb_prev, tfa_weights, a_acc, warp_out, enc1, enc2, enc3, i3, i2, o, albedo_mod.
         """
-        a_t, mt = prepare_inputs(frame)
+        h = self.history(frame, state)
+        tfa = self.tfa(h["a_cur"], h["mt"], h["warp_acc"], h["warp_valid"])
+        a_acc = tfa["a_acc"]
+        net = self.unet(h["a_cur"], h["mt"], a_acc, h["warp_out"])
+        albedo_mod = self.remodulation_albedo(h["a_cur"], a_acc)
+        output = remodulate(net["o"], albedo_mod) * h["exposure"][:, :RGB]
+        out: Dict[str, object] = {
+            **h,
+            **tfa,
+            **net,
+            "albedo_mod": albedo_mod,
+            "output": output,
+            "state": (a_acc, net["o"], h["exposure"]),
+        }
+        return out
+
+    def remodulation_albedo(self, a_t: torch.Tensor, a_acc: torch.Tensor) -> torch.Tensor:
+        """The albedo the output is remodulated with (config `remodulation`)."""
+        return (a_t if self.cfg.remodulation == "current" else a_acc)[:, ALBEDO_SLICE]
+
+    def history(self, frame: Dict[str, torch.Tensor], state: Optional[State]) -> Dict[str, torch.Tensor]:
+        """Exposure, network inputs and the warped, checked, re-exposed history:
+        {exposure, a_cur, mt, warp_acc, warp_valid, warp_out}."""
+        _check_frame(frame)
+        prev = None
+        if state is not None:
+            if len(state) != 3:
+                raise ValueError(f"state: expected (a_acc, o, exposure), got a tuple of {len(state)}")
+            a_acc_prev, o_prev, prev = state
+        if self.cfg.exposure == "channel":
+            exposure = update_exposure(frame, prev)
+        else:
+            c = frame["color"]
+            exposure = torch.ones(c.shape[0], EXPOSURE_CHANNELS, 1, 1, dtype=c.dtype, device=c.device)
+        a_t, mt = prepare_inputs(frame, exposure if self.cfg.exposure == "channel" else None)
         if state is None:
             warp_acc = a_t
             warp_valid = torch.ones_like(a_t[:, :1])
             wo = torch.zeros_like(a_t[:, :RGB])
         else:
-            a_acc_prev, o_prev = state
-            if a_acc_prev.shape != a_t.shape or o_prev.shape != a_t[:, :RGB].shape:
+            if a_acc_prev.shape != a_t.shape or o_prev.shape != a_t[:, :RGB].shape or prev.shape != exposure.shape:
                 raise ValueError(
-                    f"state: expected a_acc {list(a_t.shape)} and o {list(a_t[:, :RGB].shape)}, "
-                    f"got {list(a_acc_prev.shape)} and {list(o_prev.shape)}"
+                    f"state: expected a_acc {list(a_t.shape)}, o {list(a_t[:, :RGB].shape)} and exposure "
+                    f"{list(exposure.shape)}, got {list(a_acc_prev.shape)}, {list(o_prev.shape)} and {list(prev.shape)}"
                 )
             # One warp of both histories: same motion, hence the same validity.
             warped, warp_valid = warp(torch.cat([a_acc_prev, o_prev], dim=1), frame["motion"])
             warp_acc, wo = warped[:, :A_CHANNELS], warped[:, A_CHANNELS:]
-        tfa = self.tfa(a_t, mt, warp_acc, warp_valid)
-        a_acc = tfa["a_acc"]
-        net = self.unet(a_t, mt, a_acc, wo)
-        output = remodulate(net["o"], a_acc[:, ALBEDO_SLICE])
-        out: Dict[str, object] = {
-            "a_cur": a_t,
-            "mt": mt,
-            "warp_acc": warp_acc,
-            "warp_valid": warp_valid,
-            "warp_out": wo,
-            **tfa,
-            **net,
-            "output": output,
-            "state": (a_acc, net["o"]),
-        }
-        return out
+            if self.cfg.exposure == "channel":
+                ratio = prev / exposure
+                warp_acc = torch.cat(
+                    [
+                        rescale_log(warp_acc[:, E_SLICE], ratio[:, :RGB]),
+                        warp_acc[:, E_SLICE.stop : SHADOW_SLICE.start],
+                        rescale_log(warp_acc[:, SHADOW_SLICE], ratio[:, RGB:]),
+                        warp_acc[:, SHADOW_SLICE.stop :],
+                    ],
+                    dim=1,
+                )
+                wo = rescale_log(wo, ratio[:, :RGB])
+            if self.cfg.history == "geometry":
+                ok = (warp_valid > 0.5) & history_consistent(warp_acc, a_t)
+                warp_valid = ok.to(warp_valid.dtype)
+                warp_acc = torch.where(ok, warp_acc, torch.zeros_like(warp_acc))
+                wo = torch.where(ok, wo, torch.zeros_like(wo))
+        return {"exposure": exposure, "a_cur": a_t, "mt": mt, "warp_acc": warp_acc, "warp_valid": warp_valid, "warp_out": wo}
 
     def run_sequence(
         self,
@@ -434,7 +592,7 @@ class SSRModel(nn.Module):
             r = self.forward(frame, state)
             state = r["state"]
             if detach_state:
-                state = (state[0].detach(), state[1].detach())
+                state = tuple(x.detach() for x in state)
             results.append(r)
         return results
 

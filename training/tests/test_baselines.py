@@ -168,6 +168,11 @@ def test_load_model_dispatches_and_checks(tmp_path):
 def test_build_model_configs():
     assert build_model("rae", {"enc": [8, 12], "bottleneck": 16}).cfg.enc == (8, 12)
     assert build_model("ssr", {"enc": [8, 8, 8]}).cfg.enc == (8, 8, 8)
+    # --model-config '{"version": 1}': the version-1 pipeline (e.g. to resume a version-1 run)
+    v1 = build_model("ssr", {"version": 1}).cfg
+    assert (v1.version, v1.exposure, v1.remodulation, v1.history) == (1, "none", "accumulated", "screen")
+    ablation = build_model("ssr", {"exposure": "none"}).cfg
+    assert (ablation.version, ablation.exposure, ablation.history) == (2, "none", "geometry")
     with pytest.raises(ValueError, match="unknown model"):
         build_model("unet")
     with pytest.raises(WeightsError, match="unknown"):

@@ -32,7 +32,7 @@ def test_round_trip_identical_outputs(tmp_path, frames):
     path = str(tmp_path / "w.safetensors")
     export_weights(model, path, {"scenes": ["cornell"], "iterations": 10}, {"psnr": 30.5})
     loaded, meta = load_weights(path)
-    assert meta["format"] == FORMAT and meta["version"] == "1"
+    assert meta["format"] == FORMAT and meta["version"] == "2"
     assert meta["config"] == model.cfg
     assert meta["provenance"] == {"scenes": ["cornell"], "iterations": 10}
     assert meta["metrics"] == {"psnr": 30.5}
@@ -60,7 +60,7 @@ def test_file_layout_and_metadata(tmp_path):
     with safe_open(path, framework="pt") as f:
         meta = f.metadata()
         assert meta["format"] == "subpixel-ssr"
-        assert meta["version"] == "1"
+        assert meta["version"] == "2"
         assert json.loads(meta["config"]) == SSRConfig().to_dict()
         assert json.loads(meta["provenance"]) == "random-init: for tests only, not a denoiser"
         assert json.loads(meta["metrics"]) == {}
@@ -159,7 +159,8 @@ def test_config_mismatch_names_tensors(tmp_path, good_file):
     [
         ({"format": "pytorch"}, "`format` is 'pytorch'"),
         ({"format": None}, "`format` is None"),
-        ({"version": "2"}, "`version` is '2'"),
+        ({"version": "3"}, "`version` is '3', this code reads versions ['1', '2']"),
+        ({"version": "1"}, "`version` is '1' but its config is version 2"),
         ({"config": None}, "no `config`"),
         ({"config": "{not json"}, "`config`: config: not valid JSON"),
         ({"config": '{"k": 8}'}, "missing key"),
@@ -204,3 +205,39 @@ def test_cli_random(tmp_path):
     other = tmp_path / "same.safetensors"
     export_random(str(other), seed=0)
     assert out.read_bytes() == other.read_bytes()
+
+
+def test_version_1_files_load_with_the_v1_pipeline(tmp_path, frames):
+    """Weights trained before exposure normalisation keep their meaning (model.LEGACY_OPTIONS)."""
+    from ssr.model import LEGACY_OPTIONS
+
+    legacy = SSRConfig(version=1, **LEGACY_OPTIONS)
+    model = random_model(3, legacy)
+    path = str(tmp_path / "v1.safetensors")
+    export_weights(model, path, RANDOM_PROVENANCE)
+    with safe_open(path, framework="pt") as f:
+        assert f.metadata()["version"] == "1"
+        assert "exposure" not in json.loads(f.metadata()["config"])
+    loaded, meta = load_weights(path)
+    assert meta["version"] == "1" and meta["config"] == legacy
+    assert (loaded.cfg.exposure, loaded.cfg.remodulation, loaded.cfg.history) == ("none", "accumulated", "screen")
+    for a, b in zip(_outputs(model, frames), _outputs(loaded, frames)):
+        assert torch.equal(a, b)
+    # a version-1 config naming a version-2 option is an error naming it
+    bad = str(tmp_path / "bad.safetensors")
+    cfg = dict(legacy.to_dict(), exposure="channel")
+    _rewrite(path, bad, meta_patch={"config": json.dumps(cfg)})
+    with pytest.raises(WeightsError, match=r"version 1 has no option\(s\) \['exposure'\]"):
+        load_weights(bad)
+
+
+def test_shipped_weights_load():
+    """The weights in weights/ (version 1 until retrained) keep loading, with their own pipeline."""
+    import glob
+
+    shipped = sorted(glob.glob(os.path.join(os.path.dirname(TRAINING), "weights", "ssr*.safetensors")))
+    assert shipped
+    for path in shipped:
+        model, meta = load_weights(path)
+        assert meta["version"] in ("1", "2"), path
+        assert model.cfg.version == int(meta["version"]), path

@@ -42,7 +42,10 @@ SHAPES = {
     "enc2": (H // 2, W // 2, 32),
     "enc3": (H // 4, W // 4, 28),
 }
-FILES = ["golden_weights.safetensors"] + [f"golden_frame{t}.safetensors" for t in range(3)]
+SHAPES_V2 = {**SHAPES, "exposure": (1, 1, 6)}
+SETS = {"golden_": SHAPES_V2, "golden_v1_": SHAPES}
+"""File prefix -> the tensors of its frames (version 2: the default config; version 1: legacy)."""
+FILES = [f"{p}{n}.safetensors" for p in SETS for n in ["weights"] + [f"frame{t}" for t in range(3)]]
 
 
 def _read(path):
@@ -70,13 +73,15 @@ def test_sizes_names_shapes(generated):
     a, _ = generated
     for name in FILES:
         assert os.path.getsize(os.path.join(a, name)) < 1 << 20, name
-    for t in range(3):
-        tensors, meta = _read(os.path.join(a, f"golden_frame{t}.safetensors"))
-        assert {k: tuple(v.shape) for k, v in tensors.items()} == SHAPES
-        assert all(v.dtype == torch.float32 for v in tensors.values())
-        assert meta["frame"] == str(t) and meta["width"] == str(W) and meta["height"] == str(H)
-        assert meta["weights"] == "golden_weights.safetensors"
-        assert meta["tile_offset"] == str(list(TILE_OFFSETS[t]))
+    for prefix, shapes in SETS.items():
+        for t in range(3):
+            tensors, meta = _read(os.path.join(a, f"{prefix}frame{t}.safetensors"))
+            assert {k: tuple(v.shape) for k, v in tensors.items()} == shapes
+            assert all(v.dtype == torch.float32 for v in tensors.values())
+            assert meta["frame"] == str(t) and meta["width"] == str(W) and meta["height"] == str(H)
+            assert meta["weights"] == f"{prefix}weights.safetensors"
+            assert meta["version"] == ("2" if prefix == "golden_" else "1")
+            assert meta["tile_offset"] == str(list(TILE_OFFSETS[t]))
 
 
 def test_committed_files_match_generator(generated):
@@ -98,11 +103,12 @@ def test_committed_files_match_generator(generated):
             torch.testing.assert_close(got[k], want[k], rtol=1e-5, atol=1e-5, msg=f"{name}: {k}")
 
 
-def test_inputs_follow_the_contract(generated):
+@pytest.mark.parametrize("prefix", list(SETS))
+def test_inputs_follow_the_contract(generated, prefix):
     a, _ = generated
     any_invalid = any_zero_motion = False
     for t in range(3):
-        d, _ = _read(os.path.join(a, f"golden_frame{t}.safetensors"))
+        d, _ = _read(os.path.join(a, f"{prefix}frame{t}.safetensors"))
         mask = d["mask"]
         assert torch.equal(mask, quarter_mask(H, W, t)[0].permute(1, 2, 0))
         untraced = (mask == 0).expand(H, W, 3)
@@ -125,10 +131,21 @@ def test_inputs_follow_the_contract(generated):
     assert any_invalid and any_zero_motion
 
 
-def test_outputs_have_spread(generated):
+def test_v2_exercises_exposure_and_history_test(generated):
+    """The version-2 set moves the exposure (history re-exposed) and rejects history by geometry."""
+    a, _ = generated
+    s = [_read(os.path.join(a, f"golden_frame{t}.safetensors"))[0]["exposure"] for t in range(3)]
+    assert ((s[1] / s[0]) > 1.05).all() and ((s[2] / s[1]) > 1.05).all()
+    d, _ = _read(os.path.join(a, "golden_frame1.safetensors"))
+    block = d["warp_valid"][2:10, 18:26]  # the disoccluded block of frame 1 (make_frames)
+    assert (block == 0).float().mean() > 0.9
+
+
+@pytest.mark.parametrize("prefix", list(SETS))
+def test_outputs_have_spread(generated, prefix):
     a, _ = generated
     for t in range(3):
-        d, _ = _read(os.path.join(a, f"golden_frame{t}.safetensors"))
+        d, _ = _read(os.path.join(a, f"{prefix}frame{t}.safetensors"))
         golden.check_spread(d, t)
         assert (d["output"] == 0).any() and (d["output"] > 0).float().mean() > 0.5
         for k in ("enc1", "enc2", "enc3"):
@@ -136,17 +153,19 @@ def test_outputs_have_spread(generated):
             assert 0.2 < frac < 0.8, (t, k, frac)
 
 
-def test_files_replay_through_loaded_weights(generated):
+@pytest.mark.parametrize("prefix", list(SETS))
+def test_files_replay_through_loaded_weights(generated, prefix):
     """What the Rust parity test does: load the weights and the inputs, run, compare."""
     a, _ = generated
-    model, meta = load_weights(os.path.join(a, "golden_weights.safetensors"))
+    model, meta = load_weights(os.path.join(a, f"{prefix}weights.safetensors"))
     assert meta["provenance"].startswith("random-init")
+    assert meta["version"] == ("2" if prefix == "golden_" else "1")
     state = None
     for t in range(3):
-        d, _ = _read(os.path.join(a, f"golden_frame{t}.safetensors"))
-        frame = {k: d[k].permute(2, 0, 1).unsqueeze(0) for k in golden.GOLDEN_INPUTS}
+        d, _ = _read(os.path.join(a, f"{prefix}frame{t}.safetensors"))
+        frame = {k: d[k].permute(2, 0, 1).unsqueeze(0).contiguous() for k in golden.GOLDEN_INPUTS}
         with torch.no_grad():
             r = model(frame, state)
         state = r["state"]
-        for k in golden.GOLDEN_INTERMEDIATES + golden.GOLDEN_EXTRAS:
+        for k in golden.golden_names(model.cfg):
             torch.testing.assert_close(golden.hwc(r[k]), d[k], rtol=1e-6, atol=1e-6, msg=f"frame {t}: {k}")

@@ -18,7 +18,7 @@ def _seq(seed=0):
 
 
 def _aux(refs, motion, albedo):
-    return {"motion": motion, "o": demodulate(refs[:, -1], albedo), "albedo_acc": albedo}
+    return {"motion": motion, "o": demodulate(refs[:, -1], albedo), "albedo_mod": albedo}
 
 
 def test_constants():

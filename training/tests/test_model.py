@@ -12,10 +12,12 @@ from ssr.model import (
     conv_layers,
     demodulate,
     flops_per_pixel,
+    history_consistent,
     pool2x2,
     prepare_inputs,
     quarter_mask,
     remodulate,
+    rescale_log,
     upsample2x,
     warp,
 )
@@ -57,8 +59,9 @@ def test_intermediate_shapes(frames):
             assert tuple(r[name].shape) == shape, name
             assert r[name].dtype == torch.float32, name
             assert torch.isfinite(r[name]).all(), name
-        a_acc, o = r["state"]
-        assert a_acc is r["a_acc"] and o is r["o"]
+        a_acc, o, exposure = r["state"]
+        assert a_acc is r["a_acc"] and o is r["o"] and exposure is r["exposure"]
+        assert exposure.shape == (1, 6, 1, 1)
 
 
 def test_named_parameters_and_shapes():
@@ -147,7 +150,10 @@ def test_config_json_round_trip():
         "feature_pool": "max",
         "upsample": "bilinear",
         "input_channels": 37,
-        "version": 1,
+        "version": 2,
+        "exposure": "channel",
+        "remodulation": "current",
+        "history": "geometry",
     }
     with pytest.raises(ValueError, match="feature_pool"):
         SSRConfig(feature_pool="median")
@@ -155,6 +161,20 @@ def test_config_json_round_trip():
         SSRConfig.from_dict({**d, "depth": 4})
     with pytest.raises(ValueError, match="input_channels"):
         SSRConfig.from_dict({**d, "input_channels": 36})
+    with pytest.raises(ValueError, match="`exposure` must be one of"):
+        SSRConfig.from_dict({**d, "exposure": "global"})
+    with pytest.raises(ValueError, match=r"missing key\(s\) \['history'\]"):
+        SSRConfig.from_dict({k: v for k, v in d.items() if k != "history"})
+    with pytest.raises(ValueError, match="unsupported `version` 3"):
+        SSRConfig.from_dict({**d, "version": 3})
+    # version 1 (the shipped weights'): no option keys, the legacy pipeline
+    v1 = {k: v for k, v in d.items() if k not in ("exposure", "remodulation", "history")}
+    v1["version"] = 1
+    c1 = SSRConfig.from_dict(v1)
+    assert (c1.exposure, c1.remodulation, c1.history) == ("none", "accumulated", "screen")
+    assert c1.to_dict() == v1 and SSRConfig.from_json(c1.to_json()) == c1
+    with pytest.raises(ValueError, match="version 1 has no `exposure` option"):
+        SSRConfig(version=1, exposure="channel", remodulation="accumulated", history="screen")
 
 
 def test_flops_per_pixel_breakdown():
@@ -344,7 +364,7 @@ def test_upsample2x_bilinear_semantics():
 def test_unet_wiring_matches_contract(frames):
     """Recomputes the U-Net from the contract text: concat orders, average pooling of W(o),
     max pooling of features, bilinear upsampling, no activation on the RGB convs."""
-    model = random_model(0)
+    model = random_model(0)  # o < 0 and I3 < 0 somewhere with this seed
     u = model.unet
     with torch.no_grad():
         r0, r1 = model.run_sequence(frames[:2])
@@ -359,7 +379,8 @@ def test_unet_wiring_matches_contract(frames):
         up = lambda x: F.interpolate(x, scale_factor=2, mode="bilinear", align_corners=False)  # noqa: E731
         i2 = u.dec2[2](relu(u.dec2[0](torch.cat([e2, up(i3), wo2], 1))))
         o = u.dec1[2](relu(u.dec1[0](torch.cat([e1, up(i2), wo], 1))))
-        out = torch.clamp(torch.exp(o) - 1, min=0) * (torch.clamp(acc[:, 3:6], min=0) + ALBEDO_EPS)
+        # remodulated with the current albedo (A_t channels 3..5), times the exposure
+        out = torch.clamp(torch.exp(o) - 1, min=0) * (torch.clamp(a[:, 3:6], min=0) + ALBEDO_EPS) * r1["exposure"][:, :3]
     for name, v in [("enc1", e1), ("enc2", e2), ("enc3", e3), ("i3", i3), ("i2", i2), ("o", o), ("output", out)]:
         torch.testing.assert_close(r1[name], v, msg=name)
     assert (i3 < 0).any() and (o < 0).any()  # no activation on RGB outputs
@@ -403,11 +424,25 @@ def test_tfa_first_frame_and_invalid_history(frames):
     torch.testing.assert_close(tw[:, 3:4], (r1["emb_prev"] * r1["ref_feat"]).sum(1, keepdim=True))
     # softmax
     torch.testing.assert_close(tw[:, 1][~inv], torch.sigmoid(tw[:, 3] - tw[:, 2])[~inv])
-    # the warped history is the previous A_acc and o warped with this frame's motion
+    # the warped history is the previous A_acc and o warped with this frame's motion, re-exposed
+    # (e and shadow channels, o) and rejected where depth or normal disagree
     wa, wv = warp(r0["a_acc"], frames[1]["motion"])
     wo, _ = warp(r0["o"], frames[1]["motion"])
-    assert torch.equal(r1["warp_acc"], wa) and torch.equal(r1["warp_valid"], wv)
-    assert torch.equal(r1["warp_out"], wo)
+    ratio = r0["exposure"] / r1["exposure"]
+    wa = torch.cat([rescale_log(wa[:, 0:3], ratio[:, :3]), wa[:, 3:9], rescale_log(wa[:, 9:12], ratio[:, 3:]), wa[:, 12:]], 1)
+    wo = rescale_log(wo, ratio[:, :3])
+    ok = (wv > 0.5) & history_consistent(wa, r1["a_cur"])
+    assert torch.equal(r1["warp_valid"], ok.float())
+    assert torch.equal(r1["warp_acc"], torch.where(ok, wa, torch.zeros_like(wa)))
+    assert torch.equal(r1["warp_out"], torch.where(ok, wo, torch.zeros_like(wo)))
+    # version 1: the plain warp
+    legacy = random_model(0, SSRConfig(version=1, exposure="none", remodulation="accumulated", history="screen"))
+    with torch.no_grad():
+        q0, q1 = legacy.run_sequence(frames[:2])
+    wa, wv = warp(q0["a_acc"], frames[1]["motion"])
+    wo, _ = warp(q0["o"], frames[1]["motion"])
+    assert torch.equal(q1["warp_acc"], wa) and torch.equal(q1["warp_valid"], wv)
+    assert torch.equal(q1["warp_out"], wo)
 
 
 def test_tfa_softmax_is_stable():

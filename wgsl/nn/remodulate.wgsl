@@ -1,6 +1,7 @@
-// Exp + remodulation (DESIGN §3): out = max(exp(o) - 1, 0) * (albedo + 0.00316), over the
-// first 3 channels of `o` and `albedo` (the accumulated albedo). Output: 3 channels
-// (padded to 4, the 4th is 0).
+// Exp + remodulation (DESIGN §3): out = max(exp(o) - 1, 0) * (albedo + 0.00316) * scale,
+// over the first 3 channels of `o` and of `albedo` from `albedo_offset` (SSR: the albedo
+// that demodulated, or the accumulated one for version-1 weights); `scale` is one vec4 (rgb:
+// the exposure). Output: 3 channels (padded to 4, the 4th is 0).
 
 struct Params {
     width: u32,
@@ -17,6 +18,7 @@ struct Params {
 @group(0) @binding(1) var<storage, read> o: array<vec4<f32>>;
 @group(0) @binding(2) var<storage, read> albedo: array<vec4<f32>>;
 @group(0) @binding(3) var<storage, read_write> dst: array<vec4<f32>>;
+@group(0) @binding(4) var<storage, read> scale: array<vec4<f32>>;
 
 const EPS: f32 = 0.00316;
 
@@ -40,5 +42,5 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>) {
     let pix = y * p.width + x;
     let e = o[pix * p.o_c4].xyz;
     let a = max(albedo3(pix), vec3<f32>(0.0));
-    dst[pix] = vec4<f32>(max(exp(e) - vec3<f32>(1.0), vec3<f32>(0.0)) * (a + vec3<f32>(EPS)), 0.0);
+    dst[pix] = vec4<f32>(max(exp(e) - vec3<f32>(1.0), vec3<f32>(0.0)) * (a + vec3<f32>(EPS)) * scale[0].xyz, 0.0);
 }

@@ -4,8 +4,11 @@
 //   A_t (15 ch, 4 vec4) = [e(3), albedo(3), normal(3), log1p(shadow)(3), depth, metallic, roughness]
 //   MT  (4 ch)          = [mask, transparent(3)]
 //   motion (2 ch)       = caller motion
-// with e = ln(1 + color / (albedo + 0.00316)). Non-finite input values become 0 and are
-// counted in `sanitized` (only for pixels inside W x H, once each).
+// with e = ln(1 + (color / s) / (albedo + 0.00316)) and log1p(shadow / s_shadow), s and
+// s_shadow = the frame's exposure of colour and shadow (per channel; a 1x1x6 tensor,
+// exposure_final.wgsl; 1 for version-1 weights). Non-finite
+// input values become 0 and are counted in `sanitized` (only for pixels inside W x H, once
+// each).
 
 struct Params {
     width: u32,
@@ -25,6 +28,7 @@ struct Params {
 @group(0) @binding(8) var<storage, read_write> mt: array<vec4<f32>>;
 @group(0) @binding(9) var<storage, read_write> motion_out: array<vec4<f32>>;
 @group(0) @binding(10) var<storage, read_write> sanitized: array<atomic<u32>>;
+@group(0) @binding(11) var<storage, read> exposure: array<vec4<f32>>;
 
 const EPS: f32 = 0.00316;
 
@@ -56,8 +60,11 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>) {
         atomicAdd(&sanitized[0], bad);
     }
     let albedo = ad.xyz;
-    let e = log(vec3<f32>(1.0) + max(cm.xyz, vec3<f32>(0.0)) / (max(albedo, vec3<f32>(0.0)) + vec3<f32>(EPS)));
-    let shadow = log(vec3<f32>(1.0) + max(sr.xyz, vec3<f32>(0.0)));
+    let s = exposure[0].xyz;
+    let c = max(cm.xyz, vec3<f32>(0.0)) / s;
+    let e = log(vec3<f32>(1.0) + c / (max(albedo, vec3<f32>(0.0)) + vec3<f32>(EPS)));
+    let s_shadow = vec3<f32>(exposure[0].w, exposure[1].xy);
+    let shadow = log(vec3<f32>(1.0) + max(sr.xyz, vec3<f32>(0.0)) / s_shadow);
     let dst = y * p.padded_width + x;
     a_t[dst * 4u + 0u] = vec4<f32>(e, albedo.x);
     a_t[dst * 4u + 1u] = vec4<f32>(albedo.yz, nm.xy);

@@ -1,0 +1,69 @@
+// Exposure statistic, pass 2 of 2 (training/ssr/model.py `update_exposure`): adds up the
+// partials of exposure_partial.wgsl and updates the exposure s, per channel, of the colour
+// (vec4 0) and of the shadow (vec4 1):
+//   have = count > 0, lg = sum / count                    (ln of the geometric mean)
+//   first frame:  s = exp(have ? lg : 0)
+//   later:        lp = ln(s_prev), s = exp(have ? lp + RATE (lg - lp) : lp)
+//   ratio = s_prev / s (1 on a first frame): history.wgsl re-exposes the history with it.
+// `exposure` holds s_prev on entry and s on exit and `ratio` the ratio: 6 channels packed
+// in 2 vec4 as a 1x1x6 tensor, (colour.rgb, shadow.r), (shadow.gb, 0, 0).
+
+struct Params {
+    groups: u32,
+    first: u32,
+    _pad0: u32,
+    _pad1: u32,
+}
+
+@group(0) @binding(0) var<uniform> p: Params;
+@group(0) @binding(1) var<storage, read> partials: array<vec4<f32>>;
+@group(0) @binding(2) var<storage, read_write> exposure: array<vec4<f32>>;
+@group(0) @binding(3) var<storage, read_write> ratio: array<vec4<f32>>;
+
+const RATE: f32 = 0.1;
+const WG: u32 = 64u;
+
+// [colour sum, colour count, shadow sum, shadow count] per thread, then tree-reduced.
+var<workgroup> acc: array<array<vec4<f32>, 4>, 64>;
+
+@compute @workgroup_size(64, 1, 1)
+fn main(@builtin(local_invocation_id) lid: vec3<u32>) {
+    var a = array<vec4<f32>, 4>(vec4<f32>(0.0), vec4<f32>(0.0), vec4<f32>(0.0), vec4<f32>(0.0));
+    for (var g = lid.x; g < p.groups; g += WG) {
+        for (var j = 0u; j < 4u; j++) {
+            a[j] += partials[4u * g + j];
+        }
+    }
+    acc[lid.x] = a;
+    workgroupBarrier();
+    for (var stride = WG / 2u; stride > 0u; stride /= 2u) {
+        if (lid.x < stride) {
+            for (var j = 0u; j < 4u; j++) {
+                acc[lid.x][j] += acc[lid.x + stride][j];
+            }
+        }
+        workgroupBarrier();
+    }
+    if (lid.x == 0u) {
+        let e0 = exposure[0];
+        let e1 = exposure[1];
+        let c = update(acc[0][0].xyz, acc[0][1].xyz, e0.xyz);
+        let s = update(acc[0][2].xyz, acc[0][3].xyz, vec3<f32>(e0.w, e1.xy));
+        exposure[0] = vec4<f32>(c[0], s[0].x);
+        exposure[1] = vec4<f32>(s[0].yz, 0.0, 0.0);
+        ratio[0] = vec4<f32>(c[1], s[1].x);
+        ratio[1] = vec4<f32>(s[1].yz, 0.0, 0.0);
+    }
+}
+
+// (s, s_prev / s) from the sums of ln d, the counts and s_prev.
+fn update(sum: vec3<f32>, count: vec3<f32>, prev: vec3<f32>) -> array<vec3<f32>, 2> {
+    let have = count > vec3<f32>(0.0);
+    let lg = select(vec3<f32>(0.0), sum / max(count, vec3<f32>(1.0)), have);
+    if (p.first != 0u) {
+        return array<vec3<f32>, 2>(exp(lg), vec3<f32>(1.0));
+    }
+    let lp = log(prev);
+    let s_new = exp(select(lp, lp + RATE * (lg - lp), have));
+    return array<vec3<f32>, 2>(s_new, prev / s_new);
+}
