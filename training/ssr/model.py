@@ -91,7 +91,7 @@ OPTION_VALUES: Dict[str, Tuple[str, ...]] = {
 EXPOSURE_RATE = 0.1
 """Per-frame rate of the exposure's exponential moving average in log space."""
 
-HISTORY_DEPTH_TOL = 0.1
+HISTORY_DEPTH_TOL = 0.2
 """History is inconsistent where |W(depth_acc) - depth| > HISTORY_DEPTH_TOL * depth ..."""
 
 HISTORY_NORMAL_TOL = 0.25

@@ -4,7 +4,7 @@
 //     of W(A_acc) and W(o) are re-expressed in this frame's exposure,
 //     v -> ln(1 + (exp(v) - 1) ratio) for v > 0 (kept for v <= 0), ratio = s_prev / s
 //     (a 1x1x6 tensor: colour rgb for e and W(o), then shadow rgb);
-//   geometry (config history "geometry"): valid &= |W(depth_acc) - depth| <= 0.1 depth and
+//   geometry (config history "geometry"): valid &= |W(depth_acc) - depth| <= 0.2 depth and
 //     |W(normal_acc) - normal|^2 <= 0.25; invalid history is 0 (as an off-screen sample).
 // A_t layout (pack_inputs): vec4 0 = (e.rgb, albedo.r), 1 = (albedo.gb, n.xy),
 // 2 = (n.z, log1p(shadow).rgb), 3 = (depth, metallic, roughness, 0).
@@ -23,7 +23,7 @@ struct Params {
 @group(0) @binding(4) var<storage, read_write> warp_valid: array<vec4<f32>>;
 @group(0) @binding(5) var<storage, read> ratio: array<vec4<f32>>;
 
-const DEPTH_TOL: f32 = 0.1;
+const DEPTH_TOL: f32 = 0.2;
 const NORMAL_TOL: f32 = 0.25;
 
 fn rescale_log(v: vec3<f32>, r: vec3<f32>) -> vec3<f32> {
