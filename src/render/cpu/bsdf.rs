@@ -2,7 +2,7 @@
 //! (metal, opaque dielectric and glass lobes; GGX with visible-normal sampling; one-sample
 //! MIS over the sampling strategies).
 
-use glam::{Vec2, Vec3};
+use glam::{Mat3, Vec2, Vec3};
 
 use super::common::{INV_PI, PI, TWO_PI, finite3, onb, pow5, reflect, refract, to_local, to_world};
 use super::material::Surface;
@@ -117,22 +117,62 @@ fn strategy_probs(s: &Surface, cos_o: f32) -> Vec3 {
     }
 }
 
+/// Everything of the BSDF at one shading point that depends on the outgoing direction
+/// only: computed once per path vertex and shared by the light sample's evaluation and the
+/// BSDF sample (the same arithmetic as evaluating from scratch, done once).
+#[derive(Debug, Clone, Copy)]
+pub(crate) struct Lobes {
+    frame: Mat3,
+    /// `wo` in the shading frame.
+    lo: Vec3,
+    a: f32,
+    a2: f32,
+    /// Lobe weights.
+    w: Vec3,
+    /// Strategy probabilities.
+    q: Vec3,
+    etas: (f32, f32),
+    /// Nothing is reflected or transmitted (`bsdf_black`, or `wo` below the shading
+    /// horizon).
+    black: bool,
+}
+
+impl Lobes {
+    pub fn new(s: &Surface, wo: Vec3) -> Self {
+        let frame = onb(s.ns);
+        let lo = to_local(&frame, wo);
+        let a = ggx_alpha(s.roughness);
+        let black = bsdf_black(s) || lo.z <= 1.0e-6;
+        Self {
+            frame,
+            lo,
+            a,
+            a2: a * a,
+            w: lobe_weights(s),
+            q: if black {
+                Vec3::ZERO
+            } else {
+                strategy_probs(s, lo.z)
+            },
+            etas: glass_etas(s),
+            black,
+        }
+    }
+}
+
 /// `f(wo, wi) |cos(n, wi)|` and the solid-angle sampling pdf of `wi`.
+#[cfg(test)]
 pub(crate) fn bsdf_eval(s: &Surface, wo: Vec3, wi: Vec3) -> (Vec3, f32) {
-    if bsdf_black(s) {
+    bsdf_eval_with(s, &Lobes::new(s, wo), wi)
+}
+
+/// [`bsdf_eval`] with the outgoing direction's [`Lobes`].
+pub(crate) fn bsdf_eval_with(s: &Surface, l: &Lobes, wi: Vec3) -> (Vec3, f32) {
+    if l.black {
         return (Vec3::ZERO, 0.0);
     }
-    let frame = onb(s.ns);
-    let lo = to_local(&frame, wo);
-    let li = to_local(&frame, wi);
-    if lo.z <= 1.0e-6 {
-        return (Vec3::ZERO, 0.0);
-    }
-    let a = ggx_alpha(s.roughness);
-    let a2 = a * a;
-    let w = lobe_weights(s);
-    let q = strategy_probs(s, lo.z);
-    let etas = glass_etas(s);
+    let (lo, w, q, etas, a2) = (l.lo, l.w, l.q, l.etas, l.a2);
+    let li = to_local(&l.frame, wi);
     let mut f = Vec3::ZERO;
     let mut pdf = 0.0;
     let reflect_side = wi.dot(s.ng) > 0.0;
@@ -192,17 +232,17 @@ pub(crate) struct BsdfSample {
 }
 
 /// Samples a direction with the random numbers `u` (WGSL `bsdf_sample`).
+#[cfg(test)]
 pub(crate) fn bsdf_sample(s: &Surface, wo: Vec3, u: Vec3) -> Option<BsdfSample> {
-    if bsdf_black(s) {
+    bsdf_sample_with(s, &Lobes::new(s, wo), u)
+}
+
+/// [`bsdf_sample`] with the outgoing direction's [`Lobes`].
+pub(crate) fn bsdf_sample_with(s: &Surface, l: &Lobes, u: Vec3) -> Option<BsdfSample> {
+    if l.black {
         return None;
     }
-    let frame = onb(s.ns);
-    let lo = to_local(&frame, wo);
-    if lo.z <= 1.0e-6 {
-        return None;
-    }
-    let a = ggx_alpha(s.roughness);
-    let q = strategy_probs(s, lo.z);
+    let (lo, q, a) = (l.lo, l.q, l.a);
     let li = if u.z < q.x {
         let h = sample_vndf(lo, a, Vec2::new(u.x, u.y));
         reflect(-lo, h)
@@ -214,7 +254,7 @@ pub(crate) fn bsdf_sample(s: &Surface, wo: Vec3, u: Vec3) -> Option<BsdfSample> 
         let uz = ((u.z - q.x - q.y) / q.z.max(1.0e-12)).clamp(0.0, 1.0);
         let h = sample_vndf(lo, a, Vec2::new(u.x, u.y));
         let oh = lo.dot(h);
-        let etas = glass_etas(s);
+        let etas = l.etas;
         let fr = fresnel_dielectric(oh.max(1.0e-6), etas.1 / etas.0);
         let lr = reflect(-lo, h);
         if uz < fr {
@@ -229,8 +269,8 @@ pub(crate) fn bsdf_sample(s: &Surface, wo: Vec3, u: Vec3) -> Option<BsdfSample> 
             t
         }
     };
-    let wi = to_world(&frame, li).normalize();
-    let (f, pdf) = bsdf_eval(s, wo, wi);
+    let wi = to_world(&l.frame, li).normalize();
+    let (f, pdf) = bsdf_eval_with(s, l, wi);
     if !(pdf > 0.0) || !finite3(f) {
         return None;
     }

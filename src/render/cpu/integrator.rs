@@ -4,7 +4,7 @@
 
 use glam::{Vec2, Vec3};
 
-use super::bsdf::{bsdf_eval, bsdf_sample};
+use super::bsdf::{Lobes, bsdf_eval_with, bsdf_sample_with};
 use super::common::{BIG, NO_HIT, Rng, finite3, max3, offset_ray, rng_seed};
 use super::lights::{
     EnvInfo, env_pdf, env_radiance, env_select_prob, has_lights, mis_power, sample_light, tri_light_pdf,
@@ -108,9 +108,10 @@ pub(crate) fn trace_path(
             break;
         }
         let wo = -rd;
+        let lobes = Lobes::new(&s, wo);
         let ul = rng.next3();
         if lights_on && let Some(ls) = sample_light(sc, ei, s.p, ul) {
-            let (ev, ev_pdf) = bsdf_eval(&s, wo, ls.wi);
+            let (ev, ev_pdf) = bsdf_eval_with(&s, &lobes, ls.wi);
             if ev.cmpgt(Vec3::ZERO).any() || depth == 1 {
                 let side = if ls.wi.dot(s.ng) > 0.0 { s.ng } else { -s.ng };
                 let org = offset_ray(s.p, side);
@@ -124,7 +125,7 @@ pub(crate) fn trace_path(
                 }
             }
         }
-        let Some(bs) = bsdf_sample(&s, wo, rng.next3()) else {
+        let Some(bs) = bsdf_sample_with(&s, &lobes, rng.next3()) else {
             break;
         };
         thr *= bs.weight;
