@@ -22,7 +22,11 @@
 # FRAMES (default 8), SHARD=K/N (this machine renders the sequences whose hash is K mod N;
 # run the same command with 0/N .. N-1/N on N machines and merge the OUT folders), PROCEDURAL=0 (skip procedural
 # scenes, e.g. before they exist). Finished frames are skipped, so re-running continues;
-# each frame is written atomically. Logs go to stdout: run it with nohup, e.g.
+# each frame is written atomically. A build for the machine's own CPU renders about 10 %
+# faster (the same images on cbox, checked byte for byte) and can live in its own target
+# folder: CARGO_TARGET_DIR=~/work-data/target-native RUSTFLAGS="-C target-cpu=native"
+# cargo build --release, then SUBPIXEL=~/work-data/target-native/release/subpixel.
+# Logs go to stdout: run it with nohup, e.g.
 #   nohup training/dataset_recipe.sh ~/work-data/ds > ~/work-data/ds.log 2>&1 &
 set -euo pipefail
 here="$(cd "$(dirname "$0")" && pwd)"
