@@ -11,7 +11,7 @@ use common::gpu;
 use common::twin::{assert_references_agree, assert_same_seed_frames_match, cpu_frame, packed, settings};
 use subpixel::frame::HostFrame;
 use subpixel::render::builtin;
-use subpixel::render::scene::{Material, Scene};
+use subpixel::render::scene::Scene;
 use subpixel::render::{CpuTracer, GpuScene, Mode, Tracer, load_scene};
 
 /// The scenes every agreement test covers.
@@ -67,39 +67,8 @@ fn sphere_mean(f: &HostFrame, c: usize) -> (f64, usize) {
 /// uniform white environment converge to 1 (energy neither gained nor lost).
 #[test]
 fn cpu_white_furnaces_converge_to_one() {
-    let cases = [
-        ("lambert", builtin::furnace().materials[0].clone()),
-        (
-            "mirror",
-            Material {
-                base_color: [1.0; 4],
-                metallic: 1.0,
-                roughness: 0.0,
-                ..Default::default()
-            },
-        ),
-        (
-            "solid glass",
-            Material {
-                metallic: 0.0,
-                roughness: 0.0,
-                transmission: 1.0,
-                thin: false,
-                ..Default::default()
-            },
-        ),
-        (
-            "thin glass",
-            Material {
-                metallic: 0.0,
-                roughness: 0.0,
-                transmission: 1.0,
-                thin: true,
-                double_sided: true,
-                ..Default::default()
-            },
-        ),
-    ];
+    let mut cases = vec![("lambert", builtin::furnace().materials[0].clone())];
+    cases.extend(common::furnace::smooth());
     for (name, m) in cases {
         let mut scene = builtin::furnace();
         scene.materials[0] = m;
@@ -119,35 +88,7 @@ fn cpu_white_furnaces_converge_to_one() {
 /// `furnace_rough_materials_do_not_gain_energy`: single-scattering GGX loses some).
 #[test]
 fn cpu_rough_furnace_does_not_gain_energy() {
-    let cases = [
-        (
-            "rough metal",
-            Material {
-                base_color: [1.0; 4],
-                metallic: 1.0,
-                roughness: 0.6,
-                ..Default::default()
-            },
-        ),
-        (
-            "rough glass",
-            Material {
-                metallic: 0.0,
-                roughness: 0.5,
-                transmission: 1.0,
-                thin: false,
-                ..Default::default()
-            },
-        ),
-        (
-            "rough plastic",
-            Material {
-                metallic: 0.0,
-                roughness: 0.4,
-                ..Material::diffuse("p", [1.0; 3])
-            },
-        ),
-    ];
+    let cases = common::furnace::rough();
     for (name, m) in cases {
         let mut scene = builtin::furnace();
         scene.materials[0] = m;

@@ -733,38 +733,7 @@ fn environment_lighting_matches_cpu_integral() {
 /// a white mirror, a solid glass sphere and a thin-walled glass sphere.
 #[test]
 fn furnace_smooth_metal_and_glass() {
-    let cases = [
-        (
-            "mirror",
-            Material {
-                base_color: [1.0; 4],
-                metallic: 1.0,
-                roughness: 0.0,
-                ..Default::default()
-            },
-        ),
-        (
-            "solid glass",
-            Material {
-                metallic: 0.0,
-                roughness: 0.0,
-                transmission: 1.0,
-                thin: false,
-                ..Default::default()
-            },
-        ),
-        (
-            "thin glass",
-            Material {
-                metallic: 0.0,
-                roughness: 0.0,
-                transmission: 1.0,
-                thin: true,
-                double_sided: true,
-                ..Default::default()
-            },
-        ),
-    ];
+    let cases = common::furnace::smooth();
     for (name, m) in cases {
         let mut scene = builtin::furnace();
         scene.materials[0] = m;
@@ -863,35 +832,7 @@ fn emissive_box_furnace_converges_to_one() {
 /// little), and stay finite.
 #[test]
 fn furnace_rough_materials_do_not_gain_energy() {
-    let cases = [
-        (
-            "rough metal",
-            Material {
-                base_color: [1.0; 4],
-                metallic: 1.0,
-                roughness: 0.6,
-                ..Default::default()
-            },
-        ),
-        (
-            "rough glass",
-            Material {
-                metallic: 0.0,
-                roughness: 0.5,
-                transmission: 1.0,
-                thin: false,
-                ..Default::default()
-            },
-        ),
-        (
-            "rough plastic",
-            Material {
-                metallic: 0.0,
-                roughness: 0.4,
-                ..Material::diffuse("p", [1.0; 3])
-            },
-        ),
-    ];
+    let cases = common::furnace::rough();
     for (name, m) in cases {
         let mut scene = builtin::furnace();
         scene.materials[0] = m;

@@ -74,3 +74,78 @@ pub fn assert_close(case: &str, gpu: &HostTensor, cpu: &HostTensor, tol: Tol) {
         }
     }
 }
+
+/// Materials of the white-furnace tests, shared by the GPU and CPU-twin tests: smooth
+/// materials that must converge to 1, and rough ones that must not gain energy.
+pub mod furnace {
+    use subpixel::render::scene::Material;
+
+    /// A smooth mirror, solid glass and thin glass (they converge to 1).
+    pub fn smooth() -> Vec<(&'static str, Material)> {
+        vec![
+            (
+                "mirror",
+                Material {
+                    base_color: [1.0; 4],
+                    metallic: 1.0,
+                    roughness: 0.0,
+                    ..Default::default()
+                },
+            ),
+            (
+                "solid glass",
+                Material {
+                    metallic: 0.0,
+                    roughness: 0.0,
+                    transmission: 1.0,
+                    thin: false,
+                    ..Default::default()
+                },
+            ),
+            (
+                "thin glass",
+                Material {
+                    metallic: 0.0,
+                    roughness: 0.0,
+                    transmission: 1.0,
+                    thin: true,
+                    double_sided: true,
+                    ..Default::default()
+                },
+            ),
+        ]
+    }
+
+    /// Rough metal, rough glass and rough plastic (single-scattering GGX loses some).
+    pub fn rough() -> Vec<(&'static str, Material)> {
+        vec![
+            (
+                "rough metal",
+                Material {
+                    base_color: [1.0; 4],
+                    metallic: 1.0,
+                    roughness: 0.6,
+                    ..Default::default()
+                },
+            ),
+            (
+                "rough glass",
+                Material {
+                    metallic: 0.0,
+                    roughness: 0.5,
+                    transmission: 1.0,
+                    thin: false,
+                    ..Default::default()
+                },
+            ),
+            (
+                "rough plastic",
+                Material {
+                    metallic: 0.0,
+                    roughness: 0.4,
+                    ..Material::diffuse("p", [1.0; 3])
+                },
+            ),
+        ]
+    }
+}
