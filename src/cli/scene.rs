@@ -9,7 +9,9 @@ use crate::render::bvh::SceneBvh;
 use crate::render::camera::{CameraPath, CameraPathSpec};
 use crate::render::procedural::{self, Generated, PropLibrary, material_kinds, mean_radiance};
 use crate::render::scene::{Scene, luminance};
-use crate::render::{Backend, DEFAULT_MAX_DEPTH, FrameRenderer, FrameSettings, SceneOptions, load_scene_with};
+use crate::render::{
+    Backend, DEFAULT_MAX_DEPTH, FrameRenderer, FrameSettings, SceneOptions, load_scene_with,
+};
 
 #[derive(Debug, clap::Args)]
 pub(super) struct SceneArgs {
