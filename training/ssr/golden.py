@@ -87,8 +87,9 @@ def make_frames(
     geometry "coherent" (default): depth and normal are smooth fields shared by every frame,
     so most warped history agrees with the current frame, except in a block per frame t >= 1
     (rows 2..9, 8 columns moving with t) whose depth is halved and normal turned:
-    a disocclusion the history test must reject; and the light gets 3x brighter every frame
-    (colour and shadow x 3^t), so the exposure moves and the history is re-exposed. "random":
+    a disocclusion the history test must reject; and the light gets brighter every frame
+    (colour and shadow x 1.5^t: within EXPOSURE_JUMP, so the exposure eases towards it), and
+    the history is re-exposed. "random":
     per-pixel random depth and normal every frame, constant light (the version-1 golden inputs).
     """
     if geometry not in ("coherent", "random"):
@@ -126,8 +127,8 @@ def make_frames(
         motion[:, :, 16:20, 0] = torch.tensor([-0.5, 0.0]).view(1, 2, 1)  # p.x = 0: valid
         motion[:, :, 16:20, w - 1] = torch.tensor([0.5, 0.0]).view(1, 2, 1)  # p.x = W: invalid
         if geometry == "coherent":
-            color = color * 3.0**t
-            shadow = shadow * 3.0**t
+            color = color * 1.5**t
+            shadow = shadow * 1.5**t
             depth = static_depth.clone()
             normal = static_normal.clone()
             if t >= 1:

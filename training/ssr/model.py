@@ -18,7 +18,8 @@ Config version 2 (the default) adds three things that version-1 weights did not 
 * `exposure = "channel"`: per-channel exposure normalisation. Every frame measures
   g_c = exp(mean ln d_c) over the traced pixels with d_c > 0, d = color / (albedo + eps)
   (the geometric mean of the demodulated samples), and likewise for the shadow buffer
-  (d = shadow), smooths both in log space over frames (`EXPOSURE_RATE`), divides colour and
+  (d = shadow), smooths both in log space over frames (`EXPOSURE_RATE`; a change beyond
+  `EXPOSURE_JUMP` is taken at once: a cut or a light switched), divides colour and
   shadow by their exposure before the network and multiplies the output by the colour's;
   the history is re-expressed in the new exposure (`rescale_log`). The whole pipeline is
   then equivariant to per-channel radiance scaling (of lights, of colour and shadow
@@ -90,6 +91,11 @@ OPTION_VALUES: Dict[str, Tuple[str, ...]] = {
 
 EXPOSURE_RATE = 0.1
 """Per-frame rate of the exposure's exponential moving average in log space."""
+
+EXPOSURE_JUMP = 0.6931471805599453
+"""|ln g - ln s_prev| beyond this (a factor of 2) sets s = g at once instead of easing: after a
+cut to a brighter or darker scene the network sees its usual range from the first frame
+(the history is re-exposed either way)."""
 
 HISTORY_DEPTH_TOL = 0.2
 """History is inconsistent where |W(depth_acc) - depth| > HISTORY_DEPTH_TOL * depth ..."""
@@ -285,13 +291,15 @@ def frame_exposure(frame: Dict[str, torch.Tensor]) -> torch.Tensor:
 
 def update_exposure(frame: Dict[str, torch.Tensor], prev: Optional[torch.Tensor]) -> torch.Tensor:
     """This frame's exposure s [N, 6, 1, 1]: g on the first frame (prev None), then
-    exp(ln s_prev + EXPOSURE_RATE (ln g - ln s_prev)); a channel without a positive traced
-    sample keeps s_prev (1 on a first frame)."""
+    exp(ln s_prev + EXPOSURE_RATE (ln g - ln s_prev)), or g where |ln g - ln s_prev| >
+    EXPOSURE_JUMP; a channel without a positive traced sample keeps s_prev (1 on a first frame)."""
     lg, have = _log_exposure(frame)
     if prev is None:
         return torch.exp(lg)
     lp = torch.log(prev)
-    return torch.exp(torch.where(have, lp + EXPOSURE_RATE * (lg - lp), lp))
+    d = lg - lp
+    ls = torch.where(d.abs() > EXPOSURE_JUMP, lg, lp + EXPOSURE_RATE * d)
+    return torch.exp(torch.where(have, ls, lp))
 
 
 def rescale_log(v: torch.Tensor, ratio: torch.Tensor) -> torch.Tensor:

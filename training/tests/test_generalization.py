@@ -125,16 +125,19 @@ def test_exposure_statistic():
 
 
 def test_exposure_follows_light_changes_and_rescales_history():
-    """A light 10x brighter mid-sequence: the exposure moves towards it (EMA), and the history
-    is re-expressed in the new exposure so the radiance it stands for is unchanged."""
+    """A light 1.5x brighter mid-sequence: the exposure eases towards it (EMA); 10x brighter (a
+    cut, a light switched on): it jumps. The history is re-expressed in the new exposure so the
+    radiance it stands for is unchanged."""
     model = random_model(0)
-    frames = make_frames(count=4)
-    frames = frames[:2] + _scaled(frames[2:], torch.tensor([10.0, 10.0, 10.0]))
+    frames = make_frames(count=4, geometry="random")  # a constant light
     with torch.no_grad():
-        r = model.run_sequence(frames)
-    s = [x["exposure"] for x in r]
-    assert torch.allclose(s[1], s[0], rtol=0.3)
-    assert (s[2] > s[1] * 1.1).all() and (s[2] < s[1] * 10).all()  # moved, not jumped
+        s0 = [x["exposure"] for x in model.run_sequence(frames)]
+        s1 = [x["exposure"] for x in model.run_sequence(frames[:2] + _scaled(frames[2:], torch.full((3,), 1.5)))]
+        s10 = [x["exposure"] for x in model.run_sequence(frames[:2] + _scaled(frames[2:], torch.full((3,), 10.0)))]
+    assert torch.allclose(s0[1], s0[0], rtol=0.3)
+    eased = s1[2] / s0[2]
+    assert (eased > 1.02).all() and (eased < 1.1).all()  # 1.5^0.1 = 1.04: eased
+    torch.testing.assert_close(s10[2] / s0[2] / 10.0, torch.ones_like(s0[2]), rtol=0.35, atol=0)  # jumped
     # rescale_log keeps (exp(v) - 1) * s: the radiance a log value stands for
     v = torch.linspace(-0.5, 6.0, 50).view(1, 1, 50, 1).expand(1, 3, 50, 1)
     ratio = torch.tensor([0.1, 1.0, 7.0]).view(1, 3, 1, 1)  # per channel

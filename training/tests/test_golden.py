@@ -135,7 +135,7 @@ def test_v2_exercises_exposure_and_history_test(generated):
     """The version-2 set moves the exposure (history re-exposed) and rejects history by geometry."""
     a, _ = generated
     s = [_read(os.path.join(a, f"golden_frame{t}.safetensors"))[0]["exposure"] for t in range(3)]
-    assert ((s[1] / s[0]) > 1.05).all() and ((s[2] / s[1]) > 1.05).all()
+    assert ((s[1] / s[0]) > 1.02).all() and ((s[2] / s[1]) > 1.02).all()
     d, _ = _read(os.path.join(a, "golden_frame1.safetensors"))
     block = d["warp_valid"][2:10, 18:26]  # the disoccluded block of frame 1 (make_frames)
     assert (block == 0).float().mean() > 0.9

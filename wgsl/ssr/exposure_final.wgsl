@@ -3,7 +3,8 @@
 // (vec4 0) and of the shadow (vec4 1):
 //   have = count > 0, lg = sum / count                    (ln of the geometric mean)
 //   first frame:  s = exp(have ? lg : 0)
-//   later:        lp = ln(s_prev), s = exp(have ? lp + RATE (lg - lp) : lp)
+//   later:        lp = ln(s_prev), d = lg - lp,
+//                 s = exp(have ? (|d| > JUMP ? lg : lp + RATE d) : lp)   (JUMP = ln 2)
 //   ratio = s_prev / s (1 on a first frame): history.wgsl re-exposes the history with it.
 // `exposure` holds s_prev on entry and s on exit and `ratio` the ratio: 6 channels packed
 // in 2 vec4 as a 1x1x6 tensor, (colour.rgb, shadow.r), (shadow.gb, 0, 0).
@@ -21,6 +22,7 @@ struct Params {
 @group(0) @binding(3) var<storage, read_write> ratio: array<vec4<f32>>;
 
 const RATE: f32 = 0.1;
+const JUMP: f32 = 0.6931471805599453;
 const WG: u32 = 64u;
 
 // [colour sum, colour count, shadow sum, shadow count] per thread, then tree-reduced.
@@ -64,6 +66,8 @@ fn update(sum: vec3<f32>, count: vec3<f32>, prev: vec3<f32>) -> array<vec3<f32>,
         return array<vec3<f32>, 2>(exp(lg), vec3<f32>(1.0));
     }
     let lp = log(prev);
-    let s_new = exp(select(lp, lp + RATE * (lg - lp), have));
+    let d = lg - lp;
+    let eased = select(lp + RATE * d, lg, abs(d) > vec3<f32>(JUMP));
+    let s_new = exp(select(lp, eased, have));
     return array<vec3<f32>, 2>(s_new, prev / s_new);
 }
