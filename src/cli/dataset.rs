@@ -63,11 +63,11 @@ pub(super) struct DatasetArgs {
 /// A short name for folder names: `builtin:cornell` -> `cornell`, `.../living-room/scene.json`
 /// -> `living-room`.
 pub fn scene_slug(scene: &str) -> String {
-    if let Some(b) = scene.strip_prefix("builtin:") {
-        return b.to_string();
-    }
     let p = std::path::Path::new(scene);
-    let stem = if p.file_name().is_some_and(|f| f == "scene.json") || p.is_dir() {
+    let stem = if let Some(b) = scene.strip_prefix("builtin:") {
+        // `builtin:procedural:7` -> `procedural_7` (no ':' in folder names).
+        Some(b.to_string())
+    } else if p.file_name().is_some_and(|f| f == "scene.json") || p.is_dir() {
         p.components()
             .rev()
             .find(|c| c.as_os_str() != "scene.json")
@@ -202,6 +202,7 @@ mod tests {
             "living-room"
         );
         assert_eq!(scene_slug("a/b/FlightHelmet.gltf"), "FlightHelmet");
+        assert_eq!(scene_slug("builtin:procedural:1000000"), "procedural_1000000");
         let seeds: std::collections::HashSet<u64> = ["train", "val", "test"]
             .iter()
             .flat_map(|sp| (0..50).map(move |i| sequence_seed("cornell", sp, i)))
