@@ -18,7 +18,10 @@
 # own camera path (seeded by scene, split and number).
 #
 # Environment: SUBPIXEL (the binary, default target/release/subpixel), SCENES (default
-# ../shared/scenes), SPP (reference samples, default 1024), SIZE (default 128),
+# ../shared/scenes), SPP (reference samples, default 1024), TRAIN_SPP (reference samples of
+# the val and train phases, default SPP), SIZE (default 128), HELDOUT_SEQUENCES (per
+# held-out scene, default 2), TEST_SEEDS (procedural test seeds, default 20), TRAIN_SEEDS
+# (procedural train seeds, default 60, 2 sequences each), VAL_SEEDS (default 10),
 # FRAMES (default 8), SHARD=K/N (this machine renders the sequences whose hash is K mod N;
 # run the same command with 0/N .. N-1/N on N machines and merge the OUT folders), PROCEDURAL=0 (skip procedural
 # scenes, e.g. before they exist). Finished frames are skipped, so re-running continues;
@@ -38,6 +41,11 @@ phases=("$@")
 bin="${SUBPIXEL:-$root/target/release/subpixel}"
 scenes="${SCENES:-$root/../shared/scenes}"
 spp="${SPP:-1024}"
+train_spp="${TRAIN_SPP:-$spp}"
+heldout_sequences="${HELDOUT_SEQUENCES:-2}"
+test_seeds="${TEST_SEEDS:-20}"
+train_seeds="${TRAIN_SEEDS:-60}"
+val_seeds="${VAL_SEEDS:-10}"
 size="${SIZE:-128}"
 frames="${FRAMES:-8}"
 shard="${SHARD:-0/1}"
@@ -53,11 +61,11 @@ held_out=("$scenes/living-room" "$scenes/flight-helmet" "$scenes/barn-lamp")
 props=(--props "$scenes/cornell-box" --props "$scenes/cbox" --props "$scenes/staircase2"
   --props "$scenes/dining-room/env.hdr")
 
-# render SCENE SPLIT K [EXTRA...]: sequence K of SCENE's SPLIT, when it is this shard's (a
-# stable hash of scene, split and K picks the shard).
+# render SPP SCENE SPLIT K [EXTRA...]: sequence K of SCENE's SPLIT with SPP-sample
+# references, when it is this shard's (a stable hash of scene, split and K picks the shard).
 render() {
-  local scene="$1" split="$2" k="$3"
-  shift 3
+  local rspp="$1" scene="$2" split="$3" k="$4"
+  shift 4
   local h
   h=$(printf '%s %s %s' "$scene" "$split" "$k" | cksum | cut -d' ' -f1)
   if [ $((h % shard_n)) -ne "$shard_k" ]; then
@@ -65,7 +73,7 @@ render() {
   fi
   echo "== $(date -u +%FT%TZ) $split $scene sequence $k"
   "$bin" dataset --scene "$scene" --split "$split" --first-sequence "$k" --sequences "$((k + 1))" \
-    --frames "$frames" --width "$size" --height "$size" --reference-spp "$spp" --backend cpu \
+    --frames "$frames" --width "$size" --height "$size" --reference-spp "$rspp" --backend cpu \
     --out "$out" "$@"
 }
 proc() { echo "builtin:procedural:$1"; }
@@ -73,29 +81,35 @@ proc() { echo "builtin:procedural:$1"; }
 for phase in "${phases[@]}"; do
   case "$phase" in
     heldout)
-      for k in 0 1; do
-        for s in "${held_out[@]}"; do render "$s" test "$k"; done
+      for k in $(seq 0 $((heldout_sequences - 1))); do
+        for s in "${held_out[@]}"; do render "$spp" "$s" test "$k"; done
       done
-      if [ "$procedural" = 1 ]; then
-        for seed in $(seq 1000000 1000019); do render "$(proc "$seed")" test 0 "${props[@]}"; done
+      if [ "$procedural" = 1 ] && [ "$test_seeds" -gt 0 ]; then
+        for seed in $(seq 1000000 $((1000000 + test_seeds - 1))); do
+          render "$spp" "$(proc "$seed")" test 0 "${props[@]}"
+        done
       fi
       ;;
     val)
-      for s in "${fixed[@]}"; do render "$s" val 0; done
-      if [ "$procedural" = 1 ]; then
-        for seed in $(seq 500000 500009); do render "$(proc "$seed")" val 0 "${props[@]}"; done
+      for s in "${fixed[@]}"; do render "$train_spp" "$s" val 0; done
+      if [ "$procedural" = 1 ] && [ "$val_seeds" -gt 0 ]; then
+        for seed in $(seq 500000 $((500000 + val_seeds - 1))); do
+          render "$train_spp" "$(proc "$seed")" val 0 "${props[@]}"
+        done
       fi
       ;;
     train)
       for k in 0 1 2 3 4; do
-        for s in "${fixed[@]}"; do render "$s" train "$k"; done
-        if [ "$procedural" = 1 ] && [ "$k" -le 1 ]; then
-          for seed in $(seq 0 59); do render "$(proc "$seed")" train "$k" "${props[@]}"; done
+        for s in "${fixed[@]}"; do render "$train_spp" "$s" train "$k"; done
+        if [ "$procedural" = 1 ] && [ "$k" -le 1 ] && [ "$train_seeds" -gt 0 ]; then
+          for seed in $(seq 0 $((train_seeds - 1))); do
+            render "$train_spp" "$(proc "$seed")" train "$k" "${props[@]}"
+          done
         fi
       done
       ;;
     test)
-      for s in "${fixed[@]}"; do render "$s" test 0; done
+      for s in "${fixed[@]}"; do render "$spp" "$s" test 0; done
       ;;
     *)
       echo "unknown phase '$phase' (heldout, val, train, test)" >&2

@@ -430,6 +430,28 @@ def effective_crop(seqs: Sequence[SequenceInfo], crop: Optional[int]) -> Tuple[i
     return ch, cw
 
 
+def check_uniform(seqs: Sequence[SequenceInfo], whole_frames: bool) -> None:
+    """One split is one kind of data: every sequence's reference has the same sample count
+    (`spp`), and with whole frames (no crop) every frame has the same size. Raises
+    DatasetError naming the two `sequence.json` files that differ."""
+    if not seqs:
+        return
+    first = seqs[0]
+    for s in seqs[1:]:
+        if s.meta.get("spp") != first.meta.get("spp"):
+            raise DatasetError(
+                f"{os.path.join(s.path, 'sequence.json')}: spp {s.meta.get('spp')}, but "
+                f"{os.path.join(first.path, 'sequence.json')} has spp {first.meta.get('spp')}: "
+                f"one split must not mix reference sample counts"
+            )
+        if whole_frames and (s.width, s.height) != (first.width, first.height):
+            raise DatasetError(
+                f"{os.path.join(s.path, 'sequence.json')}: {s.width}x{s.height} frames, but "
+                f"{os.path.join(first.path, 'sequence.json')} has {first.width}x{first.height}: "
+                f"whole-frame splits must not mix sizes"
+            )
+
+
 class SequenceDataset(torch.utils.data.Dataset):
     """Windows of `window` consecutive frames of the sequences in ROOT/split.
 
@@ -462,6 +484,7 @@ class SequenceDataset(torch.utils.data.Dataset):
             raise DatasetError(
                 f"{os.path.join(short[0].path, 'sequence.json')}: {short[0].frames} frame(s), fewer than the window of {self.window}"
             )
+        check_uniform(self.sequences, whole_frames=crop is None)
         self.crop_hw = effective_crop(self.sequences, crop)
         self.store = FrameStore(root, cache, cache_mb, cache_dir)
         # (seq index, start) of every window, for int indexing and sampling proportional to length

@@ -91,6 +91,16 @@ def parse_args(argv=None) -> argparse.Namespace:
     ap.add_argument("--device", default="auto", choices=["auto", "cuda", "cpu"])
     ap.add_argument("--clip", type=float, default=0.0, help="clip the gradient norm (0: off)")
     ap.add_argument("--stop-at", type=int, default=None, help="checkpoint and stop at this iteration (time-limited jobs)")
+    ap.add_argument(
+        "--init", default=None,
+        help="start from this weights file (same model and config; e.g. the committed weights of an earlier "
+        "session) with a fresh optimizer",
+    )
+    ap.add_argument(
+        "--snapshot-every", type=int, default=0,
+        help="also export RUN_DIR/snapshots/it_NNNNNNN.safetensors every N iterations (for learning curves; 0: off)",
+    )
+    ap.add_argument("--threads", type=int, default=0, help="PyTorch CPU threads (0: PyTorch's default)")
     args = ap.parse_args(argv)
     if args.iters <= 0:
         ap.error("--iters must be positive")
@@ -98,6 +108,10 @@ def parse_args(argv=None) -> argparse.Namespace:
         ap.error(f"--crop must be a positive multiple of 4, got {args.crop}")
     if args.window < 2:
         ap.error("--window must be at least 2 (the warped temporal loss uses the last two frames)")
+    if args.snapshot_every < 0 or args.threads < 0:
+        ap.error("--snapshot-every and --threads must not be negative")
+    if args.init is not None and not os.path.isfile(args.init):
+        ap.error(f"--init {args.init}: no such file")
     return args
 
 
@@ -120,7 +134,54 @@ def run_config(args: argparse.Namespace) -> dict:
         "clip": args.clip,
         "frame_weights": list(frame_weights(args.window)),
         "lambdas": dict(losses.LAMBDAS),
+        # Only present for runs started from weights (older checkpoints have no such key).
+        **({"init": init_identity(args.init)} if args.init is not None else {}),
     }
+
+
+def init_identity(path: Optional[str]) -> Optional[dict]:
+    """What a run started from: None, or the weights file's name and SHA-256 (so a resume
+    with other starting weights is refused, and the provenance says where a run began)."""
+    if path is None:
+        return None
+    import hashlib
+
+    with open(path, "rb") as f:
+        digest = hashlib.sha256(f.read()).hexdigest()
+    return {"file": os.path.basename(path), "sha256": digest}
+
+
+def load_init(model: nn.Module, path: str, model_name: str) -> dict:
+    """Loads `path` into `model` (names, shapes and config must match); returns its metadata."""
+    from safetensors import safe_open
+    from safetensors.torch import load_file
+
+    try:
+        with safe_open(path, "pt") as f:
+            meta = dict(f.metadata() or {})
+        tensors = load_file(path)
+    except Exception as err:  # a corrupt or foreign file
+        raise CheckpointError(f"--init {path}: not a readable safetensors file ({err})") from err
+    want = model.cfg.to_dict() if hasattr(model, "cfg") else None
+    try:
+        got = json.loads(meta.get("config", "null"))
+    except json.JSONDecodeError:
+        got = None
+    if want is not None and got != want:
+        raise CheckpointError(
+            f"--init {path}: its config {json.dumps(got, sort_keys=True)} differs from the run's "
+            f"{json.dumps(want, sort_keys=True)} (model {model_name})"
+        )
+    state = model.state_dict()
+    missing = sorted(set(state) - set(tensors))
+    extra = sorted(set(tensors) - set(state))
+    if missing or extra:
+        raise CheckpointError(f"--init {path}: missing tensors {missing[:5]}, unexpected tensors {extra[:5]}")
+    for k, v in state.items():
+        if tuple(tensors[k].shape) != tuple(v.shape):
+            raise CheckpointError(f"--init {path}: tensor {k} has shape {list(tensors[k].shape)}, expected {list(v.shape)}")
+    model.load_state_dict({k: tensors[k].to(v.dtype) for k, v in state.items()})
+    return meta
 
 
 def config_diff(saved: dict, current: dict) -> List[str]:
@@ -348,6 +409,8 @@ def fmt_time(s: float) -> str:
 def train(argv=None) -> dict:
     """Runs training; returns a summary dict (for tests). See the module doc."""
     args = parse_args(argv)
+    if args.threads:
+        torch.set_num_threads(args.threads)
     config = run_config(args)
     dd = Dist(args.device)
     try:
@@ -390,6 +453,10 @@ def _train(args, config: dict, dd: Dist) -> dict:
     # model, optimizer
     torch.manual_seed(args.seed)
     model = build_model(args.model, config["model_config"]).to(device)
+    init_meta = None
+    if args.init is not None:
+        init_meta = load_init(model, args.init, args.model)
+        say(f"initialised from {args.init}")
     opt = torch.optim.Adam(model.parameters(), lr=args.lr)
     start, wall, history = 0, 0.0, []
     if args.resume and os.path.isfile(ckpt_path):
@@ -507,6 +574,11 @@ def _train(args, config: dict, dd: Dist) -> dict:
             run_val(it)
         if it % args.ckpt_every == 0 and it < stop:
             checkpoint(it, wall + time.time() - t0)
+        if args.snapshot_every and it % args.snapshot_every == 0 and dd.main:
+            snap = os.path.join(args.out, "snapshots", f"it_{it:07d}.safetensors")
+            os.makedirs(os.path.dirname(snap), exist_ok=True)
+            export_model(model, snap + ".tmp", {"model": args.model, "iterations": it, "snapshot_of": args.out}, {})
+            os.replace(snap + ".tmp", snap)
     wall += time.time() - t0
 
     if it < args.iters:  # --stop-at
@@ -540,6 +612,10 @@ def _train(args, config: dict, dd: Dist) -> dict:
             "lr_schedule": "Adam; halved at 1/3 and 2/3 of the iterations",
             "losses": {"frame_weights": list(weights), "lambdas": dict(losses.LAMBDAS)},
             "seed": args.seed,
+            "init": None if args.init is None else {
+                **config["init"],
+                "provenance": _json_or_str(init_meta.get("provenance")) if init_meta else None,
+            },
             "hardware": hardware(device, dd.world),
             "wall_time_s": round(wall, 1),
             "skipped_steps": skipped,
@@ -557,6 +633,13 @@ def _train(args, config: dict, dd: Dist) -> dict:
         _log(args.out, {"event": "export", "iteration": it, "weights": weights_path, "wall_time_s": wall})
     dd.barrier()
     return {"iteration": it, "checkpoint": ckpt_path, "weights": weights_path, "metrics": final}
+
+
+def _json_or_str(s: Optional[str]):
+    try:
+        return json.loads(s) if s is not None else None
+    except json.JSONDecodeError:
+        return s
 
 
 def main(argv=None) -> int:

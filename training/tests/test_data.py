@@ -229,3 +229,19 @@ def test_non_finite_values_are_sanitised_except_motion(tmp_path):
     assert f["color"][0, 0, 0] == 0 and f["reference"][1, 1, 1] == 0
     assert torch.isnan(f["motion"][0, 2, 2])
     assert torch.isfinite(to_frame(np.zeros((2, 2, 24), np.float32))["color"]).all()
+
+
+def test_split_mixing_spp_or_sizes_is_named(tmp_path):
+    root, folder = make_seq(tmp_path)
+    other = write_sequence(os.path.join(root, "train", "s1"), "train", 1, 5, 12, 12, seed=3)
+    # different sizes: fine for crops (the crop fits both), an error for whole frames
+    assert len(SequenceDataset(root, "train", crop=8).sequences) == 2
+    with pytest.raises(DatasetError, match=r"s1/sequence\.json: 12x12 frames, but .*s0/sequence\.json has 8x8"):
+        SequenceDataset(root, "train", crop=None)
+    # different reference sample counts: always an error naming both files
+    jp = os.path.join(other, "sequence.json")
+    meta = json.load(open(jp))
+    meta["spp"] = meta["spp"] * 2
+    json.dump(meta, open(jp, "w"))
+    with pytest.raises(DatasetError, match=r"s1/sequence\.json: spp \d+, but .*s0/sequence\.json has spp \d+"):
+        SequenceDataset(root, "train", crop=8)

@@ -73,6 +73,42 @@ def test_train_checkpoint_resume_export(dataset, tmp_path, capsys):
     assert "differing keys: lr" in capsys.readouterr().err
 
 
+def test_init_from_weights_and_snapshots(dataset, tmp_path, capsys):
+    # a run of 2 iterations with snapshots every iteration
+    a = str(tmp_path / "a")
+    res = T.train(args(dataset, a, "--snapshot-every", "1", iters=2))
+    snaps = sorted(os.listdir(os.path.join(a, "snapshots")))
+    assert snaps == ["it_0000001.safetensors", "it_0000002.safetensors"]
+    final, _ = load_weights(res["weights"])
+    snap2, meta2 = load_weights(os.path.join(a, "snapshots", snaps[-1]))
+    assert meta2["provenance"]["iterations"] == 2
+    for k, v in final.state_dict().items():
+        assert torch.equal(snap2.state_dict()[k], v), k
+
+    # a new run starting from those weights begins exactly there (fresh optimizer) and says so
+    b = str(tmp_path / "b")
+    res_b = T.train(args(dataset, b, "--init", res["weights"], "--stop-at", "1", iters=3))
+    assert "initialised from" in capsys.readouterr().out
+    ck = torch.load(os.path.join(b, "checkpoint.pt"), weights_only=False)
+    assert ck["config"]["init"]["file"] == "weights.safetensors" and len(ck["config"]["init"]["sha256"]) == 64
+    moved = [k for k, v in final.state_dict().items() if not torch.equal(ck["model"][k], v)]
+    assert moved, "one step from the initial weights changes them"
+    res_b = T.train(args(dataset, b, "--init", res["weights"], "--resume", iters=3))
+    _, meta_b = load_weights(res_b["weights"])
+    assert meta_b["provenance"]["init"]["file"] == "weights.safetensors"
+    assert meta_b["provenance"]["init"]["provenance"]["iterations"] == 2
+
+    # resuming without the init it started from is refused (another config)
+    with pytest.raises(T.CheckpointError, match="init"):
+        T.train(args(dataset, b, "--resume", iters=3))
+    # weights of another config are refused, naming the file
+    other = str(tmp_path / "other")
+    res_o = T.train(args(dataset, other, "--model-config", '{"enc": [8, 8, 8]}', iters=1))
+    assert T.main(args(dataset, str(tmp_path / "c"), "--init", res_o["weights"])) == 1
+    err = capsys.readouterr().err
+    assert "--init" in err and "other/weights.safetensors" in err and "config" in err
+
+
 def test_train_baseline_exports(dataset, tmp_path):
     out = str(tmp_path / "rae")
     res = T.train(args(dataset, out, "--model", "rae", "--model-config", '{"enc": [8, 8], "bottleneck": 8}', iters=1))

@@ -1,0 +1,33 @@
+import json
+import os
+
+from ssr import curve as C
+from ssr import train as T
+
+
+def test_curve_scores_snapshots_and_plots(dataset, tmp_path, capsys):
+    run = str(tmp_path / "run")
+    T.train([
+        "--data", dataset, "--out", run, "--iters", "2", "--batch", "2", "--crop", "16", "--workers", "0",
+        "--log-every", "1", "--val-frames", "2", "--val-every", "0", "--device", "cpu", "--snapshot-every", "1",
+    ])  # fmt: skip
+    png, js = str(tmp_path / "c.png"), str(tmp_path / "c.json")
+    argv = ["--run", run, "--data", dataset, "--split", "val", "--frames", "2", "--out", png, "--json", js]
+    assert C.main(argv) == 0
+    assert "scoring" in capsys.readouterr().out
+    with open(png, "rb") as f:
+        assert f.read(8) == b"\x89PNG\r\n\x1a\n"
+    c = json.load(open(js))
+    assert [r["iteration"] for r in c["train"]] == [1, 2]
+    assert [r["iteration"] for r in c["monitored"]] == [1, 2]
+    # the last snapshot is the final model: its score on the val split is the trainer's final val score
+    final_val = [r for r in C.read_log(run) if r["event"] == "val"][-1]
+    assert abs(c["monitored"][-1]["psnr"] - final_val["psnr"]) < 1e-9
+    assert c["monitored"][-1]["groups"] == {"synthetic": c["monitored"][-1]["psnr"]}
+    # cached: a second call scores nothing again
+    assert C.main(argv) == 0
+    assert "scoring" not in capsys.readouterr().out
+    # a missing log is a clear error naming the folder
+    assert C.main(["--run", str(tmp_path), "--data", dataset, "--out", png]) == 1
+    assert "no training log" in capsys.readouterr().err
+    assert C.group_of("procedural_1000003") == "procedural (mean)" and C.group_of("living-room") == "living-room"
