@@ -156,6 +156,56 @@ fn denoise_then_eval_a_frame_folder() {
         md.contains("| method | golden | mean |") && md.contains("| ssr |"),
         "{md}"
     );
+    // Procedural scenes (one per seed) share one column; --scenes picks and orders columns.
+    for seed in [5, 9] {
+        let name = format!("procedural_{seed}_test_000");
+        let seq = root.join("test").join(&name);
+        std::fs::create_dir_all(&seq).unwrap();
+        std::fs::write(
+            seq.join("sequence.json"),
+            format!(r#"{{"scene": "procedural_{seed}"}}"#),
+        )
+        .unwrap();
+        for m in ["ssr", "input"] {
+            let dst = pred.join(m).join("test").join(&name);
+            std::fs::create_dir_all(&dst).unwrap();
+            for i in 0..3 {
+                let f = format!("frame_{i:04}.exr");
+                std::fs::copy(root.join("test/golden_test_000").join(&f), seq.join(&f)).unwrap();
+                std::fs::copy(pred.join(m).join("test/golden_test_000").join(&f), dst.join(&f)).unwrap();
+            }
+        }
+    }
+    let table = |extra: &[&str]| {
+        bin()
+            .args(["eval", "--table", "--pred"])
+            .arg(&pred)
+            .arg("--ref")
+            .arg(&root)
+            .args(extra)
+            .output()
+            .unwrap()
+    };
+    let o = table(&[]);
+    let md = String::from_utf8_lossy(&o.stdout);
+    assert!(md.contains("| method | golden | procedural | mean |"), "{md}");
+    let o = table(&["--scenes", "procedural,golden", "--json"]);
+    let v: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
+    assert_eq!(v[1]["scenes"]["procedural"]["sequences"], 2, "{v}");
+    let same = |a: &str, b: &str| {
+        (v[1]["scenes"][a]["psnr"].as_f64().unwrap() - v[1]["scenes"][b]["psnr"].as_f64().unwrap()).abs()
+            < 1e-9
+    };
+    assert!(same("procedural", "golden"), "same frames, same score: {v}");
+    let o = table(&["--scenes", "procedural,golden"]);
+    let md = String::from_utf8_lossy(&o.stdout);
+    assert!(md.contains("| method | procedural | golden | mean |"), "{md}");
+    let o = table(&["--scenes", "nope"]);
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(
+        !o.status.success() && err.contains("no predictions for scene 'nope'"),
+        "{err}"
+    );
     for d in [&root, &pred] {
         std::fs::remove_dir_all(d).ok();
     }
@@ -421,6 +471,54 @@ fn range_arguments_are_refused() {
         assert!(!r.status.success(), "{args:?} succeeded");
         assert!(stderr.contains(want), "{args:?}: {stderr}");
         assert!(!stderr.contains("panicked"), "{args:?}: {stderr}");
+    }
+    std::fs::remove_dir_all(&out).ok();
+}
+
+#[test]
+fn the_main_job_writes_previews_a_person_can_judge() {
+    // A tiny run: its previews (input | SSR | reference) are upscaled pixel for pixel to at
+    // least 256 pixels tall, and the per-frame scores and timings are still printed.
+    let out = tmp("run");
+    let o = bin()
+        .args([
+            "run",
+            "--frames",
+            "2",
+            "--width",
+            "24",
+            "--height",
+            "20",
+            "--reference-spp",
+            "4",
+            "--out",
+        ])
+        .arg(&out)
+        .output()
+        .unwrap();
+    let stdout = String::from_utf8_lossy(&o.stdout);
+    assert!(
+        o.status.success(),
+        "{stdout}{}",
+        String::from_utf8_lossy(&o.stderr)
+    );
+    assert!(
+        stdout.contains("SSR PSNR") && stdout.contains("time per frame at 24x20"),
+        "{stdout}"
+    );
+    for f in 0..2 {
+        let png = image::open(out.join(format!("frame_{f:04}.png")))
+            .unwrap()
+            .to_rgb8();
+        // 20 px tall -> 13x (260 px); three 24-px images side by side.
+        assert_eq!((png.width(), png.height()), (3 * 24 * 13, 20 * 13));
+        for (x, y) in [(0, 0), (5 * 13 + 7, 3 * 13 + 12), (71 * 13 + 12, 19 * 13)] {
+            assert_eq!(
+                png.get_pixel(x, y),
+                png.get_pixel(x / 13 * 13, y / 13 * 13),
+                "every pixel is a 13x13 block"
+            );
+        }
     }
     std::fs::remove_dir_all(&out).ok();
 }

@@ -25,6 +25,10 @@ pub(super) struct EvalArgs {
     /// Split scored with `--table`.
     #[arg(long, default_value = "test")]
     split: String,
+    /// With `--table`: only these columns (comma-separated scene names as in
+    /// `sequence.json`, or `procedural` for the procedural scenes), in this order.
+    #[arg(long, value_delimiter = ',')]
+    scenes: Vec<String>,
     /// Print JSON instead of a table.
     #[arg(long)]
     json: bool,
@@ -145,11 +149,27 @@ fn cell_text(p: f64, q: f64, t: Option<f64>) -> String {
     format!("{p:.2} / {q:.4} / {t}")
 }
 
+/// The table column of a scene: procedural scenes (`procedural_SEED`, one scene per seed)
+/// share the column `procedural` (the mean over their sequences), other scenes have their own.
+fn column_of(scene: &str) -> String {
+    let scene = scene.trim_start_matches("builtin:");
+    if scene.starts_with("procedural_") || scene.starts_with("procedural:") {
+        "procedural".into()
+    } else {
+        scene.to_string()
+    }
+}
+
 /// Scores every method folder of `pred` on every sequence of `root/split`: rows (method,
 /// scene -> cell).
 type TableRows = Vec<(String, std::collections::BTreeMap<String, Cell>)>;
 
-fn table(pred: &std::path::Path, root: &std::path::Path, split: &str) -> Result<(Vec<String>, TableRows)> {
+fn table(
+    pred: &std::path::Path,
+    root: &std::path::Path,
+    split: &str,
+    only: &[String],
+) -> Result<(Vec<String>, TableRows)> {
     let seq_root = root.join(split);
     let mut seqs: Vec<PathBuf> = std::fs::read_dir(&seq_root)
         .map_err(|e| anyhow::anyhow!("{}: {e}", seq_root.display()))?
@@ -199,11 +219,10 @@ fn table(pred: &std::path::Path, root: &std::path::Path, split: &str) -> Result<
             }
             let json: serde_json::Value =
                 serde_json::from_str(&std::fs::read_to_string(s.join("sequence.json"))?)?;
-            let scene = json["scene"]
-                .as_str()
-                .unwrap_or("?")
-                .trim_start_matches("builtin:")
-                .to_string();
+            let scene = column_of(json["scene"].as_str().unwrap_or("?"));
+            if !only.is_empty() && !only.contains(&scene) {
+                continue;
+            }
             let sc = score(&p, s)?;
             per.entry(scene.clone())
                 .or_default()
@@ -213,12 +232,22 @@ fn table(pred: &std::path::Path, root: &std::path::Path, split: &str) -> Result<
         let name = m.file_name().expect("a folder").to_string_lossy().to_string();
         rows.push((name, per));
     }
-    Ok((scenes.into_iter().collect(), rows))
+    if only.is_empty() {
+        return Ok((scenes.into_iter().collect(), rows));
+    }
+    if let Some(missing) = only.iter().find(|s| !scenes.contains(*s)) {
+        bail!(
+            "--scenes: no predictions for scene '{missing}' in {} (scenes there: {})",
+            seq_root.display(),
+            scenes.iter().cloned().collect::<Vec<_>>().join(", ")
+        );
+    }
+    Ok((only.to_vec(), rows))
 }
 
 pub(super) fn run(a: &EvalArgs) -> Result<()> {
     if a.table {
-        let (scenes, rows) = table(&a.pred, &a.reference, &a.split)?;
+        let (scenes, rows) = table(&a.pred, &a.reference, &a.split, &a.scenes)?;
         if a.json {
             let v: Vec<_> = rows
                 .iter()
@@ -265,7 +294,7 @@ pub(super) fn run(a: &EvalArgs) -> Result<()> {
         println!(
             "\nPSNR (dB) / SSIM on tonemapped 8-bit images / temporal error (mean |(p_t - W(p_t-1)) - \
              (r_t - W(r_t-1))| on tonemapped [0, 1] values), mean over the {} sequences of each \
-             scene; a temporal error of - means a single frame or no motion vectors.",
+             scene (procedural: of every procedural scene); a temporal error of - means a single frame or no motion vectors.",
             a.split
         );
         return Ok(());
@@ -311,5 +340,13 @@ mod tests {
         single.add(25.0, 0.5, None);
         assert_eq!(single.mean().2, None);
         assert_eq!(cell_text(25.0, 0.5, None), "25.00 / 0.5000 / -");
+    }
+
+    #[test]
+    fn procedural_scenes_share_one_column() {
+        assert_eq!(column_of("procedural_1000003"), "procedural");
+        assert_eq!(column_of("builtin:procedural:7"), "procedural");
+        assert_eq!(column_of("builtin:cornell"), "cornell");
+        assert_eq!(column_of("living-room"), "living-room");
     }
 }

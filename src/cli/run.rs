@@ -6,12 +6,15 @@ use std::path::PathBuf;
 use anyhow::{Context, Result, bail};
 
 use crate::gpu::{AdapterKind, Gpu, Profiler};
-use crate::io::png::write_png_row;
+use crate::io::png::{scale_for_height, write_png_row_scaled};
 use crate::metrics;
 use crate::render::{
     Backend, CameraPath, DEFAULT_MAX_DEPTH, FrameRenderer, FrameSettings, GpuScene, Mode, Tracer, load_scene,
 };
 use crate::ssr::{Denoiser, Granularity, Weights};
+
+/// The smallest height of the main job's preview images, in pixels.
+pub const PREVIEW_MIN_HEIGHT: u32 = 256;
 
 #[derive(clap::Args)]
 pub(super) struct RunArgs {
@@ -101,6 +104,9 @@ pub(super) fn run(a: &RunArgs) -> Result<()> {
     let mut rows = Vec::new();
     let pb = super::progress(a.frames as u64, "frames");
     let mut walls = Vec::new();
+    // Previews at least PREVIEW_MIN_HEIGHT pixels tall (small CPU-adapter renders are
+    // upscaled by an integer factor, pixel for pixel).
+    let preview_scale = scale_for_height(h, PREVIEW_MIN_HEIGHT);
     for f in 0..a.frames {
         let settings = FrameSettings {
             frame: f,
@@ -126,7 +132,11 @@ pub(super) fn run(a: &RunArgs) -> Result<()> {
         let input = tracer.buffers.download(&gpu)?.color;
         let ssr = den.read_output()?;
         let rref = reference.reference(&settings, spp)?.mean(spp);
-        write_png_row(&a.out.join(format!("frame_{f:04}.png")), &[&input, &ssr, &rref])?;
+        write_png_row_scaled(
+            &a.out.join(format!("frame_{f:04}.png")),
+            &[&input, &ssr, &rref],
+            preview_scale,
+        )?;
         rows.push([
             metrics::psnr(&input, &rref),
             metrics::ssim(&input, &rref),
@@ -182,8 +192,13 @@ pub(super) fn run(a: &RunArgs) -> Result<()> {
         }
     );
     println!(
-        "images: {}/frame_NNNN.png (input | SSR | reference {spp} spp)",
-        a.out.display()
+        "images: {}/frame_NNNN.png (input | SSR | reference {spp} spp{})",
+        a.out.display(),
+        if preview_scale > 1 {
+            format!(", each pixel drawn {preview_scale}x{preview_scale}")
+        } else {
+            String::new()
+        }
     );
     Ok(())
 }
