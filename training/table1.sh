@@ -14,6 +14,9 @@
 # with `subpixel denoise`, then scores everything with `subpixel eval --table`. Missing
 # baseline weights are skipped; OIDN (b), which denoises the 1-spp frame `full.RGB`, runs only
 # when the dataset's first test frame has those channels. A missing pyoidn is an error.
+# SCENES=a,b,... restricts the table to those scene columns, in that order (`procedural` is
+# the mean over the procedural scenes), e.g. the held-out scenes:
+#   SCENES=living-room,flight-helmet,barn-lamp,procedural training/table1.sh ...
 set -euo pipefail
 here="$(cd "$(dirname "$0")" && pwd)"
 root="$(cd "$here/.." && pwd)"
@@ -51,4 +54,6 @@ for seq in "$data"/test/*/; do
     denoise "$per_scene/ssr-$scene.safetensors" ssr-per-scene
   fi
 done
-"$bin" eval --table --pred "$pred" --ref "$data" --split test
+scene_args=()
+[ -n "${SCENES:-}" ] && scene_args=(--scenes "$SCENES")
+"$bin" eval --table --pred "$pred" --ref "$data" --split test "${scene_args[@]}"
