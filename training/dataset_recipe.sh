@@ -29,6 +29,8 @@
 # faster (the same images on cbox, checked byte for byte) and can live in its own target
 # folder: CARGO_TARGET_DIR=~/work-data/target-native RUSTFLAGS="-C target-cpu=native"
 # cargo build --release, then SUBPIXEL=~/work-data/target-native/release/subpixel.
+# To stop a background run cleanly, `touch OUT/STOP`: it stops before its next sequence
+# (a killed run leaves at most one unfinished sequence, which the next run completes).
 # Logs go to stdout: run it with nohup, e.g.
 #   nohup training/dataset_recipe.sh ~/work-data/ds > ~/work-data/ds.log 2>&1 &
 set -euo pipefail
@@ -70,6 +72,10 @@ render() {
   h=$(printf '%s %s %s' "$scene" "$split" "$k" | cksum | cut -d' ' -f1)
   if [ $((h % shard_n)) -ne "$shard_k" ]; then
     return 0
+  fi
+  if [ -e "$out/STOP" ]; then
+    echo "== $(date -u +%FT%TZ) $out/STOP exists: stopping before $split $scene sequence $k"
+    exit 0
   fi
   echo "== $(date -u +%FT%TZ) $split $scene sequence $k"
   "$bin" dataset --scene "$scene" --split "$split" --first-sequence "$k" --sequences "$((k + 1))" \

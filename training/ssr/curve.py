@@ -2,7 +2,8 @@
 (the held-out test scenes) against iterations, as a PNG and JSON.
 
     python -m ssr.curve --run RUN_DIR [RUN_DIR ...] --data ROOT [--split test] \\
-        [--scenes S ...] [--frames 8] --out weights/ssr-training.png [--json curve.json]
+        [--scenes S ...] [--frames 8] --out weights/ssr-training.png [--json curve.json] \\
+        [--previous weights/ssr-training.json]
 
 Each run folder is one `ssr.train` run: its `log.jsonl` gives the training loss and the
 validation PSNR (the val split, what the trainer sees), and its `snapshots/` (written with
@@ -11,7 +12,9 @@ validation PSNR (the val split, what the trainer sees), and its `snapshots/` (wr
 PSNR on tonemapped 8-bit images). Several run folders are one campaign in order (a run
 started with `--init` from the previous one's weights continues its iteration count).
 Scores are cached per snapshot in `RUN_DIR/curve_cache.json` (keyed by split, frames and the
-snapshot's size and modification time), so re-plotting is cheap.
+snapshot's size and modification time), so re-plotting is cheap. A run started with
+`--init` from an earlier session's weights continues its iteration count (the trainer logs
+where it starts), and `--previous` draws that session's curve JSON in front.
 
 The monitored scores are for reporting only: nothing here feeds back into training or into
 which weights are kept (held-out scenes never enter model selection).
@@ -82,6 +85,8 @@ def curve(runs: List[str], data: str, split: str, scenes: Optional[List[str]], f
     train, val, monitored = [], [], []
     for run in runs:
         log = read_log(run)
+        # a run started from an earlier run's weights continues that run's iteration count
+        offset = max([offset] + [int(r.get("campaign_iterations", 0)) for r in log if r.get("event") == "init"])
         cache_path = os.path.join(run, "curve_cache.json")
         cache: Dict[str, dict] = {}
         if os.path.isfile(cache_path):
@@ -118,6 +123,20 @@ def curve(runs: List[str], data: str, split: str, scenes: Optional[List[str]], f
             )
         offset += last
     return {"split": split, "frames": frames, "runs": runs, "train": train, "val": val, "monitored": monitored}
+
+
+def with_previous(c: dict, previous: dict) -> dict:
+    """`previous` (an earlier session's curve JSON: the same campaign) in front of `c`: its
+    points before `c`'s first iteration are kept, so re-running in one session adds nothing
+    twice."""
+    if previous.get("split") != c["split"] or previous.get("frames") != c["frames"]:
+        return c
+    first = min([r["iteration"] for k in ("train", "val", "monitored") for r in c[k]] or [0])
+    out = dict(c)
+    for k in ("train", "val", "monitored"):
+        out[k] = [r for r in previous.get(k, []) if r["iteration"] < first] + c[k]
+    out["runs"] = [r for r in previous.get("runs", []) if r not in c["runs"]] + c["runs"]
+    return out
 
 
 def smooth(values: List[float], n: int) -> List[float]:
@@ -178,6 +197,10 @@ def main(argv=None) -> int:
     ap.add_argument("--out", required=True, help="PNG to write")
     ap.add_argument("--json", default=None, help="also write the figures as JSON")
     ap.add_argument("--title", default="SSR training", help="figure title")
+    ap.add_argument(
+        "--previous", default=None,
+        help="an earlier session's --json of the same campaign, drawn in front (missing file: ignored)",
+    )
     ap.add_argument("--threads", type=int, default=0, help="PyTorch CPU threads (0: default)")
     a = ap.parse_args(argv)
     if a.frames <= 0:
@@ -189,6 +212,9 @@ def main(argv=None) -> int:
     except DatasetError as err:
         print(f"error: {err}", file=sys.stderr)
         return 1
+    if a.previous and os.path.isfile(a.previous):
+        with open(a.previous) as f:
+            c = with_previous(c, json.load(f))
     plot(c, a.out, a.title)
     print(f"wrote {a.out} ({len(c['train'])} loss points, {len(c['monitored'])} snapshots scored)")
     if a.json:

@@ -453,10 +453,13 @@ def _train(args, config: dict, dd: Dist) -> dict:
     # model, optimizer
     torch.manual_seed(args.seed)
     model = build_model(args.model, config["model_config"]).to(device)
-    init_meta = None
+    init_meta, init_iterations = None, 0
     if args.init is not None:
         init_meta = load_init(model, args.init, args.model)
-        say(f"initialised from {args.init}")
+        prov = _json_or_str(init_meta.get("provenance"))
+        if isinstance(prov, dict):
+            init_iterations = int(prov.get("campaign_iterations", prov.get("iterations", 0)) or 0)
+        say(f"initialised from {args.init} ({init_iterations} iterations of training before this run)")
     opt = torch.optim.Adam(model.parameters(), lr=args.lr)
     start, wall, history = 0, 0.0, []
     if args.resume and os.path.isfile(ckpt_path):
@@ -478,6 +481,9 @@ def _train(args, config: dict, dd: Dist) -> dict:
     if dd.main and start == 0:
         with open(os.path.join(args.out, "run.json"), "w") as f:
             json.dump({"config": config, "args": vars(args)}, f, indent=2, sort_keys=True)
+        if args.init is not None:
+            # Where this run's iteration 0 sits in a campaign of runs continuing each other.
+            _log(args.out, {"event": "init", "weights": args.init, "campaign_iterations": init_iterations})
 
     runner: nn.Module = SequenceRunner(model)
     if dd.enabled:
@@ -612,6 +618,7 @@ def _train(args, config: dict, dd: Dist) -> dict:
             "lr_schedule": "Adam; halved at 1/3 and 2/3 of the iterations",
             "losses": {"frame_weights": list(weights), "lambdas": dict(losses.LAMBDAS)},
             "seed": args.seed,
+            "campaign_iterations": init_iterations + it,
             "init": None if args.init is None else {
                 **config["init"],
                 "provenance": _json_or_str(init_meta.get("provenance")) if init_meta else None,

@@ -31,3 +31,23 @@ def test_curve_scores_snapshots_and_plots(dataset, tmp_path, capsys):
     assert C.main(["--run", str(tmp_path), "--data", dataset, "--out", png]) == 1
     assert "no training log" in capsys.readouterr().err
     assert C.group_of("procedural_1000003") == "procedural (mean)" and C.group_of("living-room") == "living-room"
+
+
+def test_curve_continues_a_campaign(dataset, tmp_path, capsys):
+    common = ["--data", dataset, "--iters", "2", "--batch", "2", "--crop", "16", "--workers", "0", "--log-every", "1",
+              "--val-frames", "2", "--val-every", "0", "--device", "cpu", "--snapshot-every", "2"]  # fmt: skip
+    a, b = str(tmp_path / "a"), str(tmp_path / "b")
+    res = T.train(["--out", a, *common])
+    T.train(["--out", b, "--init", res["weights"], *common])
+    ja, jb = str(tmp_path / "a.json"), str(tmp_path / "b.json")
+    png = str(tmp_path / "c.png")
+    base = ["--data", dataset, "--split", "val", "--frames", "2", "--out", png]
+    assert C.main(["--run", a, *base, "--json", ja]) == 0
+    # run b starts where a ended: its points are at iterations 3 and 4
+    assert C.main(["--run", b, *base, "--json", jb, "--previous", ja]) == 0
+    c = json.load(open(jb))
+    assert [r["iteration"] for r in c["train"]] == [1, 2, 3, 4]
+    assert [r["iteration"] for r in c["monitored"]] == [2, 4]
+    # re-running with its own output as --previous adds nothing twice
+    assert C.main(["--run", b, *base, "--json", jb, "--previous", jb]) == 0
+    assert [r["iteration"] for r in json.load(open(jb))["train"]] == [1, 2, 3, 4]
