@@ -84,7 +84,9 @@ pub(super) fn run(a: &DenoiseArgs) -> Result<()> {
     if let Some(d) = &den {
         let n = d.sanitized_count()?;
         if n > 0 {
-            eprintln!("warning: {n} non-finite input values were replaced by 0");
+            eprintln!(
+                "warning: {n} input values were non-finite (replaced by 0) or outside their range (clamped to it)"
+            );
         }
     }
     Ok(())
