@@ -424,3 +424,142 @@ fn range_arguments_are_refused() {
     }
     std::fs::remove_dir_all(&out).ok();
 }
+
+/// Every file of `dir` (name -> bytes), sorted.
+fn snapshot(dir: &Path) -> Vec<(String, Vec<u8>)> {
+    let mut v: Vec<(String, Vec<u8>)> = std::fs::read_dir(dir)
+        .unwrap()
+        .map(|e| e.unwrap().path())
+        .filter(|p| p.is_file())
+        .map(|p| {
+            (
+                p.file_name().unwrap().to_string_lossy().to_string(),
+                std::fs::read(&p).unwrap(),
+            )
+        })
+        .collect();
+    v.sort();
+    v
+}
+
+/// Issue 12 item 3: `denoise --out` on, inside or around `--input` is refused before
+/// anything is written (paths resolved, symlinks followed); a folder of frames of
+/// different sizes is refused naming the file; a run that fails part-way leaves the output
+/// folder exactly as it was (no mix of new and stale frames, no temporaries).
+#[test]
+fn denoise_never_destroys_its_input() {
+    let root = tmp("overlap");
+    let input = root.join("in");
+    std::fs::create_dir_all(&input).unwrap();
+    golden_folder(&input);
+    let before = snapshot(&input);
+    let denoise = |input: &Path, out: &Path| {
+        bin()
+            .args(["denoise", "--weights"])
+            .arg(data("golden_weights.safetensors"))
+            .arg("--input")
+            .arg(input)
+            .arg("--out")
+            .arg(out)
+            .output()
+            .unwrap()
+    };
+    #[cfg(unix)]
+    std::os::unix::fs::symlink(&input, root.join("link")).unwrap();
+    let mut cases = vec![
+        (input.clone(), "is the same folder as"),
+        (root.join("in/../in/."), "is the same folder as"),
+        (input.join("sub/deeper"), "lies inside"),
+        (root.clone(), "contains"),
+    ];
+    #[cfg(unix)]
+    cases.push((root.join("link"), "is the same folder as"));
+    for (out, want) in cases {
+        let o = denoise(&input, &out);
+        let stderr = String::from_utf8_lossy(&o.stderr);
+        assert!(!o.status.success(), "--out {} accepted", out.display());
+        assert!(
+            stderr.contains(want) && stderr.contains("--out") && stderr.contains("--input"),
+            "--out {}: {stderr}",
+            out.display()
+        );
+        assert_eq!(
+            snapshot(&input),
+            before,
+            "--out {} touched the input",
+            out.display()
+        );
+        assert!(!input.join("sub").exists(), "nothing created inside the input");
+    }
+
+    // Frames of different sizes: refused before any output, naming the odd file.
+    let mixed = root.join("mixed");
+    let out = root.join("out");
+    std::fs::create_dir_all(&mixed).unwrap();
+    std::fs::create_dir_all(&out).unwrap();
+    for i in 0..2 {
+        let name = format!("frame_{i:04}.exr");
+        std::fs::copy(input.join(&name), mixed.join(&name)).unwrap();
+    }
+    let mut small = read_frame(&input.join("frame_0002.exr")).unwrap();
+    let f = small.frame.as_mut().unwrap();
+    for t in [
+        &mut f.color,
+        &mut f.mask,
+        &mut f.albedo,
+        &mut f.normal,
+        &mut f.shadow,
+        &mut f.transparent,
+        &mut f.depth,
+        &mut f.metallic,
+        &mut f.roughness,
+        &mut f.motion,
+    ] {
+        *t = HostTensor::from_fn(20, 12, t.channels, |x, y, c| t.at(x, y, c));
+    }
+    small.reference = None;
+    write_frame(&mixed.join("frame_0002.exr"), &small).unwrap();
+    let stale: Vec<(String, Vec<u8>)> = (0..3)
+        .map(|i| (format!("frame_{i:04}.exr"), format!("stale {i}").into_bytes()))
+        .collect();
+    for (n, b) in &stale {
+        std::fs::write(out.join(n), b).unwrap();
+    }
+    let o = denoise(&mixed, &out);
+    let stderr = String::from_utf8_lossy(&o.stderr);
+    assert!(!o.status.success());
+    assert!(
+        stderr.contains("frame_0002.exr") && stderr.contains("20x12") && stderr.contains("40x24"),
+        "{stderr}"
+    );
+    assert_eq!(snapshot(&out), stale);
+
+    // A frame whose header is fine but whose pixels are cut off: frames 0 and 1 are
+    // denoised, frame 2 fails, and the output folder still holds only the stale frames.
+    let cut = root.join("cut");
+    std::fs::create_dir_all(&cut).unwrap();
+    for i in 0..3 {
+        let name = format!("frame_{i:04}.exr");
+        std::fs::copy(input.join(&name), cut.join(&name)).unwrap();
+    }
+    let bytes = std::fs::read(cut.join("frame_0002.exr")).unwrap();
+    std::fs::write(cut.join("frame_0002.exr"), &bytes[..bytes.len() - 200]).unwrap();
+    let o = denoise(&cut, &out);
+    let stderr = String::from_utf8_lossy(&o.stderr);
+    assert!(!o.status.success(), "a truncated frame must fail");
+    assert!(stderr.contains("frame_0002.exr"), "{stderr}");
+    assert!(!stderr.contains("panicked"), "{stderr}");
+    assert_eq!(
+        snapshot(&out),
+        stale,
+        "no mix of new and stale frames, no temporaries"
+    );
+
+    // The same folders that were refused above are fine once separate.
+    let o = denoise(&input, &out);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let names: Vec<String> = snapshot(&out).into_iter().map(|(n, _)| n).collect();
+    assert_eq!(names, ["frame_0000.exr", "frame_0001.exr", "frame_0002.exr"]);
+    assert!(read_frame(&out.join("frame_0001.exr")).unwrap().pred.is_some());
+    std::fs::remove_dir_all(&root).ok();
+}

@@ -70,6 +70,51 @@ pub fn main() -> ExitCode {
     }
 }
 
+/// `path` absolute with symlinks and `..` resolved, also when its tail does not exist yet
+/// (each existing prefix is canonicalised, the rest taken as written).
+fn resolved(path: &Path) -> Result<PathBuf> {
+    use std::path::Component;
+    let abs = std::path::absolute(path)?;
+    let mut out = PathBuf::new();
+    for c in abs.components() {
+        match c {
+            Component::ParentDir => {
+                out.pop();
+            }
+            Component::CurDir => {}
+            other => {
+                out.push(other);
+                if let Ok(real) = out.canonicalize() {
+                    out = real;
+                }
+            }
+        }
+    }
+    Ok(out)
+}
+
+/// Refuses an output folder that is the input folder, lies inside it or contains it
+/// (paths resolved, symlinks followed): writing there would overwrite or mix with the input.
+fn refuse_overlap(input_flag: &str, input: &Path, out_flag: &str, out: &Path) -> Result<()> {
+    let (i, o) = (resolved(input)?, resolved(out)?);
+    let how = if i == o {
+        "is the same folder as"
+    } else if o.starts_with(&i) {
+        "lies inside"
+    } else if i.starts_with(&o) {
+        "contains"
+    } else {
+        return Ok(());
+    };
+    anyhow::bail!(
+        "{out_flag} {} {how} {input_flag} {} ({}): the outputs would overwrite or mix with the \
+         input frames; choose a separate folder",
+        out.display(),
+        input.display(),
+        i.display()
+    )
+}
+
 /// The shipped weights file.
 pub fn shipped_weights_path() -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR")).join("weights/ssr.safetensors")
