@@ -563,3 +563,110 @@ fn denoise_never_destroys_its_input() {
     assert!(read_frame(&out.join("frame_0001.exr")).unwrap().pred.is_some());
     std::fs::remove_dir_all(&root).ok();
 }
+
+/// Issue 12 item 5: a prediction with NaN or Inf pixels (some, or all) is not scored as a
+/// plausible PSNR / SSIM: `eval` fails naming the file and the count, in text, JSON and
+/// table modes.
+#[test]
+fn eval_refuses_non_finite_predictions() {
+    let root = tmp("eval-nan");
+    let input = root.join("ref");
+    std::fs::create_dir_all(&input).unwrap();
+    golden_folder(&input);
+    let pred = root.join("pred");
+    std::fs::create_dir_all(&pred).unwrap();
+    let write_preds = |poison: &dyn Fn(usize, &mut HostTensor)| {
+        for i in 0..3 {
+            let name = format!("frame_{i:04}.exr");
+            let mut p = read_frame(&input.join(&name)).unwrap().reference.unwrap();
+            poison(i, &mut p);
+            write_frame(
+                &pred.join(&name),
+                &FrameFile {
+                    pred: Some(p),
+                    ..Default::default()
+                },
+            )
+            .unwrap();
+        }
+    };
+    let eval = |extra: &[&str], p: &Path, r: &Path| {
+        bin()
+            .arg("eval")
+            .args(extra)
+            .arg("--pred")
+            .arg(p)
+            .arg("--ref")
+            .arg(r)
+            .output()
+            .unwrap()
+    };
+    // Clean predictions score (the control).
+    write_preds(&|_, _| {});
+    let o = eval(&["--json"], &pred, &input);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    // Seven NaN / Inf pixels in frame 1 (two channels of one pixel count once).
+    write_preds(&|i, t| {
+        if i == 1 {
+            for k in 0..7u32 {
+                t.set(k, 3, 0, if k % 2 == 0 { f32::NAN } else { f32::INFINITY });
+            }
+            t.set(0, 3, 2, f32::NAN);
+        }
+    });
+    for mode in [&[][..], &["--json"][..]] {
+        let o = eval(mode, &pred, &input);
+        let stderr = String::from_utf8_lossy(&o.stderr);
+        assert!(
+            !o.status.success(),
+            "{mode:?}: scored: {}",
+            String::from_utf8_lossy(&o.stdout)
+        );
+        assert!(
+            stderr.contains("frame_0001.exr") && stderr.contains("7 non-finite") && stderr.contains("of 960"),
+            "{mode:?}: {stderr}"
+        );
+        assert!(
+            !String::from_utf8_lossy(&o.stdout).contains("psnr"),
+            "no score printed"
+        );
+    }
+    // An all-NaN prediction.
+    write_preds(&|i, t| {
+        if i == 2 {
+            t.data.iter_mut().for_each(|v| *v = f32::NAN);
+        }
+    });
+    let o = eval(&["--json"], &pred, &input);
+    let stderr = String::from_utf8_lossy(&o.stderr);
+    assert!(
+        !o.status.success() && stderr.contains("960 non-finite"),
+        "{stderr}"
+    );
+    // The table over a dataset root.
+    let droot = root.join("dataset");
+    let seq = droot.join("test/golden_test_000");
+    std::fs::create_dir_all(&seq).unwrap();
+    std::fs::write(seq.join("sequence.json"), r#"{"scene": "builtin:golden"}"#).unwrap();
+    let ssr = root.join("methods/ssr/test/golden_test_000");
+    std::fs::create_dir_all(&ssr).unwrap();
+    for i in 0..3 {
+        let name = format!("frame_{i:04}.exr");
+        std::fs::copy(input.join(&name), seq.join(&name)).unwrap();
+        std::fs::copy(pred.join(&name), ssr.join(&name)).unwrap();
+    }
+    for mode in [&["--table"][..], &["--table", "--json"][..]] {
+        let o = eval(mode, &root.join("methods"), &droot);
+        let stderr = String::from_utf8_lossy(&o.stderr);
+        assert!(
+            !o.status.success(),
+            "{mode:?}: {}",
+            String::from_utf8_lossy(&o.stdout)
+        );
+        assert!(
+            stderr.contains("frame_0002.exr") && stderr.contains("non-finite"),
+            "{stderr}"
+        );
+    }
+    std::fs::remove_dir_all(&root).ok();
+}
