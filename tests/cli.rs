@@ -670,3 +670,67 @@ fn eval_refuses_non_finite_predictions() {
     }
     std::fs::remove_dir_all(&root).ok();
 }
+
+/// Issue 12 item 11: the default weights of a relocated binary are found next to it (its
+/// `weights/`, or `../weights` as in `target/release/`), or through `SUBPIXEL_WEIGHTS`;
+/// a `SUBPIXEL_WEIGHTS` naming a missing file is an error naming it.
+#[test]
+fn default_weights_follow_the_binary_and_the_environment() {
+    let root = tmp("relocated");
+    let frames = root.join("frames");
+    std::fs::create_dir_all(&frames).unwrap();
+    golden_folder(&frames);
+    let weights = data("golden_weights.safetensors");
+    // A copy of the binary in bin/, the weights in ../weights relative to it.
+    let bin_dir = root.join("app/bin");
+    std::fs::create_dir_all(&bin_dir).unwrap();
+    std::fs::create_dir_all(root.join("app/weights")).unwrap();
+    let exe = bin_dir.join("subpixel");
+    std::fs::copy(env!("CARGO_BIN_EXE_subpixel"), &exe).unwrap();
+    let moved = root.join("app/weights/ssr.safetensors");
+    std::fs::copy(&weights, &moved).unwrap();
+    let denoise = |exe: &Path, env: Option<&Path>, out: &str| {
+        let mut c = Command::new(exe);
+        c.current_dir(&root).env_remove("SUBPIXEL_WEIGHTS");
+        if let Some(e) = env {
+            c.env("SUBPIXEL_WEIGHTS", e);
+        }
+        c.arg("denoise")
+            .arg("--input")
+            .arg(&frames)
+            .arg("--out")
+            .arg(root.join(out))
+            .output()
+            .unwrap()
+    };
+    // The golden weights are random test weights: the warning names the file in use.
+    let o = denoise(&exe, None, "out1");
+    let stderr = String::from_utf8_lossy(&o.stderr);
+    assert!(o.status.success(), "{stderr}");
+    assert!(
+        stderr.contains(&format!(
+            "{} holds random test weights",
+            bin_dir.join("../weights/ssr.safetensors").display()
+        )),
+        "{stderr}"
+    );
+    // The environment variable wins over the copy next to the binary.
+    let elsewhere = root.join("elsewhere.safetensors");
+    std::fs::copy(&weights, &elsewhere).unwrap();
+    let o = denoise(&exe, Some(&elsewhere), "out2");
+    let stderr = String::from_utf8_lossy(&o.stderr);
+    assert!(o.status.success(), "{stderr}");
+    assert!(
+        stderr.contains(&format!("{} holds random", elsewhere.display())),
+        "{stderr}"
+    );
+    // An environment variable naming nothing is an error naming it, not a fallback.
+    let o = denoise(&exe, Some(&root.join("nope.safetensors")), "out3");
+    let stderr = String::from_utf8_lossy(&o.stderr);
+    assert!(!o.status.success());
+    assert!(
+        stderr.contains("SUBPIXEL_WEIGHTS") && stderr.contains("nope.safetensors"),
+        "{stderr}"
+    );
+    std::fs::remove_dir_all(&root).ok();
+}

@@ -12,7 +12,9 @@ use crate::ssr::{Denoiser, Weights};
 
 #[derive(clap::Args)]
 pub(super) struct DenoiseArgs {
-    /// Weights file (safetensors).
+    /// Weights file (safetensors; default: $SUBPIXEL_WEIGHTS, else the shipped
+    /// weights/ssr.safetensors next to the executable, in the working directory or at the
+    /// build's path).
     #[arg(long)]
     weights: Option<PathBuf>,
     /// Folder of frame_NNNN.exr files holding the renderer's buffers (DESIGN §3).
@@ -27,7 +29,7 @@ pub(super) struct DenoiseArgs {
 }
 
 pub(super) fn run(a: &DenoiseArgs) -> Result<()> {
-    let wpath = a.weights.clone().unwrap_or_else(super::shipped_weights_path);
+    let wpath = super::weights_path(a.weights.as_deref())?;
     let weights = Weights::load(&wpath)?;
     if weights.is_random_init() {
         eprintln!(
