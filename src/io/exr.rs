@@ -155,11 +155,7 @@ pub fn read_header(path: &Path) -> Result<ExrHeader> {
         path: path.to_path_buf(),
         message: m,
     };
-    let meta = std::fs::metadata(path).map_err(|e| err(format!("cannot read EXR: {e}")))?;
-    if !meta.is_file() {
-        return Err(err("cannot read EXR: not a regular file".into()));
-    }
-    let len = meta.len();
+    let len = super::regular_file_len(path).map_err(|e| err(format!("cannot read EXR: {e}")))?;
     let headers = exr::meta::MetaData::read_from_file(path, false)
         .map_err(|e| err(format!("cannot read EXR: {e}")))?
         .headers;

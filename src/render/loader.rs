@@ -154,7 +154,9 @@ struct KeySpec {
 
 /// Loads a `scene.json` sidecar and the glTF it names.
 pub fn load_sidecar(path: &Path) -> Result<Scene> {
-    let text = std::fs::read_to_string(path).map_err(|e| file_err(path, format!("cannot read: {e}")))?;
+    let bytes =
+        crate::io::read_regular(path, u64::MAX).map_err(|e| file_err(path, format!("cannot read: {e}")))?;
+    let text = String::from_utf8(bytes).map_err(|_| file_err(path, "cannot read: not UTF-8 text"))?;
     let side: Sidecar =
         serde_json::from_str(&text).map_err(|e| scene_err(path, format!("malformed scene.json: {e}")))?;
     let dir = path.parent().unwrap_or(Path::new("."));
@@ -255,8 +257,9 @@ pub fn load_sidecar(path: &Path) -> Result<Scene> {
 
 /// Loads a lat-long environment map (`.hdr`, `.exr`, or anything the `image` crate reads).
 pub fn load_environment(path: &Path, scale: f32, to_world: Mat3) -> Result<Environment> {
-    let img = image::ImageReader::open(path)
-        .map_err(|e| file_err(path, format!("cannot open environment map: {e}")))?
+    let bytes = crate::io::read_regular(path, u64::MAX)
+        .map_err(|e| file_err(path, format!("cannot open environment map: {e}")))?;
+    let img = image::ImageReader::new(std::io::Cursor::new(bytes))
         .with_guessed_format()
         .map_err(|e| file_err(path, format!("cannot read environment map: {e}")))?
         .decode()
@@ -327,7 +330,9 @@ fn percent_decode(s: &str) -> String {
 }
 
 /// Bytes of a URI relative to `base`: a data URI or a file.
-fn read_uri(gltf_path: &Path, base: &Path, uri: &str, what: &str) -> Result<(Vec<u8>, PathBuf)> {
+/// A file is read only when regular, and at most `cap` bytes of it (a buffer's declared
+/// byteLength).
+fn read_uri(gltf_path: &Path, base: &Path, uri: &str, what: &str, cap: u64) -> Result<(Vec<u8>, PathBuf)> {
     if let Some(rest) = uri.strip_prefix("data:") {
         let (_, data) = rest
             .split_once(";base64,")
@@ -337,7 +342,7 @@ fn read_uri(gltf_path: &Path, base: &Path, uri: &str, what: &str) -> Result<(Vec
         return Ok((bytes, gltf_path.to_path_buf()));
     }
     let file = base.join(percent_decode(uri));
-    let bytes = std::fs::read(&file).map_err(|e| {
+    let bytes = crate::io::read_regular(&file, cap).map_err(|e| {
         file_err(
             &file,
             format!("{what} referenced by {} cannot be read: {e}", gltf_path.display()),
@@ -384,7 +389,9 @@ impl Loader<'_> {
                         .ok_or_else(|| scene_err(self.path, format!("{what}: buffer view out of range")))?;
                     (slice.to_vec(), self.path.to_path_buf())
                 }
-                gltf::image::Source::Uri { uri, .. } => read_uri(self.path, &self.base, uri, &what)?,
+                gltf::image::Source::Uri { uri, .. } => {
+                    read_uri(self.path, &self.base, uri, &what, u64::MAX)?
+                }
             };
             let decoded = image::load_from_memory(&bytes)
                 .map_err(|e| file_err(&file, format!("cannot decode {what}: {e}")))?
@@ -544,7 +551,8 @@ pub fn load_gltf(path: &Path) -> Result<Scene> {
 }
 
 fn load_gltf_checked(path: &Path) -> Result<Scene> {
-    let bytes = std::fs::read(path).map_err(|e| file_err(path, format!("cannot read glTF: {e}")))?;
+    let bytes = crate::io::read_regular(path, u64::MAX)
+        .map_err(|e| file_err(path, format!("cannot read glTF: {e}")))?;
     let gltf = gltf::Gltf::from_slice(&bytes).map_err(|e| scene_err(path, format!("malformed glTF: {e}")))?;
     let base = path.parent().unwrap_or(Path::new(".")).to_path_buf();
     let mut approx = Vec::new();
@@ -570,7 +578,16 @@ fn load_gltf_checked(path: &Path) -> Result<Scene> {
             gltf::buffer::Source::Bin => blob
                 .clone()
                 .ok_or_else(|| scene_err(path, "buffer refers to a missing GLB binary chunk"))?,
-            gltf::buffer::Source::Uri(uri) => read_uri(path, &base, uri, &format!("buffer {}", b.index()))?.0,
+            gltf::buffer::Source::Uri(uri) => {
+                read_uri(
+                    path,
+                    &base,
+                    uri,
+                    &format!("buffer {}", b.index()),
+                    b.length() as u64,
+                )?
+                .0
+            }
         };
         if data.len() < b.length() {
             return Err(scene_err(
@@ -900,6 +917,81 @@ mod tests {
             .unwrap_err()
             .to_string();
         assert!(e.contains("x.obj"), "{e}");
+        std::fs::remove_dir_all(&d).ok();
+    }
+
+    /// Issue 12 item 9: a FIFO or a device as glTF, buffer, image or environment map is
+    /// refused (regular files only) instead of blocking or reading forever.
+    #[cfg(unix)]
+    #[test]
+    fn special_files_are_refused() {
+        let d = tmp("special");
+        let fifo = d.join("fifo.bin");
+        let made = std::process::Command::new("mkfifo").arg(&fifo).status();
+        assert!(made.map(|s| s.success()).unwrap_or(false), "mkfifo");
+        let e = load_scene("/dev/zero").unwrap_err().to_string();
+        assert!(e.contains("/dev/zero"), "{e}");
+        std::os::unix::fs::symlink("/dev/zero", d.join("zero.gltf")).unwrap();
+        let e = load_scene(d.join("zero.gltf").to_str().unwrap())
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("zero.gltf") && e.contains("not a regular file"), "{e}");
+        std::os::unix::fs::symlink(&fifo, d.join("fifo.glb")).unwrap();
+        let e = load_scene(d.join("fifo.glb").to_str().unwrap())
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("not a regular file"), "{e}");
+        // A buffer and an image that are a FIFO and /dev/zero.
+        let data_uri = tiny_gltf("", "", "");
+        let with_buffer = |uri: &str| {
+            let at = data_uri.find("data:application").unwrap();
+            let end = at + data_uri[at..].find('"').unwrap();
+            format!("{}{uri}{}", &data_uri[..at], &data_uri[end..])
+        };
+        for uri in ["fifo.bin", "/dev/zero"] {
+            let p = d.join("buf.gltf");
+            std::fs::write(&p, with_buffer(uri)).unwrap();
+            let e = load_scene(p.to_str().unwrap()).unwrap_err().to_string();
+            assert!(
+                e.contains("not a regular file") && e.contains("buffer 0"),
+                "{uri}: {e}"
+            );
+        }
+        let p = d.join("tex.gltf");
+        let extra = r#", "materials": [{"pbrMetallicRoughness": {"baseColorTexture": {"index": 0}}}],
+            "textures": [{"source": 0}], "images": [{"uri": "fifo.bin"}]"#;
+        std::fs::write(&p, tiny_gltf(extra, "", r#", "material": 0"#)).unwrap();
+        let e = load_scene(p.to_str().unwrap()).unwrap_err().to_string();
+        assert!(e.contains("fifo.bin") && e.contains("not a regular file"), "{e}");
+        std::fs::write(d.join("ok.gltf"), tiny_gltf("", "", "")).unwrap();
+        std::fs::write(
+            d.join("scene.json"),
+            r#"{"gltf": "ok.gltf", "environment": {"file": "fifo.bin", "scale": 1.0}}"#,
+        )
+        .unwrap();
+        let e = load_scene(d.join("scene.json").to_str().unwrap())
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("fifo.bin") && e.contains("not a regular file"), "{e}");
+        std::fs::remove_dir_all(&d).ok();
+    }
+
+    /// A buffer file longer than its declared byteLength loads (only the declared bytes are
+    /// read: `read_regular`'s cap, tested in `io`).
+    #[test]
+    fn buffers_are_read_up_to_their_declared_length() {
+        let d = tmp("cap");
+        let g = tiny_gltf("", "", "");
+        let at = g.find("data:application").unwrap();
+        let end = at + g[at..].find('"').unwrap();
+        let b64 = &g[at + "data:application/octet-stream;base64,".len()..end];
+        let mut bytes = base64_decode(b64).unwrap();
+        bytes.extend(std::iter::repeat_n(0xAB, 1 << 20));
+        std::fs::write(d.join("big.bin"), &bytes).unwrap();
+        let p = d.join("cap.gltf");
+        std::fs::write(&p, format!("{}big.bin{}", &g[..at], &g[end..])).unwrap();
+        let s = load_scene(p.to_str().unwrap()).unwrap();
+        assert_eq!(s.geometry.triangles.len(), 1);
         std::fs::remove_dir_all(&d).ok();
     }
 
