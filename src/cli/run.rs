@@ -83,13 +83,14 @@ pub(super) fn run(a: &RunArgs) -> Result<()> {
     let scene = load_scene(&a.scene)?;
     scene.warn_approximations();
     let gs = GpuScene::new(&gpu, &scene)?;
-    let path = CameraPath::from_spec(
+    let path = CameraPath::checked(
         &"flythrough".parse().expect("known path"),
         &scene.camera,
         a.seed,
         a.frames,
         &gs.bvh,
-    );
+    )
+    .map_err(|e| anyhow::anyhow!("scene {}: {e}", scene.name))?;
     let eyes: Vec<_> = (0..a.frames).map(|f| path.camera(f).position).collect();
     let far = scene.far_distance(eyes.iter().chain([&scene.camera.position]));
     let mut tracer = Tracer::new(&gpu, w, h)?;

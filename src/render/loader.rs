@@ -208,6 +208,10 @@ pub fn load_sidecar(path: &Path) -> Result<Scene> {
                 format!("camera yfov_deg {} out of (0, 180)", c.yfov_deg),
             ));
         }
+        scene
+            .camera
+            .check()
+            .map_err(|e| scene_err(path, format!("scene.json {e}")))?;
     }
     if let Some([w, h]) = side.film {
         if w == 0 || h == 0 {
@@ -236,6 +240,10 @@ pub fn load_sidecar(path: &Path) -> Result<Scene> {
             cut_every,
         },
     });
+    if let Some(spec) = &scene.camera_path {
+        spec.check()
+            .map_err(|e| scene_err(path, format!("scene.json {e}")))?;
+    }
     if let Some(CameraPathSpec::FlyThrough {
         frames_per_key,
         cut_every,
@@ -649,12 +657,15 @@ fn load_gltf_checked(path: &Path) -> Result<Scene> {
             let pos = world.transform_point3(Vec3::ZERO);
             let fwd = world.transform_vector3(Vec3::NEG_Z).normalize_or(Vec3::NEG_Z);
             let up = world.transform_vector3(Vec3::Y).normalize_or(Vec3::Y);
-            camera = Some(Camera {
+            let c = Camera {
                 position: pos,
                 target: pos + fwd,
                 up,
                 yfov: p.yfov(),
-            });
+            };
+            c.check()
+                .map_err(|e| scene_err(path, format!("glTF {e} (camera of node {})", node.index())))?;
+            camera = Some(c);
         }
         if let Some(mesh) = node.mesh() {
             let normal_m = Mat3::from_mat4(world).inverse().transpose();
@@ -973,6 +984,75 @@ mod tests {
             .unwrap_err()
             .to_string();
         assert!(e.contains("fifo.bin") && e.contains("not a regular file"), "{e}");
+        std::fs::remove_dir_all(&d).ok();
+    }
+
+    /// Issue 12 item 7: degenerate cameras in scene.json or glTF are errors naming the
+    /// field, not black frames or NaN motion.
+    #[test]
+    fn degenerate_cameras_are_named_errors() {
+        let d = tmp("cams");
+        std::fs::write(d.join("ok.gltf"), tiny_gltf("", "", "")).unwrap();
+        let json = d.join("scene.json");
+        let cam = |c: &str, path: &str| {
+            std::fs::write(&json, format!(r#"{{"gltf": "ok.gltf", "camera": {c} {path}}}"#)).unwrap();
+            load_scene(json.to_str().unwrap())
+                .map(|_| ())
+                .map_err(|e| e.to_string())
+        };
+        let good = r#"{"position": [0, 0, 3], "target": [0, 0, 0], "up": [0, 1, 0], "yfov_deg": 40}"#;
+        cam(good, "").unwrap();
+        for (c, want) in [
+            (
+                r#"{"position": [0, 0, 3], "target": [0, 0, 3], "yfov_deg": 40}"#,
+                "target",
+            ),
+            (
+                r#"{"position": [0, 0, 3], "target": [0, 0, 0], "up": [0, 0, 1], "yfov_deg": 40}"#,
+                "up",
+            ),
+            (
+                r#"{"position": [0, 0, 3], "target": [0, 0, 0], "up": [0, 0, 0], "yfov_deg": 40}"#,
+                "up",
+            ),
+            (
+                r#"{"position": [1e39, 0, 3], "target": [0, 0, 0], "yfov_deg": 40}"#,
+                "position",
+            ),
+            (
+                r#"{"position": [0, 0, 3], "target": [0, 0, 0], "yfov_deg": 0}"#,
+                "yfov",
+            ),
+        ] {
+            let e = cam(c, "").unwrap_err();
+            assert!(e.contains("scene.json") && e.contains(want), "{c}: {e}");
+        }
+        for (p, want) in [
+            (
+                r#", "camera_path": {"type": "orbit", "degrees_per_frame": 1e39}"#,
+                "degrees_per_frame",
+            ),
+            (
+                r#", "camera_path": {"type": "orbit", "degrees_per_frame": 1e30}"#,
+                "degrees_per_frame",
+            ),
+            (
+                r#", "camera_path": {"type": "flythrough", "keys": [{"position": [0, 0, 3], "target": [0, 0, 0]}, {"position": [1, 1, 1], "target": [1, 1, 1]}]}"#,
+                "keys[1]",
+            ),
+        ] {
+            let e = cam(good, p).unwrap_err();
+            assert!(e.contains("scene.json") && e.contains(want), "{p}: {e}");
+        }
+        // A glTF camera with yfov 0.
+        let p = d.join("cam.gltf");
+        let extra = r#", "cameras": [{"type": "perspective", "perspective": {"yfov": 0.0, "znear": 0.1}}]"#;
+        std::fs::write(&p, tiny_gltf(extra, r#", "camera": 0"#, "")).unwrap();
+        let e = load_scene(p.to_str().unwrap()).unwrap_err().to_string();
+        assert!(
+            e.contains("cam.gltf") && e.contains("yfov") && e.contains("node 0"),
+            "{e}"
+        );
         std::fs::remove_dir_all(&d).ok();
     }
 
