@@ -359,6 +359,186 @@ fn read_uri(gltf_path: &Path, base: &Path, uri: &str, what: &str, cap: u64) -> R
     Ok((bytes, file))
 }
 
+/// Checks, on the raw JSON of a `.gltf` or `.glb`, what the `gltf` crate would panic on
+/// rather than report (its validation indexes a primitive's POSITION accessor unchecked,
+/// its readers assert on strides and hit `unreachable!` on unexpected component types):
+/// every accessor a primitive names exists and has the type and component type the spec
+/// (and the reader) requires, strides hold their element, and accessor and view ranges lie
+/// within their view and buffer. Unparsable JSON is left to the crate's own error.
+fn check_gltf_json(bytes: &[u8]) -> std::result::Result<(), String> {
+    use serde_json::Value;
+    let parsed: Option<Value> = if bytes.starts_with(b"glTF") {
+        gltf::binary::Glb::from_slice(bytes)
+            .ok()
+            .and_then(|glb| serde_json::from_slice(&glb.json).ok())
+    } else {
+        serde_json::from_slice(bytes).ok()
+    };
+    let Some(json) = parsed else {
+        return Ok(());
+    };
+    let list = |k: &str| {
+        json.get(k)
+            .and_then(Value::as_array)
+            .map(Vec::as_slice)
+            .unwrap_or(&[])
+    };
+    let (accessors, views, buffers) = (list("accessors"), list("bufferViews"), list("buffers"));
+    let uint = |v: &Value, k: &str| v.get(k).and_then(Value::as_u64);
+    // Bytes per component of a componentType, and components per element of a type.
+    let component_size = |t: u64| match t {
+        5120 | 5121 => Some(1u64),
+        5122 | 5123 => Some(2),
+        5125 | 5126 => Some(4),
+        _ => None,
+    };
+    let components = |t: &str| match t {
+        "SCALAR" => Some(1u64),
+        "VEC2" => Some(2),
+        "VEC3" => Some(3),
+        "VEC4" | "MAT2" => Some(4),
+        "MAT3" => Some(9),
+        "MAT4" => Some(16),
+        _ => None,
+    };
+    // Views within their buffers.
+    for (i, v) in views.iter().enumerate() {
+        let (Some(b), Some(len)) = (uint(v, "buffer"), uint(v, "byteLength")) else {
+            continue;
+        };
+        let off = uint(v, "byteOffset").unwrap_or(0);
+        if let Some(buf) = buffers.get(b as usize)
+            && let Some(blen) = uint(buf, "byteLength")
+            && off.checked_add(len).is_none_or(|end| end > blen)
+        {
+            return Err(format!(
+                "bufferViews[{i}] (offset {off}, length {len}) runs past buffer {b} ({blen} bytes)"
+            ));
+        }
+    }
+    // An accessor within its view, its view's stride holding its element.
+    let check_accessor = |a: usize| -> std::result::Result<(), String> {
+        let acc = &accessors[a];
+        let ty = acc.get("type").and_then(Value::as_str).unwrap_or("");
+        let (Some(csize), Some(n)) = (
+            uint(acc, "componentType").and_then(component_size),
+            components(ty),
+        ) else {
+            return Err(format!("accessors[{a}] has an unknown type or componentType"));
+        };
+        let elem = csize * n;
+        let count = uint(acc, "count").unwrap_or(0);
+        let Some(vi) = uint(acc, "bufferView") else {
+            return Ok(());
+        };
+        let Some(view) = views.get(vi as usize) else {
+            return Err(format!(
+                "accessors[{a}].bufferView {vi} does not exist ({} views)",
+                views.len()
+            ));
+        };
+        let stride = match uint(view, "byteStride") {
+            Some(s) if s < elem => {
+                return Err(format!(
+                    "bufferViews[{vi}].byteStride {s} is smaller than the {elem}-byte elements of accessors[{a}]"
+                ));
+            }
+            Some(s) => s,
+            None => elem,
+        };
+        let off = uint(acc, "byteOffset").unwrap_or(0);
+        let vlen = uint(view, "byteLength").unwrap_or(0);
+        let need = match count {
+            0 => Some(off),
+            c => (c - 1)
+                .checked_mul(stride)
+                .and_then(|x| x.checked_add(off))
+                .and_then(|x| x.checked_add(elem)),
+        };
+        if need.is_none_or(|need| need > vlen) {
+            return Err(format!(
+                "accessors[{a}] ({count} elements of {elem} bytes, stride {stride}, offset {off}) \
+                 runs past bufferViews[{vi}] ({vlen} bytes)"
+            ));
+        }
+        Ok(())
+    };
+    for (m, mesh) in list("meshes").iter().enumerate() {
+        let prims = mesh
+            .get("primitives")
+            .and_then(Value::as_array)
+            .map(Vec::as_slice)
+            .unwrap_or(&[]);
+        for (p, prim) in prims.iter().enumerate() {
+            let at = format!("meshes[{m}].primitives[{p}]");
+            let accessor_of = |what: &str, v: &Value| -> std::result::Result<usize, String> {
+                match v.as_u64() {
+                    Some(a) if (a as usize) < accessors.len() => Ok(a as usize),
+                    _ => Err(format!(
+                        "{at}.{what}: accessor {v} does not exist ({} accessors)",
+                        accessors.len()
+                    )),
+                }
+            };
+            let mut used: Vec<(String, usize)> = Vec::new();
+            if let Some(attrs) = prim.get("attributes").and_then(Value::as_object) {
+                for (name, v) in attrs {
+                    let what = format!("attributes.{name}");
+                    used.push((what.clone(), accessor_of(&what, v)?));
+                }
+            }
+            let targets = prim.get("targets").and_then(Value::as_array);
+            for (t, target) in targets.into_iter().flatten().enumerate() {
+                for (name, v) in target.as_object().into_iter().flatten() {
+                    let what = format!("targets[{t}].{name}");
+                    used.push((what.clone(), accessor_of(&what, v)?));
+                }
+            }
+            if let Some(v) = prim.get("indices") {
+                used.push(("indices".into(), accessor_of("indices", v)?));
+            }
+            for (what, a) in &used {
+                check_accessor(*a).map_err(|e| format!("{at}.{what}: {e}"))?;
+                let acc = &accessors[*a];
+                let ty = acc.get("type").and_then(Value::as_str).unwrap_or("");
+                let ct = uint(acc, "componentType").unwrap_or(0);
+                // What the spec allows (and the reader handles without panicking).
+                type Allowed = (&'static [&'static str], &'static [u64], &'static str);
+                let allowed: Option<Allowed> = match what.as_str() {
+                    "indices" => Some((
+                        &["SCALAR"],
+                        &[5121, 5123, 5125],
+                        "SCALAR of unsigned byte, short or int",
+                    )),
+                    "attributes.POSITION" | "attributes.NORMAL" => {
+                        Some((&["VEC3"], &[5126], "VEC3 of float"))
+                    }
+                    "attributes.TANGENT" => Some((&["VEC4"], &[5126], "VEC4 of float")),
+                    w if w.starts_with("attributes.TEXCOORD_") => Some((
+                        &["VEC2"],
+                        &[5121, 5123, 5126],
+                        "VEC2 of float or normalised unsigned byte or short",
+                    )),
+                    w if w.starts_with("attributes.COLOR_") => Some((
+                        &["VEC3", "VEC4"],
+                        &[5121, 5123, 5126],
+                        "VEC3 or VEC4 of float or normalised unsigned byte or short",
+                    )),
+                    _ => None,
+                };
+                if let Some((types, cts, text)) = allowed
+                    && !(types.contains(&ty) && cts.contains(&ct))
+                {
+                    return Err(format!(
+                        "{at}.{what}: accessors[{a}] is {ty} of componentType {ct}, expected {text}"
+                    ));
+                }
+            }
+        }
+    }
+    Ok(())
+}
+
 struct Loader<'a> {
     path: &'a Path,
     base: PathBuf,
@@ -561,6 +741,7 @@ pub fn load_gltf(path: &Path) -> Result<Scene> {
 fn load_gltf_checked(path: &Path) -> Result<Scene> {
     let bytes = crate::io::read_regular(path, u64::MAX)
         .map_err(|e| file_err(path, format!("cannot read glTF: {e}")))?;
+    check_gltf_json(&bytes).map_err(|e| scene_err(path, format!("malformed glTF: {e}")))?;
     let gltf = gltf::Gltf::from_slice(&bytes).map_err(|e| scene_err(path, format!("malformed glTF: {e}")))?;
     let base = path.parent().unwrap_or(Path::new(".")).to_path_buf();
     let mut approx = Vec::new();
@@ -984,6 +1165,66 @@ mod tests {
             .unwrap_err()
             .to_string();
         assert!(e.contains("fifo.bin") && e.contains("not a regular file"), "{e}");
+        std::fs::remove_dir_all(&d).ok();
+    }
+
+    /// Issue 12 item 6: glTF files that made the `gltf` crate panic (its message and a
+    /// backtrace reached the user before the clean error) are refused from their JSON, by
+    /// the loader itself, without any panic.
+    #[test]
+    fn gltf_crate_panics_are_prevented() {
+        let d = tmp("panics");
+        let json: serde_json::Value = serde_json::from_str(&tiny_gltf("", "", "")).unwrap();
+        let cases: [(&str, fn(&mut serde_json::Value), &str); 6] = [
+            (
+                "indices of float VEC3",
+                |j| j["meshes"][0]["primitives"][0]["indices"] = 0.into(),
+                "indices: accessors[0] is VEC3 of componentType 5126, expected SCALAR",
+            ),
+            (
+                "POSITION accessor out of range",
+                |j| j["meshes"][0]["primitives"][0]["attributes"]["POSITION"] = 9.into(),
+                "attributes.POSITION: accessor 9 does not exist",
+            ),
+            (
+                "indices accessor out of range",
+                |j| j["meshes"][0]["primitives"][0]["indices"] = 7.into(),
+                "indices: accessor 7 does not exist",
+            ),
+            (
+                "byteStride smaller than the element",
+                |j| j["bufferViews"][0]["byteStride"] = 4.into(),
+                "byteStride 4 is smaller than the 12-byte elements",
+            ),
+            (
+                "TEXCOORD_0 of unsigned int",
+                |j| {
+                    j["meshes"][0]["primitives"][0]["attributes"]["TEXCOORD_0"] = 2.into();
+                    j["accessors"].as_array_mut().unwrap().push(serde_json::json!(
+                        {"bufferView": 0, "componentType": 5125, "count": 3, "type": "VEC2"}
+                    ));
+                },
+                "TEXCOORD_0: accessors[2] is VEC2 of componentType 5125",
+            ),
+            (
+                "accessor past its view",
+                |j| j["accessors"][0]["count"] = 1_000_000.into(),
+                "runs past bufferViews[0]",
+            ),
+        ];
+        for (name, edit, want) in cases {
+            let mut j = json.clone();
+            edit(&mut j);
+            let p = d.join("m.gltf");
+            std::fs::write(&p, j.to_string()).unwrap();
+            let r = std::panic::catch_unwind(|| load_gltf_checked(&p));
+            let e = r
+                .unwrap_or_else(|_| panic!("{name}: the loader panicked"))
+                .map(|_| ())
+                .unwrap_err()
+                .to_string();
+            assert!(e.contains("m.gltf") && e.contains(want), "{name}: {e}");
+        }
         std::fs::remove_dir_all(&d).ok();
     }
 
