@@ -401,6 +401,20 @@ fn range_arguments_are_refused() {
         ),
         (
             vec![
+                "render",
+                "--scene",
+                "builtin:cornell",
+                "--path",
+                "orbit:1e38",
+                "--frames",
+                "4",
+                "--out",
+                out_s,
+            ],
+            "degrees_per_frame 100000000000000000000000000000000000000 must be finite",
+        ),
+        (
+            vec![
                 "dataset",
                 "--scene",
                 "builtin:cornell",
