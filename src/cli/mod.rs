@@ -199,6 +199,18 @@ fn weights_or_random(path: Option<&Path>) -> Result<Weights> {
     }
 }
 
+/// A progress bar with the crate's style.
+fn progress(len: u64, what: &str) -> indicatif::ProgressBar {
+    let pb = indicatif::ProgressBar::new(len);
+    pb.set_style(
+        indicatif::ProgressStyle::with_template("{msg:>10} [{bar:40}] {pos}/{len} {per_sec} eta {eta}")
+            .expect("valid template")
+            .progress_chars("=> "),
+    );
+    pb.set_message(what.to_string());
+    pb
+}
+
 #[cfg(test)]
 mod weights_tests {
     use super::*;
@@ -224,7 +236,7 @@ mod weights_tests {
         let env = PathBuf::from("/elsewhere/w.safetensors");
         assert_eq!(
             weights_candidates(Some(env.clone()), Some(exe), Some(cwd)),
-            [env.clone()]
+            std::slice::from_ref(&env)
         );
         let missing: Vec<PathBuf> = want[..5].to_vec();
         let e = format!("{:#}", first_existing(&missing, false).unwrap_err());
@@ -243,16 +255,4 @@ mod weights_tests {
             here
         );
     }
-}
-
-/// A progress bar with the crate's style.
-fn progress(len: u64, what: &str) -> indicatif::ProgressBar {
-    let pb = indicatif::ProgressBar::new(len);
-    pb.set_style(
-        indicatif::ProgressStyle::with_template("{msg:>10} [{bar:40}] {pos}/{len} {per_sec} eta {eta}")
-            .expect("valid template")
-            .progress_chars("=> "),
-    );
-    pb.set_message(what.to_string());
-    pb
 }

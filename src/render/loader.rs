@@ -1175,7 +1175,8 @@ mod tests {
     fn gltf_crate_panics_are_prevented() {
         let d = tmp("panics");
         let json: serde_json::Value = serde_json::from_str(&tiny_gltf("", "", "")).unwrap();
-        let cases: [(&str, fn(&mut serde_json::Value), &str); 6] = [
+        type Edit = fn(&mut serde_json::Value);
+        let cases: [(&str, Edit, &str); 6] = [
             (
                 "indices of float VEC3",
                 |j| j["meshes"][0]["primitives"][0]["indices"] = 0.into(),
