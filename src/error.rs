@@ -30,6 +30,14 @@ pub enum Error {
         /// What went wrong.
         message: String,
     },
+    /// The device's limits are below what some kernels need.
+    #[error("{what} does not fit this device's limits: {message}")]
+    Limits {
+        /// What needed the kernels (e.g. "the denoiser").
+        what: String,
+        /// Each kernel and limit exceeded, with the numbers.
+        message: String,
+    },
     /// A tensor's shape did not match what an operation expects.
     #[error("{op}: {message}")]
     Shape {

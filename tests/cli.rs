@@ -451,6 +451,20 @@ fn range_arguments_are_refused() {
         ),
         (
             vec![
+                "render",
+                "--scene",
+                "builtin:cornell",
+                "--path",
+                "orbit:1e38",
+                "--frames",
+                "4",
+                "--out",
+                out_s,
+            ],
+            "degrees_per_frame 100000000000000000000000000000000000000 must be finite",
+        ),
+        (
+            vec![
                 "dataset",
                 "--scene",
                 "builtin:cornell",
@@ -521,4 +535,314 @@ fn the_main_job_writes_previews_a_person_can_judge() {
         }
     }
     std::fs::remove_dir_all(&out).ok();
+}
+
+/// Every file of `dir` (name -> bytes), sorted.
+fn snapshot(dir: &Path) -> Vec<(String, Vec<u8>)> {
+    let mut v: Vec<(String, Vec<u8>)> = std::fs::read_dir(dir)
+        .unwrap()
+        .map(|e| e.unwrap().path())
+        .filter(|p| p.is_file())
+        .map(|p| {
+            (
+                p.file_name().unwrap().to_string_lossy().to_string(),
+                std::fs::read(&p).unwrap(),
+            )
+        })
+        .collect();
+    v.sort();
+    v
+}
+
+/// Issue 12 item 3: `denoise --out` on, inside or around `--input` is refused before
+/// anything is written (paths resolved, symlinks followed); a folder of frames of
+/// different sizes is refused naming the file; a run that fails part-way leaves the output
+/// folder exactly as it was (no mix of new and stale frames, no temporaries).
+#[test]
+fn denoise_never_destroys_its_input() {
+    let root = tmp("overlap");
+    let input = root.join("in");
+    std::fs::create_dir_all(&input).unwrap();
+    golden_folder(&input);
+    let before = snapshot(&input);
+    let denoise = |input: &Path, out: &Path| {
+        bin()
+            .args(["denoise", "--weights"])
+            .arg(data("golden_weights.safetensors"))
+            .arg("--input")
+            .arg(input)
+            .arg("--out")
+            .arg(out)
+            .output()
+            .unwrap()
+    };
+    #[cfg(unix)]
+    std::os::unix::fs::symlink(&input, root.join("link")).unwrap();
+    let mut cases = vec![
+        (input.clone(), "is the same folder as"),
+        (root.join("in/../in/."), "is the same folder as"),
+        (input.join("sub/deeper"), "lies inside"),
+        (root.clone(), "contains"),
+    ];
+    #[cfg(unix)]
+    cases.push((root.join("link"), "is the same folder as"));
+    for (out, want) in cases {
+        let o = denoise(&input, &out);
+        let stderr = String::from_utf8_lossy(&o.stderr);
+        assert!(!o.status.success(), "--out {} accepted", out.display());
+        assert!(
+            stderr.contains(want) && stderr.contains("--out") && stderr.contains("--input"),
+            "--out {}: {stderr}",
+            out.display()
+        );
+        assert_eq!(
+            snapshot(&input),
+            before,
+            "--out {} touched the input",
+            out.display()
+        );
+        assert!(!input.join("sub").exists(), "nothing created inside the input");
+    }
+
+    // Frames of different sizes: refused before any output, naming the odd file.
+    let mixed = root.join("mixed");
+    let out = root.join("out");
+    std::fs::create_dir_all(&mixed).unwrap();
+    std::fs::create_dir_all(&out).unwrap();
+    for i in 0..2 {
+        let name = format!("frame_{i:04}.exr");
+        std::fs::copy(input.join(&name), mixed.join(&name)).unwrap();
+    }
+    let mut small = read_frame(&input.join("frame_0002.exr")).unwrap();
+    let f = small.frame.as_mut().unwrap();
+    for t in [
+        &mut f.color,
+        &mut f.mask,
+        &mut f.albedo,
+        &mut f.normal,
+        &mut f.shadow,
+        &mut f.transparent,
+        &mut f.depth,
+        &mut f.metallic,
+        &mut f.roughness,
+        &mut f.motion,
+    ] {
+        *t = HostTensor::from_fn(20, 12, t.channels, |x, y, c| t.at(x, y, c));
+    }
+    small.reference = None;
+    write_frame(&mixed.join("frame_0002.exr"), &small).unwrap();
+    let stale: Vec<(String, Vec<u8>)> = (0..3)
+        .map(|i| (format!("frame_{i:04}.exr"), format!("stale {i}").into_bytes()))
+        .collect();
+    for (n, b) in &stale {
+        std::fs::write(out.join(n), b).unwrap();
+    }
+    let o = denoise(&mixed, &out);
+    let stderr = String::from_utf8_lossy(&o.stderr);
+    assert!(!o.status.success());
+    assert!(
+        stderr.contains("frame_0002.exr") && stderr.contains("20x12") && stderr.contains("40x24"),
+        "{stderr}"
+    );
+    assert_eq!(snapshot(&out), stale);
+
+    // A frame whose header is fine but whose pixels are cut off: frames 0 and 1 are
+    // denoised, frame 2 fails, and the output folder still holds only the stale frames.
+    let cut = root.join("cut");
+    std::fs::create_dir_all(&cut).unwrap();
+    for i in 0..3 {
+        let name = format!("frame_{i:04}.exr");
+        std::fs::copy(input.join(&name), cut.join(&name)).unwrap();
+    }
+    let bytes = std::fs::read(cut.join("frame_0002.exr")).unwrap();
+    std::fs::write(cut.join("frame_0002.exr"), &bytes[..bytes.len() - 200]).unwrap();
+    let o = denoise(&cut, &out);
+    let stderr = String::from_utf8_lossy(&o.stderr);
+    assert!(!o.status.success(), "a truncated frame must fail");
+    assert!(stderr.contains("frame_0002.exr"), "{stderr}");
+    assert!(!stderr.contains("panicked"), "{stderr}");
+    assert_eq!(
+        snapshot(&out),
+        stale,
+        "no mix of new and stale frames, no temporaries"
+    );
+
+    // The same folders that were refused above are fine once separate.
+    let o = denoise(&input, &out);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let names: Vec<String> = snapshot(&out).into_iter().map(|(n, _)| n).collect();
+    assert_eq!(names, ["frame_0000.exr", "frame_0001.exr", "frame_0002.exr"]);
+    assert!(read_frame(&out.join("frame_0001.exr")).unwrap().pred.is_some());
+    std::fs::remove_dir_all(&root).ok();
+}
+
+/// Issue 12 item 5: a prediction with NaN or Inf pixels (some, or all) is not scored as a
+/// plausible PSNR / SSIM: `eval` fails naming the file and the count, in text, JSON and
+/// table modes.
+#[test]
+fn eval_refuses_non_finite_predictions() {
+    let root = tmp("eval-nan");
+    let input = root.join("ref");
+    std::fs::create_dir_all(&input).unwrap();
+    golden_folder(&input);
+    let pred = root.join("pred");
+    std::fs::create_dir_all(&pred).unwrap();
+    let write_preds = |poison: &dyn Fn(usize, &mut HostTensor)| {
+        for i in 0..3 {
+            let name = format!("frame_{i:04}.exr");
+            let mut p = read_frame(&input.join(&name)).unwrap().reference.unwrap();
+            poison(i, &mut p);
+            write_frame(
+                &pred.join(&name),
+                &FrameFile {
+                    pred: Some(p),
+                    ..Default::default()
+                },
+            )
+            .unwrap();
+        }
+    };
+    let eval = |extra: &[&str], p: &Path, r: &Path| {
+        bin()
+            .arg("eval")
+            .args(extra)
+            .arg("--pred")
+            .arg(p)
+            .arg("--ref")
+            .arg(r)
+            .output()
+            .unwrap()
+    };
+    // Clean predictions score (the control).
+    write_preds(&|_, _| {});
+    let o = eval(&["--json"], &pred, &input);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    // Seven NaN / Inf pixels in frame 1 (two channels of one pixel count once).
+    write_preds(&|i, t| {
+        if i == 1 {
+            for k in 0..7u32 {
+                t.set(k, 3, 0, if k % 2 == 0 { f32::NAN } else { f32::INFINITY });
+            }
+            t.set(0, 3, 2, f32::NAN);
+        }
+    });
+    for mode in [&[][..], &["--json"][..]] {
+        let o = eval(mode, &pred, &input);
+        let stderr = String::from_utf8_lossy(&o.stderr);
+        assert!(
+            !o.status.success(),
+            "{mode:?}: scored: {}",
+            String::from_utf8_lossy(&o.stdout)
+        );
+        assert!(
+            stderr.contains("frame_0001.exr") && stderr.contains("7 non-finite") && stderr.contains("of 960"),
+            "{mode:?}: {stderr}"
+        );
+        assert!(
+            !String::from_utf8_lossy(&o.stdout).contains("psnr"),
+            "no score printed"
+        );
+    }
+    // An all-NaN prediction.
+    write_preds(&|i, t| {
+        if i == 2 {
+            t.data.iter_mut().for_each(|v| *v = f32::NAN);
+        }
+    });
+    let o = eval(&["--json"], &pred, &input);
+    let stderr = String::from_utf8_lossy(&o.stderr);
+    assert!(
+        !o.status.success() && stderr.contains("960 non-finite"),
+        "{stderr}"
+    );
+    // The table over a dataset root.
+    let droot = root.join("dataset");
+    let seq = droot.join("test/golden_test_000");
+    std::fs::create_dir_all(&seq).unwrap();
+    std::fs::write(seq.join("sequence.json"), r#"{"scene": "builtin:golden"}"#).unwrap();
+    let ssr = root.join("methods/ssr/test/golden_test_000");
+    std::fs::create_dir_all(&ssr).unwrap();
+    for i in 0..3 {
+        let name = format!("frame_{i:04}.exr");
+        std::fs::copy(input.join(&name), seq.join(&name)).unwrap();
+        std::fs::copy(pred.join(&name), ssr.join(&name)).unwrap();
+    }
+    for mode in [&["--table"][..], &["--table", "--json"][..]] {
+        let o = eval(mode, &root.join("methods"), &droot);
+        let stderr = String::from_utf8_lossy(&o.stderr);
+        assert!(
+            !o.status.success(),
+            "{mode:?}: {}",
+            String::from_utf8_lossy(&o.stdout)
+        );
+        assert!(
+            stderr.contains("frame_0002.exr") && stderr.contains("non-finite"),
+            "{stderr}"
+        );
+    }
+    std::fs::remove_dir_all(&root).ok();
+}
+
+/// Issue 12 item 11: the default weights of a relocated binary are found next to it (its
+/// `weights/`, or `../weights` as in `target/release/`), or through `SUBPIXEL_WEIGHTS`;
+/// a `SUBPIXEL_WEIGHTS` naming a missing file is an error naming it.
+#[test]
+fn default_weights_follow_the_binary_and_the_environment() {
+    let root = tmp("relocated");
+    let frames = root.join("frames");
+    std::fs::create_dir_all(&frames).unwrap();
+    golden_folder(&frames);
+    let weights = data("golden_weights.safetensors");
+    // A copy of the binary in bin/, the weights in ../weights relative to it.
+    let bin_dir = root.join("app/bin");
+    std::fs::create_dir_all(&bin_dir).unwrap();
+    std::fs::create_dir_all(root.join("app/weights")).unwrap();
+    let exe = bin_dir.join("subpixel");
+    std::fs::copy(env!("CARGO_BIN_EXE_subpixel"), &exe).unwrap();
+    let moved = root.join("app/weights/ssr.safetensors");
+    std::fs::copy(&weights, &moved).unwrap();
+    let denoise = |exe: &Path, env: Option<&Path>, out: &str| {
+        let mut c = Command::new(exe);
+        c.current_dir(&root).env_remove("SUBPIXEL_WEIGHTS");
+        if let Some(e) = env {
+            c.env("SUBPIXEL_WEIGHTS", e);
+        }
+        c.arg("denoise")
+            .arg("--input")
+            .arg(&frames)
+            .arg("--out")
+            .arg(root.join(out))
+            .output()
+            .unwrap()
+    };
+    // The golden weights are random test weights: the warning names the file in use.
+    let o = denoise(&exe, None, "out1");
+    let stderr = String::from_utf8_lossy(&o.stderr);
+    assert!(o.status.success(), "{stderr}");
+    assert!(
+        stderr.contains(&format!(
+            "{} holds random test weights",
+            bin_dir.join("../weights/ssr.safetensors").display()
+        )),
+        "{stderr}"
+    );
+    // The environment variable wins over the copy next to the binary.
+    let elsewhere = root.join("elsewhere.safetensors");
+    std::fs::copy(&weights, &elsewhere).unwrap();
+    let o = denoise(&exe, Some(&elsewhere), "out2");
+    let stderr = String::from_utf8_lossy(&o.stderr);
+    assert!(o.status.success(), "{stderr}");
+    assert!(
+        stderr.contains(&format!("{} holds random", elsewhere.display())),
+        "{stderr}"
+    );
+    // An environment variable naming nothing is an error naming it, not a fallback.
+    let o = denoise(&exe, Some(&root.join("nope.safetensors")), "out3");
+    let stderr = String::from_utf8_lossy(&o.stderr);
+    assert!(!o.status.success());
+    assert!(
+        stderr.contains("SUBPIXEL_WEIGHTS") && stderr.contains("nope.safetensors"),
+        "{stderr}"
+    );
+    std::fs::remove_dir_all(&root).ok();
 }

@@ -93,13 +93,22 @@ fn weights_errors_name_the_file_and_the_tensor() {
     );
 }
 
+/// `t` with every pixel's vector scaled to unit length (the data contract's normals).
+fn unit_normals(t: &HostTensor) -> HostTensor {
+    HostTensor::from_fn(t.width, t.height, 3, |x, y, c| {
+        let n = [t.at(x, y, 0), t.at(x, y, 1), t.at(x, y, 2)];
+        let len = n.iter().map(|v| v * v).sum::<f32>().sqrt().max(1e-3);
+        n[c as usize] / len
+    })
+}
+
 fn random_frame(w: u32, h: u32, seed: u64) -> HostFrame {
     let r = |s: u64, c, lo, hi| common::random(seed * 100 + s, w, h, c, lo, hi);
     HostFrame {
         color: r(1, 3, 0.0, 4.0),
         mask: HostTensor::from_fn(w, h, 1, |x, y, _| ((x % 2 == 0) && (y % 2 == 0)) as u32 as f32),
         albedo: r(2, 3, 0.0, 1.0),
-        normal: r(3, 3, -1.0, 1.0),
+        normal: unit_normals(&r(3, 3, -1.0, 1.0)),
         shadow: r(4, 3, 0.0, 2.0),
         transparent: r(5, 3, 0.0, 1.0),
         depth: r(6, 1, 0.0, 1.0),
@@ -141,9 +150,12 @@ fn nan_and_inf_inputs_are_sanitised_and_counted() {
     );
     assert_eq!(den.sanitized_count().unwrap(), 3);
     // The sanitised frame equals the frame with zeros in those places.
+    // A normal with a non-finite component is no normal: it becomes 0 (as the sky's).
     let mut zeroed = clean.clone();
     zeroed.color.set(3, 2, 0, 0.0);
-    zeroed.normal.set(5, 5, 1, 0.0);
+    for c in 0..3 {
+        zeroed.normal.set(5, 5, c, 0.0);
+    }
     zeroed.motion.set(0, 0, 0, 0.0);
     let mut fresh = Denoiser::with_gpu(&gpu, &weights, 12, 8).unwrap();
     let want = fresh.denoise_host(&zeroed).unwrap();
@@ -332,4 +344,174 @@ fn weights_version_must_match_the_config() {
     let v1 = Weights::load(golden_v1_weights_path()).unwrap();
     assert_eq!(v1.metadata["version"], "1");
     assert_eq!(v1.config, v1.config.legacy());
+}
+
+/// Issue 12 item 2: finite values outside the data contract's ranges (a mask of 100 or
+/// 1e30, albedo, depth or normal of -1000) put +Inf into the output. Each is brought into
+/// its range and counted, and the output equals that of the frame holding the in-range
+/// values (mask 1, albedo 0, depth 0, the normal scaled to unit length).
+#[test]
+fn out_of_range_inputs_are_clamped_and_counted() {
+    let gpu = common::gpu();
+    let weights = Weights::load(golden_weights_path()).unwrap();
+    let clean = random_frame(12, 8, 2);
+    let mut dirty = clean.clone();
+    let mut fixed = clean.clone();
+    let mut set = |field: fn(&mut HostFrame) -> &mut HostTensor, x, y, c, bad: f32, good: f32| {
+        field(&mut dirty).set(x, y, c, bad);
+        field(&mut fixed).set(x, y, c, good);
+    };
+    set(|f| &mut f.mask, 1, 1, 0, 100.0, 1.0);
+    set(|f| &mut f.mask, 2, 1, 0, 1e30, 1.0);
+    set(|f| &mut f.mask, 3, 1, 0, -3.0, 0.0);
+    set(|f| &mut f.albedo, 4, 2, 1, -1000.0, 0.0);
+    set(|f| &mut f.albedo, 5, 2, 0, 7.0, 1.0);
+    set(|f| &mut f.depth, 6, 3, 0, -1000.0, 0.0);
+    set(|f| &mut f.color, 7, 3, 2, -5.0, 0.0);
+    set(|f| &mut f.roughness, 8, 4, 0, 1e30, 1.0);
+    for (c, (bad, good)) in [(-1000.0, -1.0), (0.0, 0.0), (0.0, 0.0)].into_iter().enumerate() {
+        set(|f| &mut f.normal, 9, 5, c as u32, bad, good);
+    }
+    let n = [
+        fixed.normal.at(9, 5, 0),
+        fixed.normal.at(9, 5, 1),
+        fixed.normal.at(9, 5, 2),
+    ];
+    assert_eq!(n, [-1.0, 0.0, 0.0]);
+    let mut den = Denoiser::with_gpu(&gpu, &weights, 12, 8).unwrap();
+    let out = den.denoise_host(&dirty).unwrap();
+    let bad = out.data.iter().filter(|v| !v.is_finite()).count();
+    assert_eq!(bad, 0, "{bad} non-finite output values");
+    assert_eq!(den.sanitized_count().unwrap(), 9, "one per value out of range");
+    let mut fresh = Denoiser::with_gpu(&gpu, &weights, 12, 8).unwrap();
+    let want = fresh.denoise_host(&fixed).unwrap();
+    common::assert_close("clamped == in-range frame", &out, &want, common::EXACT);
+}
+
+/// Issue 12 item 2, the property: frames of random garbage (NaN, +-Inf, huge, tiny,
+/// negative and merely out-of-range values in every channel) give a finite output, for
+/// both pipelines, and the clean frames after them too (the history carries nothing
+/// non-finite).
+#[test]
+fn garbage_frames_give_finite_output() {
+    use rand::{Rng, SeedableRng, rngs::StdRng};
+    const NASTY: [f32; 16] = [
+        f32::NAN,
+        f32::INFINITY,
+        f32::NEG_INFINITY,
+        f32::MAX,
+        -f32::MAX,
+        1e30,
+        -1e30,
+        1e12,
+        -1000.0,
+        100.0,
+        2.0,
+        -1.0,
+        1e-40,
+        -1e-40,
+        1e-30,
+        0.0,
+    ];
+    let gpu = common::gpu();
+    let mut rng = StdRng::seed_from_u64(12);
+    for path in [golden_weights_path(), golden_v1_weights_path()] {
+        let weights = Weights::load(&path).unwrap();
+        for (w, h) in [(12, 8), (5, 3)] {
+            let mut den = Denoiser::with_gpu(&gpu, &weights, w, h).unwrap();
+            // Garbage with rising density (1 = every value), then clean frames.
+            for (t, density) in [0.05, 0.3, 1.0, 0.5, 1.0, 0.0, 0.0].into_iter().enumerate() {
+                let mut f = random_frame(w, h, 50 + t as u64);
+                let garble = |t: &mut HostTensor, rng: &mut StdRng| {
+                    for v in t.data.iter_mut() {
+                        if rng.random_bool(density) {
+                            *v = if rng.random_bool(0.7) {
+                                NASTY[rng.random_range(0..NASTY.len())]
+                            } else {
+                                f32::from_bits(rng.random())
+                            };
+                        }
+                    }
+                };
+                for t in [
+                    &mut f.color,
+                    &mut f.mask,
+                    &mut f.albedo,
+                    &mut f.normal,
+                    &mut f.shadow,
+                    &mut f.transparent,
+                    &mut f.depth,
+                    &mut f.metallic,
+                    &mut f.roughness,
+                    &mut f.motion,
+                ] {
+                    garble(t, &mut rng);
+                }
+                let out = den.denoise_host(&f).unwrap();
+                let bad = out.data.iter().filter(|v| !v.is_finite()).count();
+                assert_eq!(
+                    bad,
+                    0,
+                    "{} {w}x{h} frame {t} (garbage density {density}): {bad} non-finite output values",
+                    path.display()
+                );
+                assert!(out.data.iter().all(|v| *v >= 0.0), "radiance is never negative");
+            }
+            assert!(den.sanitized_count().unwrap() > 0);
+        }
+    }
+}
+
+/// Issue 12 item 10: the embedding API on a device with WebGPU's default limits (8 storage
+/// buffers per stage, ...): every kernel of the denoiser fits, and a device below what a
+/// kernel needs is refused by `Denoiser::new`, naming the kernel and the limit, instead of
+/// failing at the first `denoise()`.
+#[test]
+fn denoiser_runs_on_default_limits_and_refuses_lower_ones() {
+    let weights = Weights::load(golden_weights_path()).unwrap();
+    let frame = random_frame(12, 8, 7);
+    let reference = Denoiser::with_gpu(&common::gpu(), &weights, 12, 8)
+        .unwrap()
+        .denoise_host(&frame)
+        .unwrap();
+    let (device, queue) = device_with_limits(wgpu::Limits::default());
+    let mut den = Denoiser::new(&device, &queue, &weights, 12, 8).unwrap();
+    let out = den.denoise_host(&frame).unwrap();
+    common::assert_close(
+        "default limits == adapter limits",
+        &out,
+        &reference,
+        common::EXACT,
+    );
+
+    let low = wgpu::Limits {
+        max_storage_buffers_per_shader_stage: 5,
+        ..wgpu::Limits::default()
+    };
+    let (device, queue) = device_with_limits(low);
+    let e = Denoiser::new(&device, &queue, &weights, 12, 8)
+        .err()
+        .expect("a device with 5 storage buffers per stage is refused")
+        .to_string();
+    assert!(
+        e.contains("max_storage_buffers_per_shader_stage") && e.contains("nn/conv3x3") && e.contains('5'),
+        "{e}"
+    );
+}
+
+/// A device on the test adapter created with exactly `limits`.
+fn device_with_limits(limits: wgpu::Limits) -> (wgpu::Device, wgpu::Queue) {
+    let adapter = common::gpu()
+        .origin
+        .expect("the test context made its own adapter")
+        .1;
+    pollster::block_on(adapter.request_device(&wgpu::DeviceDescriptor {
+        label: Some("test.limits"),
+        required_features: wgpu::Features::empty(),
+        required_limits: limits,
+        experimental_features: wgpu::ExperimentalFeatures::disabled(),
+        memory_hints: wgpu::MemoryHints::Performance,
+        trace: wgpu::Trace::Off,
+    }))
+    .expect("the adapter offers WebGPU's default limits")
 }

@@ -46,13 +46,14 @@ pub fn bench_frame(
     tracer.compile()?;
     let mut den = Denoiser::with_gpu(gpu, weights, w, h)?;
     let n = warmup + frames;
-    let path = CameraPath::from_spec(
+    let path = CameraPath::checked(
         &"orbit".parse().expect("known path"),
         &scene.camera,
         1,
         n,
         &gs.bvh,
-    );
+    )
+    .map_err(|e| crate::error::Error::Invalid(format!("scene {}: {e}", scene.name)))?;
     let eyes: Vec<_> = (0..n).map(|f| path.camera(f).position).collect();
     let far = scene.far_distance(eyes.iter().chain([&scene.camera.position]));
     let mut prof = Profiler::new(gpu, 16);

@@ -5,14 +5,16 @@ use std::path::PathBuf;
 use anyhow::{Context, Result, bail};
 
 use crate::gpu::Gpu;
-use crate::io::exr::{FrameFile, read_frame, write_frame};
+use crate::io::exr::{FrameFile, read_frame, read_header, write_frame};
 use crate::io::frames::list_frames;
 use crate::io::png::write_png_row;
 use crate::ssr::{Denoiser, Weights};
 
 #[derive(clap::Args)]
 pub(super) struct DenoiseArgs {
-    /// Weights file (safetensors).
+    /// Weights file (safetensors; default: $SUBPIXEL_WEIGHTS, else the shipped
+    /// weights/ssr.safetensors next to the executable, in the working directory or at the
+    /// build's path).
     #[arg(long)]
     weights: Option<PathBuf>,
     /// Folder of frame_NNNN.exr files holding the renderer's buffers (DESIGN §3).
@@ -27,7 +29,7 @@ pub(super) struct DenoiseArgs {
 }
 
 pub(super) fn run(a: &DenoiseArgs) -> Result<()> {
-    let wpath = a.weights.clone().unwrap_or_else(super::shipped_weights_path);
+    let wpath = super::weights_path(a.weights.as_deref())?;
     let weights = Weights::load(&wpath)?;
     if weights.is_random_init() {
         eprintln!(
@@ -36,41 +38,27 @@ pub(super) fn run(a: &DenoiseArgs) -> Result<()> {
         );
     }
     let frames = list_frames(&a.input)?;
+    super::refuse_overlap("--input", &a.input, "--out", &a.out)?;
+    let (w, h) = check_frames(&frames)?;
     std::fs::create_dir_all(&a.out).with_context(|| format!("cannot create {}", a.out.display()))?;
     let gpu = Gpu::new()?;
-    let mut den: Option<Denoiser> = None;
+    let mut den = Denoiser::with_gpu(&gpu, &weights, w, h)?;
     let pb = super::progress(frames.len() as u64, "denoise");
     let t0 = std::time::Instant::now();
-    for path in &frames {
-        let file = read_frame(path)?;
-        let Some(frame) = &file.frame else {
-            bail!(
-                "{}: holds no renderer buffers (color.R, mask.Y, ...)",
-                path.display()
-            );
-        };
-        let (w, h) = frame.size().with_context(|| path.display().to_string())?;
-        let d = match &mut den {
-            Some(d) if (d.width(), d.height()) == (w, h) => d,
-            _ => den.insert(Denoiser::with_gpu(&gpu, &weights, w, h)?),
-        };
-        let pred = d.denoise_host(frame)?;
-        let name = path.file_name().expect("a frame file");
-        write_frame(
-            &a.out.join(name),
-            &FrameFile {
-                pred: Some(pred.clone()),
-                ..Default::default()
-            },
-        )?;
-        if a.png {
-            let mut row = vec![&frame.color, &pred];
-            if let Some(r) = &file.reference {
-                row.push(r);
-            }
-            write_png_row(&a.out.join(name).with_extension("png"), &row)?;
+    // Every output goes to a temporary name first; they are renamed only once every frame
+    // has been denoised, so a run that fails part-way leaves the output folder as it was
+    // (no mix of new and stale frames).
+    let mut staged: Vec<(PathBuf, PathBuf)> = Vec::new();
+    let result = denoise_all(a, &frames, &mut den, &mut staged, &pb);
+    if let Err(e) = result {
+        for (tmp, _) in &staged {
+            let _ = std::fs::remove_file(tmp);
         }
-        pb.inc(1);
+        return Err(e);
+    }
+    for (tmp, dst) in &staged {
+        std::fs::rename(tmp, dst)
+            .with_context(|| format!("cannot rename {} to {}", tmp.display(), dst.display()))?;
     }
     pb.finish();
     let secs = t0.elapsed().as_secs_f64();
@@ -81,11 +69,97 @@ pub(super) fn run(a: &DenoiseArgs) -> Result<()> {
         1e3 * secs / frames.len() as f64,
         gpu.info.name
     );
-    if let Some(d) = &den {
-        let n = d.sanitized_count()?;
-        if n > 0 {
-            eprintln!("warning: {n} non-finite input values were replaced by 0");
+    let n = den.sanitized_count()?;
+    if n > 0 {
+        eprintln!(
+            "warning: {n} input values were non-finite (replaced by 0) or outside their range (clamped to it)"
+        );
+    }
+    Ok(())
+}
+
+/// Checks every frame's header before anything is written: each holds the renderer's
+/// buffers, all of one size. Returns that size.
+fn check_frames(frames: &[PathBuf]) -> Result<(u32, u32)> {
+    let mut size: Option<(u32, u32, &PathBuf)> = None;
+    for path in frames {
+        let header = read_header(path)?;
+        if !header.has_frame(path)? {
+            bail!(
+                "{}: holds no renderer buffers (color.R, mask.Y, ...)",
+                path.display()
+            );
         }
+        let (w, h) = (header.width, header.height);
+        match size {
+            None => size = Some((w, h, path)),
+            Some((w0, h0, first)) if (w0, h0) != (w, h) => bail!(
+                "{}: frame is {w}x{h}, but {} is {w0}x{h0}; every frame of a sequence must have one size",
+                path.display(),
+                first.display()
+            ),
+            Some(_) => {}
+        }
+    }
+    let (w, h, _) = size.context("no frames")?;
+    Ok((w, h))
+}
+
+/// `dst`'s temporary name in its folder (hidden, same file system: renamed atomically;
+/// same extension: the PNG writer picks the format by it).
+fn staging_name(dst: &std::path::Path) -> PathBuf {
+    let stem = dst.file_stem().expect("a file name").to_string_lossy();
+    let ext = dst.extension().map(|e| e.to_string_lossy()).unwrap_or_default();
+    dst.with_file_name(format!(".{stem}.partial.{ext}"))
+}
+
+fn denoise_all(
+    a: &DenoiseArgs,
+    frames: &[PathBuf],
+    den: &mut Denoiser,
+    staged: &mut Vec<(PathBuf, PathBuf)>,
+    pb: &indicatif::ProgressBar,
+) -> Result<()> {
+    for path in frames {
+        let file = read_frame(path)?;
+        let Some(frame) = &file.frame else {
+            bail!(
+                "{}: holds no renderer buffers (color.R, mask.Y, ...)",
+                path.display()
+            );
+        };
+        let (w, h) = frame.size().with_context(|| path.display().to_string())?;
+        if (w, h) != (den.width(), den.height()) {
+            bail!(
+                "{}: frame is {w}x{h}, its header said {}x{}",
+                path.display(),
+                den.width(),
+                den.height()
+            );
+        }
+        let pred = den.denoise_host(frame)?;
+        let name = path.file_name().expect("a frame file");
+        let dst = a.out.join(name);
+        let tmp = staging_name(&dst);
+        staged.push((tmp.clone(), dst.clone()));
+        write_frame(
+            &tmp,
+            &FrameFile {
+                pred: Some(pred.clone()),
+                ..Default::default()
+            },
+        )?;
+        if a.png {
+            let mut row = vec![&frame.color, &pred];
+            if let Some(r) = &file.reference {
+                row.push(r);
+            }
+            let png = dst.with_extension("png");
+            let tmp = staging_name(&png);
+            staged.push((tmp.clone(), png));
+            write_png_row(&tmp, &row)?;
+        }
+        pb.inc(1);
     }
     Ok(())
 }

@@ -75,6 +75,8 @@ pub fn score(pred: &std::path::Path, reference: &std::path::Path) -> Result<Scor
         let Some(ri) = rfile.reference else {
             bail!("{}: no 'reference.R' channel", r.display())
         };
+        refuse_non_finite(p, "prediction", &pi)?;
+        refuse_non_finite(r, "reference", &ri)?;
         if (pi.width, pi.height) != (ri.width, ri.height) {
             bail!(
                 "{} is {}x{} but {} is {}x{}",
@@ -106,6 +108,25 @@ pub fn score(pred: &std::path::Path, reference: &std::path::Path) -> Result<Scor
         relmse: relmse / n,
         temporal: (nt > 0).then(|| temporal / nt as f64),
     })
+}
+
+/// An image with NaN or Inf pixels has no meaningful score (the metrics would turn them
+/// into a plausible number): an error naming the file and how many pixels.
+fn refuse_non_finite(path: &std::path::Path, what: &str, t: &crate::nn::HostTensor) -> Result<()> {
+    let c = t.channels.max(1) as usize;
+    let bad = t
+        .data
+        .chunks_exact(c)
+        .filter(|px| px.iter().any(|v| !v.is_finite()))
+        .count();
+    if bad > 0 {
+        bail!(
+            "{}: the {what} has {bad} non-finite (NaN or Inf) pixels of {}; it cannot be scored",
+            path.display(),
+            t.data.len() / c
+        );
+    }
+    Ok(())
 }
 
 /// One method x scene cell of the table: sums over the scene's sequences.

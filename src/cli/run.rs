@@ -33,7 +33,8 @@ pub(super) struct RunArgs {
     /// Samples per pixel of the reference (default 1024, or 128 on a CPU adapter).
     #[arg(long)]
     reference_spp: Option<u32>,
-    /// Weights (default: the shipped weights/ssr.safetensors).
+    /// Weights (default: $SUBPIXEL_WEIGHTS, else the shipped weights/ssr.safetensors found
+    /// next to the executable, in the working directory or at the build's path).
     #[arg(long)]
     weights: Option<PathBuf>,
     /// Output folder for the PNGs (input | SSR | reference).
@@ -59,10 +60,9 @@ impl RunArgs {
 }
 
 pub(super) fn run(a: &RunArgs) -> Result<()> {
-    let wpath = a.weights.clone().unwrap_or_else(super::shipped_weights_path);
-    let weights = Weights::load(&wpath).with_context(|| {
-        "the main job needs trained SSR weights (shipped in weights/, or give --weights FILE)".to_string()
-    })?;
+    let wpath =
+        super::weights_path(a.weights.as_deref()).context("the main job needs trained SSR weights")?;
+    let weights = Weights::load(&wpath)?;
     if weights.is_random_init() {
         eprintln!(
             "warning: {} holds random test weights: the SSR column shows no denoising",
@@ -86,13 +86,14 @@ pub(super) fn run(a: &RunArgs) -> Result<()> {
     let scene = load_scene(&a.scene)?;
     scene.warn_approximations();
     let gs = GpuScene::new(&gpu, &scene)?;
-    let path = CameraPath::from_spec(
+    let path = CameraPath::checked(
         &"flythrough".parse().expect("known path"),
         &scene.camera,
         a.seed,
         a.frames,
         &gs.bvh,
-    );
+    )
+    .map_err(|e| anyhow::anyhow!("scene {}: {e}", scene.name))?;
     let eyes: Vec<_> = (0..a.frames).map(|f| path.camera(f).position).collect();
     let far = scene.far_distance(eyes.iter().chain([&scene.camera.position]));
     let mut tracer = Tracer::new(&gpu, w, h)?;

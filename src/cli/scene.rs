@@ -230,7 +230,9 @@ pub(super) fn run(a: &SceneArgs) -> Result<()> {
     } else {
         let spec = scene.camera_path.clone().unwrap_or(CameraPathSpec::Static);
         let bvh = SceneBvh::build(&scene.name, &scene.geometry.positions, &scene.geometry.triangles)?;
-        CameraPath::from_spec(&spec, &scene.camera, 0, a.frame + 1, &bvh).camera(a.frame)
+        CameraPath::checked(&spec, &scene.camera, 0, a.frame + 1, &bvh)
+            .map_err(|e| anyhow::anyhow!("scene {}: {e}", scene.name))?
+            .camera(a.frame)
     };
     let gpu = crate::render::cli::open_gpu(a.backend)?;
     let mut renderer = FrameRenderer::new(&scene, a.backend, gpu.as_ref(), a.width, a.height)?;

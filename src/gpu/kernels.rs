@@ -77,9 +77,10 @@ pub const KERNELS: &[KernelSource] = &[
     kernel!("nn/warp"),
     kernel!("nn/demodulate"),
     kernel!("nn/remodulate"),
-    kernel!("ssr/pack_inputs"),
+    kernel!("ssr/pack_inputs", ["ssr/lib/sanitize"]),
+    kernel!("ssr/pack_mt", ["ssr/lib/sanitize"]),
     kernel!("ssr/store_output"),
-    kernel!("ssr/exposure_partial"),
+    kernel!("ssr/exposure_partial", ["ssr/lib/sanitize"]),
     kernel!("ssr/exposure_final"),
     kernel!("ssr/history"),
     kernel!("view/display"),
@@ -122,6 +123,163 @@ pub fn validate_wgsl(name: &str, source: &str) -> Result<naga::Module> {
         message: format!("WGSL validation error:\n{}", e.emit_to_string(source)),
     })?;
     Ok(module)
+}
+
+/// What a kernel asks of the device, read from its WGSL with naga: its bindings by kind,
+/// its workgroup shape and its workgroup memory. [`check_limits`] compares it with a
+/// device's [`wgpu::Limits`].
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub struct KernelNeeds {
+    /// Storage buffers bound (`var<storage>`).
+    pub storage_buffers: u32,
+    /// Uniform buffers bound.
+    pub uniform_buffers: u32,
+    /// Storage textures bound.
+    pub storage_textures: u32,
+    /// Sampled textures bound.
+    pub sampled_textures: u32,
+    /// Samplers bound.
+    pub samplers: u32,
+    /// Bind groups used (highest group index + 1).
+    pub bind_groups: u32,
+    /// Bindings per group (highest binding index + 1).
+    pub bindings_per_group: u32,
+    /// `@workgroup_size` of `main` (0 where an override sets it).
+    pub workgroup_size: [u32; 3],
+    /// Bytes of `var<workgroup>` memory.
+    pub workgroup_memory: u32,
+}
+
+impl KernelNeeds {
+    /// Every limit of `limits` this kernel exceeds, as `(limit field, needed, allowed)`.
+    pub fn exceeded(&self, limits: &wgpu::Limits) -> Vec<(&'static str, u64, u64)> {
+        let [x, y, z] = self.workgroup_size;
+        let checks: [(&'static str, u64, u64); 12] = [
+            (
+                "max_storage_buffers_per_shader_stage",
+                self.storage_buffers.into(),
+                limits.max_storage_buffers_per_shader_stage.into(),
+            ),
+            (
+                "max_uniform_buffers_per_shader_stage",
+                self.uniform_buffers.into(),
+                limits.max_uniform_buffers_per_shader_stage.into(),
+            ),
+            (
+                "max_storage_textures_per_shader_stage",
+                self.storage_textures.into(),
+                limits.max_storage_textures_per_shader_stage.into(),
+            ),
+            (
+                "max_sampled_textures_per_shader_stage",
+                self.sampled_textures.into(),
+                limits.max_sampled_textures_per_shader_stage.into(),
+            ),
+            (
+                "max_samplers_per_shader_stage",
+                self.samplers.into(),
+                limits.max_samplers_per_shader_stage.into(),
+            ),
+            (
+                "max_bind_groups",
+                self.bind_groups.into(),
+                limits.max_bind_groups.into(),
+            ),
+            (
+                "max_bindings_per_bind_group",
+                self.bindings_per_group.into(),
+                limits.max_bindings_per_bind_group.into(),
+            ),
+            (
+                "max_compute_workgroup_size_x",
+                x.into(),
+                limits.max_compute_workgroup_size_x.into(),
+            ),
+            (
+                "max_compute_workgroup_size_y",
+                y.into(),
+                limits.max_compute_workgroup_size_y.into(),
+            ),
+            (
+                "max_compute_workgroup_size_z",
+                z.into(),
+                limits.max_compute_workgroup_size_z.into(),
+            ),
+            (
+                "max_compute_invocations_per_workgroup",
+                x as u64 * y as u64 * z as u64,
+                limits.max_compute_invocations_per_workgroup.into(),
+            ),
+            (
+                "max_compute_workgroup_storage_size",
+                self.workgroup_memory.into(),
+                limits.max_compute_workgroup_storage_size.into(),
+            ),
+        ];
+        checks
+            .into_iter()
+            .filter(|&(_, need, have)| need > have)
+            .collect()
+    }
+}
+
+/// What kernel `name` asks of the device (see [`KernelNeeds`]).
+pub fn kernel_needs(name: &str) -> Result<KernelNeeds> {
+    let k = kernel_source(name)?;
+    let module = validate_wgsl(k.name, k.source)?;
+    let mut layouter = naga::proc::Layouter::default();
+    layouter.update(module.to_ctx()).map_err(|e| Error::Kernel {
+        kernel: k.name.to_string(),
+        message: format!("type layout: {e}"),
+    })?;
+    let mut n = KernelNeeds::default();
+    for (_, var) in module.global_variables.iter() {
+        if var.space == naga::AddressSpace::WorkGroup {
+            n.workgroup_memory += layouter[var.ty].size;
+            continue;
+        }
+        let Some(b) = &var.binding else { continue };
+        n.bind_groups = n.bind_groups.max(b.group + 1);
+        n.bindings_per_group = n.bindings_per_group.max(b.binding + 1);
+        match var.space {
+            naga::AddressSpace::Storage { .. } => n.storage_buffers += 1,
+            naga::AddressSpace::Uniform => n.uniform_buffers += 1,
+            naga::AddressSpace::Handle => match &module.types[var.ty].inner {
+                naga::TypeInner::Image {
+                    class: naga::ImageClass::Storage { .. },
+                    ..
+                } => n.storage_textures += 1,
+                naga::TypeInner::Image { .. } => n.sampled_textures += 1,
+                naga::TypeInner::Sampler { .. } => n.samplers += 1,
+                _ => {}
+            },
+            _ => {}
+        }
+    }
+    if let Some(ep) = module.entry_points.iter().find(|e| e.name == "main") {
+        n.workgroup_size = ep.workgroup_size;
+    }
+    Ok(n)
+}
+
+/// Checks that every kernel in `kernels` fits `limits` (a device's); the error names
+/// `what` needs them, each kernel and each limit it exceeds, with the numbers.
+pub fn check_limits(what: &str, kernels: &[&str], limits: &wgpu::Limits) -> Result<()> {
+    let mut problems = Vec::new();
+    for &k in kernels {
+        for (limit, need, have) in kernel_needs(k)?.exceeded(limits) {
+            problems.push(format!(
+                "kernel '{k}' needs {limit} >= {need}, the device allows {have}"
+            ));
+        }
+    }
+    if problems.is_empty() {
+        return Ok(());
+    }
+    Err(Error::Limits {
+        what: what.to_string(),
+        message: problems.join("; "),
+    })
 }
 
 /// Values of a kernel's WGSL `override` constants.
@@ -431,6 +589,49 @@ mod tests {
                     "library {lib} declares an entry point"
                 );
             }
+        }
+    }
+
+    /// Issue 12 item 10: the denoiser's kernels fit WebGPU's default limits (the portable
+    /// embedding API), and a tighter device is refused naming the kernel and the limit.
+    #[test]
+    fn denoiser_kernels_fit_the_default_limits() {
+        let ssr = crate::ssr::KERNELS_USED;
+        check_limits("the denoiser", ssr, &wgpu::Limits::default()).unwrap();
+        // Independent expectations: counted by hand from the WGSL.
+        let pack = kernel_needs("ssr/pack_inputs").unwrap();
+        assert_eq!((pack.storage_buffers, pack.uniform_buffers), (7, 1));
+        let blend = kernel_needs("nn/tfa_blend").unwrap();
+        assert_eq!((blend.storage_buffers, blend.workgroup_size), (8, [8, 8, 1]));
+        let store = kernel_needs("ssr/store_output").unwrap();
+        assert_eq!((store.storage_buffers, store.storage_textures), (1, 1));
+        assert_eq!(
+            kernel_needs("ssr/exposure_partial").unwrap().workgroup_memory,
+            4 * 256 * 16
+        );
+        let tight = wgpu::Limits {
+            max_storage_buffers_per_shader_stage: 7,
+            max_compute_workgroup_storage_size: 8192,
+            ..wgpu::Limits::default()
+        };
+        let e = check_limits("the denoiser", ssr, &tight).unwrap_err().to_string();
+        assert!(
+            e.contains("the denoiser")
+                && e.contains("kernel 'nn/tfa_blend' needs max_storage_buffers_per_shader_stage >= 8, the device allows 7")
+                && e.contains("kernel 'ssr/exposure_partial' needs max_compute_workgroup_storage_size >= 16384"),
+            "{e}"
+        );
+        assert!(!e.contains("nn/conv3x3"), "conv3x3 binds 7: {e}");
+    }
+
+    /// Every kernel fits the limits the crate's own device asks for where it runs them: the
+    /// adapter's, at least the downlevel defaults for the image kernels.
+    #[test]
+    fn every_kernel_has_known_needs() {
+        for k in KERNELS {
+            let n = kernel_needs(k.name).unwrap();
+            assert!(n.bind_groups == 1, "{}: every kernel uses group 0 only", k.name);
+            assert!(n.workgroup_size.iter().all(|&s| s > 0), "{}", k.name);
         }
     }
 

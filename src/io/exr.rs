@@ -91,15 +91,71 @@ pub const MAX_DECODED_BYTES: u64 = 4 << 30;
 /// offset table that fits in the file. A corrupt or hostile header (a 50 KB file claiming
 /// 100000 x 100000 pixels) is an error naming the file instead of a huge allocation.
 pub fn check_header(path: &Path) -> Result<()> {
+    read_header(path).map(|_| ())
+}
+
+/// The renderer's buffers of a frame file (DESIGN §3): name and channel count.
+pub const FRAME_BUFFERS: [(&str, u32); 10] = [
+    ("color", 3),
+    ("mask", 1),
+    ("albedo", 3),
+    ("normal", 3),
+    ("shadow", 3),
+    ("transparent", 3),
+    ("depth", 1),
+    ("metallic", 1),
+    ("roughness", 1),
+    ("motion", 2),
+];
+
+/// What an EXR's first header says, read without decoding any pixel.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct ExrHeader {
+    /// Width in pixels.
+    pub width: u32,
+    /// Height in pixels.
+    pub height: u32,
+    /// Channel names.
+    pub channels: Vec<String>,
+}
+
+impl ExrHeader {
+    /// Whether the file holds every channel of the renderer's buffers ([`FRAME_BUFFERS`]);
+    /// an error naming the file and the first missing channel when it holds only some.
+    pub fn has_frame(&self, path: &Path) -> Result<bool> {
+        let names: Vec<String> = FRAME_BUFFERS
+            .iter()
+            .flat_map(|&(n, c)| {
+                suffixes(n, c)
+                    .iter()
+                    .take(c as usize)
+                    .map(move |s| format!("{n}.{s}"))
+            })
+            .collect();
+        let missing: Vec<&String> = names.iter().filter(|n| !self.channels.contains(n)).collect();
+        match missing.first() {
+            None => Ok(true),
+            Some(_) if missing.len() == names.len() => Ok(false),
+            Some(first) => {
+                let mut found = self.channels.clone();
+                found.sort();
+                Err(Error::File {
+                    path: path.to_path_buf(),
+                    message: format!("channel '{first}' is missing (found {})", found.join(" ")),
+                })
+            }
+        }
+    }
+}
+
+/// Reads and checks an EXR's headers (as [`check_header`]) and returns the first one's
+/// size and channels, without decoding pixels.
+pub fn read_header(path: &Path) -> Result<ExrHeader> {
     let err = |m: String| Error::File {
         path: path.to_path_buf(),
         message: m,
     };
-    let meta = std::fs::metadata(path).map_err(|e| err(format!("cannot read EXR: {e}")))?;
-    if !meta.is_file() {
-        return Err(err("cannot read EXR: not a regular file".into()));
-    }
-    let len = meta.len();
+    let len = super::regular_file_len(path).map_err(|e| err(format!("cannot read EXR: {e}")))?;
     let headers = exr::meta::MetaData::read_from_file(path, false)
         .map_err(|e| err(format!("cannot read EXR: {e}")))?
         .headers;
@@ -124,7 +180,14 @@ pub fn check_header(path: &Path) -> Result<()> {
             )));
         }
     }
-    Ok(())
+    let first = headers
+        .first()
+        .ok_or_else(|| err("cannot read EXR: no header".into()))?;
+    Ok(ExrHeader {
+        width: first.layer_size.0 as u32,
+        height: first.layer_size.1 as u32,
+        channels: first.channels.list.iter().map(|c| c.name.to_string()).collect(),
+    })
 }
 
 /// Reads every channel of an EXR: `(width, height, name -> samples)`.

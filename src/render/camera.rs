@@ -40,6 +40,53 @@ pub struct GpuCamera {
 }
 
 impl Camera {
+    /// Checks the camera can form an image: finite position, target and up, a target
+    /// apart from the position, an up not parallel to the view direction, a field of view
+    /// in (0, 180) degrees. The error names the field (a degenerate camera would render
+    /// black frames or NaN motion vectors).
+    pub fn check(&self) -> Result<(), String> {
+        for (name, v) in [
+            ("position", self.position),
+            ("target", self.target),
+            ("up", self.up),
+        ] {
+            if !v.is_finite() {
+                return Err(format!("camera {name} {v} is not finite"));
+            }
+        }
+        let view = self.target - self.position;
+        let scale = self
+            .position
+            .abs()
+            .max_element()
+            .max(self.target.abs().max_element())
+            .max(1.0);
+        if !view.is_finite() || view.length() <= 1e-6 * scale {
+            return Err(format!(
+                "camera target {} equals its position {} (no view direction)",
+                self.target, self.position
+            ));
+        }
+        let (f, u) = (view.normalize(), self.up.normalize_or_zero());
+        if u == Vec3::ZERO {
+            return Err("camera up is the zero vector".into());
+        }
+        if f.cross(u).length() < 1e-4 {
+            return Err(format!(
+                "camera up {} is parallel to the view direction {f} (target - position)",
+                self.up
+            ));
+        }
+        if !(self.yfov > 1e-4 && self.yfov < std::f32::consts::PI - 1e-4) {
+            return Err(format!(
+                "camera yfov {} rad ({} degrees) must be in (0, 180) degrees",
+                self.yfov,
+                self.yfov.to_degrees()
+            ));
+        }
+        Ok(())
+    }
+
     /// Orthonormal `(right, up, forward)`.
     pub fn basis(&self) -> (Vec3, Vec3, Vec3) {
         let fwd = (self.target - self.position).normalize_or(Vec3::NEG_Z);
@@ -126,6 +173,39 @@ pub enum CameraPathSpec {
 
 /// Frames between generated fly-through keys when not given.
 pub const DEFAULT_FRAMES_PER_KEY: f32 = 24.0;
+
+/// Fastest orbit, in degrees per frame (a turn per frame is already no motion to see).
+pub const MAX_ORBIT_DEGREES_PER_FRAME: f32 = 360.0;
+
+impl CameraPathSpec {
+    /// Checks the spec's numbers and explicit keys; the error names the field.
+    pub fn check(&self) -> Result<(), String> {
+        match self {
+            CameraPathSpec::Static => Ok(()),
+            CameraPathSpec::Orbit {
+                degrees_per_frame: Some(d),
+            } if !(d.is_finite() && d.abs() <= MAX_ORBIT_DEGREES_PER_FRAME) => Err(format!(
+                "camera path orbit: degrees_per_frame {d} must be finite and at most \
+                 {MAX_ORBIT_DEGREES_PER_FRAME} in size"
+            )),
+            CameraPathSpec::Orbit { .. } => Ok(()),
+            CameraPathSpec::FlyThrough {
+                keys, frames_per_key, ..
+            } => {
+                if !(frames_per_key.is_finite() && *frames_per_key >= 1.0) {
+                    return Err(format!(
+                        "camera path flythrough: frames_per_key {frames_per_key} must be at least 1"
+                    ));
+                }
+                for (i, k) in keys.iter().flatten().enumerate() {
+                    k.check()
+                        .map_err(|e| format!("camera path flythrough: keys[{i}]: {e}"))?;
+                }
+                Ok(())
+            }
+        }
+    }
+}
 /// Frames per shot of `cuts` when not given.
 pub const DEFAULT_CUT_EVERY: u32 = 16;
 
@@ -541,6 +621,27 @@ impl CameraPath {
         }
     }
 
+    /// [`CameraPath::from_spec`] after checking the base camera and the spec, then every
+    /// camera of frames `0..frames` (an interpolated or orbiting camera can degenerate too):
+    /// the error names the field, and the frame.
+    pub fn checked(
+        spec: &CameraPathSpec,
+        base: &Camera,
+        seed: u64,
+        frames: u32,
+        probe: &dyn RayProbe,
+    ) -> Result<Self, String> {
+        base.check()?;
+        spec.check()?;
+        let path = Self::from_spec(spec, base, seed, frames, probe);
+        for f in 0..frames {
+            path.camera(f)
+                .check()
+                .map_err(|e| format!("camera path, frame {f}: {e}"))?;
+        }
+        Ok(path)
+    }
+
     /// Camera of frame `frame`.
     pub fn camera(&self, frame: u32) -> Camera {
         match self {
@@ -742,6 +843,112 @@ mod tests {
                 assert!(a.1 < b.0 || b.1 < a.0, "seeds {i} and {j} overlap: {a:?} {b:?}");
             }
         }
+    }
+
+    /// Issue 12 item 7: degenerate cameras and paths are named errors; a path whose
+    /// interpolated cameras degenerate names the frame.
+    #[test]
+    fn degenerate_cameras_and_paths_are_refused() {
+        base().check().unwrap();
+        let bad = |c: Camera, want: &str| {
+            let e = c.check().unwrap_err();
+            assert!(e.contains(want), "{c:?}: {e}");
+        };
+        bad(
+            Camera {
+                target: base().position,
+                ..base()
+            },
+            "target",
+        );
+        bad(
+            Camera {
+                up: Vec3::new(0.0, 0.0, 2.0),
+                ..base()
+            },
+            "parallel",
+        );
+        bad(
+            Camera {
+                up: Vec3::ZERO,
+                ..base()
+            },
+            "up",
+        );
+        bad(
+            Camera {
+                position: Vec3::new(f32::NAN, 0.0, 0.0),
+                ..base()
+            },
+            "position",
+        );
+        bad(
+            Camera {
+                position: Vec3::new(f32::INFINITY, 0.0, 0.0),
+                ..base()
+            },
+            "position",
+        );
+        bad(Camera { yfov: 0.0, ..base() }, "yfov");
+        bad(
+            Camera {
+                yfov: std::f32::consts::PI,
+                ..base()
+            },
+            "yfov",
+        );
+        let orbit = |d: f32| CameraPathSpec::Orbit {
+            degrees_per_frame: Some(d),
+        };
+        for d in [1e38, f32::NEG_INFINITY, f32::NAN, 361.0] {
+            let e = CameraPath::checked(&orbit(d), &base(), 0, 8, &()).unwrap_err();
+            assert!(e.contains("degrees_per_frame"), "{d}: {e}");
+        }
+        CameraPath::checked(&orbit(-360.0), &base(), 0, 8, &()).unwrap();
+        // Keys with position == target, and a base camera that is degenerate.
+        let keys = vec![
+            base(),
+            Camera {
+                position: base().target,
+                ..base()
+            },
+        ];
+        let fly = CameraPathSpec::FlyThrough {
+            keys: Some(keys),
+            frames_per_key: 4.0,
+            cut_every: None,
+        };
+        let e = CameraPath::checked(&fly, &base(), 0, 8, &()).unwrap_err();
+        assert!(e.contains("keys[1]") && e.contains("target"), "{e}");
+        let e = CameraPath::checked(
+            &CameraPathSpec::Static,
+            &Camera { yfov: 0.0, ..base() },
+            0,
+            1,
+            &(),
+        )
+        .unwrap_err();
+        assert!(e.contains("yfov"), "{e}");
+        // Two valid keys whose spline passes the target through the eye half-way: the
+        // frame where they meet is named.
+        let a = Camera {
+            position: Vec3::new(0.0, 0.0, 1.0),
+            target: Vec3::new(0.0, 0.0, -1.0),
+            up: Vec3::Y,
+            yfov: 0.7,
+        };
+        let b = Camera {
+            position: Vec3::new(0.0, 0.0, -1.0),
+            target: Vec3::new(0.0, 0.0, 1.0),
+            ..a
+        };
+        let cross = CameraPathSpec::FlyThrough {
+            keys: Some(vec![a, b]),
+            frames_per_key: 4.0,
+            cut_every: None,
+        };
+        let e = CameraPath::checked(&cross, &a, 0, 5, &()).unwrap_err();
+        assert!(e.contains("frame 2") && e.contains("target"), "{e}");
     }
 
     #[test]

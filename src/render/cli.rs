@@ -212,7 +212,8 @@ pub fn render_command(args: &RenderArgs) -> Result<()> {
             .unwrap_or_else(|| "none".into())
     );
     let spec = path_for(&scene, &args.path, &args.fallback_path, end_frame);
-    let path = CameraPath::from_spec(&spec, &scene.camera, args.seed, end_frame, &packed.bvh);
+    let path = CameraPath::checked(&spec, &scene.camera, args.seed, end_frame, &packed.bvh)
+        .map_err(|e| anyhow::anyhow!("scene {}: {e}", scene.name))?;
     let horizon: Vec<_> = (0..FAR_HORIZON.max(end_frame))
         .map(|f| path.camera(f).position)
         .collect();
@@ -652,13 +653,14 @@ fn gpu_stage_timing(
     let gs = GpuScene::new(&gpu, scene)?;
     let mut tracer = Tracer::new(&gpu, width, height)?;
     tracer.compile()?;
-    let path = CameraPath::from_spec(
+    let path = CameraPath::checked(
         &"orbit".parse().expect("known"),
         &scene.camera,
         1,
         frames + args.warmup,
         &gs.bvh,
-    );
+    )
+    .map_err(|e| anyhow::anyhow!("scene {}: {e}", scene.name))?;
     let far = scene.far_distance([&scene.camera.position]);
     let mut results = Vec::new();
     for mode in [Mode::Quarter, Mode::Full] {

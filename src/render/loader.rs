@@ -154,7 +154,9 @@ struct KeySpec {
 
 /// Loads a `scene.json` sidecar and the glTF it names.
 pub fn load_sidecar(path: &Path) -> Result<Scene> {
-    let text = std::fs::read_to_string(path).map_err(|e| file_err(path, format!("cannot read: {e}")))?;
+    let bytes =
+        crate::io::read_regular(path, u64::MAX).map_err(|e| file_err(path, format!("cannot read: {e}")))?;
+    let text = String::from_utf8(bytes).map_err(|_| file_err(path, "cannot read: not UTF-8 text"))?;
     let side: Sidecar =
         serde_json::from_str(&text).map_err(|e| scene_err(path, format!("malformed scene.json: {e}")))?;
     let dir = path.parent().unwrap_or(Path::new("."));
@@ -206,6 +208,10 @@ pub fn load_sidecar(path: &Path) -> Result<Scene> {
                 format!("camera yfov_deg {} out of (0, 180)", c.yfov_deg),
             ));
         }
+        scene
+            .camera
+            .check()
+            .map_err(|e| scene_err(path, format!("scene.json {e}")))?;
     }
     if let Some([w, h]) = side.film {
         if w == 0 || h == 0 {
@@ -234,6 +240,10 @@ pub fn load_sidecar(path: &Path) -> Result<Scene> {
             cut_every,
         },
     });
+    if let Some(spec) = &scene.camera_path {
+        spec.check()
+            .map_err(|e| scene_err(path, format!("scene.json {e}")))?;
+    }
     if let Some(CameraPathSpec::FlyThrough {
         frames_per_key,
         cut_every,
@@ -255,8 +265,9 @@ pub fn load_sidecar(path: &Path) -> Result<Scene> {
 
 /// Loads a lat-long environment map (`.hdr`, `.exr`, or anything the `image` crate reads).
 pub fn load_environment(path: &Path, scale: f32, to_world: Mat3) -> Result<Environment> {
-    let img = image::ImageReader::open(path)
-        .map_err(|e| file_err(path, format!("cannot open environment map: {e}")))?
+    let bytes = crate::io::read_regular(path, u64::MAX)
+        .map_err(|e| file_err(path, format!("cannot open environment map: {e}")))?;
+    let img = image::ImageReader::new(std::io::Cursor::new(bytes))
         .with_guessed_format()
         .map_err(|e| file_err(path, format!("cannot read environment map: {e}")))?
         .decode()
@@ -327,7 +338,9 @@ fn percent_decode(s: &str) -> String {
 }
 
 /// Bytes of a URI relative to `base`: a data URI or a file.
-fn read_uri(gltf_path: &Path, base: &Path, uri: &str, what: &str) -> Result<(Vec<u8>, PathBuf)> {
+/// A file is read only when regular, and at most `cap` bytes of it (a buffer's declared
+/// byteLength).
+fn read_uri(gltf_path: &Path, base: &Path, uri: &str, what: &str, cap: u64) -> Result<(Vec<u8>, PathBuf)> {
     if let Some(rest) = uri.strip_prefix("data:") {
         let (_, data) = rest
             .split_once(";base64,")
@@ -337,13 +350,193 @@ fn read_uri(gltf_path: &Path, base: &Path, uri: &str, what: &str) -> Result<(Vec
         return Ok((bytes, gltf_path.to_path_buf()));
     }
     let file = base.join(percent_decode(uri));
-    let bytes = std::fs::read(&file).map_err(|e| {
+    let bytes = crate::io::read_regular(&file, cap).map_err(|e| {
         file_err(
             &file,
             format!("{what} referenced by {} cannot be read: {e}", gltf_path.display()),
         )
     })?;
     Ok((bytes, file))
+}
+
+/// Checks, on the raw JSON of a `.gltf` or `.glb`, what the `gltf` crate would panic on
+/// rather than report (its validation indexes a primitive's POSITION accessor unchecked,
+/// its readers assert on strides and hit `unreachable!` on unexpected component types):
+/// every accessor a primitive names exists and has the type and component type the spec
+/// (and the reader) requires, strides hold their element, and accessor and view ranges lie
+/// within their view and buffer. Unparsable JSON is left to the crate's own error.
+fn check_gltf_json(bytes: &[u8]) -> std::result::Result<(), String> {
+    use serde_json::Value;
+    let parsed: Option<Value> = if bytes.starts_with(b"glTF") {
+        gltf::binary::Glb::from_slice(bytes)
+            .ok()
+            .and_then(|glb| serde_json::from_slice(&glb.json).ok())
+    } else {
+        serde_json::from_slice(bytes).ok()
+    };
+    let Some(json) = parsed else {
+        return Ok(());
+    };
+    let list = |k: &str| {
+        json.get(k)
+            .and_then(Value::as_array)
+            .map(Vec::as_slice)
+            .unwrap_or(&[])
+    };
+    let (accessors, views, buffers) = (list("accessors"), list("bufferViews"), list("buffers"));
+    let uint = |v: &Value, k: &str| v.get(k).and_then(Value::as_u64);
+    // Bytes per component of a componentType, and components per element of a type.
+    let component_size = |t: u64| match t {
+        5120 | 5121 => Some(1u64),
+        5122 | 5123 => Some(2),
+        5125 | 5126 => Some(4),
+        _ => None,
+    };
+    let components = |t: &str| match t {
+        "SCALAR" => Some(1u64),
+        "VEC2" => Some(2),
+        "VEC3" => Some(3),
+        "VEC4" | "MAT2" => Some(4),
+        "MAT3" => Some(9),
+        "MAT4" => Some(16),
+        _ => None,
+    };
+    // Views within their buffers.
+    for (i, v) in views.iter().enumerate() {
+        let (Some(b), Some(len)) = (uint(v, "buffer"), uint(v, "byteLength")) else {
+            continue;
+        };
+        let off = uint(v, "byteOffset").unwrap_or(0);
+        if let Some(buf) = buffers.get(b as usize)
+            && let Some(blen) = uint(buf, "byteLength")
+            && off.checked_add(len).is_none_or(|end| end > blen)
+        {
+            return Err(format!(
+                "bufferViews[{i}] (offset {off}, length {len}) runs past buffer {b} ({blen} bytes)"
+            ));
+        }
+    }
+    // An accessor within its view, its view's stride holding its element.
+    let check_accessor = |a: usize| -> std::result::Result<(), String> {
+        let acc = &accessors[a];
+        let ty = acc.get("type").and_then(Value::as_str).unwrap_or("");
+        let (Some(csize), Some(n)) = (
+            uint(acc, "componentType").and_then(component_size),
+            components(ty),
+        ) else {
+            return Err(format!("accessors[{a}] has an unknown type or componentType"));
+        };
+        let elem = csize * n;
+        let count = uint(acc, "count").unwrap_or(0);
+        let Some(vi) = uint(acc, "bufferView") else {
+            return Ok(());
+        };
+        let Some(view) = views.get(vi as usize) else {
+            return Err(format!(
+                "accessors[{a}].bufferView {vi} does not exist ({} views)",
+                views.len()
+            ));
+        };
+        let stride = match uint(view, "byteStride") {
+            Some(s) if s < elem => {
+                return Err(format!(
+                    "bufferViews[{vi}].byteStride {s} is smaller than the {elem}-byte elements of accessors[{a}]"
+                ));
+            }
+            Some(s) => s,
+            None => elem,
+        };
+        let off = uint(acc, "byteOffset").unwrap_or(0);
+        let vlen = uint(view, "byteLength").unwrap_or(0);
+        let need = match count {
+            0 => Some(off),
+            c => (c - 1)
+                .checked_mul(stride)
+                .and_then(|x| x.checked_add(off))
+                .and_then(|x| x.checked_add(elem)),
+        };
+        if need.is_none_or(|need| need > vlen) {
+            return Err(format!(
+                "accessors[{a}] ({count} elements of {elem} bytes, stride {stride}, offset {off}) \
+                 runs past bufferViews[{vi}] ({vlen} bytes)"
+            ));
+        }
+        Ok(())
+    };
+    for (m, mesh) in list("meshes").iter().enumerate() {
+        let prims = mesh
+            .get("primitives")
+            .and_then(Value::as_array)
+            .map(Vec::as_slice)
+            .unwrap_or(&[]);
+        for (p, prim) in prims.iter().enumerate() {
+            let at = format!("meshes[{m}].primitives[{p}]");
+            let accessor_of = |what: &str, v: &Value| -> std::result::Result<usize, String> {
+                match v.as_u64() {
+                    Some(a) if (a as usize) < accessors.len() => Ok(a as usize),
+                    _ => Err(format!(
+                        "{at}.{what}: accessor {v} does not exist ({} accessors)",
+                        accessors.len()
+                    )),
+                }
+            };
+            let mut used: Vec<(String, usize)> = Vec::new();
+            if let Some(attrs) = prim.get("attributes").and_then(Value::as_object) {
+                for (name, v) in attrs {
+                    let what = format!("attributes.{name}");
+                    used.push((what.clone(), accessor_of(&what, v)?));
+                }
+            }
+            let targets = prim.get("targets").and_then(Value::as_array);
+            for (t, target) in targets.into_iter().flatten().enumerate() {
+                for (name, v) in target.as_object().into_iter().flatten() {
+                    let what = format!("targets[{t}].{name}");
+                    used.push((what.clone(), accessor_of(&what, v)?));
+                }
+            }
+            if let Some(v) = prim.get("indices") {
+                used.push(("indices".into(), accessor_of("indices", v)?));
+            }
+            for (what, a) in &used {
+                check_accessor(*a).map_err(|e| format!("{at}.{what}: {e}"))?;
+                let acc = &accessors[*a];
+                let ty = acc.get("type").and_then(Value::as_str).unwrap_or("");
+                let ct = uint(acc, "componentType").unwrap_or(0);
+                // What the spec allows (and the reader handles without panicking).
+                type Allowed = (&'static [&'static str], &'static [u64], &'static str);
+                let allowed: Option<Allowed> = match what.as_str() {
+                    "indices" => Some((
+                        &["SCALAR"],
+                        &[5121, 5123, 5125],
+                        "SCALAR of unsigned byte, short or int",
+                    )),
+                    "attributes.POSITION" | "attributes.NORMAL" => {
+                        Some((&["VEC3"], &[5126], "VEC3 of float"))
+                    }
+                    "attributes.TANGENT" => Some((&["VEC4"], &[5126], "VEC4 of float")),
+                    w if w.starts_with("attributes.TEXCOORD_") => Some((
+                        &["VEC2"],
+                        &[5121, 5123, 5126],
+                        "VEC2 of float or normalised unsigned byte or short",
+                    )),
+                    w if w.starts_with("attributes.COLOR_") => Some((
+                        &["VEC3", "VEC4"],
+                        &[5121, 5123, 5126],
+                        "VEC3 or VEC4 of float or normalised unsigned byte or short",
+                    )),
+                    _ => None,
+                };
+                if let Some((types, cts, text)) = allowed
+                    && !(types.contains(&ty) && cts.contains(&ct))
+                {
+                    return Err(format!(
+                        "{at}.{what}: accessors[{a}] is {ty} of componentType {ct}, expected {text}"
+                    ));
+                }
+            }
+        }
+    }
+    Ok(())
 }
 
 struct Loader<'a> {
@@ -384,7 +577,9 @@ impl Loader<'_> {
                         .ok_or_else(|| scene_err(self.path, format!("{what}: buffer view out of range")))?;
                     (slice.to_vec(), self.path.to_path_buf())
                 }
-                gltf::image::Source::Uri { uri, .. } => read_uri(self.path, &self.base, uri, &what)?,
+                gltf::image::Source::Uri { uri, .. } => {
+                    read_uri(self.path, &self.base, uri, &what, u64::MAX)?
+                }
             };
             let decoded = image::load_from_memory(&bytes)
                 .map_err(|e| file_err(&file, format!("cannot decode {what}: {e}")))?
@@ -544,7 +739,9 @@ pub fn load_gltf(path: &Path) -> Result<Scene> {
 }
 
 fn load_gltf_checked(path: &Path) -> Result<Scene> {
-    let bytes = std::fs::read(path).map_err(|e| file_err(path, format!("cannot read glTF: {e}")))?;
+    let bytes = crate::io::read_regular(path, u64::MAX)
+        .map_err(|e| file_err(path, format!("cannot read glTF: {e}")))?;
+    check_gltf_json(&bytes).map_err(|e| scene_err(path, format!("malformed glTF: {e}")))?;
     let gltf = gltf::Gltf::from_slice(&bytes).map_err(|e| scene_err(path, format!("malformed glTF: {e}")))?;
     let base = path.parent().unwrap_or(Path::new(".")).to_path_buf();
     let mut approx = Vec::new();
@@ -570,7 +767,16 @@ fn load_gltf_checked(path: &Path) -> Result<Scene> {
             gltf::buffer::Source::Bin => blob
                 .clone()
                 .ok_or_else(|| scene_err(path, "buffer refers to a missing GLB binary chunk"))?,
-            gltf::buffer::Source::Uri(uri) => read_uri(path, &base, uri, &format!("buffer {}", b.index()))?.0,
+            gltf::buffer::Source::Uri(uri) => {
+                read_uri(
+                    path,
+                    &base,
+                    uri,
+                    &format!("buffer {}", b.index()),
+                    b.length() as u64,
+                )?
+                .0
+            }
         };
         if data.len() < b.length() {
             return Err(scene_err(
@@ -632,12 +838,15 @@ fn load_gltf_checked(path: &Path) -> Result<Scene> {
             let pos = world.transform_point3(Vec3::ZERO);
             let fwd = world.transform_vector3(Vec3::NEG_Z).normalize_or(Vec3::NEG_Z);
             let up = world.transform_vector3(Vec3::Y).normalize_or(Vec3::Y);
-            camera = Some(Camera {
+            let c = Camera {
                 position: pos,
                 target: pos + fwd,
                 up,
                 yfov: p.yfov(),
-            });
+            };
+            c.check()
+                .map_err(|e| scene_err(path, format!("glTF {e} (camera of node {})", node.index())))?;
+            camera = Some(c);
         }
         if let Some(mesh) = node.mesh() {
             let normal_m = Mat3::from_mat4(world).inverse().transpose();
@@ -900,6 +1109,211 @@ mod tests {
             .unwrap_err()
             .to_string();
         assert!(e.contains("x.obj"), "{e}");
+        std::fs::remove_dir_all(&d).ok();
+    }
+
+    /// Issue 12 item 9: a FIFO or a device as glTF, buffer, image or environment map is
+    /// refused (regular files only) instead of blocking or reading forever.
+    #[cfg(unix)]
+    #[test]
+    fn special_files_are_refused() {
+        let d = tmp("special");
+        let fifo = d.join("fifo.bin");
+        let made = std::process::Command::new("mkfifo").arg(&fifo).status();
+        assert!(made.map(|s| s.success()).unwrap_or(false), "mkfifo");
+        let e = load_scene("/dev/zero").unwrap_err().to_string();
+        assert!(e.contains("/dev/zero"), "{e}");
+        std::os::unix::fs::symlink("/dev/zero", d.join("zero.gltf")).unwrap();
+        let e = load_scene(d.join("zero.gltf").to_str().unwrap())
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("zero.gltf") && e.contains("not a regular file"), "{e}");
+        std::os::unix::fs::symlink(&fifo, d.join("fifo.glb")).unwrap();
+        let e = load_scene(d.join("fifo.glb").to_str().unwrap())
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("not a regular file"), "{e}");
+        // A buffer and an image that are a FIFO and /dev/zero.
+        let data_uri = tiny_gltf("", "", "");
+        let with_buffer = |uri: &str| {
+            let at = data_uri.find("data:application").unwrap();
+            let end = at + data_uri[at..].find('"').unwrap();
+            format!("{}{uri}{}", &data_uri[..at], &data_uri[end..])
+        };
+        for uri in ["fifo.bin", "/dev/zero"] {
+            let p = d.join("buf.gltf");
+            std::fs::write(&p, with_buffer(uri)).unwrap();
+            let e = load_scene(p.to_str().unwrap()).unwrap_err().to_string();
+            assert!(
+                e.contains("not a regular file") && e.contains("buffer 0"),
+                "{uri}: {e}"
+            );
+        }
+        let p = d.join("tex.gltf");
+        let extra = r#", "materials": [{"pbrMetallicRoughness": {"baseColorTexture": {"index": 0}}}],
+            "textures": [{"source": 0}], "images": [{"uri": "fifo.bin"}]"#;
+        std::fs::write(&p, tiny_gltf(extra, "", r#", "material": 0"#)).unwrap();
+        let e = load_scene(p.to_str().unwrap()).unwrap_err().to_string();
+        assert!(e.contains("fifo.bin") && e.contains("not a regular file"), "{e}");
+        std::fs::write(d.join("ok.gltf"), tiny_gltf("", "", "")).unwrap();
+        std::fs::write(
+            d.join("scene.json"),
+            r#"{"gltf": "ok.gltf", "environment": {"file": "fifo.bin", "scale": 1.0}}"#,
+        )
+        .unwrap();
+        let e = load_scene(d.join("scene.json").to_str().unwrap())
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("fifo.bin") && e.contains("not a regular file"), "{e}");
+        std::fs::remove_dir_all(&d).ok();
+    }
+
+    /// Issue 12 item 6: glTF files that made the `gltf` crate panic (its message and a
+    /// backtrace reached the user before the clean error) are refused from their JSON, by
+    /// the loader itself, without any panic.
+    #[test]
+    fn gltf_crate_panics_are_prevented() {
+        let d = tmp("panics");
+        let json: serde_json::Value = serde_json::from_str(&tiny_gltf("", "", "")).unwrap();
+        type Edit = fn(&mut serde_json::Value);
+        let cases: [(&str, Edit, &str); 6] = [
+            (
+                "indices of float VEC3",
+                |j| j["meshes"][0]["primitives"][0]["indices"] = 0.into(),
+                "indices: accessors[0] is VEC3 of componentType 5126, expected SCALAR",
+            ),
+            (
+                "POSITION accessor out of range",
+                |j| j["meshes"][0]["primitives"][0]["attributes"]["POSITION"] = 9.into(),
+                "attributes.POSITION: accessor 9 does not exist",
+            ),
+            (
+                "indices accessor out of range",
+                |j| j["meshes"][0]["primitives"][0]["indices"] = 7.into(),
+                "indices: accessor 7 does not exist",
+            ),
+            (
+                "byteStride smaller than the element",
+                |j| j["bufferViews"][0]["byteStride"] = 4.into(),
+                "byteStride 4 is smaller than the 12-byte elements",
+            ),
+            (
+                "TEXCOORD_0 of unsigned int",
+                |j| {
+                    j["meshes"][0]["primitives"][0]["attributes"]["TEXCOORD_0"] = 2.into();
+                    j["accessors"].as_array_mut().unwrap().push(serde_json::json!(
+                        {"bufferView": 0, "componentType": 5125, "count": 3, "type": "VEC2"}
+                    ));
+                },
+                "TEXCOORD_0: accessors[2] is VEC2 of componentType 5125",
+            ),
+            (
+                "accessor past its view",
+                |j| j["accessors"][0]["count"] = 1_000_000.into(),
+                "runs past bufferViews[0]",
+            ),
+        ];
+        for (name, edit, want) in cases {
+            let mut j = json.clone();
+            edit(&mut j);
+            let p = d.join("m.gltf");
+            std::fs::write(&p, j.to_string()).unwrap();
+            let r = std::panic::catch_unwind(|| load_gltf_checked(&p));
+            let e = r
+                .unwrap_or_else(|_| panic!("{name}: the loader panicked"))
+                .map(|_| ())
+                .unwrap_err()
+                .to_string();
+            assert!(e.contains("m.gltf") && e.contains(want), "{name}: {e}");
+        }
+        std::fs::remove_dir_all(&d).ok();
+    }
+
+    /// Issue 12 item 7: degenerate cameras in scene.json or glTF are errors naming the
+    /// field, not black frames or NaN motion.
+    #[test]
+    fn degenerate_cameras_are_named_errors() {
+        let d = tmp("cams");
+        std::fs::write(d.join("ok.gltf"), tiny_gltf("", "", "")).unwrap();
+        let json = d.join("scene.json");
+        let cam = |c: &str, path: &str| {
+            std::fs::write(&json, format!(r#"{{"gltf": "ok.gltf", "camera": {c} {path}}}"#)).unwrap();
+            load_scene(json.to_str().unwrap())
+                .map(|_| ())
+                .map_err(|e| e.to_string())
+        };
+        let good = r#"{"position": [0, 0, 3], "target": [0, 0, 0], "up": [0, 1, 0], "yfov_deg": 40}"#;
+        cam(good, "").unwrap();
+        for (c, want) in [
+            (
+                r#"{"position": [0, 0, 3], "target": [0, 0, 3], "yfov_deg": 40}"#,
+                "target",
+            ),
+            (
+                r#"{"position": [0, 0, 3], "target": [0, 0, 0], "up": [0, 0, 1], "yfov_deg": 40}"#,
+                "up",
+            ),
+            (
+                r#"{"position": [0, 0, 3], "target": [0, 0, 0], "up": [0, 0, 0], "yfov_deg": 40}"#,
+                "up",
+            ),
+            (
+                r#"{"position": [1e39, 0, 3], "target": [0, 0, 0], "yfov_deg": 40}"#,
+                "position",
+            ),
+            (
+                r#"{"position": [0, 0, 3], "target": [0, 0, 0], "yfov_deg": 0}"#,
+                "yfov",
+            ),
+        ] {
+            let e = cam(c, "").unwrap_err();
+            assert!(e.contains("scene.json") && e.contains(want), "{c}: {e}");
+        }
+        for (p, want) in [
+            (
+                r#", "camera_path": {"type": "orbit", "degrees_per_frame": 1e39}"#,
+                "degrees_per_frame",
+            ),
+            (
+                r#", "camera_path": {"type": "orbit", "degrees_per_frame": 1e30}"#,
+                "degrees_per_frame",
+            ),
+            (
+                r#", "camera_path": {"type": "flythrough", "keys": [{"position": [0, 0, 3], "target": [0, 0, 0]}, {"position": [1, 1, 1], "target": [1, 1, 1]}]}"#,
+                "keys[1]",
+            ),
+        ] {
+            let e = cam(good, p).unwrap_err();
+            assert!(e.contains("scene.json") && e.contains(want), "{p}: {e}");
+        }
+        // A glTF camera with yfov 0.
+        let p = d.join("cam.gltf");
+        let extra = r#", "cameras": [{"type": "perspective", "perspective": {"yfov": 0.0, "znear": 0.1}}]"#;
+        std::fs::write(&p, tiny_gltf(extra, r#", "camera": 0"#, "")).unwrap();
+        let e = load_scene(p.to_str().unwrap()).unwrap_err().to_string();
+        assert!(
+            e.contains("cam.gltf") && e.contains("yfov") && e.contains("node 0"),
+            "{e}"
+        );
+        std::fs::remove_dir_all(&d).ok();
+    }
+
+    /// A buffer file longer than its declared byteLength loads (only the declared bytes are
+    /// read: `read_regular`'s cap, tested in `io`).
+    #[test]
+    fn buffers_are_read_up_to_their_declared_length() {
+        let d = tmp("cap");
+        let g = tiny_gltf("", "", "");
+        let at = g.find("data:application").unwrap();
+        let end = at + g[at..].find('"').unwrap();
+        let b64 = &g[at + "data:application/octet-stream;base64,".len()..end];
+        let mut bytes = base64_decode(b64).unwrap();
+        bytes.extend(std::iter::repeat_n(0xAB, 1 << 20));
+        std::fs::write(d.join("big.bin"), &bytes).unwrap();
+        let p = d.join("cap.gltf");
+        std::fs::write(&p, format!("{}big.bin{}", &g[..at], &g[end..])).unwrap();
+        let s = load_scene(p.to_str().unwrap()).unwrap();
+        assert_eq!(s.geometry.triangles.len(), 1);
         std::fs::remove_dir_all(&d).ok();
     }
 

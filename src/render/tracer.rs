@@ -239,9 +239,6 @@ impl std::fmt::Debug for Tracer {
     }
 }
 
-/// Storage buffers the G-buffer kernel binds (the most of the image kernels).
-const MAX_STORAGE_BUFFERS: u32 = 10;
-
 fn groups(w: u32, h: u32) -> [u32; 3] {
     [w.div_ceil(8), h.div_ceil(8), 1]
 }
@@ -265,13 +262,11 @@ fn samples_per_pass(width: u32, height: u32, spp: u32, paths: u64) -> u32 {
 impl Tracer {
     /// A tracer for `width x height` frames.
     pub fn new(gpu: &Gpu, width: u32, height: u32) -> Result<Self> {
-        let have = gpu.device.limits().max_storage_buffers_per_shader_stage;
-        if have < MAX_STORAGE_BUFFERS {
-            return Err(Error::Invalid(format!(
-                "the path tracer binds {MAX_STORAGE_BUFFERS} storage buffers per kernel; adapter '{}' allows {have}",
-                gpu.info.name
-            )));
-        }
+        crate::gpu::check_limits(
+            &format!("the path tracer (adapter '{}')", gpu.info.name),
+            &["trace/query", "trace/gbuffer", "trace/pathtrace"],
+            &gpu.device.limits(),
+        )?;
         let counters = gpu.device.create_buffer(&wgpu::BufferDescriptor {
             label: Some("subpixel.trace.counters"),
             size: 16,

@@ -107,9 +107,27 @@ struct StoreParams {
     c4: u32,
 }
 
+/// Every kernel the denoiser runs: [`Denoiser::new`] checks them against the device's
+/// limits (they all fit WebGPU's defaults, `wgpu::Limits::default()`).
+pub const KERNELS_USED: &[&str] = &[
+    "ssr/pack_inputs",
+    "ssr/pack_mt",
+    "ssr/exposure_partial",
+    "ssr/exposure_final",
+    "ssr/history",
+    "ssr/store_output",
+    "nn/conv3x3",
+    "nn/warp",
+    "nn/tfa_blend",
+    "nn/pool2x2",
+    "nn/upsample2x",
+    "nn/remodulate",
+];
+
 /// Size in bytes of the SSR kernels' uniform `Params`, for the naga layout test.
 pub const PARAM_SIZES: &[(&str, usize)] = &[
     ("ssr/pack_inputs", std::mem::size_of::<PackParams>()),
+    ("ssr/pack_mt", std::mem::size_of::<PackParams>()),
     ("ssr/store_output", std::mem::size_of::<StoreParams>()),
     (
         "ssr/exposure_partial",
@@ -143,14 +161,16 @@ pub struct Denoiser {
     height: u32,
     output: wgpu::Texture,
     store: Dispatch,
-    pack: Option<(Vec<wgpu::Buffer>, Dispatch, Option<ExposureDispatches>)>,
+    pack: Option<(Vec<wgpu::Buffer>, [Dispatch; 2], Option<ExposureDispatches>)>,
     sanitized: wgpu::Buffer,
     first: bool,
     frames: u64,
 }
 
 impl Denoiser {
-    /// A denoiser for `width x height` frames on the caller's device.
+    /// A denoiser for `width x height` frames on the caller's device. Fails (naming the
+    /// kernel and the limit) when the device's limits are below what a kernel needs; every
+    /// kernel fits WebGPU's default limits.
     pub fn new(
         device: &wgpu::Device,
         queue: &wgpu::Queue,
@@ -170,6 +190,7 @@ impl Denoiser {
                 format!("frame size {width}x{height} must be non-zero"),
             ));
         }
+        crate::gpu::check_limits("the denoiser", KERNELS_USED, &gpu.device.limits())?;
         let net = Network::new(gpu, weights, round_up4(width), round_up4(height))?;
         let output = Self::make_output(gpu, width, height);
         let store = Self::make_store(gpu, &net, &output, width, height)?;
@@ -315,7 +336,9 @@ impl Denoiser {
                 e[0].record(&mut pass);
                 e[if self.first { 1 } else { 2 }].record(&mut pass);
             }
-            pack.record(&mut pass);
+            for d in pack {
+                d.record(&mut pass);
+            }
         }
         self.net
             .record(encoder, self.first, profiler.as_deref_mut(), granularity);
@@ -366,20 +389,35 @@ impl Denoiser {
             padded_height: self.net.height,
         };
         let (partials, exposure, ratio) = self.net.exposure();
-        let mut all: Vec<&wgpu::Buffer> = bufs.to_vec();
-        all.extend([
-            &a_t.buffer,
-            &mt.buffer,
-            &motion.buffer,
-            &self.sanitized,
-            &exposure.buffer,
-        ]);
-        let d = self.gpu.kernels.dispatch(
+        let groups = [self.net.width.div_ceil(8), self.net.height.div_ceil(8), 1];
+        let pack_a = self.gpu.kernels.dispatch(
             "ssr/pack_inputs",
             &Specialisation::none(),
             bytemuck::bytes_of(&params),
-            &all,
-            [self.net.width.div_ceil(8), self.net.height.div_ceil(8), 1],
+            &[
+                inputs.color_mask,
+                inputs.albedo_depth,
+                inputs.normal_metallic,
+                inputs.shadow_roughness,
+                &a_t.buffer,
+                &self.sanitized,
+                &exposure.buffer,
+            ],
+            groups,
+        )?;
+        let pack_mt = self.gpu.kernels.dispatch(
+            "ssr/pack_mt",
+            &Specialisation::none(),
+            bytemuck::bytes_of(&params),
+            &[
+                inputs.color_mask,
+                inputs.transparent,
+                inputs.motion,
+                &mt.buffer,
+                &motion.buffer,
+                &self.sanitized,
+            ],
+            groups,
         )?;
         let e = match self.weights.config.exposure_mode()? {
             ExposureMode::None => None,
@@ -422,11 +460,14 @@ impl Denoiser {
                 Some([reduce, update(true)?, update(false)?])
             }
         };
-        self.pack = Some((bufs.iter().map(|b| (*b).clone()).collect(), d, e));
+        self.pack = Some((bufs.iter().map(|b| (*b).clone()).collect(), [pack_a, pack_mt], e));
         Ok(())
     }
 
-    /// Number of non-finite input values replaced by 0 since creation (blocks on a readback).
+    /// Number of input values changed by the sanitising since creation (blocks on a
+    /// readback): non-finite values (replaced by 0) and values outside their channel's range
+    /// (clamped to it: mask 0 or 1, albedo, transparent, depth, metallic and roughness in
+    /// [0, 1], colour and shadow in [0, 1e12], normals of unit length or 0).
     pub fn sanitized_count(&self) -> Result<u64> {
         let b = self.gpu.read_buffer(&self.sanitized, 0, 4)?;
         Ok(u32::from_le_bytes([b[0], b[1], b[2], b[3]]) as u64)

@@ -31,7 +31,7 @@ impl Weights {
     /// Loads and checks a weights file.
     pub fn load(path: impl AsRef<Path>) -> Result<Self> {
         let path = path.as_ref();
-        let bytes = std::fs::read(path).map_err(|e| Error::Weights {
+        let bytes = crate::io::read_regular(path, u64::MAX).map_err(|e| Error::Weights {
             path: path.to_path_buf(),
             message: format!("cannot read: {e}"),
         })?;

@@ -5,6 +5,10 @@
 // column k of block (ci4, co4) holds the weights of input channel 4*ci4+k for output
 // channels 4*co4..4*co4+3. Each invocation computes one pixel and up to 4 output vec4s
 // (16 channels); global_id.z selects the 16-channel block.
+// Outputs are kept finite (issue 12): a non-finite sum (from hostile weights or inputs)
+// becomes 0 and finite ones are clamped to +-ACT_MAX, far beyond any real activation, so
+// that the layers after it (sums of 9 Cin products, dot products in the TFA) cannot
+// overflow either.
 
 struct Params {
     width: u32,
@@ -28,6 +32,7 @@ struct Params {
 @group(0) @binding(7) var<storage, read_write> out: array<vec4<f32>>;
 
 const COB: u32 = 4u;
+const ACT_MAX: f32 = 1.0e15;
 
 fn fetch(k: u32, i: u32) -> vec4<f32> {
     switch k {
@@ -81,6 +86,7 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>) {
         } else if (p.act == 2u) {
             r = select(r * p.slope, r, r >= vec4<f32>(0.0));
         }
-        out[o + j] = r;
+        let lim = vec4<f32>(ACT_MAX);
+        out[o + j] = select(vec4<f32>(0.0), clamp(r, -lim, lim), abs(r) <= vec4<f32>(3.40282347e38));
     }
 }

@@ -2,6 +2,8 @@
 // over the first 3 channels of `o` and of `albedo` from `albedo_offset` (SSR: the albedo
 // that demodulated, or the accumulated one for version-1 weights); `scale` is one vec4 (rgb:
 // the exposure). Output: 3 channels (padded to 4, the 4th is 0).
+// Guards against hostile input (issue 12): o is taken as at most O_MAX (radiance e^50 times
+// the exposure, far beyond any real pixel) and non-finite o as 0, so the output is finite.
 
 struct Params {
     width: u32,
@@ -21,6 +23,7 @@ struct Params {
 @group(0) @binding(4) var<storage, read> scale: array<vec4<f32>>;
 
 const EPS: f32 = 0.00316;
+const O_MAX: f32 = 50.0;
 
 // Three consecutive channels of `albedo` starting at `albedo_offset` (any alignment).
 fn albedo3(pix: u32) -> vec3<f32> {
@@ -40,7 +43,8 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>) {
         return;
     }
     let pix = y * p.width + x;
-    let e = o[pix * p.o_c4].xyz;
+    let raw = o[pix * p.o_c4].xyz;
+    let e = min(select(vec3<f32>(0.0), raw, abs(raw) <= vec3<f32>(3.40282347e38)), vec3<f32>(O_MAX));
     let a = max(albedo3(pix), vec3<f32>(0.0));
     dst[pix] = vec4<f32>(max(exp(e) - vec3<f32>(1.0), vec3<f32>(0.0)) * (a + vec3<f32>(EPS)) * scale[0].xyz, 0.0);
 }

@@ -6,6 +6,8 @@
 //   later:        lp = ln(s_prev), d = lg - lp,
 //                 s = exp(have ? (|d| > JUMP ? lg : lp + RATE d) : lp)   (JUMP = ln 2)
 //   ratio = s_prev / s (1 on a first frame): history.wgsl re-exposes the history with it.
+// ln s is clamped to [-LN_S_MAX, LN_S_MAX] (a guard against hostile input, issue 12: far
+// beyond any real frame's exposure, it keeps s, 1/s and the ratio finite and non-zero).
 // `exposure` holds s_prev on entry and s on exit and `ratio` the ratio: 6 channels packed
 // in 2 vec4 as a 1x1x6 tensor, (colour.rgb, shadow.r), (shadow.gb, 0, 0).
 
@@ -24,6 +26,7 @@ struct Params {
 const RATE: f32 = 0.1;
 const JUMP: f32 = 0.6931471805599453;
 const WG: u32 = 64u;
+const LN_S_MAX: f32 = 30.0;
 
 // [colour sum, colour count, shadow sum, shadow count] per thread, then tree-reduced.
 var<workgroup> acc: array<array<vec4<f32>, 4>, 64>;
@@ -61,11 +64,13 @@ fn main(@builtin(local_invocation_id) lid: vec3<u32>) {
 // (s, s_prev / s) from the sums of ln d, the counts and s_prev.
 fn update(sum: vec3<f32>, count: vec3<f32>, prev: vec3<f32>) -> array<vec3<f32>, 2> {
     let have = count > vec3<f32>(0.0);
-    let lg = select(vec3<f32>(0.0), sum / max(count, vec3<f32>(1.0)), have);
+    let mean = sum / max(count, vec3<f32>(1.0));
+    // NaN fails the comparison (it cannot arise from sanitised inputs; belt and braces).
+    let lg = select(vec3<f32>(0.0), clamp(mean, vec3<f32>(-LN_S_MAX), vec3<f32>(LN_S_MAX)), have & (abs(mean) <= vec3<f32>(3.0e38)));
     if (p.first != 0u) {
         return array<vec3<f32>, 2>(exp(lg), vec3<f32>(1.0));
     }
-    let lp = log(prev);
+    let lp = clamp(log(prev), vec3<f32>(-LN_S_MAX), vec3<f32>(LN_S_MAX));
     let d = lg - lp;
     let eased = select(lp + RATE * d, lg, abs(d) > vec3<f32>(JUMP));
     let s_new = exp(select(lp, eased, have));

@@ -1,7 +1,7 @@
 // Exposure statistic, pass 1 of 2 (issue 11; training/ssr/model.py `_log_exposure`):
 // per channel c, the sum of ln d_c and the count over the traced pixels (mask > 0.5) with
-// d_c > 0, for d = color / (albedo + 0.00316) and for d = shadow (non-finite and negative
-// values count as 0, as in pack_inputs). The pixels are those of the padded Wp x Hp frame
+// d_c > 0, for d = color / (albedo + 0.00316) and for d = shadow (the inputs sanitised as
+// pack_inputs does, ssr/lib/sanitize, without counting). The pixels are those of the padded Wp x Hp frame
 // the network sees (beyond W x H the edge is replicated, as pack_inputs does). Each
 // workgroup strides over the pixels and writes one partial of 4 vec4: (sum ln d).rgb and
 // count.rgb of the colour, then of the shadow. exposure_final.wgsl adds the partials up.
@@ -40,11 +40,6 @@ fn ln_where(d: vec3<f32>, traced: bool) -> array<vec3<f32>, 2> {
     );
 }
 
-fn clean(v: vec4<f32>) -> vec4<f32> {
-    // NaN fails the comparison; +-Inf fails the bound (as pack_inputs).
-    return select(vec4<f32>(0.0), v, abs(v) <= vec4<f32>(3.0e38));
-}
-
 @compute @workgroup_size(256, 1, 1)
 fn main(@builtin(local_invocation_id) lid: vec3<u32>, @builtin(workgroup_id) wid: vec3<u32>) {
     let n = p.padded_width * p.padded_height;
@@ -56,11 +51,13 @@ fn main(@builtin(local_invocation_id) lid: vec3<u32>, @builtin(workgroup_id) wid
         let x = i % p.padded_width;
         let y = i / p.padded_width;
         let src = min(y, p.height - 1u) * p.width + min(x, p.width - 1u);
-        let cm = clean(color_mask[src]);
-        let traced = cm.w > 0.5;
-        let a = max(clean(albedo_depth[src]).xyz, vec3<f32>(0.0));
-        let c = ln_where(max(cm.xyz, vec3<f32>(0.0)) / (a + vec3<f32>(EPS)), traced);
-        let s = ln_where(max(clean(shadow_roughness[src]).xyz, vec3<f32>(0.0)), traced);
+        var ignored = 0u;
+        let cm = color_mask[src];
+        let traced = sanitize_mask(cm.w, &ignored) > 0.5;
+        let a = sanitize_unit(albedo_depth[src].xyz, &ignored);
+        let color = sanitize_radiance(cm.xyz, &ignored);
+        let c = ln_where(color / (a + vec3<f32>(EPS)), traced);
+        let s = ln_where(sanitize_radiance(shadow_roughness[src].xyz, &ignored), traced);
         cs += c[0];
         ck += c[1];
         ss += s[0];

@@ -3,7 +3,8 @@
 //   rescale (config exposure "channel"): the log channels e (0..2) and log1p(shadow) (9..11)
 //     of W(A_acc) and W(o) are re-expressed in this frame's exposure,
 //     v -> ln(1 + (exp(v) - 1) ratio) for v > 0 (kept for v <= 0), ratio = s_prev / s
-//     (a 1x1x6 tensor: colour rgb for e and W(o), then shadow rgb);
+//     (a 1x1x6 tensor: colour rgb for e and W(o), then shadow rgb), at most LOG_MAX (a
+//     guard against hostile input, issue 12: exp of a huge history overflows to +Inf);
 //   geometry (config history "geometry"): valid &= |W(depth_acc) - depth| <= 0.2 depth and
 //     |W(normal_acc) - normal|^2 <= 0.25; invalid history is 0 (as an off-screen sample).
 // A_t layout (pack_inputs): vec4 0 = (e.rgb, albedo.r), 1 = (albedo.gb, n.xy),
@@ -25,9 +26,11 @@ struct Params {
 
 const DEPTH_TOL: f32 = 0.2;
 const NORMAL_TOL: f32 = 0.25;
+const LOG_MAX: f32 = 88.0;
 
 fn rescale_log(v: vec3<f32>, r: vec3<f32>) -> vec3<f32> {
-    return select(v, log(vec3<f32>(1.0) + (exp(v) - vec3<f32>(1.0)) * r), v > vec3<f32>(0.0));
+    let scaled = min(log(vec3<f32>(1.0) + (exp(v) - vec3<f32>(1.0)) * r), vec3<f32>(LOG_MAX));
+    return select(v, scaled, v > vec3<f32>(0.0));
 }
 
 @compute @workgroup_size(8, 8, 1)
