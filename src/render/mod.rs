@@ -30,7 +30,7 @@ pub mod tracer;
 
 pub use backend::{Backend, FrameRenderer, GpuFrameRenderer};
 pub use camera::{Camera, CameraPath, CameraPathSpec};
-pub use cpu::{CpuTracer, ReferenceHalves};
+pub use cpu::{CpuTracer, PrimarySurface, ReferenceHalves};
 pub use gpu_scene::GpuScene;
 pub use loader::{SceneOptions, load_scene, load_scene_with};
 pub use packed::PackedScene;

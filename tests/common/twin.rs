@@ -6,7 +6,7 @@ use std::sync::Arc;
 use subpixel::frame::HostFrame;
 use subpixel::nn::HostTensor;
 use subpixel::render::scene::Scene;
-use subpixel::render::{CpuTracer, FrameSettings, GpuScene, Mode, PackedScene, Tracer};
+use subpixel::render::{CpuTracer, FrameSettings, GpuScene, Mode, PackedScene, PrimarySurface, Tracer};
 
 use super::gpu;
 
@@ -46,6 +46,141 @@ pub fn channel_means(t: &HostTensor) -> Vec<f64> {
         .collect()
 }
 
+/// G-buffer values of pixel `i` of `f` (every buffer but colour and shadow), as
+/// `(buffer, value)`, in the order of [`surface_values`].
+fn pixel_values(f: &HostFrame, i: usize) -> Vec<(&'static str, f32)> {
+    let mut v = Vec::new();
+    for (name, t) in [
+        ("albedo", &f.albedo),
+        ("normal", &f.normal),
+        ("depth", &f.depth),
+        ("metallic", &f.metallic),
+        ("roughness", &f.roughness),
+        ("transparent", &f.transparent),
+        ("motion", &f.motion),
+    ] {
+        let k = t.channels as usize;
+        v.extend(t.data[k * i..k * i + k].iter().map(|&x| (name, x)));
+    }
+    v
+}
+
+/// The G-buffer values a pixel holds when its primary ray hits `s`.
+fn surface_values(s: &PrimarySurface) -> Vec<(&'static str, f32)> {
+    let mut v = Vec::new();
+    for (name, x) in [
+        ("albedo", &s.albedo[..]),
+        ("normal", &s.normal[..]),
+        ("depth", &[s.depth][..]),
+        ("metallic", &[s.metallic][..]),
+        ("roughness", &[s.roughness][..]),
+        ("transparent", &s.transparent[..]),
+        ("motion", &s.motion[..]),
+    ] {
+        v.extend(x.iter().map(|&x| (name, x)));
+    }
+    v
+}
+
+/// Float tolerance of the G-buffer comparisons (`b` the CPU's value).
+fn close(a: f32, b: f32) -> bool {
+    (a - b).abs() <= 1e-4 + 1e-4 * b.abs()
+}
+
+fn all_close(a: &[(&str, f32)], b: &[(&str, f32)]) -> bool {
+    a.len() == b.len() && a.iter().zip(b).all(|(x, y)| close(x.1, y.1))
+}
+
+/// Relative distance within which two surfaces along a ray are at the same distance.
+const TIE_EPS: f32 = 1e-5;
+
+/// Checks that the GPU's G-buffers `g` and the CPU twin's `c` of frame `s` agree at every
+/// pixel to float tolerance, except at genuine ties, and returns the number of ties.
+///
+/// A tie is a pixel whose primary ray meets two overlapping surfaces at the same distance
+/// (z-fighting in the scene), so that float rounding decides which one each backend's
+/// traversal reports: there the backends may disagree, but only if a brute-force search of
+/// every triangle along that ray ([`CpuTracer::primary_surfaces`], independent of either
+/// traversal) finds several triangles at the distance of the closest hit (within
+/// [`TIE_EPS`]), and the GPU's and the CPU's values are those of two different ones.
+///
+/// In the shared scenes: dining-room (the Breakfast Room) has one genuine tie at 32x18,
+/// pixel (6, 15): its floor, FloorTiles triangles 269310-269313 in the plane y = -1.419958,
+/// is overlapped by two triangles of material Walls (269314, 269315: a strip at z in
+/// [-4.542, -4.056] in the same plane), t = 15.200357 vs 15.2003565. The 42 "ties" once
+/// counted there (the old check allowed any same-depth difference, up to 1 % of pixels)
+/// were no ties at all: single floor hits whose albedo the GPU got wrong, a repeat-wrapped
+/// texture looked up at negative v, which on the GL backend (Mesa llvmpipe, no Vulkan
+/// driver) computed `%` of a negative operand as unsigned (fixed in
+/// `wgsl/trace/lib/material.wgsl`; `negative_texture_coordinates_match_the_gpu` in
+/// `tests/cpu_twin.rs` keeps it fixed).
+fn gbuffer_ties(scene: &Scene, p: &PackedScene, s: &FrameSettings, g: &HostFrame, c: &HostFrame) -> usize {
+    let (w, h) = (g.albedo.width, g.albedo.height);
+    let cpu = CpuTracer::new(w, h).unwrap();
+    let mut ties = Vec::new();
+    for i in 0..(w * h) as usize {
+        let (x, y) = (i as u32 % w, i as u32 / w);
+        assert_eq!(
+            g.mask.data[i], c.mask.data[i],
+            "{} {:?} pixel ({x}, {y}): mask",
+            scene.name, s.mode
+        );
+        let (gv, cv) = (pixel_values(g, i), pixel_values(c, i));
+        if all_close(&gv, &cv) {
+            continue;
+        }
+        let differ: Vec<_> = gv
+            .iter()
+            .zip(&cv)
+            .filter(|(a, b)| !close(a.1, b.1))
+            .map(|(a, b)| (a.0, a.1, b.1))
+            .collect();
+        let surfaces = cpu.primary_surfaces(p, s, x, y, TIE_EPS);
+        let find = |v: &[(&str, f32)]| surfaces.iter().position(|t| all_close(v, &surface_values(t)));
+        let (gi, ci) = (find(&gv), find(&cv));
+        let described: Vec<String> = surfaces
+            .iter()
+            .map(|t| {
+                format!(
+                    "triangle {} material {:?} t {} albedo {:?} normal {:?}",
+                    t.triangle, scene.materials[t.material as usize].name, t.t, t.albedo, t.normal
+                )
+            })
+            .collect();
+        let (Some(gi), Some(ci)) = (gi, ci) else {
+            panic!(
+                "{} {:?} pixel ({x}, {y}): G-buffers differ (name, gpu, cpu): {differ:?}; the \
+                 surfaces at the closest hit: {described:#?}; the GPU's values are those of \
+                 surface {gi:?}, the CPU's of {ci:?}",
+                scene.name, s.mode
+            )
+        };
+        assert!(
+            surfaces[gi].triangle != surfaces[ci].triangle,
+            "{} {:?} pixel ({x}, {y}): G-buffers differ (name, gpu, cpu): {differ:?}, yet both \
+             match the same surface: {described:#?}",
+            scene.name,
+            s.mode
+        );
+        ties.push((x, y, surfaces[gi].clone(), surfaces[ci].clone()));
+    }
+    if !ties.is_empty() {
+        let mut pairs = std::collections::BTreeMap::new();
+        for (_, _, a, b) in &ties {
+            let name = |t: &PrimarySurface| scene.materials[t.material as usize].name.clone();
+            *pairs.entry((name(a), name(b))).or_insert(0) += 1;
+        }
+        eprintln!(
+            "{} {:?}: {} tie pixel(s) (GPU material, CPU material): {pairs:?}; first: {:?}",
+            scene.name,
+            s.mode,
+            ties.len(),
+            &ties[..ties.len().min(2)]
+        );
+    }
+    ties.len()
+}
+
 /// G-buffers agree to float tolerance; with the same seed nearly every traced pixel follows
 /// the same path on both backends (quarter and full frames, `w x h`).
 pub fn assert_same_seed_frames_match(scene: &Scene, w: u32, h: u32) {
@@ -55,56 +190,14 @@ pub fn assert_same_seed_frames_match(scene: &Scene, w: u32, h: u32) {
         let s = settings(scene, mode, 1, 7);
         let g = gpu_frame(&gs, w, h, &s);
         let c = cpu_frame(&p, w, h, &s);
-        // Per pixel, every G-buffer agrees to float tolerance, except where the primary ray
-        // meets two overlapping surfaces at the same distance (z-fighting in the scene): the
-        // tie may break either way under float rounding, so there the depth must agree and
-        // such pixels must stay rare.
+        let ties = gbuffer_ties(scene, &p, &s, &g, &c);
         let n = (w * h) as usize;
-        let mut ties = Vec::new();
-        for i in 0..n {
-            let mut differ = Vec::new();
-            for (name, gt, ct) in [
-                ("mask", &g.mask, &c.mask),
-                ("albedo", &g.albedo, &c.albedo),
-                ("normal", &g.normal, &c.normal),
-                ("depth", &g.depth, &c.depth),
-                ("metallic", &g.metallic, &c.metallic),
-                ("roughness", &g.roughness, &c.roughness),
-                ("transparent", &g.transparent, &c.transparent),
-                ("motion", &g.motion, &c.motion),
-            ] {
-                let k = gt.channels as usize;
-                for j in k * i..k * i + k {
-                    let (a, b) = (gt.data[j], ct.data[j]);
-                    if (a - b).abs() > 1e-4 + 1e-4 * b.abs() {
-                        differ.push((name, a, b));
-                    }
-                }
-            }
-            if differ.is_empty() {
-                continue;
-            }
-            let same_depth = (g.depth.data[i] - c.depth.data[i]).abs() <= 1e-4;
-            assert!(
-                same_depth && !differ.iter().any(|d| d.0 == "mask"),
-                "{} {mode:?} pixel {i}: G-buffers differ (name, gpu, cpu): {differ:?}",
-                scene.name
-            );
-            ties.push((i, differ));
-        }
-        if !ties.is_empty() {
-            eprintln!(
-                "{} {mode:?}: {} tie pixel(s): {:?}",
-                scene.name,
-                ties.len(),
-                &ties[..ties.len().min(3)]
-            );
-        }
+        // Every tie is checked to be genuine; still, overlapping surfaces are the exception
+        // in a scene, so ties on a quarter of the pixels would point at a systematic bug.
         assert!(
-            ties.len() * 100 <= n,
-            "{} {mode:?}: {} of {n} pixels hit a different surface at the same depth",
-            scene.name,
-            ties.len()
+            4 * ties <= n,
+            "{} {mode:?}: {ties} of {n} pixels hit different surfaces at the same distance",
+            scene.name
         );
         // Colour and NEE shadow: the same random numbers give the same paths, up to paths
         // that diverge through float rounding (a different branch taken).

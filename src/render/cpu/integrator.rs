@@ -10,7 +10,7 @@ use super::lights::{
     EnvInfo, env_pdf, env_radiance, env_select_prob, has_lights, mis_power, sample_light, tri_light_pdf,
 };
 use super::material::surface_at;
-use super::traverse::{occluded, traverse};
+use super::traverse::{Hit, occluded, traverse};
 use crate::render::camera::GpuCamera;
 use crate::render::packed::{MAT_THIN, PackedScene};
 
@@ -203,10 +203,28 @@ pub(crate) struct GbufferPixel {
 }
 
 pub(crate) fn gbuffer_pixel(sc: &PackedScene, p: &Params, x: u32, y: u32, rays: &mut u64) -> GbufferPixel {
+    let d = primary_dir(p, x, y);
+    let hit = traverse(sc, v3(p.cam.pos), d, BIG, false, NO_HIT, rays);
+    gbuffer_of_hit(sc, p, x, y, d, &hit)
+}
+
+/// Direction of the G-buffer ray of pixel (x, y): through the pixel centre.
+pub(crate) fn primary_dir(p: &Params, x: u32, y: u32) -> Vec3 {
+    let size = Vec2::new(p.width as f32, p.height as f32);
+    camera_dir(&p.cam, Vec2::new(x as f32 + 0.5, y as f32 + 0.5), size)
+}
+
+/// The G-buffer values of pixel (x, y) whose primary ray (direction `d`) has hit `hit`.
+pub(crate) fn gbuffer_of_hit(
+    sc: &PackedScene,
+    p: &Params,
+    x: u32,
+    y: u32,
+    d: Vec3,
+    hit: &Hit,
+) -> GbufferPixel {
     let size = Vec2::new(p.width as f32, p.height as f32);
     let pos = Vec2::new(x as f32 + 0.5, y as f32 + 0.5);
-    let d = camera_dir(&p.cam, pos, size);
-    let hit = traverse(sc, v3(p.cam.pos), d, BIG, false, NO_HIT, rays);
     let (mut g, prev) = if hit.prim == NO_HIT {
         (
             GbufferPixel {
@@ -219,7 +237,7 @@ pub(crate) fn gbuffer_pixel(sc: &PackedScene, p: &Params, x: u32, y: u32, rays: 
             camera_project(&p.prev, d, true, size),
         )
     } else {
-        let s = surface_at(sc, &hit, d);
+        let s = surface_at(sc, hit, d);
         let depth = ((s.p - v3(p.cam.pos)).dot(v3(p.cam.fwd)) / p.far).clamp(0.0, 1.0);
         let t = s.base * s.transmission;
         (

@@ -35,12 +35,38 @@ use super::tracer::{FrameSettings, FrameStats, Mode, tile_offset};
 use crate::error::{Error, Result};
 use crate::frame::HostFrame;
 use crate::nn::HostTensor;
-use integrator::{Params, gbuffer_pixel, pixel_samples};
+use integrator::{Params, gbuffer_of_hit, gbuffer_pixel, pixel_samples, primary_dir};
 use lights::EnvInfo;
 
 /// One pixel's buffers: colour+mask, albedo+depth, normal+metallic, shadow+roughness,
 /// transparent, motion.
 type PixelBuffers = ([f32; 4], [f32; 4], [f32; 4], [f32; 4], [f32; 3], [f32; 2]);
+
+/// A surface that the G-buffer ray of a pixel meets, found by
+/// [`CpuTracer::primary_surfaces`], with the G-buffer values a frame would hold for it.
+#[derive(Debug, Clone, PartialEq)]
+pub struct PrimarySurface {
+    /// The triangle, as an index into the scene's triangles (`Scene::geometry`).
+    pub triangle: u32,
+    /// Its material, as an index into `Scene::materials`.
+    pub material: u32,
+    /// Distance along the (unit) ray.
+    pub t: f32,
+    /// Albedo.
+    pub albedo: [f32; 3],
+    /// Shading normal.
+    pub normal: [f32; 3],
+    /// Normalised depth.
+    pub depth: f32,
+    /// Metallic.
+    pub metallic: f32,
+    /// Roughness.
+    pub roughness: f32,
+    /// Transparent tint.
+    pub transparent: [f32; 3],
+    /// Motion in pixels.
+    pub motion: [f32; 2],
+}
 
 /// Renders frames of one size on the CPU.
 #[derive(Debug, Clone)]
@@ -105,6 +131,57 @@ impl CpuTracer {
             max_depth: s.max_depth.max(1),
             far: s.far.max(1e-6),
         }
+    }
+
+    /// Every surface that the G-buffer ray of pixel (x, y) of frame `s` meets at the
+    /// distance of its closest hit, up to relative `rel_eps`, nearest first: each with the
+    /// G-buffer values of the pixel had the ray hit it. Several when the scene has
+    /// overlapping surfaces there (z-fighting), where float rounding decides which one a
+    /// traversal reports. A brute-force test of every triangle (the BVH traversal's
+    /// triangle test and alpha cut-outs, none of its order), for diagnostics and tests.
+    pub fn primary_surfaces(
+        &self,
+        scene: &PackedScene,
+        s: &FrameSettings,
+        x: u32,
+        y: u32,
+        rel_eps: f32,
+    ) -> Vec<PrimarySurface> {
+        let p = self.params(s, s.seed);
+        let d = primary_dir(&p, x, y);
+        let o = glam::Vec3::from_slice(&p.cam.pos[..3]);
+        let mut hits: Vec<traverse::Hit> = (0..scene.tris.len() as u32 / 4)
+            .filter_map(|prim| {
+                let (t, u, v) = traverse::intersect_tri(scene, prim, o, d, 0.0, common::BIG)?;
+                let info = material::tri_info(scene, prim)[3];
+                (info & super::packed::TRI_FLAG_ALPHA == 0 || material::alpha_passes(scene, prim, u, v))
+                    .then_some(traverse::Hit { t, prim, u, v })
+            })
+            .collect();
+        hits.sort_by(|a, b| a.t.total_cmp(&b.t));
+        let Some(nearest) = hits.first().map(|h| h.t) else {
+            return Vec::new();
+        };
+        hits.iter()
+            .take_while(|h| h.t <= nearest + rel_eps * nearest.abs())
+            .map(|h| {
+                let g = gbuffer_of_hit(scene, &p, x, y, d, h);
+                let [a0, a1, a2, depth] = g.albedo_depth;
+                let [n0, n1, n2, metallic] = g.normal_metallic;
+                PrimarySurface {
+                    triangle: scene.bvh.order[h.prim as usize],
+                    material: material::tri_info(scene, h.prim)[3] & super::packed::TRI_MATERIAL_MASK,
+                    t: h.t,
+                    albedo: [a0, a1, a2],
+                    normal: [n0, n1, n2],
+                    depth,
+                    metallic,
+                    roughness: g.roughness,
+                    transparent: g.transparent,
+                    motion: g.motion,
+                }
+            })
+            .collect()
     }
 
     /// Renders frame `s` (every buffer of the data contract), as [`super::Tracer::render`]

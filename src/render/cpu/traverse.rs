@@ -21,7 +21,7 @@ pub(crate) struct Hit {
 
 /// `(t, u, v)` of the hit of triangle `prim` within `[tmin, tmax]`, as `intersect_tri`.
 #[inline(always)]
-fn intersect_tri(
+pub(crate) fn intersect_tri(
     sc: &PackedScene,
     prim: u32,
     o: Vec3,

@@ -9,23 +9,29 @@ const WRAP_REPEAT: u32 = 0u;
 const WRAP_CLAMP: u32 = 1u;
 const WRAP_MIRROR: u32 = 2u;
 
+// The remainder of `i` by `n > 0` in [0, n) (Rust's `rem_euclid`). `%` only ever sees
+// non-negative operands: WGSL defines it for negative ones, but naga's GLSL output for the GL
+// backend is `%`, which GLSL leaves undefined there (Mesa llvmpipe's GL returns the unsigned
+// remainder of the bit pattern: -4000 % 894 gave 450, not -424), so repeat-wrapped lookups
+// at negative texture coordinates fetched the wrong texels on GL.
+fn rem_euclid(i: i32, n: i32) -> i32 {
+    if (i >= 0) {
+        return i % n;
+    }
+    // -(i + 1) does not overflow, even for i32's minimum.
+    return n - 1 - (-(i + 1)) % n;
+}
+
 fn wrap_coord(i: i32, n: i32, mode: u32) -> i32 {
     if (mode == WRAP_CLAMP) {
         return clamp(i, 0, n - 1);
     }
     if (mode == WRAP_MIRROR) {
         let period = 2 * n;
-        var m = i % period;
-        if (m < 0) {
-            m += period;
-        }
+        let m = rem_euclid(i, period);
         return select(m, period - 1 - m, m >= n);
     }
-    var m = i % n;
-    if (m < 0) {
-        m += n;
-    }
-    return m;
+    return rem_euclid(i, n);
 }
 
 fn texel(offset: u32, w: i32, x: i32, y: i32, srgb: bool) -> vec4<f32> {
