@@ -1,0 +1,108 @@
+//! The shipped generic model (`weights/ssr.safetensors`) on scenes it never saw.
+//!
+//! Issue 11 found the version-1 model's output tens of percent brighter than the reference
+//! on unseen scenes. Here the CPU twin renders a few procedural scenes whose seeds are held
+//! out of training and model selection (the recipe's test seeds, without props), the engine
+//! denoises their 1/4-spp frames with the shipped weights, and the image means are compared
+//! with the CPU twin's references of the same frames: the independent expectation is the
+//! reference, not a stored figure.
+//!
+//! **Known to fail with the weights shipped on 2026-11-24** (ignored by `cargo test`; run it
+//! with `cargo test --release --test generic_model -- --ignored --nocapture`): on
+//! procedural:1000000 (a dim scene where most 1/4-spp samples carry no light) the output is
+//! 2.2-3.3x the reference's mean; the other two seeds are within about 0.8-1.3x. The cause
+//! measured so far: the version-2 exposure is the geometric mean of the *positive* samples
+//! only, so a scene where few samples find light gets an exposure far above its mean
+//! radiance, and the network, trained on well-lit scenes, answers with that exposure. This
+//! test is the acceptance test of the fix (issue 11).
+
+mod common;
+
+use subpixel::nn::HostTensor;
+use subpixel::render::{
+    Backend, CameraPath, DEFAULT_MAX_DEPTH, FrameRenderer, FrameSettings, Mode, load_scene,
+};
+use subpixel::ssr::{Denoiser, Weights};
+
+/// Per-channel sums over the pixels of `t` (3 channels).
+fn channel_sums(t: &HostTensor) -> [f64; 3] {
+    let mut s = [0f64; 3];
+    for px in t.data.chunks_exact(t.channels as usize) {
+        for c in 0..3 {
+            s[c] += px[c] as f64;
+        }
+    }
+    s
+}
+
+/// The largest relative error of the per-channel image mean allowed on an unseen scene,
+/// over the last frames of a sequence (once the temporal accumulator has history). The
+/// version-1 model missed by tens of percent; the reference's own noise at 256 spp and 32x32
+/// moves its mean by about a percent.
+const BRIGHTNESS_TOLERANCE: f64 = 0.12;
+
+#[test]
+#[ignore = "known failure of the shipped generic model on sparse-light scenes (issue 11): see the module doc"]
+fn shipped_model_keeps_the_brightness_of_unseen_scenes() {
+    let gpu = common::gpu();
+    let path = concat!(env!("CARGO_MANIFEST_DIR"), "/weights/ssr.safetensors");
+    let weights = Weights::load(path).unwrap();
+    assert_eq!(
+        weights.config.version, 2,
+        "the shipped model is the generic version-2 model"
+    );
+    let (w, h, frames, spp) = (32u32, 32u32, 8u32, 256u32);
+    let mut worst: f64 = 0.0;
+    for seed in [1_000_000u64, 1_000_001, 1_000_002] {
+        let scene = load_scene(&format!("builtin:procedural:{seed}")).unwrap();
+        let mut twin = FrameRenderer::new(&scene, Backend::Cpu, None, w, h).unwrap();
+        let spec = scene
+            .camera_path
+            .clone()
+            .unwrap_or(subpixel::render::CameraPathSpec::Static);
+        let cams = CameraPath::checked(&spec, &scene.camera, seed, frames, &twin.packed().bvh).unwrap();
+        let eyes: Vec<_> = (0..frames).map(|f| cams.camera(f).position).collect();
+        let far = scene.far_distance(eyes.iter().chain([&scene.camera.position]));
+        let mut den = Denoiser::with_gpu(&gpu, &weights, w, h).unwrap();
+        let (mut out, mut reference) = ([0f64; 3], [0f64; 3]);
+        for f in 0..frames {
+            let settings = FrameSettings {
+                frame: f,
+                camera: cams.camera(f),
+                prev_camera: cams.camera(f.saturating_sub(1)),
+                mode: Mode::Quarter,
+                spp: 1,
+                max_depth: DEFAULT_MAX_DEPTH,
+                seed: seed as u32,
+                far,
+            };
+            let (frame, _) = twin.frame(&settings).unwrap();
+            let denoised = den.denoise_host(&frame).unwrap();
+            assert!(
+                denoised.data.iter().all(|v| v.is_finite() && *v >= 0.0),
+                "procedural:{seed} frame {f}: non-finite or negative output"
+            );
+            if f >= frames / 2 {
+                let r = twin.reference(&settings, spp).unwrap().mean(spp);
+                for c in 0..3 {
+                    out[c] += channel_sums(&denoised)[c];
+                    reference[c] += channel_sums(&r)[c];
+                }
+            }
+        }
+        for c in 0..3 {
+            let rel = (out[c] - reference[c]) / reference[c].max(1e-9);
+            eprintln!(
+                "procedural:{seed} channel {c}: SSR mean / reference mean = {:.4}",
+                out[c] / reference[c].max(1e-9)
+            );
+            worst = worst.max(rel.abs());
+        }
+    }
+    assert!(
+        worst <= BRIGHTNESS_TOLERANCE,
+        "the shipped model changes an unseen scene's brightness by {:.1} % (at most {:.0} %)",
+        worst * 100.0,
+        BRIGHTNESS_TOLERANCE * 100.0
+    );
+}
