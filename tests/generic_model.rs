@@ -19,9 +19,7 @@
 mod common;
 
 use subpixel::nn::HostTensor;
-use subpixel::render::{
-    Backend, CameraPath, DEFAULT_MAX_DEPTH, FrameRenderer, FrameSettings, Mode, load_scene,
-};
+use subpixel::render::{Backend, CameraPath, FrameRenderer, FrameSettings, Mode, load_scene};
 use subpixel::ssr::{Denoiser, Weights};
 
 /// Per-channel sums over the pixels of `t` (3 channels).
@@ -66,16 +64,7 @@ fn shipped_model_keeps_the_brightness_of_unseen_scenes() {
         let mut den = Denoiser::with_gpu(&gpu, &weights, w, h).unwrap();
         let (mut out, mut reference) = ([0f64; 3], [0f64; 3]);
         for f in 0..frames {
-            let settings = FrameSettings {
-                frame: f,
-                camera: cams.camera(f),
-                prev_camera: cams.camera(f.saturating_sub(1)),
-                mode: Mode::Quarter,
-                spp: 1,
-                max_depth: DEFAULT_MAX_DEPTH,
-                seed: seed as u32,
-                far,
-            };
+            let settings = FrameSettings::along(&cams, f, Mode::Quarter, seed as u32, far);
             let (frame, _) = twin.frame(&settings).unwrap();
             let denoised = den.denoise_host(&frame).unwrap();
             assert!(

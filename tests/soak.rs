@@ -7,7 +7,7 @@
 
 mod common;
 
-use subpixel::render::{CameraPath, DEFAULT_MAX_DEPTH, FrameSettings, GpuScene, Mode, Tracer, load_scene};
+use subpixel::render::{CameraPath, FrameSettings, GpuScene, Mode, Tracer, load_scene};
 use subpixel::ssr::{Denoiser, Weights};
 
 /// Resident set size of this process in bytes (Linux; 0 elsewhere).
@@ -43,16 +43,7 @@ fn tracer_and_denoiser_run_2000_frames_in_flat_memory() {
     let mut samples: Vec<(u32, u64, Option<u64>)> = Vec::new();
     let t0 = std::time::Instant::now();
     for f in 0..frames {
-        let settings = FrameSettings {
-            frame: f,
-            camera: path.camera(f),
-            prev_camera: path.camera(f.saturating_sub(1)),
-            mode: Mode::Quarter,
-            spp: 1,
-            max_depth: DEFAULT_MAX_DEPTH,
-            seed: 1,
-            far,
-        };
+        let settings = FrameSettings::along(&path, f, Mode::Quarter, 1, far);
         let mut enc = gpu.device.create_command_encoder(&Default::default());
         tracer.encode_frame(&mut enc, &gs, &settings, None).unwrap();
         let inputs = tracer.buffers.inputs();

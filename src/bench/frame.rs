@@ -2,7 +2,7 @@
 
 use crate::error::Result;
 use crate::gpu::{Gpu, Profiler, Stats};
-use crate::render::{CameraPath, DEFAULT_MAX_DEPTH, FrameSettings, GpuScene, Mode, Scene, Tracer};
+use crate::render::{CameraPath, FrameSettings, GpuScene, Mode, Scene, Tracer};
 use crate::ssr::{Denoiser, Granularity, Weights};
 
 /// Stages of a frame, in order.
@@ -59,16 +59,7 @@ pub fn bench_frame(
     let mut prof = Profiler::new(gpu, 16);
     let mut walls = Vec::new();
     for f in 0..n {
-        let s = FrameSettings {
-            frame: f,
-            camera: path.camera(f),
-            prev_camera: path.camera(f.saturating_sub(1)),
-            mode,
-            spp: 1,
-            max_depth: DEFAULT_MAX_DEPTH,
-            seed: 1,
-            far,
-        };
+        let s = FrameSettings::along(&path, f, mode, 1, far);
         let mut enc = gpu.device.create_command_encoder(&Default::default());
         tracer.encode_frame(&mut enc, gs, &s, Some(&mut prof))?;
         let b = &tracer.buffers;

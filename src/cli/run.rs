@@ -8,9 +8,7 @@ use anyhow::{Context, Result, bail};
 use crate::gpu::{AdapterKind, Gpu, Profiler};
 use crate::io::png::{scale_for_height, write_png_row_scaled};
 use crate::metrics;
-use crate::render::{
-    Backend, CameraPath, DEFAULT_MAX_DEPTH, FrameRenderer, FrameSettings, GpuScene, Mode, Tracer, load_scene,
-};
+use crate::render::{Backend, CameraPath, FrameRenderer, FrameSettings, GpuScene, Mode, Tracer, load_scene};
 use crate::ssr::{Denoiser, Granularity, Weights};
 
 /// The smallest height of the main job's preview images, in pixels.
@@ -109,16 +107,7 @@ pub(super) fn run(a: &RunArgs) -> Result<()> {
     // upscaled by an integer factor, pixel for pixel).
     let preview_scale = scale_for_height(h, PREVIEW_MIN_HEIGHT);
     for f in 0..a.frames {
-        let settings = FrameSettings {
-            frame: f,
-            camera: path.camera(f),
-            prev_camera: path.camera(f.saturating_sub(1)),
-            mode: Mode::Quarter,
-            spp: 1,
-            max_depth: DEFAULT_MAX_DEPTH,
-            seed: a.seed as u32,
-            far,
-        };
+        let settings = FrameSettings::along(&path, f, Mode::Quarter, a.seed as u32, far);
         let t0 = std::time::Instant::now();
         let mut enc = gpu.device.create_command_encoder(&Default::default());
         tracer.encode_frame(&mut enc, &gs, &settings, Some(&mut prof))?;

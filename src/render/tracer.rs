@@ -4,7 +4,7 @@
 
 use bytemuck::{Pod, Zeroable};
 
-use super::camera::{Camera, GpuCamera};
+use super::camera::{Camera, CameraPath, GpuCamera};
 use super::gpu_scene::GpuScene;
 use crate::error::{Error, Result};
 use crate::frame::HostFrame;
@@ -118,6 +118,18 @@ impl FrameSettings {
             max_depth: DEFAULT_MAX_DEPTH,
             seed: 0,
             far,
+        }
+    }
+
+    /// Frame `frame` of a camera `path` at 1 spp: its camera, the previous frame's camera
+    /// for the motion vectors (the same one at frame 0), [`DEFAULT_MAX_DEPTH`].
+    pub fn along(path: &CameraPath, frame: u32, mode: Mode, seed: u32, far: f32) -> Self {
+        Self {
+            frame,
+            camera: path.camera(frame),
+            prev_camera: path.camera(frame.saturating_sub(1)),
+            seed,
+            ..Self::new(path.camera(frame), mode, far)
         }
     }
 }

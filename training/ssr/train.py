@@ -152,35 +152,22 @@ def init_identity(path: Optional[str]) -> Optional[dict]:
 
 
 def load_init(model: nn.Module, path: str, model_name: str) -> dict:
-    """Loads `path` into `model` (names, shapes and config must match); returns its metadata."""
-    from safetensors import safe_open
-    from safetensors.torch import load_file
+    """Loads `path` into `model`: the weights loader checks the file (format, every tensor's
+    name and shape); its config must equal the run's. Returns the file's metadata."""
+    from .baselines import load_model
+    from .export import WeightsError
 
     try:
-        with safe_open(path, "pt") as f:
-            meta = dict(f.metadata() or {})
-        tensors = load_file(path)
-    except Exception as err:  # a corrupt or foreign file
-        raise CheckpointError(f"--init {path}: not a readable safetensors file ({err})") from err
-    want = model.cfg.to_dict() if hasattr(model, "cfg") else None
-    try:
-        got = json.loads(meta.get("config", "null"))
-    except json.JSONDecodeError:
-        got = None
-    if want is not None and got != want:
+        loaded, meta = load_model(path)
+    except (WeightsError, ValueError, OSError) as err:
+        raise CheckpointError(f"--init {path}: {err}") from err
+    want, got = model.cfg.to_dict(), loaded.cfg.to_dict()
+    if type(loaded) is not type(model) or got != want:
         raise CheckpointError(
-            f"--init {path}: its config {json.dumps(got, sort_keys=True)} differs from the run's "
+            f"--init {path}: its model config {json.dumps(got, sort_keys=True)} differs from the run's "
             f"{json.dumps(want, sort_keys=True)} (model {model_name})"
         )
-    state = model.state_dict()
-    missing = sorted(set(state) - set(tensors))
-    extra = sorted(set(tensors) - set(state))
-    if missing or extra:
-        raise CheckpointError(f"--init {path}: missing tensors {missing[:5]}, unexpected tensors {extra[:5]}")
-    for k, v in state.items():
-        if tuple(tensors[k].shape) != tuple(v.shape):
-            raise CheckpointError(f"--init {path}: tensor {k} has shape {list(tensors[k].shape)}, expected {list(v.shape)}")
-    model.load_state_dict({k: tensors[k].to(v.dtype) for k, v in state.items()})
+    model.load_state_dict(loaded.state_dict())
     return meta
 
 
@@ -642,9 +629,12 @@ def _train(args, config: dict, dd: Dist) -> dict:
     return {"iteration": it, "checkpoint": ckpt_path, "weights": weights_path, "metrics": final}
 
 
-def _json_or_str(s: Optional[str]):
+def _json_or_str(s):
+    """Metadata as parsed by the weights loaders, or JSON text (parsed here)."""
+    if not isinstance(s, str):
+        return s
     try:
-        return json.loads(s) if s is not None else None
+        return json.loads(s)
     except json.JSONDecodeError:
         return s
 
