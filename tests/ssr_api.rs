@@ -483,6 +483,20 @@ fn denoiser_runs_on_default_limits_and_refuses_lower_ones() {
         &reference,
         common::EXACT,
     );
+    // On lavapipe the parameters go in a storage buffer where the limits leave room for one
+    // (gpu::ParamsBinding): with 8 storage buffers per stage, conv3x3 (7 + 1) does and
+    // tfa_blend (8 + 1) keeps its uniform block; the output above is the same either way.
+    let info = common::gpu().info.clone();
+    let preferred = subpixel::gpu::ParamsBinding::for_adapter(&info);
+    let small = subpixel::gpu::Gpu::from_device(&device, &queue, info);
+    let big = common::gpu();
+    for (kernel, on_default) in [
+        ("nn/conv3x3", preferred),
+        ("nn/tfa_blend", subpixel::gpu::ParamsBinding::Uniform),
+    ] {
+        assert_eq!(small.kernels.params_binding(kernel).unwrap(), on_default, "{kernel}");
+        assert_eq!(big.kernels.params_binding(kernel).unwrap(), preferred, "{kernel}");
+    }
 
     let low = wgpu::Limits {
         max_storage_buffers_per_shader_stage: 5,

@@ -17,7 +17,8 @@
 #            snapshots every 500 iterations. When weights/ssr.safetensors is already a
 #            version-2 model (an earlier session's), training starts from it (--init), so
 #            sessions continue one campaign; INIT=none starts from scratch. Resumes from
-#            WORK/runs/RUN/checkpoint.pt when there is one.
+#            WORK/runs/RUN/checkpoint.pt when there is one. TRAIN_ARGS adds ssr.train
+#            options (e.g. TRAIN_ARGS="--lambda m=1").
 #   curve    weights/ssr-training.png and .json: training loss and held-out PSNR against
 #            iterations (ssr.curve; reporting only, no selection), earlier sessions' points
 #            (the committed JSON) in front.
@@ -67,7 +68,8 @@ for phase in "$@"; do
       [ -f "$out/checkpoint.pt" ] && resume=(--resume)
       (cd "$here" && "$py" -m ssr.train --data "$ds" --out "$out" --iters "${ITERS:-7000}" --batch 8 --crop 64 \
         --lr 5e-4 --workers 1 --cache memory --cache-mb 6000 --val-every "${VAL_EVERY:-1000}" --val-frames 8 \
-        --log-every 50 --ckpt-every 250 --snapshot-every 500 --threads "$threads" "${init[@]}" "${resume[@]}")
+        --log-every 50 --ckpt-every 250 --snapshot-every 500 --threads "$threads" "${init[@]}" "${resume[@]}" \
+        ${TRAIN_ARGS:-})
       ;;
     curve)
       (cd "$here" && "$py" -m ssr.curve --run "$work/runs/$run" --data "$ds" --split test --frames 8 \

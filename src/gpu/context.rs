@@ -2,7 +2,7 @@
 
 use std::sync::Arc;
 
-use super::kernels::KernelRegistry;
+use super::kernels::{KernelRegistry, ParamsBinding};
 use crate::error::{Error, Result};
 
 /// Optional features the crate uses when the adapter offers them.
@@ -191,7 +191,7 @@ impl Gpu {
         Self {
             device: device.clone(),
             queue: queue.clone(),
-            kernels: Arc::new(KernelRegistry::new(device)),
+            kernels: Arc::new(KernelRegistry::new(device, ParamsBinding::for_adapter(&info))),
             info,
             origin: None,
         }

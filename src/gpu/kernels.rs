@@ -3,7 +3,9 @@
 //!
 //! Calling convention shared by every kernel: `@group(0) @binding(0)` is a uniform
 //! block of parameters (when the kernel has one), followed by storage buffers at
-//! bindings 1, 2, ... in the order the kernel's Rust wrapper passes them.
+//! bindings 1, 2, ... in the order the kernel's Rust wrapper passes them. On adapters where
+//! uniform blocks misbehave the parameters are bound as a read-only storage buffer instead
+//! (see [`ParamsBinding`]); the kernels' WGSL is the same either way.
 
 use std::collections::HashMap;
 use std::sync::{Arc, Mutex};
@@ -66,6 +68,52 @@ macro_rules! trace_kernel {
             ]
         )
     };
+}
+
+impl KernelSource {
+    /// The WGSL compiled for this kernel when its parameters are bound as `params`.
+    pub fn wgsl(&self, params: ParamsBinding) -> std::borrow::Cow<'static, str> {
+        match params {
+            ParamsBinding::Uniform => self.source.into(),
+            ParamsBinding::Storage => self.source.replace(PARAMS_UNIFORM, PARAMS_STORAGE).into(),
+        }
+    }
+}
+
+/// The declaration every kernel's parameter block starts with.
+const PARAMS_UNIFORM: &str = "@group(0) @binding(0) var<uniform>";
+/// Its replacement when the parameters are bound as a storage buffer.
+const PARAMS_STORAGE: &str = "@group(0) @binding(0) var<storage, read>";
+
+/// How a kernel's parameter block (binding 0) is bound.
+///
+/// `Uniform` everywhere except Mesa's CPU Vulkan driver (lavapipe). Lavapipe "inlines"
+/// uniform values that control loops into the shader and recompiles it with LLVM when
+/// they change; the Mesa 22 shipped by Debian 12 does so at every dispatch, without
+/// caching the variant or freeing it: each frame of the tracer and denoiser at 16x16
+/// cost about 30 ms of compilation and leaked about 7 MiB (`tests/soak.rs`). Lavapipe
+/// never inlines storage buffers, so there the parameters are bound as a read-only
+/// storage buffer: one more storage binding, so a kernel keeps its uniform block on a
+/// device whose limits have no room for it ([`KernelRegistry::params_binding`]).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub enum ParamsBinding {
+    /// `var<uniform>` (the WGSL as written).
+    #[default]
+    Uniform,
+    /// `var<storage, read>`.
+    Storage,
+}
+
+impl ParamsBinding {
+    /// The binding for an adapter: `Storage` on lavapipe (Vulkan backend, `llvmpipe`
+    /// device), `Uniform` elsewhere.
+    pub fn for_adapter(info: &wgpu::AdapterInfo) -> Self {
+        if info.backend == wgpu::Backend::Vulkan && info.name.to_ascii_lowercase().contains("llvmpipe") {
+            Self::Storage
+        } else {
+            Self::Uniform
+        }
+    }
 }
 
 /// Every WGSL kernel of the crate.
@@ -223,10 +271,11 @@ impl KernelNeeds {
     }
 }
 
-/// What kernel `name` asks of the device (see [`KernelNeeds`]).
-pub fn kernel_needs(name: &str) -> Result<KernelNeeds> {
+/// What kernel `name` asks of the device with its parameters bound as `params` (see
+/// [`KernelNeeds`]).
+pub fn kernel_needs(name: &str, params: ParamsBinding) -> Result<KernelNeeds> {
     let k = kernel_source(name)?;
-    let module = validate_wgsl(k.name, k.source)?;
+    let module = validate_wgsl(k.name, &k.wgsl(params))?;
     let mut layouter = naga::proc::Layouter::default();
     layouter.update(module.to_ctx()).map_err(|e| Error::Kernel {
         kernel: k.name.to_string(),
@@ -262,12 +311,24 @@ pub fn kernel_needs(name: &str) -> Result<KernelNeeds> {
     Ok(n)
 }
 
-/// Checks that every kernel in `kernels` fits `limits` (a device's); the error names
-/// `what` needs them, each kernel and each limit it exceeds, with the numbers.
-pub fn check_limits(what: &str, kernels: &[&str], limits: &wgpu::Limits) -> Result<()> {
+/// Checks that every kernel in `kernels`, its parameters bound as `params`, fits `limits`
+/// (a device's); the error names `what` needs them, each kernel and each limit it
+/// exceeds, with the numbers.
+pub fn check_limits(
+    what: &str,
+    kernels: &[&str],
+    limits: &wgpu::Limits,
+    params: ParamsBinding,
+) -> Result<()> {
+    let bound: Vec<_> = kernels.iter().map(|&k| (k, params)).collect();
+    check_bound_limits(what, &bound, limits)
+}
+
+/// [`check_limits`] with each kernel's own parameter binding.
+fn check_bound_limits(what: &str, kernels: &[(&str, ParamsBinding)], limits: &wgpu::Limits) -> Result<()> {
     let mut problems = Vec::new();
-    for &k in kernels {
-        for (limit, need, have) in kernel_needs(k)?.exceeded(limits) {
+    for &(k, params) in kernels {
+        for (limit, need, have) in kernel_needs(k, params)?.exceeded(limits) {
             problems.push(format!(
                 "kernel '{k}' needs {limit} >= {need}, the device allows {have}"
             ));
@@ -303,29 +364,67 @@ type PipelineKey = (&'static str, Vec<(&'static str, u64)>);
 /// Compiled shader modules and pipelines of one device.
 pub struct KernelRegistry {
     device: wgpu::Device,
+    preferred: ParamsBinding,
+    bindings: Mutex<HashMap<&'static str, ParamsBinding>>,
     modules: Mutex<HashMap<&'static str, Arc<wgpu::ShaderModule>>>,
     pipelines: Mutex<HashMap<PipelineKey, Arc<wgpu::ComputePipeline>>>,
 }
 
 impl KernelRegistry {
-    /// An empty registry; modules compile on first use.
-    pub fn new(device: &wgpu::Device) -> Self {
+    /// An empty registry binding kernel parameters as `preferred` where the device's limits
+    /// allow; modules compile on first use.
+    pub fn new(device: &wgpu::Device, preferred: ParamsBinding) -> Self {
         Self {
             device: device.clone(),
+            preferred,
+            bindings: Mutex::new(HashMap::new()),
             modules: Mutex::new(HashMap::new()),
             pipelines: Mutex::new(HashMap::new()),
         }
+    }
+
+    /// How kernel `name`'s parameters are bound on this device: the preferred binding
+    /// when the kernel fits the device's limits with it, `Uniform` otherwise.
+    pub fn params_binding(&self, name: &str) -> Result<ParamsBinding> {
+        let k = kernel_source(name)?;
+        if self.preferred == ParamsBinding::Uniform {
+            return Ok(ParamsBinding::Uniform);
+        }
+        if let Some(&b) = self.bindings.lock().unwrap().get(k.name) {
+            return Ok(b);
+        }
+        let fits = kernel_needs(k.name, self.preferred)?
+            .exceeded(&self.device.limits())
+            .is_empty();
+        let b = if fits {
+            self.preferred
+        } else {
+            ParamsBinding::Uniform
+        };
+        self.bindings.lock().unwrap().insert(k.name, b);
+        Ok(b)
+    }
+
+    /// Checks that every kernel in `kernels`, bound as [`KernelRegistry::params_binding`]
+    /// says, fits this device (see [`check_limits`]).
+    pub fn check_limits(&self, what: &str, kernels: &[&str]) -> Result<()> {
+        let bound = kernels
+            .iter()
+            .map(|&k| Ok((k, self.params_binding(k)?)))
+            .collect::<Result<Vec<_>>>()?;
+        check_bound_limits(what, &bound, &self.device.limits())
     }
 
     fn module(&self, k: &'static KernelSource) -> Result<Arc<wgpu::ShaderModule>> {
         if let Some(m) = self.modules.lock().unwrap().get(k.name) {
             return Ok(m.clone());
         }
-        validate_wgsl(k.name, k.source)?;
+        let source = k.wgsl(self.params_binding(k.name)?);
+        validate_wgsl(k.name, &source)?;
         let scope = self.device.push_error_scope(wgpu::ErrorFilter::Validation);
         let module = self.device.create_shader_module(wgpu::ShaderModuleDescriptor {
             label: Some(&format!("subpixel.{}", k.name)),
-            source: wgpu::ShaderSource::Wgsl(k.source.into()),
+            source: wgpu::ShaderSource::Wgsl(source),
         });
         if let Some(e) = pollster::block_on(scope.pop()) {
             return Err(Error::Kernel {
@@ -430,7 +529,10 @@ impl KernelRegistry {
             self.device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
                 label: Some(&format!("subpixel.{name}.params")),
                 contents: params,
-                usage: wgpu::BufferUsages::UNIFORM | wgpu::BufferUsages::COPY_DST,
+                usage: match self.preferred {
+                    ParamsBinding::Uniform => wgpu::BufferUsages::UNIFORM,
+                    ParamsBinding::Storage => wgpu::BufferUsages::UNIFORM | wgpu::BufferUsages::STORAGE,
+                } | wgpu::BufferUsages::COPY_DST,
             })
         });
         let mut entries = Vec::new();
@@ -597,16 +699,24 @@ mod tests {
     #[test]
     fn denoiser_kernels_fit_the_default_limits() {
         let ssr = crate::ssr::KERNELS_USED;
-        check_limits("the denoiser", ssr, &wgpu::Limits::default()).unwrap();
+        check_limits(
+            "the denoiser",
+            ssr,
+            &wgpu::Limits::default(),
+            ParamsBinding::Uniform,
+        )
+        .unwrap();
         // Independent expectations: counted by hand from the WGSL.
-        let pack = kernel_needs("ssr/pack_inputs").unwrap();
+        let pack = kernel_needs("ssr/pack_inputs", ParamsBinding::Uniform).unwrap();
         assert_eq!((pack.storage_buffers, pack.uniform_buffers), (7, 1));
-        let blend = kernel_needs("nn/tfa_blend").unwrap();
+        let blend = kernel_needs("nn/tfa_blend", ParamsBinding::Uniform).unwrap();
         assert_eq!((blend.storage_buffers, blend.workgroup_size), (8, [8, 8, 1]));
-        let store = kernel_needs("ssr/store_output").unwrap();
+        let store = kernel_needs("ssr/store_output", ParamsBinding::Uniform).unwrap();
         assert_eq!((store.storage_buffers, store.storage_textures), (1, 1));
         assert_eq!(
-            kernel_needs("ssr/exposure_partial").unwrap().workgroup_memory,
+            kernel_needs("ssr/exposure_partial", ParamsBinding::Uniform)
+                .unwrap()
+                .workgroup_memory,
             4 * 256 * 16
         );
         let tight = wgpu::Limits {
@@ -614,7 +724,9 @@ mod tests {
             max_compute_workgroup_storage_size: 8192,
             ..wgpu::Limits::default()
         };
-        let e = check_limits("the denoiser", ssr, &tight).unwrap_err().to_string();
+        let e = check_limits("the denoiser", ssr, &tight, ParamsBinding::Uniform)
+            .unwrap_err()
+            .to_string();
         assert!(
             e.contains("the denoiser")
                 && e.contains("kernel 'nn/tfa_blend' needs max_storage_buffers_per_shader_stage >= 8, the device allows 7")
@@ -629,9 +741,34 @@ mod tests {
     #[test]
     fn every_kernel_has_known_needs() {
         for k in KERNELS {
-            let n = kernel_needs(k.name).unwrap();
+            let n = kernel_needs(k.name, ParamsBinding::Uniform).unwrap();
             assert!(n.bind_groups == 1, "{}: every kernel uses group 0 only", k.name);
             assert!(n.workgroup_size.iter().all(|&s| s > 0), "{}", k.name);
+        }
+    }
+
+    /// Every kernel's parameter block can be bound as a storage buffer (the lavapipe
+    /// route): the rewritten WGSL validates and trades exactly one uniform block for one
+    /// storage buffer; kernels without parameters are unchanged.
+    #[test]
+    fn every_kernel_binds_its_parameters_either_way() {
+        for k in KERNELS {
+            let u = kernel_needs(k.name, ParamsBinding::Uniform).unwrap();
+            let s = kernel_needs(k.name, ParamsBinding::Storage).unwrap();
+            assert!(u.uniform_buffers <= 1, "{}", k.name);
+            assert_eq!(s.uniform_buffers, 0, "{}", k.name);
+            assert_eq!(
+                s.storage_buffers,
+                u.storage_buffers + u.uniform_buffers,
+                "{}",
+                k.name
+            );
+            assert_eq!(
+                k.source.contains(PARAMS_UNIFORM),
+                u.uniform_buffers == 1,
+                "{}: its uniform block is binding 0",
+                k.name
+            );
         }
     }
 

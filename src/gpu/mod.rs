@@ -6,7 +6,7 @@ mod profiler;
 
 pub use context::{AdapterKind, Gpu, GpuOptions};
 pub use kernels::{
-    Dispatch, KERNELS, KernelNeeds, KernelRegistry, KernelSource, Specialisation, check_limits, kernel_needs,
-    kernel_source, libraries,
+    Dispatch, KERNELS, KernelNeeds, KernelRegistry, KernelSource, ParamsBinding, Specialisation,
+    check_limits, kernel_needs, kernel_source, libraries,
 };
 pub use profiler::{Profiler, StageStats, Stats};

@@ -274,10 +274,9 @@ fn samples_per_pass(width: u32, height: u32, spp: u32, paths: u64) -> u32 {
 impl Tracer {
     /// A tracer for `width x height` frames.
     pub fn new(gpu: &Gpu, width: u32, height: u32) -> Result<Self> {
-        crate::gpu::check_limits(
+        gpu.kernels.check_limits(
             &format!("the path tracer (adapter '{}')", gpu.info.name),
             &["trace/query", "trace/gbuffer", "trace/pathtrace"],
-            &gpu.device.limits(),
         )?;
         let counters = gpu.device.create_buffer(&wgpu::BufferDescriptor {
             label: Some("subpixel.trace.counters"),

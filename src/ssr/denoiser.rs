@@ -91,7 +91,8 @@ struct ExposurePartialParams {
 struct ExposureFinalParams {
     groups: u32,
     first: u32,
-    _pad: [u32; 2],
+    coverage: u32,
+    _pad: u32,
 }
 
 /// The exposure pass: the reduction over the caller's buffers, then the update of the
@@ -190,7 +191,7 @@ impl Denoiser {
                 format!("frame size {width}x{height} must be non-zero"),
             ));
         }
-        crate::gpu::check_limits("the denoiser", KERNELS_USED, &gpu.device.limits())?;
+        gpu.kernels.check_limits("the denoiser", KERNELS_USED)?;
         let net = Network::new(gpu, weights, round_up4(width), round_up4(height))?;
         let output = Self::make_output(gpu, width, height);
         let store = Self::make_store(gpu, &net, &output, width, height)?;
@@ -421,7 +422,7 @@ impl Denoiser {
         )?;
         let e = match self.weights.config.exposure_mode()? {
             ExposureMode::None => None,
-            ExposureMode::Channel => {
+            mode @ (ExposureMode::Channel | ExposureMode::Coverage) => {
                 let groups = exposure_groups(self.net.width, self.net.height);
                 let partial = ExposurePartialParams {
                     width: self.width,
@@ -447,7 +448,8 @@ impl Denoiser {
                     let params = ExposureFinalParams {
                         groups,
                         first: first as u32,
-                        _pad: [0; 2],
+                        coverage: (mode == ExposureMode::Coverage) as u32,
+                        _pad: 0,
                     };
                     self.gpu.kernels.dispatch(
                         "ssr/exposure_final",

@@ -10,6 +10,11 @@ Sequences are T = 5 frames. `preds` and `refs` are radiance (linear HDR, the rem
     l_wt  warped temporal, last two frames only: with the motion of the last frame T-1,
           d_p = p_{T-1} - W(p_{T-2}), d_r = r_{T-1} - W(r_{T-2}); L1 of d_p - d_r over the
           pixels whose warp is valid, on log1p-compressed radiance (HDR-robust)
+    l_m   brightness: SMAPE between the MEAN_BLOCK x MEAN_BLOCK block means of p_t and r_t,
+          weighted by FRAME_WEIGHTS. The per-pixel terms are relative, so on a scene where
+          few samples find light they leave the image's level loosely tied to the
+          reference; this term ties the local mean radiance (issue 11). Off (weight 0) by
+          default; `ssr.train --lambda m=...` turns it on.
     l_a   albedo loss, last frame only: L1 in the log-demodulated space where the network
           predicts, between its raw output o_{T-1} and the reference demodulated by the same
           albedo (and exposure s) the model remodulates with:
@@ -21,7 +26,7 @@ Sequences are T = 5 frames. `preds` and `refs` are radiance (linear HDR, the rem
           radiance losses give no gradient, and it weighs dark-albedo regions fairly.
 
 The frame-weighted terms are plain weighted sums sum_t w_t * l(t) (not normalised by
-sum w_t). total = 0.7 l_s + 0.1 l_t + 0.2 l_e + 0.4 l_wt + 5.0 l_a.
+sum w_t). total = 0.7 l_s + 0.1 l_t + 0.2 l_e + 0.4 l_wt + 5.0 l_a + 0.0 l_m (LAMBDAS).
 """
 
 from __future__ import annotations
@@ -35,7 +40,8 @@ import torch.nn.functional as F
 from .model import demodulate, warp
 
 FRAME_WEIGHTS: Tuple[float, ...] = (0.05, 0.25, 0.5, 0.75, 1.0)
-LAMBDAS: Dict[str, float] = {"s": 0.7, "t": 0.1, "e": 0.2, "wt": 0.4, "a": 5.0}
+LAMBDAS: Dict[str, float] = {"s": 0.7, "t": 0.1, "e": 0.2, "wt": 0.4, "a": 5.0, "m": 0.0}
+MEAN_BLOCK = 16
 SMAPE_EPS = 1e-2
 HFEN_EPS = 1e-2
 LOG_SIZE = 9
@@ -116,6 +122,18 @@ def edge_loss(preds: Frames, refs: Frames, frame_weights: Optional[Sequence[floa
     return sum(w[t] * hfen_relative(p[:, t], r[:, t]) for t in range(p.shape[1]))
 
 
+def block_means(x: torch.Tensor, block: int = MEAN_BLOCK) -> torch.Tensor:
+    """Means of block x block tiles of x [N, C, H, W] (edge tiles over the pixels they hold)."""
+    return F.avg_pool2d(x, block, ceil_mode=True)
+
+
+def mean_loss(preds: Frames, refs: Frames, frame_weights: Optional[Sequence[float]] = None, block: int = MEAN_BLOCK) -> torch.Tensor:
+    """l_m: sum_t w_t SMAPE(block_means(p_t), block_means(r_t))."""
+    p, r = _stack(preds, "preds"), _stack(refs, "refs")
+    w = _weights(p.shape[1], frame_weights)
+    return sum(wt * smape(block_means(p[:, t], block), block_means(r[:, t], block)) for t, wt in enumerate(w))
+
+
 def warped_temporal_loss(preds: Frames, refs: Frames, motion: Frames) -> torch.Tensor:
     """l_wt on the last two frames, masked by the warp validity, on log1p(max(x, 0)).
 
@@ -148,7 +166,7 @@ def total_loss(
     frame_weights: Optional[Sequence[float]] = None,
     lambdas: Optional[Dict[str, float]] = None,
 ) -> Tuple[torch.Tensor, Dict[str, torch.Tensor]]:
-    """Combined loss of a sequence. Returns (total, {"l_s", "l_t", "l_e", "l_wt", "l_a"}).
+    """Combined loss of a sequence. Returns (total, {"l_s", "l_t", "l_e", "l_wt", "l_a", "l_m"}).
 
     preds, refs: radiance [N, T, 3, H, W] (or lists). aux:
         motion      [N, T, 2, H, W] (or list): each frame's motion
@@ -169,9 +187,12 @@ def total_loss(
         "l_e": edge_loss(p, r, frame_weights),
         "l_wt": warped_temporal_loss(p, r, aux["motion"]),
         "l_a": albedo_loss(aux["o"], r[:, -1], aux["albedo_mod"], aux.get("exposure")),
+        "l_m": mean_loss(p, r, frame_weights),
     }
-    total = lam["s"] * parts["l_s"] + lam["t"] * parts["l_t"] + lam["e"] * parts["l_e"]
-    total = total + lam["wt"] * parts["l_wt"] + lam["a"] * parts["l_a"]
+    unknown = set(lam) - {k[2:] for k in parts}
+    if unknown:
+        raise KeyError(f"total_loss: unknown loss weight(s) {sorted(unknown)}, expected {sorted(k[2:] for k in parts)}")
+    total = sum(lam.get(k[2:], 0.0) * v for k, v in parts.items())
     return total, parts
 
 

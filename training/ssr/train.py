@@ -101,7 +101,15 @@ def parse_args(argv=None) -> argparse.Namespace:
         help="also export RUN_DIR/snapshots/it_NNNNNNN.safetensors every N iterations (for learning curves; 0: off)",
     )
     ap.add_argument("--threads", type=int, default=0, help="PyTorch CPU threads (0: PyTorch's default)")
+    ap.add_argument(
+        "--lambda", dest="lambdas", action="append", default=[], metavar="TERM=WEIGHT",
+        help=f"override a loss weight (repeatable; terms and defaults: {losses.LAMBDAS}), e.g. --lambda m=1",
+    )
     args = ap.parse_args(argv)
+    try:
+        args.lambdas = loss_weights(args.lambdas)
+    except ValueError as err:
+        ap.error(str(err))
     if args.iters <= 0:
         ap.error("--iters must be positive")
     if args.crop <= 0 or args.crop % 4:
@@ -113,6 +121,23 @@ def parse_args(argv=None) -> argparse.Namespace:
     if args.init is not None and not os.path.isfile(args.init):
         ap.error(f"--init {args.init}: no such file")
     return args
+
+
+def loss_weights(overrides: List[str]) -> Dict[str, float]:
+    """losses.LAMBDAS with `TERM=WEIGHT` overrides applied; unknown terms and bad numbers are errors."""
+    lam = dict(losses.LAMBDAS)
+    for item in overrides:
+        term, sep, value = item.partition("=")
+        if not sep or term not in lam:
+            raise ValueError(f"--lambda {item!r}: expected TERM=WEIGHT with TERM one of {sorted(lam)}")
+        try:
+            w = float(value)
+        except ValueError:
+            raise ValueError(f"--lambda {item!r}: {value!r} is not a number") from None
+        if not math.isfinite(w) or w < 0:
+            raise ValueError(f"--lambda {item!r}: the weight must be finite and >= 0")
+        lam[term] = w
+    return lam
 
 
 def run_config(args: argparse.Namespace) -> dict:
@@ -133,7 +158,7 @@ def run_config(args: argparse.Namespace) -> dict:
         "seed": args.seed,
         "clip": args.clip,
         "frame_weights": list(frame_weights(args.window)),
-        "lambdas": dict(losses.LAMBDAS),
+        "lambdas": dict(args.lambdas),
         # Only present for runs started from weights (older checkpoints have no such key).
         **({"init": init_identity(args.init)} if args.init is not None else {}),
     }
@@ -378,12 +403,12 @@ class SequenceRunner(nn.Module):
         return self.model.run_sequence(frames)
 
 
-def compute_loss(model: nn.Module, results, frames, weights) -> Tuple[torch.Tensor, Dict[str, torch.Tensor]]:
+def compute_loss(model: nn.Module, results, frames, weights, lambdas=None) -> Tuple[torch.Tensor, Dict[str, torch.Tensor]]:
     refs = [f["reference"] for f in frames]
     if isinstance(model, SSRModel):
-        return losses.sequence_loss(results, refs, frames, frame_weights=weights)
+        return losses.sequence_loss(results, refs, frames, frame_weights=weights, lambdas=lambdas)
     preds = [r["output"] for r in results]
-    return losses.total_loss(preds, refs, loss_aux(results, frames), frame_weights=weights)
+    return losses.total_loss(preds, refs, loss_aux(results, frames), frame_weights=weights, lambdas=lambdas)
 
 
 def fmt_time(s: float) -> str:
@@ -535,7 +560,7 @@ def _train(args, config: dict, dd: Dist) -> dict:
             g["lr"] = lr
         frames = [{k: v.to(device, non_blocking=True) for k, v in f.items()} for f in batch]
         results = runner(frames)
-        loss, parts = compute_loss(model, results, frames, weights)
+        loss, parts = compute_loss(model, results, frames, weights, args.lambdas)
         opt.zero_grad(set_to_none=True)
         loss.backward()
         gnorm = torch.nn.utils.clip_grad_norm_(model.parameters(), args.clip if args.clip > 0 else float("inf"))
@@ -603,7 +628,7 @@ def _train(args, config: dict, dd: Dist) -> dict:
             "window": args.window,
             "lr": args.lr,
             "lr_schedule": "Adam; halved at 1/3 and 2/3 of the iterations",
-            "losses": {"frame_weights": list(weights), "lambdas": dict(losses.LAMBDAS)},
+            "losses": {"frame_weights": list(weights), "lambdas": dict(args.lambdas)},
             "seed": args.seed,
             "campaign_iterations": init_iterations + it,
             "init": None if args.init is None else {

@@ -23,7 +23,7 @@ def _aux(refs, motion, albedo):
 
 def test_constants():
     assert L.FRAME_WEIGHTS == (0.05, 0.25, 0.5, 0.75, 1.0)
-    assert L.LAMBDAS == {"s": 0.7, "t": 0.1, "e": 0.2, "wt": 0.4, "a": 5.0}
+    assert L.LAMBDAS == {"s": 0.7, "t": 0.1, "e": 0.2, "wt": 0.4, "a": 5.0, "m": 0.0}
 
 
 def test_zero_for_identical_inputs():
@@ -53,6 +53,30 @@ def test_positive_otherwise():
     )
     torch.testing.assert_close(total, want)
     torch.testing.assert_close(parts["l_a"], torch.tensor(0.1))
+    # with the brightness term on, it adds its weighted part
+    total_m, parts_m = L.total_loss(preds, refs, aux, lambdas={**lam, "m": 2.0})
+    torch.testing.assert_close(total_m, want + 2.0 * parts_m["l_m"])
+    with pytest.raises(KeyError, match="unknown loss weight"):
+        L.total_loss(preds, refs, aux, lambdas={**lam, "q": 1.0})
+
+
+def test_mean_loss_sees_brightness_not_detail():
+    """l_m is blind to how radiance is spread inside a block (a reference whose 16x16 blocks
+    each hold one firefly carrying the block's energy gives 0) and sees a global gain: a
+    prediction 2x too bright gives SMAPE(2, 1) = 1/3 per frame, sum of the frame weights."""
+    refs, _, _ = _seq()
+    flat = L.block_means(refs.flatten(0, 1)).repeat_interleave(16, -1).repeat_interleave(16, -2)
+    fire = torch.zeros_like(refs.flatten(0, 1))
+    fire[..., 3, 5] = flat[..., 3, 5] * 256.0
+    fire = fire.view_as(refs)
+    torch.testing.assert_close(L.mean_loss(fire, flat.view_as(refs)), torch.tensor(0.0), atol=1e-5, rtol=0)  # f32 sums; a gain of 2 gives ~0.8
+    assert L.spatial_loss(fire, flat.view_as(refs)) > 0.5
+    eps = L.SMAPE_EPS
+    want = 0.0
+    for t, w in enumerate(L.FRAME_WEIGHTS):
+        m = L.block_means(refs[:, t])
+        want = want + w * (m / (3 * m + eps)).mean()
+    torch.testing.assert_close(L.mean_loss(2 * refs, refs), want)
 
 
 def test_smape_known_value():

@@ -5,6 +5,7 @@ import shutil
 import pytest
 import torch
 
+from ssr import losses as L
 from ssr import train as T
 from ssr.baselines import load_model
 from ssr.export import load_weights
@@ -24,6 +25,19 @@ def test_lr_schedule_and_frame_weights():
     assert T.frame_weights(5) == (0.05, 0.25, 0.5, 0.75, 1.0)
     assert T.frame_weights(3) == (0.5, 0.75, 1.0)
     assert T.frame_weights(6) == (0.05, 0.05, 0.25, 0.5, 0.75, 1.0)
+
+
+def test_loss_weight_overrides():
+    from ssr.train import loss_weights, parse_args
+
+    assert loss_weights([]) == L.LAMBDAS
+    assert loss_weights(["m=1.5", "a=2"]) == {**L.LAMBDAS, "m": 1.5, "a": 2.0}
+    for bad, msg in [("q=1", "TERM one of"), ("m", "TERM one of"), ("m=x", "not a number"), ("m=-1", ">= 0"), ("m=nan", "finite")]:
+        with pytest.raises(ValueError, match=msg):
+            loss_weights([bad])
+    with pytest.raises(SystemExit):
+        parse_args(["--data", "d", "--out", "o", "--lambda", "q=1"])
+    assert parse_args(["--data", "d", "--out", "o", "--lambda", "m=1"]).lambdas["m"] == 1.0
 
 
 def test_train_checkpoint_resume_export(dataset, tmp_path, capsys):

@@ -4,7 +4,8 @@
 // pack_inputs does, ssr/lib/sanitize, without counting). The pixels are those of the padded Wp x Hp frame
 // the network sees (beyond W x H the edge is replicated, as pack_inputs does). Each
 // workgroup strides over the pixels and writes one partial of 4 vec4: (sum ln d).rgb and
-// count.rgb of the colour, then of the shadow. exposure_final.wgsl adds the partials up.
+// (count.rgb, traced pixels) of the colour, then of the shadow (the traced count in .w
+// again). exposure_final.wgsl adds the partials up.
 
 struct Params {
     width: u32,
@@ -47,6 +48,7 @@ fn main(@builtin(local_invocation_id) lid: vec3<u32>, @builtin(workgroup_id) wid
     var ck = vec3<f32>(0.0);
     var ss = vec3<f32>(0.0);
     var sk = vec3<f32>(0.0);
+    var traced_count = 0.0;
     for (var i = wid.x * WG + lid.x; i < n; i += p.groups * WG) {
         let x = i % p.padded_width;
         let y = i / p.padded_width;
@@ -54,6 +56,7 @@ fn main(@builtin(local_invocation_id) lid: vec3<u32>, @builtin(workgroup_id) wid
         var ignored = 0u;
         let cm = color_mask[src];
         let traced = sanitize_mask(cm.w, &ignored) > 0.5;
+        traced_count += select(0.0, 1.0, traced);
         let a = sanitize_unit(albedo_depth[src].xyz, &ignored);
         let color = sanitize_radiance(cm.xyz, &ignored);
         let c = ln_where(color / (a + vec3<f32>(EPS)), traced);
@@ -64,9 +67,9 @@ fn main(@builtin(local_invocation_id) lid: vec3<u32>, @builtin(workgroup_id) wid
         sk += s[1];
     }
     color_sums[lid.x] = vec4<f32>(cs, 0.0);
-    color_counts[lid.x] = vec4<f32>(ck, 0.0);
+    color_counts[lid.x] = vec4<f32>(ck, traced_count);
     shadow_sums[lid.x] = vec4<f32>(ss, 0.0);
-    shadow_counts[lid.x] = vec4<f32>(sk, 0.0);
+    shadow_counts[lid.x] = vec4<f32>(sk, traced_count);
     workgroupBarrier();
     for (var stride = WG / 2u; stride > 0u; stride /= 2u) {
         if (lid.x < stride) {
