@@ -1,6 +1,6 @@
 //! Image quality metrics (DESIGN §7): PSNR and SSIM on tonemapped 8-bit images
 //! (Uncharted 2 filmic, exposure 2, white point 11.2, then gamma 2.2), RMSE and relative
-//! MSE on HDR, and the temporal error.
+//! MSE on HDR, the temporal error, and the brightness error (image means on HDR).
 
 use crate::nn::HostTensor;
 use crate::nn::reference::warp;
@@ -140,6 +140,30 @@ pub fn relmse(pred: &HostTensor, reference: &HostTensor) -> f64 {
     s / pred.data.len() as f64
 }
 
+/// Brightness error on HDR values: the largest over the RGB channels of `|ln(P_c / R_c)|`,
+/// `P_c` and `R_c` the channel's sums over the image. 0 when the means agree; `ln 2` for an
+/// image twice as bright, or half as bright, as the reference in its worst channel. A
+/// channel that is black in the reference counts only if the prediction is not (then the
+/// error is infinite).
+pub fn brightness_error(pred: &HostTensor, reference: &HostTensor) -> f64 {
+    same_shape(pred, reference);
+    let c = pred.channels as usize;
+    let (mut p, mut r) = ([0f64; 3], [0f64; 3]);
+    for (a, b) in pred.data.chunks_exact(c).zip(reference.data.chunks_exact(c)) {
+        for k in 0..c.min(3) {
+            p[k] += a[k] as f64;
+            r[k] += b[k] as f64;
+        }
+    }
+    (0..c.min(3))
+        .map(|k| match (p[k] > 0.0, r[k] > 0.0) {
+            (_, true) => (p[k].max(f64::MIN_POSITIVE) / r[k]).ln().abs(),
+            (false, false) => 0.0,
+            (true, false) => f64::INFINITY,
+        })
+        .fold(0.0, f64::max)
+}
+
 /// Temporal error of frame t: the L1 difference, over pixels whose history is valid, between
 /// the prediction's warped frame difference `p_t - W(p_{t-1})` and the reference's, on
 /// tonemapped values in [0, 1]. `motion` is frame t's motion (2 channels).
@@ -221,6 +245,21 @@ mod tests {
         let b = HostTensor::from_vec(2, 1, 1, vec![2.0, 3.0]);
         assert!((rmse(&a, &b) - (0.5f64).sqrt()).abs() < 1e-12);
         assert!((relmse(&a, &b) - 0.5 / 4.01).abs() < 1e-9);
+    }
+
+    #[test]
+    fn brightness_error_is_the_worst_channels_log_ratio() {
+        let r = HostTensor::from_vec(2, 1, 3, vec![1.0, 2.0, 0.0, 3.0, 2.0, 0.0]);
+        // same means, other distribution: 0
+        let moved = HostTensor::from_vec(2, 1, 3, vec![4.0, 0.0, 0.0, 0.0, 4.0, 0.0]);
+        assert_eq!(brightness_error(&moved, &r), 0.0);
+        // red 2x, green 0.75x: ln 2 (black blue in both counts 0)
+        let p = HostTensor::from_vec(2, 1, 3, vec![2.0, 1.0, 0.0, 6.0, 2.0, 0.0]);
+        assert!((brightness_error(&p, &r) - 2f64.ln()).abs() < 1e-12);
+        let half = HostTensor::from_vec(2, 1, 3, vec![0.5, 1.0, 0.0, 1.5, 1.0, 0.0]);
+        assert!((brightness_error(&half, &r) - 2f64.ln()).abs() < 1e-12);
+        let lit = HostTensor::from_vec(2, 1, 3, vec![1.0, 2.0, 0.1, 3.0, 2.0, 0.0]);
+        assert_eq!(brightness_error(&lit, &r), f64::INFINITY);
     }
 
     #[test]

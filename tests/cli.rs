@@ -102,6 +102,7 @@ fn denoise_then_eval_a_frame_folder() {
     assert!(v["psnr"].as_f64().unwrap() > 50.0, "{v}");
     assert!(v["ssim"].as_f64().unwrap() > 0.999, "{v}");
     assert!(v["temporal"].as_f64().unwrap() < 1e-3, "{v}");
+    assert!(v["brightness"].as_f64().unwrap() < 1e-3, "{v}");
     // The Table 1 layout over a dataset root with two methods.
     let root = tmp("table-root");
     let pred = tmp("table-pred");
@@ -144,6 +145,9 @@ fn denoise_then_eval_a_frame_folder() {
         psnr(1) > psnr(0) + 10.0,
         "the raw input scores far below the matching prediction: {v}"
     );
+    // the 1/4-spp input holds a quarter of the light: a brightness error near ln 4
+    let brightness = |m: usize| v[m]["scenes"]["golden"]["brightness"].as_f64().unwrap();
+    assert!(brightness(1) < 1e-3 && brightness(0) > 0.5, "{v}");
     let o = bin()
         .args(["eval", "--table", "--pred"])
         .arg(&pred)

@@ -494,7 +494,11 @@ fn denoiser_runs_on_default_limits_and_refuses_lower_ones() {
         ("nn/conv3x3", preferred),
         ("nn/tfa_blend", subpixel::gpu::ParamsBinding::Uniform),
     ] {
-        assert_eq!(small.kernels.params_binding(kernel).unwrap(), on_default, "{kernel}");
+        assert_eq!(
+            small.kernels.params_binding(kernel).unwrap(),
+            on_default,
+            "{kernel}"
+        );
         assert_eq!(big.kernels.params_binding(kernel).unwrap(), preferred, "{kernel}");
     }
 

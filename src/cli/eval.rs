@@ -49,6 +49,9 @@ pub struct Scores {
     pub relmse: f64,
     /// Temporal error (None without motion or with one frame).
     pub temporal: Option<f64>,
+    /// Brightness error: the frames' mean of [`metrics::brightness_error`] (the worst
+    /// channel's `|ln(mean / reference mean)|`).
+    pub brightness: f64,
 }
 
 /// Scores the frames of `pred` against those of `reference`.
@@ -64,7 +67,7 @@ pub fn score(pred: &std::path::Path, reference: &std::path::Path) -> Result<Scor
             rf.len()
         );
     }
-    let (mut psnr, mut ssim, mut rmse, mut relmse) = (0.0, 0.0, 0.0, 0.0);
+    let (mut psnr, mut ssim, mut rmse, mut relmse, mut brightness) = (0.0, 0.0, 0.0, 0.0, 0.0);
     let (mut temporal, mut nt) = (0.0, 0);
     let mut prev: Option<(crate::nn::HostTensor, crate::nn::HostTensor)> = None;
     for (p, r) in pf.iter().zip(&rf) {
@@ -93,6 +96,7 @@ pub fn score(pred: &std::path::Path, reference: &std::path::Path) -> Result<Scor
         ssim += metrics::ssim(&pi, &ri);
         rmse += metrics::rmse(&pi, &ri);
         relmse += metrics::relmse(&pi, &ri);
+        brightness += metrics::brightness_error(&pi, &ri);
         if let (Some((pp, rp)), Some(frame)) = (&prev, &rfile.frame) {
             temporal += metrics::temporal_error(&pi, pp, &ri, rp, &frame.motion);
             nt += 1;
@@ -107,6 +111,7 @@ pub fn score(pred: &std::path::Path, reference: &std::path::Path) -> Result<Scor
         rmse: rmse / n,
         relmse: relmse / n,
         temporal: (nt > 0).then(|| temporal / nt as f64),
+        brightness: brightness / n,
     })
 }
 
@@ -140,15 +145,24 @@ struct Cell {
     temporal: f64,
     /// Sequences with a temporal error (more than one frame, references with motion).
     temporal_n: usize,
+    /// Sum of the sequences' brightness errors.
+    brightness: f64,
     /// Sequences scored.
     sequences: usize,
 }
 
 impl Cell {
     /// Adds one sequence's (or, for the mean column, one scene's) scores.
-    fn add(&mut self, psnr: f64, ssim: f64, temporal: Option<f64>) {
+    fn add(&mut self, m: CellMean) {
+        let CellMean {
+            psnr,
+            ssim,
+            temporal,
+            brightness,
+        } = m;
         self.psnr += psnr;
         self.ssim += ssim;
+        self.brightness += brightness;
         if let Some(t) = temporal {
             self.temporal += t;
             self.temporal_n += 1;
@@ -156,18 +170,48 @@ impl Cell {
         self.sequences += 1;
     }
 
-    /// Means over the scene's sequences: (PSNR, SSIM, temporal error if any).
-    fn mean(&self) -> (f64, f64, Option<f64>) {
+    /// Means over the scene's sequences (the temporal error over those that have one).
+    fn mean(&self) -> CellMean {
         let n = self.sequences.max(1) as f64;
-        let t = (self.temporal_n > 0).then(|| self.temporal / self.temporal_n as f64);
-        (self.psnr / n, self.ssim / n, t)
+        CellMean {
+            psnr: self.psnr / n,
+            ssim: self.ssim / n,
+            temporal: (self.temporal_n > 0).then(|| self.temporal / self.temporal_n as f64),
+            brightness: self.brightness / n,
+        }
     }
 }
 
-/// `PSNR / SSIM / temporal` of a table cell (`-` for a missing temporal error).
-fn cell_text(p: f64, q: f64, t: Option<f64>) -> String {
-    let t = t.map_or_else(|| "-".into(), |t| format!("{t:.4}"));
-    format!("{p:.2} / {q:.4} / {t}")
+/// The scores of a table cell: one sequence's, or the mean over a scene's.
+#[derive(Debug, Clone, Copy, PartialEq)]
+struct CellMean {
+    psnr: f64,
+    ssim: f64,
+    temporal: Option<f64>,
+    brightness: f64,
+}
+
+impl From<&Scores> for CellMean {
+    fn from(s: &Scores) -> Self {
+        Self {
+            psnr: s.psnr,
+            ssim: s.ssim,
+            temporal: s.temporal,
+            brightness: s.brightness,
+        }
+    }
+}
+
+/// `PSNR / SSIM / temporal / brightness` of a table cell (`-` for a missing temporal
+/// error; the brightness error as the percentage `exp(b) - 1`).
+fn cell_text(m: CellMean) -> String {
+    let t = m.temporal.map_or_else(|| "-".into(), |t| format!("{t:.4}"));
+    format!(
+        "{:.2} / {:.4} / {t} / {:.1}%",
+        m.psnr,
+        m.ssim,
+        100.0 * m.brightness.exp_m1()
+    )
 }
 
 /// The table column of a scene: procedural scenes (`procedural_SEED`, one scene per seed)
@@ -245,9 +289,7 @@ fn table(
                 continue;
             }
             let sc = score(&p, s)?;
-            per.entry(scene.clone())
-                .or_default()
-                .add(sc.psnr, sc.ssim, sc.temporal);
+            per.entry(scene.clone()).or_default().add((&sc).into());
             scenes.insert(scene);
         }
         let name = m.file_name().expect("a folder").to_string_lossy().to_string();
@@ -276,8 +318,8 @@ pub(super) fn run(a: &EvalArgs) -> Result<()> {
                     let cells: serde_json::Map<String, serde_json::Value> = per
                         .iter()
                         .map(|(s, c)| {
-                            let (p, q, t) = c.mean();
-                            let v = serde_json::json!({"psnr": p, "ssim": q, "temporal": t, "sequences": c.sequences});
+                            let m = c.mean();
+                            let v = serde_json::json!({"psnr": m.psnr, "ssim": m.ssim, "temporal": m.temporal, "brightness": m.brightness, "sequences": c.sequences});
                             (s.clone(), v)
                         })
                         .collect();
@@ -297,16 +339,14 @@ pub(super) fn run(a: &EvalArgs) -> Result<()> {
             for sc in &scenes {
                 match per.get(sc) {
                     Some(c) => {
-                        let (p, q, t) = c.mean();
-                        cells.push(cell_text(p, q, t));
-                        mean.add(p, q, t);
+                        cells.push(cell_text(c.mean()));
+                        mean.add(c.mean());
                     }
                     None => cells.push("-".into()),
                 }
             }
             let mean = if mean.sequences > 0 {
-                let (p, q, t) = mean.mean();
-                cell_text(p, q, t)
+                cell_text(mean.mean())
             } else {
                 "-".into()
             };
@@ -314,8 +354,10 @@ pub(super) fn run(a: &EvalArgs) -> Result<()> {
         }
         println!(
             "\nPSNR (dB) / SSIM on tonemapped 8-bit images / temporal error (mean |(p_t - W(p_t-1)) - \
-             (r_t - W(r_t-1))| on tonemapped [0, 1] values), mean over the {} sequences of each \
-             scene (procedural: of every procedural scene); a temporal error of - means a single frame or no motion vectors.",
+             (r_t - W(r_t-1))| on tonemapped [0, 1] values) / brightness error (the worst RGB channel's \
+             image mean against the reference's, exp|ln(P/R)| - 1 in percent, frame mean), mean over the {} \
+             sequences of each scene (procedural: of every procedural scene); a temporal error of - means a \
+             single frame or no motion vectors.",
             a.split
         );
         return Ok(());
@@ -325,11 +367,11 @@ pub(super) fn run(a: &EvalArgs) -> Result<()> {
         println!("{}", serde_json::to_string_pretty(&s)?);
     } else {
         println!(
-            "{:>6} {:>8} {:>7} {:>10} {:>10} {:>10}",
-            "frames", "PSNR", "SSIM", "RMSE", "relMSE", "temporal"
+            "{:>6} {:>8} {:>7} {:>10} {:>10} {:>10} {:>10}",
+            "frames", "PSNR", "SSIM", "RMSE", "relMSE", "temporal", "brightness"
         );
         println!(
-            "{:>6} {:>8.2} {:>7.4} {:>10.5} {:>10.5} {:>10}",
+            "{:>6} {:>8.2} {:>7.4} {:>10.5} {:>10.5} {:>10} {:>9.1}%",
             s.frames,
             s.psnr,
             s.ssim,
@@ -337,7 +379,8 @@ pub(super) fn run(a: &EvalArgs) -> Result<()> {
             s.relmse,
             s.temporal
                 .map(|t| format!("{t:.5}"))
-                .unwrap_or_else(|| "-".into())
+                .unwrap_or_else(|| "-".into()),
+            100.0 * s.brightness.exp_m1()
         );
     }
     Ok(())
@@ -349,18 +392,28 @@ mod tests {
 
     #[test]
     fn cells_average_psnr_ssim_and_the_temporal_errors_they_have() {
+        let cm = |psnr, ssim, temporal, brightness| CellMean {
+            psnr,
+            ssim,
+            temporal,
+            brightness,
+        };
         let mut c = Cell::default();
-        c.add(30.0, 0.9, Some(0.02));
-        c.add(32.0, 0.8, None);
-        c.add(34.0, 0.7, Some(0.04));
-        let (p, q, t) = c.mean();
-        assert!((p - 32.0).abs() < 1e-12 && (q - 0.8).abs() < 1e-12);
-        assert!((t.unwrap_or(0.0) - 0.03).abs() < 1e-12, "only sequences with one");
-        assert_eq!(cell_text(p, q, t), "32.00 / 0.8000 / 0.0300");
+        c.add(cm(30.0, 0.9, Some(0.02), 0.0));
+        c.add(cm(32.0, 0.8, None, 0.1));
+        c.add(cm(34.0, 0.7, Some(0.04), 2f64.ln() * 3.0 - 0.1));
+        let m = c.mean();
+        assert!((m.psnr - 32.0).abs() < 1e-12 && (m.ssim - 0.8).abs() < 1e-12);
+        assert!(
+            (m.temporal.unwrap_or(0.0) - 0.03).abs() < 1e-12,
+            "only sequences with one"
+        );
+        assert!((m.brightness - 2f64.ln()).abs() < 1e-12);
+        assert_eq!(cell_text(m), "32.00 / 0.8000 / 0.0300 / 100.0%");
         let mut single = Cell::default();
-        single.add(25.0, 0.5, None);
-        assert_eq!(single.mean().2, None);
-        assert_eq!(cell_text(25.0, 0.5, None), "25.00 / 0.5000 / -");
+        single.add(cm(25.0, 0.5, None, 0.0));
+        assert_eq!(single.mean().temporal, None);
+        assert_eq!(cell_text(single.mean()), "25.00 / 0.5000 / - / 0.0%");
     }
 
     #[test]
