@@ -583,7 +583,7 @@ def _train(args, config: dict, dd: Dist) -> dict:
             eta = (stop - it) / max(rate, 1e-9)
             say(
                 f"it {it}/{args.iters} ({100.0 * it / args.iters:.1f}%) loss {avg['loss']:.4f} "
-                f"[s {avg['l_s']:.4f} t {avg['l_t']:.4f} e {avg['l_e']:.4f} wt {avg['l_wt']:.4f} a {avg['l_a']:.4f}] "
+                "[" + " ".join(f"{k[2:]} {v:.4f}" for k, v in avg.items() if k.startswith("l_")) + "] "
                 f"lr {lr:.2e} {rate:.2f} it/s eta {fmt_time(eta)}"
             )
             _log(args.out, {"event": "train", "iteration": it, "lr": lr, "it_per_s": rate, **avg})
