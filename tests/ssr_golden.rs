@@ -3,8 +3,8 @@
 //! in execution order so a failure names the layer that diverged. Three sets: `golden_*`
 //! (version-2 config: "coverage" exposure normalisation, remodulation with the current
 //! albedo, geometric history test; the light brightens 3x per frame and a block is
-//! disoccluded), `golden_channel_*` (the same with the "channel" exposure of the first
-//! generic model) and `golden_v1_*` (a version-1 config: the pipeline of version-1 weights
+//! disoccluded), `golden_channel_*` and `golden_mean_*` (the same with the "channel"
+//! exposure of the first generic model and the "mean" exposure) and `golden_v1_*` (a version-1 config: the pipeline of version-1 weights
 //! files).
 
 mod common;
@@ -84,6 +84,12 @@ fn denoiser_matches_pytorch_on_golden_frames() {
 #[test]
 fn channel_exposure_weights_match_pytorch() {
     golden_parity("golden_channel_", 2);
+}
+
+/// The arithmetic-mean exposure statistic (`"mean"`).
+#[test]
+fn mean_exposure_weights_match_pytorch() {
+    golden_parity("golden_mean_", 2);
 }
 
 #[test]

@@ -29,6 +29,9 @@ pub enum ExposureMode {
     /// [`ExposureMode::Channel`] with the geometric mean times the fraction of the traced
     /// samples that are positive (the default of new configs).
     Coverage,
+    /// Per-channel exposure normalisation by the arithmetic mean of the demodulated
+    /// traced samples, zeros included (the unbiased estimate of the frame's level).
+    Mean,
 }
 
 /// Which albedo remodulates the output (config `remodulation`, version 2).
@@ -185,8 +188,9 @@ impl SsrConfig {
             None | Some("none") => Ok(ExposureMode::None),
             Some("channel") => Ok(ExposureMode::Channel),
             Some("coverage") => Ok(ExposureMode::Coverage),
+            Some("mean") => Ok(ExposureMode::Mean),
             Some(o) => Err(Error::Invalid(format!(
-                "SSR config: exposure '{o}', expected \"none\", \"channel\" or \"coverage\""
+                "SSR config: exposure '{o}', expected \"none\", \"channel\", \"coverage\" or \"mean\""
             ))),
         }
     }
@@ -370,6 +374,11 @@ mod tests {
             ..d.clone()
         };
         assert_eq!(first_generic.exposure_mode().unwrap(), ExposureMode::Channel);
+        let mean = SsrConfig {
+            exposure: Some("mean".into()),
+            ..d.clone()
+        };
+        assert_eq!(mean.exposure_mode().unwrap(), ExposureMode::Mean);
         assert_eq!(d.remodulation_albedo().unwrap(), RemodulationAlbedo::Current);
         assert_eq!(d.history_test().unwrap(), HistoryTest::Geometry);
         // the engine's JSON is the trainer's (ssr/model.py SSRConfig.to_json, keys sorted)

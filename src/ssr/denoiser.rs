@@ -83,7 +83,9 @@ struct ExposurePartialParams {
     padded_width: u32,
     padded_height: u32,
     groups: u32,
-    _pad: [u32; 3],
+    /// 1: sums of d (exposure "mean"), 0: sums of ln d.
+    plain: u32,
+    _pad: [u32; 2],
 }
 
 #[repr(C)]
@@ -91,7 +93,8 @@ struct ExposurePartialParams {
 struct ExposureFinalParams {
     groups: u32,
     first: u32,
-    coverage: u32,
+    /// 0 "channel", 1 "coverage", 2 "mean".
+    mode: u32,
     _pad: u32,
 }
 
@@ -422,7 +425,7 @@ impl Denoiser {
         )?;
         let e = match self.weights.config.exposure_mode()? {
             ExposureMode::None => None,
-            mode @ (ExposureMode::Channel | ExposureMode::Coverage) => {
+            mode @ (ExposureMode::Channel | ExposureMode::Coverage | ExposureMode::Mean) => {
                 let groups = exposure_groups(self.net.width, self.net.height);
                 let partial = ExposurePartialParams {
                     width: self.width,
@@ -430,7 +433,8 @@ impl Denoiser {
                     padded_width: self.net.width,
                     padded_height: self.net.height,
                     groups,
-                    _pad: [0; 3],
+                    plain: (mode == ExposureMode::Mean) as u32,
+                    _pad: [0; 2],
                 };
                 let reduce = self.gpu.kernels.dispatch(
                     "ssr/exposure_partial",
@@ -448,7 +452,11 @@ impl Denoiser {
                     let params = ExposureFinalParams {
                         groups,
                         first: first as u32,
-                        coverage: (mode == ExposureMode::Coverage) as u32,
+                        mode: match mode {
+                            ExposureMode::Coverage => 1,
+                            ExposureMode::Mean => 2,
+                            _ => 0,
+                        },
                         _pad: 0,
                     };
                     self.gpu.kernels.dispatch(

@@ -86,7 +86,7 @@ LEGACY_OPTIONS: Dict[str, str] = {"exposure": "none", "remodulation": "accumulat
 accumulated albedo, history rejected only off screen."""
 
 OPTION_VALUES: Dict[str, Tuple[str, ...]] = {
-    "exposure": ("none", "channel", "coverage"),
+    "exposure": ("none", "channel", "coverage", "mean"),
     "remodulation": ("accumulated", "current"),
     "history": ("screen", "geometry"),
 }
@@ -125,7 +125,7 @@ class SSRConfig:
     upsample: str = "bilinear"  # "bilinear" | "nearest": upsampling of I3, I2
     input_channels: int = A_CHANNELS + MT_CHANNELS + A_CHANNELS + RGB  # 37
     version: int = CONFIG_VERSION
-    exposure: str = "coverage"  # "none" | "channel" | "coverage": per-channel exposure normalisation
+    exposure: str = "coverage"  # "none" | "channel" | "coverage" | "mean": per-channel exposure normalisation
     remodulation: str = "current"  # "accumulated" | "current": albedo of the remodulation
     history: str = "geometry"  # "screen" | "geometry": which warped history is invalid
 
@@ -274,21 +274,26 @@ EXPOSURE_CHANNELS = 6
 def _log_exposure(frame: Dict[str, torch.Tensor], mode: str = "coverage") -> Tuple[torch.Tensor, torch.Tensor]:
     """(ln g_c, whether a traced pixel has d_c > 0), [N, 6, 1, 1] each, for
     d = [clean(color) / (clean(albedo) + eps), clean(shadow)] (wgsl/ssr/exposure_*.wgsl):
-    ln g_c = mean ln d_c over the traced pixels with d_c > 0, plus ln(positive / traced) in
-    mode "coverage"; 0 where no traced pixel has d_c > 0."""
+    ln g_c = mean ln d_c over the traced pixels with d_c > 0 ("channel"), plus
+    ln(positive / traced) ("coverage"); ln(mean d_c over the traced pixels) ("mean", the
+    arithmetic mean, zeros included); 0 where no traced pixel has d_c > 0."""
     d = torch.cat([_clean(frame["color"]) / (_clean(frame["albedo"]) + ALBEDO_EPS), _clean(frame["shadow"])], dim=1)
     traced = _clean(frame["mask"]) > 0.5
     pos = traced & (d > 0)
-    ln = torch.where(pos, torch.log(torch.where(pos, d, torch.ones_like(d))), torch.zeros_like(d))
-    total = ln.sum(dim=(2, 3), keepdim=True)
     count = pos.to(d.dtype).sum(dim=(2, 3), keepdim=True)
     have = count > 0
+    traced_count = torch.clamp(traced.to(d.dtype).sum(dim=(2, 3), keepdim=True), min=1.0)
+    if mode == "mean":
+        total = torch.where(traced, d, torch.zeros_like(d)).sum(dim=(2, 3), keepdim=True)
+        lg = torch.log(torch.where(have, total / traced_count, torch.ones_like(total)))
+        return torch.where(have, lg, torch.zeros_like(lg)), have
+    ln = torch.where(pos, torch.log(torch.where(pos, d, torch.ones_like(d))), torch.zeros_like(d))
+    total = ln.sum(dim=(2, 3), keepdim=True)
     lg = total / torch.clamp(count, min=1.0)
     if mode == "coverage":
-        traced_count = traced.to(d.dtype).sum(dim=(2, 3), keepdim=True)
-        lg = lg + torch.log(torch.clamp(count, min=1.0) / torch.clamp(traced_count, min=1.0))
+        lg = lg + torch.log(torch.clamp(count, min=1.0) / traced_count)
     elif mode != "channel":
-        raise ValueError(f"exposure: unknown mode {mode!r}, expected 'channel' or 'coverage'")
+        raise ValueError(f"exposure: unknown mode {mode!r}, expected 'channel', 'coverage' or 'mean'")
     return torch.where(have, lg, torch.zeros_like(total)), have
 
 

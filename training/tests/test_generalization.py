@@ -113,7 +113,8 @@ def test_shadow_magnitude_does_not_matter():
 def test_exposure_statistic():
     """"channel": s = geometric mean of the positive demodulated traced samples (colour) and of
     the positive traced shadow samples, per channel; "coverage" (the default): that times the
-    fraction of traced samples that are positive. 1 for a channel with no positive sample."""
+    fraction of traced samples that are positive; "mean": the arithmetic mean of the traced
+    samples, zeros included. 1 for a channel with no positive sample."""
     f = make_frames(count=1)[0]
     # a sparse-light frame: two thirds of the traced colour and shadow samples are black
     dark = (torch.arange(f["color"].shape[-1]) % 3 != 0).view(1, 1, 1, -1)
@@ -130,6 +131,10 @@ def test_exposure_statistic():
             torch.testing.assert_close(s[0, c, 0, 0], frac * torch.exp(torch.log(v).mean()))
         black = {**f, "color": f["color"] * torch.tensor([1.0, 0.0, 1.0]).view(1, 3, 1, 1)}
         assert frame_exposure(black, mode)[0, 1, 0, 0] == 1.0
+    s = frame_exposure(f, "mean")
+    for c in range(6):
+        torch.testing.assert_close(s[0, c, 0, 0], d[:, c][traced].mean())
+    assert frame_exposure(black, "mean")[0, 1, 0, 0] == 1.0
     with pytest.raises(ValueError, match="unknown mode"):
         frame_exposure(f, "median")
 

@@ -43,7 +43,7 @@ SHAPES = {
     "enc3": (H // 4, W // 4, 28),
 }
 SHAPES_V2 = {**SHAPES, "exposure": (1, 1, 6)}
-SETS = {"golden_": SHAPES_V2, "golden_channel_": SHAPES_V2, "golden_v1_": SHAPES}
+SETS = {"golden_": SHAPES_V2, **{p: SHAPES_V2 for p in golden.EXPOSURE_SETS}, "golden_v1_": SHAPES}
 """File prefix -> the tensors of its frames (version 2: the default config, and with exposure
 "channel"; version 1: legacy)."""
 FILES = [f"{p}{n}.safetensors" for p in SETS for n in ["weights"] + [f"frame{t}" for t in range(3)]]
@@ -140,11 +140,13 @@ def test_v2_exercises_exposure_and_history_test(generated):
     d, _ = _read(os.path.join(a, "golden_frame1.safetensors"))
     block = d["warp_valid"][2:10, 18:26]  # the disoccluded block of frame 1 (make_frames)
     assert (block == 0).float().mean() > 0.9
-    # the two exposure statistics differ (black traced samples exist), so each set tests its own
+    # the exposure statistics differ (black traced samples exist), so each set tests its own
     for t in range(3):
         cov = _read(os.path.join(a, f"golden_frame{t}.safetensors"))[0]["exposure"]
         ch = _read(os.path.join(a, f"golden_channel_frame{t}.safetensors"))[0]["exposure"]
+        mean = _read(os.path.join(a, f"golden_mean_frame{t}.safetensors"))[0]["exposure"]
         assert (cov < ch * 0.98).any() and (cov <= ch).all(), (t, cov, ch)
+        assert (mean >= cov).all() and ((mean - ch).abs() > 0.02 * ch).any(), (t, mean, cov, ch)
 
 
 @pytest.mark.parametrize("prefix", list(SETS))

@@ -3,6 +3,7 @@
 // (vec4 0) and of the shadow (vec4 1):
 //   have = count > 0, lg = sum / count                    (ln of the geometric mean)
 //   coverage mode: lg += ln(count / traced)               (times the positive fraction)
+//   mean mode (sums of d, not ln d): lg = ln(sum / traced) (the arithmetic mean)
 //   first frame:  s = exp(have ? lg : 0)
 //   later:        lp = ln(s_prev), d = lg - lp,
 //                 s = exp(have ? (|d| > JUMP ? lg : lp + RATE d) : lp)   (JUMP = ln 2)
@@ -15,7 +16,7 @@
 struct Params {
     groups: u32,
     first: u32,
-    coverage: u32, // 1: exposure "coverage", 0: "channel"
+    mode: u32, // exposure 0 "channel", 1 "coverage", 2 "mean"
     _pad0: u32,
 }
 
@@ -67,8 +68,10 @@ fn update(sum: vec3<f32>, counts: vec4<f32>, prev: vec3<f32>) -> array<vec3<f32>
     let count = counts.xyz;
     let have = count > vec3<f32>(0.0);
     var mean = sum / max(count, vec3<f32>(1.0));
-    if (p.coverage != 0u) {
+    if (p.mode == 1u) {
         mean += log(max(count, vec3<f32>(1.0)) / max(counts.w, 1.0));
+    } else if (p.mode == 2u) {
+        mean = log(select(vec3<f32>(1.0), sum / max(counts.w, 1.0), have));
     }
     // NaN fails the comparison (it cannot arise from sanitised inputs; belt and braces).
     let lg = select(vec3<f32>(0.0), clamp(mean, vec3<f32>(-LN_S_MAX), vec3<f32>(LN_S_MAX)), have & (abs(mean) <= vec3<f32>(3.0e38)));

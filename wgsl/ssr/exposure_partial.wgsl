@@ -1,6 +1,6 @@
 // Exposure statistic, pass 1 of 2 (issue 11; training/ssr/model.py `_log_exposure`):
-// per channel c, the sum of ln d_c and the count over the traced pixels (mask > 0.5) with
-// d_c > 0, for d = color / (albedo + 0.00316) and for d = shadow (the inputs sanitised as
+// per channel c, the sum of ln d_c (`p.plain` 0; the sum of d_c itself with `p.plain` 1, for
+// exposure "mean") and the count over the traced pixels (mask > 0.5) with d_c > 0, for d = color / (albedo + 0.00316) and for d = shadow (the inputs sanitised as
 // pack_inputs does, ssr/lib/sanitize, without counting). The pixels are those of the padded Wp x Hp frame
 // the network sees (beyond W x H the edge is replicated, as pack_inputs does). Each
 // workgroup strides over the pixels and writes one partial of 4 vec4: (sum ln d).rgb and
@@ -13,7 +13,7 @@ struct Params {
     padded_width: u32,
     padded_height: u32,
     groups: u32,
-    _pad0: u32,
+    plain: u32, // 1: sum d instead of ln d
     _pad1: u32,
     _pad2: u32,
 }
@@ -32,11 +32,12 @@ var<workgroup> color_counts: array<vec4<f32>, 256>;
 var<workgroup> shadow_sums: array<vec4<f32>, 256>;
 var<workgroup> shadow_counts: array<vec4<f32>, 256>;
 
-// ln d where it counts (d > 0 on a traced pixel), else 0; and the count.
+// ln d (or d, with p.plain) where it counts (d > 0 on a traced pixel), else 0; and the count.
 fn ln_where(d: vec3<f32>, traced: bool) -> array<vec3<f32>, 2> {
     let use_it = vec3<bool>(traced) & (d > vec3<f32>(0.0));
+    let v = select(log(select(vec3<f32>(1.0), d, use_it)), d, p.plain != 0u);
     return array<vec3<f32>, 2>(
-        select(vec3<f32>(0.0), log(select(vec3<f32>(1.0), d, use_it)), use_it),
+        select(vec3<f32>(0.0), v, use_it),
         select(vec3<f32>(0.0), vec3<f32>(1.0), use_it),
     );
 }
