@@ -7,7 +7,7 @@ use std::collections::HashMap;
 use std::path::PathBuf;
 
 use subpixel::nn::HostTensor;
-use subpixel::ssr::{Denoiser, HostFrame, Weights};
+use subpixel::ssr::{Denoiser, FrameInputs, HostFrame, Weights};
 
 fn golden_weights_path() -> PathBuf {
     PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("tests/data/golden_weights.safetensors")
@@ -532,4 +532,51 @@ fn device_with_limits(limits: wgpu::Limits) -> (wgpu::Device, wgpu::Queue) {
         trace: wgpu::Trace::Off,
     }))
     .expect("the adapter offers WebGPU's default limits")
+}
+
+/// Issue 13: `denoise_host` after `denoise` with the caller's buffers (which, like the
+/// tracer's, may allow COPY_DST) uploads into the denoiser's own buffers and leaves the
+/// caller's untouched; both calls give what a fresh denoiser gives for the same frames.
+#[test]
+fn denoise_host_never_writes_the_callers_buffers() {
+    use wgpu::util::DeviceExt;
+    let gpu = common::gpu();
+    let weights = Weights::load(golden_weights_path()).unwrap();
+    let (w, h) = (12, 8);
+    let (a, b) = (random_frame(w, h, 21), random_frame(w, h, 22));
+    let packed = a.pack().unwrap();
+    let caller: Vec<wgpu::Buffer> = packed
+        .iter()
+        .map(|d| {
+            gpu.device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
+                label: Some("test.caller"),
+                contents: bytemuck::cast_slice(d),
+                usage: wgpu::BufferUsages::STORAGE
+                    | wgpu::BufferUsages::COPY_DST
+                    | wgpu::BufferUsages::COPY_SRC,
+            })
+        })
+        .collect();
+    let inputs = FrameInputs {
+        color_mask: &caller[0],
+        albedo_depth: &caller[1],
+        normal_metallic: &caller[2],
+        shadow_roughness: &caller[3],
+        transparent: &caller[4],
+        motion: &caller[5],
+    };
+    let mut den = Denoiser::with_gpu(&gpu, &weights, w, h).unwrap();
+    let mut enc = gpu.device.create_command_encoder(&Default::default());
+    den.denoise(&mut enc, &inputs).unwrap();
+    gpu.queue.submit([enc.finish()]);
+    gpu.wait().unwrap();
+    let out_a = den.read_output().unwrap();
+    let out_b = den.denoise_host(&b).unwrap();
+    for (buf, want) in caller.iter().zip(&packed) {
+        let got = gpu.read_buffer(buf, 0, buf.size()).unwrap();
+        assert_eq!(got, bytemuck::cast_slice::<[f32; 4], u8>(want), "{}", buf.size());
+    }
+    let mut fresh = Denoiser::with_gpu(&gpu, &weights, w, h).unwrap();
+    common::assert_close("frame a", &out_a, &fresh.denoise_host(&a).unwrap(), common::EXACT);
+    common::assert_close("frame b", &out_b, &fresh.denoise_host(&b).unwrap(), common::EXACT);
 }

@@ -166,6 +166,9 @@ pub struct Denoiser {
     output: wgpu::Texture,
     store: Dispatch,
     pack: Option<(Vec<wgpu::Buffer>, [Dispatch; 2], Option<ExposureDispatches>)>,
+    /// The denoiser's own input buffers for [`Denoiser::denoise_host`], made on first use;
+    /// never the caller's buffers of an earlier [`Denoiser::denoise`].
+    host_inputs: Option<Vec<wgpu::Buffer>>,
     sanitized: wgpu::Buffer,
     first: bool,
     frames: u64,
@@ -213,6 +216,7 @@ impl Denoiser {
             output,
             store,
             pack: None,
+            host_inputs: None,
             sanitized,
             first: true,
             frames: 0,
@@ -497,7 +501,7 @@ impl Denoiser {
             ));
         }
         let packed = frame.pack()?;
-        let bufs = self.host_buffers()?;
+        let bufs = self.host_buffers();
         for (b, data) in bufs.iter().zip(&packed) {
             self.gpu.queue.write_buffer(b, 0, bytemuck::cast_slice(data));
         }
@@ -516,27 +520,25 @@ impl Denoiser {
         self.read_output()
     }
 
-    /// Input buffers owned by the denoiser for [`Denoiser::denoise_host`] (reused).
-    fn host_buffers(&mut self) -> Result<Vec<wgpu::Buffer>> {
-        if let Some((bufs, _, _)) = &self.pack
-            && bufs
-                .iter()
-                .all(|b| b.usage().contains(wgpu::BufferUsages::COPY_DST))
-        {
-            return Ok(bufs.clone());
-        }
+    /// Input buffers owned by the denoiser for [`Denoiser::denoise_host`] (made once).
+    fn host_buffers(&mut self) -> Vec<wgpu::Buffer> {
         let size = self.width as u64 * self.height as u64 * 16;
-        Ok(FrameInputs::NAMES
-            .iter()
-            .map(|n| {
-                self.gpu.device.create_buffer(&wgpu::BufferDescriptor {
-                    label: Some(&format!("subpixel.ssr.host.{n}")),
-                    size,
-                    usage: wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_DST,
-                    mapped_at_creation: false,
-                })
+        let gpu = &self.gpu;
+        self.host_inputs
+            .get_or_insert_with(|| {
+                FrameInputs::NAMES
+                    .iter()
+                    .map(|n| {
+                        gpu.device.create_buffer(&wgpu::BufferDescriptor {
+                            label: Some(&format!("subpixel.ssr.host.{n}")),
+                            size,
+                            usage: wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_DST,
+                            mapped_at_creation: false,
+                        })
+                    })
+                    .collect()
             })
-            .collect())
+            .clone()
     }
 
     /// Reads the output (cropped to `width x height`, 3 channels) back to the host.
