@@ -1,11 +1,9 @@
 //! Rust/WGSL vs PyTorch parity on the golden cases written by `training/ssr/golden.py`:
 //! three consecutive 40x24 frames (so the history path runs), every intermediate compared
-//! in execution order so a failure names the layer that diverged. Three sets: `golden_*`
-//! (version-2 config: "coverage" exposure normalisation, remodulation with the current
-//! albedo, geometric history test; the light brightens 3x per frame and a block is
-//! disoccluded), `golden_channel_*` and `golden_mean_*` (the same with the "channel"
-//! exposure of the first generic model and the "mean" exposure) and `golden_v1_*` (a version-1 config: the pipeline of version-1 weights
-//! files).
+//! in execution order so a failure names the layer that diverged. Two sets: `golden_*`
+//! (version-2 config: exposure normalisation, remodulation with the current albedo,
+//! geometric history test; the light brightens 3x per frame and a block is disoccluded) and
+//! `golden_v1_*` (a version-1 config: the pipeline of version-1 weights files).
 
 mod common;
 
@@ -78,18 +76,6 @@ fn range(t: &HostTensor) -> f32 {
 #[test]
 fn denoiser_matches_pytorch_on_golden_frames() {
     golden_parity("golden_", 2);
-}
-
-/// The first generic model's exposure statistic (`"channel"`: no coverage factor).
-#[test]
-fn channel_exposure_weights_match_pytorch() {
-    golden_parity("golden_channel_", 2);
-}
-
-/// The arithmetic-mean exposure statistic (`"mean"`).
-#[test]
-fn mean_exposure_weights_match_pytorch() {
-    golden_parity("golden_mean_", 2);
 }
 
 #[test]

@@ -21,17 +21,9 @@ pub enum ExposureMode {
     /// Absolute radiance in (version 1).
     None,
     /// Per-channel exposure normalisation: colour and shadow divided by the frame's
-    /// exposure s (geometric mean of the positive demodulated traced samples, smoothed over
-    /// frames), the output multiplied by it; the history re-exposed when s changes. The
-    /// first generic model's statistic: it puts a scene where few samples find light far
-    /// above its mean radiance.
+    /// exposure s (geometric mean of the demodulated traced samples, smoothed over frames),
+    /// the output multiplied by it; the history re-exposed when s changes.
     Channel,
-    /// [`ExposureMode::Channel`] with the geometric mean times the fraction of the traced
-    /// samples that are positive (the default of new configs).
-    Coverage,
-    /// Per-channel exposure normalisation by the arithmetic mean of the demodulated
-    /// traced samples, zeros included (the unbiased estimate of the frame's level).
-    Mean,
 }
 
 /// Which albedo remodulates the output (config `remodulation`, version 2).
@@ -92,7 +84,7 @@ impl Default for SsrConfig {
             upsample: "bilinear".into(),
             input_channels: 2 * A_CHANNELS + MT_CHANNELS + RGB,
             version: CONFIG_VERSION,
-            exposure: Some("coverage".into()),
+            exposure: Some("channel".into()),
             remodulation: Some("current".into()),
             history: Some("geometry".into()),
         }
@@ -187,10 +179,8 @@ impl SsrConfig {
         match self.exposure.as_deref() {
             None | Some("none") => Ok(ExposureMode::None),
             Some("channel") => Ok(ExposureMode::Channel),
-            Some("coverage") => Ok(ExposureMode::Coverage),
-            Some("mean") => Ok(ExposureMode::Mean),
             Some(o) => Err(Error::Invalid(format!(
-                "SSR config: exposure '{o}', expected \"none\", \"channel\", \"coverage\" or \"mean\""
+                "SSR config: exposure '{o}', expected \"none\" or \"channel\""
             ))),
         }
     }
@@ -368,22 +358,12 @@ mod tests {
         assert!(e.contains("version 1 has no 'exposure' option"), "{e}");
         let d = SsrConfig::default();
         assert_eq!(d.version, 2);
-        assert_eq!(d.exposure_mode().unwrap(), ExposureMode::Coverage);
-        let first_generic = SsrConfig {
-            exposure: Some("channel".into()),
-            ..d.clone()
-        };
-        assert_eq!(first_generic.exposure_mode().unwrap(), ExposureMode::Channel);
-        let mean = SsrConfig {
-            exposure: Some("mean".into()),
-            ..d.clone()
-        };
-        assert_eq!(mean.exposure_mode().unwrap(), ExposureMode::Mean);
+        assert_eq!(d.exposure_mode().unwrap(), ExposureMode::Channel);
         assert_eq!(d.remodulation_albedo().unwrap(), RemodulationAlbedo::Current);
         assert_eq!(d.history_test().unwrap(), HistoryTest::Geometry);
         // the engine's JSON is the trainer's (ssr/model.py SSRConfig.to_json, keys sorted)
         let back: SsrConfig = serde_json::from_str(
-            r#"{"enc":[16,32,28],"exposure":"coverage","feature_pool":"max","history":"geometry","input_channels":37,"k":8,"remodulation":"current","tfa_hidden":8,"upsample":"bilinear","version":2}"#,
+            r#"{"enc":[16,32,28],"exposure":"channel","feature_pool":"max","history":"geometry","input_channels":37,"k":8,"remodulation":"current","tfa_hidden":8,"upsample":"bilinear","version":2}"#,
         )
         .unwrap();
         assert_eq!(back, d);

@@ -83,9 +83,7 @@ struct ExposurePartialParams {
     padded_width: u32,
     padded_height: u32,
     groups: u32,
-    /// 1: sums of d (exposure "mean"), 0: sums of ln d.
-    plain: u32,
-    _pad: [u32; 2],
+    _pad: [u32; 3],
 }
 
 #[repr(C)]
@@ -93,9 +91,7 @@ struct ExposurePartialParams {
 struct ExposureFinalParams {
     groups: u32,
     first: u32,
-    /// 0 "channel", 1 "coverage", 2 "mean".
-    mode: u32,
-    _pad: u32,
+    _pad: [u32; 2],
 }
 
 /// The exposure pass: the reduction over the caller's buffers, then the update of the
@@ -429,7 +425,7 @@ impl Denoiser {
         )?;
         let e = match self.weights.config.exposure_mode()? {
             ExposureMode::None => None,
-            mode @ (ExposureMode::Channel | ExposureMode::Coverage | ExposureMode::Mean) => {
+            ExposureMode::Channel => {
                 let groups = exposure_groups(self.net.width, self.net.height);
                 let partial = ExposurePartialParams {
                     width: self.width,
@@ -437,8 +433,7 @@ impl Denoiser {
                     padded_width: self.net.width,
                     padded_height: self.net.height,
                     groups,
-                    plain: (mode == ExposureMode::Mean) as u32,
-                    _pad: [0; 2],
+                    _pad: [0; 3],
                 };
                 let reduce = self.gpu.kernels.dispatch(
                     "ssr/exposure_partial",
@@ -456,12 +451,7 @@ impl Denoiser {
                     let params = ExposureFinalParams {
                         groups,
                         first: first as u32,
-                        mode: match mode {
-                            ExposureMode::Coverage => 1,
-                            ExposureMode::Mean => 2,
-                            _ => 0,
-                        },
-                        _pad: 0,
+                        _pad: [0; 2],
                     };
                     self.gpu.kernels.dispatch(
                         "ssr/exposure_final",

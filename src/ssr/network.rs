@@ -214,7 +214,7 @@ impl Network {
                 ops::warp(gpu, &self.o[q], t("motion"), t("warp_out"), t("warp_out_valid"))?,
             ),
         ];
-        let rescale = self.config.exposure_mode()? != ExposureMode::None;
+        let rescale = self.config.exposure_mode()? == ExposureMode::Channel;
         let geometry = self.config.history_test()? == HistoryTest::Geometry;
         if rescale || geometry {
             // Re-expose the history and reject what disagrees with this frame's geometry.

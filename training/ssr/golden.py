@@ -8,10 +8,6 @@ writes
     golden_frame{0,1,2}.safetensors
                                  three consecutive 40x24 frames: inputs, every intermediate
                                  and the output, run as one sequence (frame 0 has no history)
-    golden_channel_*, golden_mean_*
-                                 the same for the default config with exposure "channel" (the
-                                 first generic model's statistic: no coverage factor) and
-                                 "mean" (the arithmetic mean)
     golden_v1_weights.safetensors, golden_v1_frame{0,1,2}.safetensors
                                  the same for a version-1 config (the pipeline of version-1
                                  weights files: no exposure normalisation, remodulation with the
@@ -49,9 +45,6 @@ WEIGHTS_FILE = "golden_weights.safetensors"
 MAX_FILE_BYTES = 1 << 20
 LEGACY_PREFIX = "golden_v1_"
 """File name prefix of the version-1 set (golden_v1_weights, golden_v1_frame{t})."""
-EXPOSURE_SETS = {"golden_channel_": "channel", "golden_mean_": "mean"}
-"""File name prefix -> exposure mode of the other version-2 sets (the default config's
-other exposure statistics)."""
 
 GOLDEN_INPUTS = list(FRAME_CHANNELS)  # color mask albedo normal shadow transparent depth metallic roughness motion
 GOLDEN_INTERMEDIATES = [
@@ -231,12 +224,8 @@ def check_spread(tensors: Dict[str, torch.Tensor], t: int) -> None:
 
 
 def generate(out_dir: str, weights_seed: int = WEIGHTS_SEED, input_seed: int = INPUT_SEED, verbose: bool = True) -> List[str]:
-    """Writes the sets (version 2, version 2 with the other exposure statistics, then the
-    version-1 set) into out_dir; returns their paths."""
+    """Writes both sets (version 2, then the version-1 set) into out_dir; returns their paths."""
     paths = _generate_set(out_dir, "golden_", SSRConfig(), "coherent", weights_seed, input_seed, verbose)
-    for prefix, exposure in EXPOSURE_SETS.items():
-        cfg = SSRConfig(exposure=exposure)
-        paths += _generate_set(out_dir, prefix, cfg, "coherent", weights_seed, input_seed, verbose)
     legacy = SSRConfig(version=1, **LEGACY_OPTIONS)
     return paths + _generate_set(out_dir, LEGACY_PREFIX, legacy, "random", weights_seed, input_seed, verbose)
 

@@ -15,12 +15,10 @@ a dict with the output and every intermediate (the golden generator and training
 Config version 2 (the default) adds three things that version-1 weights did not have
 (issue 11; version-1 files still load and run the version-1 pipeline):
 
-* `exposure = "coverage"` (or the first generic model's `"channel"`): per-channel exposure
-  normalisation. Every frame measures g_c = f_c exp(mean ln d_c) over the traced pixels with
-  d_c > 0, d = color / (albedo + eps) (the geometric mean of the positive demodulated
-  samples) times f_c, the fraction of the traced pixels with d_c > 0 ("channel": f_c = 1,
-  which puts a scene where few samples find light far above its mean radiance; issue 11),
-  and likewise for the shadow buffer (d = shadow), smooths both in log space over frames (`EXPOSURE_RATE`; a change beyond
+* `exposure = "channel"`: per-channel exposure normalisation. Every frame measures
+  g_c = exp(mean ln d_c) over the traced pixels with d_c > 0, d = color / (albedo + eps)
+  (the geometric mean of the demodulated samples), and likewise for the shadow buffer
+  (d = shadow), smooths both in log space over frames (`EXPOSURE_RATE`; a change beyond
   `EXPOSURE_JUMP` is taken at once: a cut or a light switched), divides colour and
   shadow by their exposure before the network and multiplies the output by the colour's;
   the history is re-expressed in the new exposure (`rescale_log`). The whole pipeline is
@@ -86,7 +84,7 @@ LEGACY_OPTIONS: Dict[str, str] = {"exposure": "none", "remodulation": "accumulat
 accumulated albedo, history rejected only off screen."""
 
 OPTION_VALUES: Dict[str, Tuple[str, ...]] = {
-    "exposure": ("none", "channel", "coverage", "mean"),
+    "exposure": ("none", "channel"),
     "remodulation": ("accumulated", "current"),
     "history": ("screen", "geometry"),
 }
@@ -125,7 +123,7 @@ class SSRConfig:
     upsample: str = "bilinear"  # "bilinear" | "nearest": upsampling of I3, I2
     input_channels: int = A_CHANNELS + MT_CHANNELS + A_CHANNELS + RGB  # 37
     version: int = CONFIG_VERSION
-    exposure: str = "coverage"  # "none" | "channel" | "coverage" | "mean": per-channel exposure normalisation
+    exposure: str = "channel"  # "none" | "channel": per-channel exposure normalisation
     remodulation: str = "current"  # "accumulated" | "current": albedo of the remodulation
     history: str = "geometry"  # "screen" | "geometry": which warped history is invalid
 
@@ -271,44 +269,31 @@ EXPOSURE_CHANNELS = 6
 """The exposure s: [colour r, g, b, shadow r, g, b]."""
 
 
-def _log_exposure(frame: Dict[str, torch.Tensor], mode: str = "coverage") -> Tuple[torch.Tensor, torch.Tensor]:
-    """(ln g_c, whether a traced pixel has d_c > 0), [N, 6, 1, 1] each, for
-    d = [clean(color) / (clean(albedo) + eps), clean(shadow)] (wgsl/ssr/exposure_*.wgsl):
-    ln g_c = mean ln d_c over the traced pixels with d_c > 0 ("channel"), plus
-    ln(positive / traced) ("coverage"); ln(mean d_c over the traced pixels) ("mean", the
-    arithmetic mean, zeros included); 0 where no traced pixel has d_c > 0."""
+def _log_exposure(frame: Dict[str, torch.Tensor]) -> Tuple[torch.Tensor, torch.Tensor]:
+    """(mean ln d_c over the traced pixels with d_c > 0, whether there is one), [N, 6, 1, 1] each,
+    d = [clean(color) / (clean(albedo) + eps), clean(shadow)] (wgsl/ssr/exposure_*.wgsl)."""
     d = torch.cat([_clean(frame["color"]) / (_clean(frame["albedo"]) + ALBEDO_EPS), _clean(frame["shadow"])], dim=1)
     traced = _clean(frame["mask"]) > 0.5
     pos = traced & (d > 0)
-    count = pos.to(d.dtype).sum(dim=(2, 3), keepdim=True)
-    have = count > 0
-    traced_count = torch.clamp(traced.to(d.dtype).sum(dim=(2, 3), keepdim=True), min=1.0)
-    if mode == "mean":
-        total = torch.where(traced, d, torch.zeros_like(d)).sum(dim=(2, 3), keepdim=True)
-        lg = torch.log(torch.where(have, total / traced_count, torch.ones_like(total)))
-        return torch.where(have, lg, torch.zeros_like(lg)), have
     ln = torch.where(pos, torch.log(torch.where(pos, d, torch.ones_like(d))), torch.zeros_like(d))
     total = ln.sum(dim=(2, 3), keepdim=True)
-    lg = total / torch.clamp(count, min=1.0)
-    if mode == "coverage":
-        lg = lg + torch.log(torch.clamp(count, min=1.0) / traced_count)
-    elif mode != "channel":
-        raise ValueError(f"exposure: unknown mode {mode!r}, expected 'channel', 'coverage' or 'mean'")
-    return torch.where(have, lg, torch.zeros_like(total)), have
+    count = pos.to(d.dtype).sum(dim=(2, 3), keepdim=True)
+    have = count > 0
+    return torch.where(have, total / torch.clamp(count, min=1.0), torch.zeros_like(total)), have
 
 
-def frame_exposure(frame: Dict[str, torch.Tensor], mode: str = "coverage") -> torch.Tensor:
-    """g_c (see `_log_exposure`; 1 where no traced pixel has d_c > 0), [N, 6, 1, 1]:
-    demodulated colour rgb, shadow rgb."""
-    lg, _ = _log_exposure(frame, mode)
+def frame_exposure(frame: Dict[str, torch.Tensor]) -> torch.Tensor:
+    """g_c = exp(mean ln d_c) over the traced pixels with d_c > 0 (1 where there is none),
+    [N, 6, 1, 1]: demodulated colour rgb, shadow rgb."""
+    lg, _ = _log_exposure(frame)
     return torch.exp(lg)
 
 
-def update_exposure(frame: Dict[str, torch.Tensor], prev: Optional[torch.Tensor], mode: str = "coverage") -> torch.Tensor:
+def update_exposure(frame: Dict[str, torch.Tensor], prev: Optional[torch.Tensor]) -> torch.Tensor:
     """This frame's exposure s [N, 6, 1, 1]: g on the first frame (prev None), then
     exp(ln s_prev + EXPOSURE_RATE (ln g - ln s_prev)), or g where |ln g - ln s_prev| >
     EXPOSURE_JUMP; a channel without a positive traced sample keeps s_prev (1 on a first frame)."""
-    lg, have = _log_exposure(frame, mode)
+    lg, have = _log_exposure(frame)
     if prev is None:
         return torch.exp(lg)
     lp = torch.log(prev)
@@ -561,13 +546,12 @@ class SSRModel(nn.Module):
             if len(state) != 3:
                 raise ValueError(f"state: expected (a_acc, o, exposure), got a tuple of {len(state)}")
             a_acc_prev, o_prev, prev = state
-        normalised = self.cfg.exposure != "none"
-        if normalised:
-            exposure = update_exposure(frame, prev, self.cfg.exposure)
+        if self.cfg.exposure == "channel":
+            exposure = update_exposure(frame, prev)
         else:
             c = frame["color"]
             exposure = torch.ones(c.shape[0], EXPOSURE_CHANNELS, 1, 1, dtype=c.dtype, device=c.device)
-        a_t, mt = prepare_inputs(frame, exposure if normalised else None)
+        a_t, mt = prepare_inputs(frame, exposure if self.cfg.exposure == "channel" else None)
         if state is None:
             warp_acc = a_t
             warp_valid = torch.ones_like(a_t[:, :1])
@@ -581,7 +565,7 @@ class SSRModel(nn.Module):
             # One warp of both histories: same motion, hence the same validity.
             warped, warp_valid = warp(torch.cat([a_acc_prev, o_prev], dim=1), frame["motion"])
             warp_acc, wo = warped[:, :A_CHANNELS], warped[:, A_CHANNELS:]
-            if normalised:
+            if self.cfg.exposure == "channel":
                 ratio = prev / exposure
                 warp_acc = torch.cat(
                     [

@@ -151,7 +151,7 @@ def test_config_json_round_trip():
         "upsample": "bilinear",
         "input_channels": 37,
         "version": 2,
-        "exposure": "coverage",
+        "exposure": "channel",
         "remodulation": "current",
         "history": "geometry",
     }

@@ -2,8 +2,6 @@
 // partials of exposure_partial.wgsl and updates the exposure s, per channel, of the colour
 // (vec4 0) and of the shadow (vec4 1):
 //   have = count > 0, lg = sum / count                    (ln of the geometric mean)
-//   coverage mode: lg += ln(count / traced)               (times the positive fraction)
-//   mean mode (sums of d, not ln d): lg = ln(sum / traced) (the arithmetic mean)
 //   first frame:  s = exp(have ? lg : 0)
 //   later:        lp = ln(s_prev), d = lg - lp,
 //                 s = exp(have ? (|d| > JUMP ? lg : lp + RATE d) : lp)   (JUMP = ln 2)
@@ -16,8 +14,8 @@
 struct Params {
     groups: u32,
     first: u32,
-    mode: u32, // exposure 0 "channel", 1 "coverage", 2 "mean"
     _pad0: u32,
+    _pad1: u32,
 }
 
 @group(0) @binding(0) var<uniform> p: Params;
@@ -54,8 +52,8 @@ fn main(@builtin(local_invocation_id) lid: vec3<u32>) {
     if (lid.x == 0u) {
         let e0 = exposure[0];
         let e1 = exposure[1];
-        let c = update(acc[0][0].xyz, acc[0][1], e0.xyz);
-        let s = update(acc[0][2].xyz, acc[0][3], vec3<f32>(e0.w, e1.xy));
+        let c = update(acc[0][0].xyz, acc[0][1].xyz, e0.xyz);
+        let s = update(acc[0][2].xyz, acc[0][3].xyz, vec3<f32>(e0.w, e1.xy));
         exposure[0] = vec4<f32>(c[0], s[0].x);
         exposure[1] = vec4<f32>(s[0].yz, 0.0, 0.0);
         ratio[0] = vec4<f32>(c[1], s[1].x);
@@ -63,16 +61,10 @@ fn main(@builtin(local_invocation_id) lid: vec3<u32>) {
     }
 }
 
-// (s, s_prev / s) from the sums of ln d, the counts (.w: traced pixels) and s_prev.
-fn update(sum: vec3<f32>, counts: vec4<f32>, prev: vec3<f32>) -> array<vec3<f32>, 2> {
-    let count = counts.xyz;
+// (s, s_prev / s) from the sums of ln d, the counts and s_prev.
+fn update(sum: vec3<f32>, count: vec3<f32>, prev: vec3<f32>) -> array<vec3<f32>, 2> {
     let have = count > vec3<f32>(0.0);
-    var mean = sum / max(count, vec3<f32>(1.0));
-    if (p.mode == 1u) {
-        mean += log(max(count, vec3<f32>(1.0)) / max(counts.w, 1.0));
-    } else if (p.mode == 2u) {
-        mean = log(select(vec3<f32>(1.0), sum / max(counts.w, 1.0), have));
-    }
+    let mean = sum / max(count, vec3<f32>(1.0));
     // NaN fails the comparison (it cannot arise from sanitised inputs; belt and braces).
     let lg = select(vec3<f32>(0.0), clamp(mean, vec3<f32>(-LN_S_MAX), vec3<f32>(LN_S_MAX)), have & (abs(mean) <= vec3<f32>(3.0e38)));
     if (p.first != 0u) {

@@ -1,11 +1,10 @@
 // Exposure statistic, pass 1 of 2 (issue 11; training/ssr/model.py `_log_exposure`):
-// per channel c, the sum of ln d_c (`p.plain` 0; the sum of d_c itself with `p.plain` 1, for
-// exposure "mean") and the count over the traced pixels (mask > 0.5) with d_c > 0, for d = color / (albedo + 0.00316) and for d = shadow (the inputs sanitised as
+// per channel c, the sum of ln d_c and the count over the traced pixels (mask > 0.5) with
+// d_c > 0, for d = color / (albedo + 0.00316) and for d = shadow (the inputs sanitised as
 // pack_inputs does, ssr/lib/sanitize, without counting). The pixels are those of the padded Wp x Hp frame
 // the network sees (beyond W x H the edge is replicated, as pack_inputs does). Each
 // workgroup strides over the pixels and writes one partial of 4 vec4: (sum ln d).rgb and
-// (count.rgb, traced pixels) of the colour, then of the shadow (the traced count in .w
-// again). exposure_final.wgsl adds the partials up.
+// count.rgb of the colour, then of the shadow. exposure_final.wgsl adds the partials up.
 
 struct Params {
     width: u32,
@@ -13,7 +12,7 @@ struct Params {
     padded_width: u32,
     padded_height: u32,
     groups: u32,
-    plain: u32, // 1: sum d instead of ln d
+    _pad0: u32,
     _pad1: u32,
     _pad2: u32,
 }
@@ -32,12 +31,11 @@ var<workgroup> color_counts: array<vec4<f32>, 256>;
 var<workgroup> shadow_sums: array<vec4<f32>, 256>;
 var<workgroup> shadow_counts: array<vec4<f32>, 256>;
 
-// ln d (or d, with p.plain) where it counts (d > 0 on a traced pixel), else 0; and the count.
+// ln d where it counts (d > 0 on a traced pixel), else 0; and the count.
 fn ln_where(d: vec3<f32>, traced: bool) -> array<vec3<f32>, 2> {
     let use_it = vec3<bool>(traced) & (d > vec3<f32>(0.0));
-    let v = select(log(select(vec3<f32>(1.0), d, use_it)), d, p.plain != 0u);
     return array<vec3<f32>, 2>(
-        select(vec3<f32>(0.0), v, use_it),
+        select(vec3<f32>(0.0), log(select(vec3<f32>(1.0), d, use_it)), use_it),
         select(vec3<f32>(0.0), vec3<f32>(1.0), use_it),
     );
 }
@@ -49,7 +47,6 @@ fn main(@builtin(local_invocation_id) lid: vec3<u32>, @builtin(workgroup_id) wid
     var ck = vec3<f32>(0.0);
     var ss = vec3<f32>(0.0);
     var sk = vec3<f32>(0.0);
-    var traced_count = 0.0;
     for (var i = wid.x * WG + lid.x; i < n; i += p.groups * WG) {
         let x = i % p.padded_width;
         let y = i / p.padded_width;
@@ -57,7 +54,6 @@ fn main(@builtin(local_invocation_id) lid: vec3<u32>, @builtin(workgroup_id) wid
         var ignored = 0u;
         let cm = color_mask[src];
         let traced = sanitize_mask(cm.w, &ignored) > 0.5;
-        traced_count += select(0.0, 1.0, traced);
         let a = sanitize_unit(albedo_depth[src].xyz, &ignored);
         let color = sanitize_radiance(cm.xyz, &ignored);
         let c = ln_where(color / (a + vec3<f32>(EPS)), traced);
@@ -68,9 +64,9 @@ fn main(@builtin(local_invocation_id) lid: vec3<u32>, @builtin(workgroup_id) wid
         sk += s[1];
     }
     color_sums[lid.x] = vec4<f32>(cs, 0.0);
-    color_counts[lid.x] = vec4<f32>(ck, traced_count);
+    color_counts[lid.x] = vec4<f32>(ck, 0.0);
     shadow_sums[lid.x] = vec4<f32>(ss, 0.0);
-    shadow_counts[lid.x] = vec4<f32>(sk, traced_count);
+    shadow_counts[lid.x] = vec4<f32>(sk, 0.0);
     workgroupBarrier();
     for (var stride = WG / 2u; stride > 0u; stride /= 2u) {
         if (lid.x < stride) {
