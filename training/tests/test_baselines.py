@@ -41,7 +41,7 @@ def test_learned_forward_shapes_and_one_step(name, seq):
         assert r["output"].shape == (2, 3, H, W) and r["o"].shape == (2, 3, H, W)
         assert torch.isfinite(r["output"]).all() and (r["output"] >= 0).all()
     loss, parts = losses.total_loss([r["output"] for r in results], [f["reference"] for f in batch], loss_aux(results, batch))
-    assert set(parts) == {"l_s", "l_t", "l_e", "l_wt", "l_a"} and torch.isfinite(loss)
+    assert set(parts) == {"l_s", "l_t", "l_e", "l_wt", "l_a", "l_m"} and torch.isfinite(loss)
     opt = torch.optim.Adam(model.parameters(), lr=1e-3)
     before = {k: v.clone() for k, v in model.state_dict().items()}
     loss.backward()

@@ -23,7 +23,7 @@ def _aux(refs, motion, albedo):
 
 def test_constants():
     assert L.FRAME_WEIGHTS == (0.05, 0.25, 0.5, 0.75, 1.0)
-    assert L.LAMBDAS == {"s": 0.7, "t": 0.1, "e": 0.2, "wt": 0.4, "a": 5.0, "m": 0.0}
+    assert L.LAMBDAS == {"s": 0.7, "t": 0.1, "e": 0.2, "wt": 0.4, "a": 5.0, "m": 5.0}
 
 
 def test_zero_for_identical_inputs():
@@ -50,12 +50,13 @@ def test_positive_otherwise():
         + lam["e"] * parts["l_e"]
         + lam["wt"] * parts["l_wt"]
         + lam["a"] * parts["l_a"]
+        + lam["m"] * parts["l_m"]
     )
     torch.testing.assert_close(total, want)
     torch.testing.assert_close(parts["l_a"], torch.tensor(0.1))
-    # with the brightness term on, it adds its weighted part
-    total_m, parts_m = L.total_loss(preds, refs, aux, lambdas={**lam, "m": 2.0})
-    torch.testing.assert_close(total_m, want + 2.0 * parts_m["l_m"])
+    # the brightness term's weight is honoured like the others'
+    total_0, _ = L.total_loss(preds, refs, aux, lambdas={**lam, "m": 0.0})
+    torch.testing.assert_close(total_0, want - lam["m"] * parts["l_m"])
     with pytest.raises(KeyError, match="unknown loss weight"):
         L.total_loss(preds, refs, aux, lambdas={**lam, "q": 1.0})
 
