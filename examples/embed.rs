@@ -80,14 +80,7 @@ fn main() -> anyhow::Result<()> {
             queue.write_buffer(b, 0, bytemuck::cast_slice(d));
         }
         let mut encoder = device.create_command_encoder(&Default::default());
-        let inputs = FrameInputs {
-            color_mask: &bufs[0],
-            albedo_depth: &bufs[1],
-            normal_metallic: &bufs[2],
-            shadow_roughness: &bufs[3],
-            transparent: &bufs[4],
-            motion: &bufs[5],
-        };
+        let inputs = FrameInputs::from_slice(&bufs)?;
         // 4. One call per frame; the output texture is rgba32float linear radiance.
         let _output: &wgpu::Texture = denoiser.denoise(&mut encoder, &inputs)?;
         queue.submit([encoder.finish()]);

@@ -557,14 +557,7 @@ fn denoise_host_never_writes_the_callers_buffers() {
             })
         })
         .collect();
-    let inputs = FrameInputs {
-        color_mask: &caller[0],
-        albedo_depth: &caller[1],
-        normal_metallic: &caller[2],
-        shadow_roughness: &caller[3],
-        transparent: &caller[4],
-        motion: &caller[5],
-    };
+    let inputs = FrameInputs::from_slice(&caller).unwrap();
     let mut den = Denoiser::with_gpu(&gpu, &weights, w, h).unwrap();
     let mut enc = gpu.device.create_command_encoder(&Default::default());
     den.denoise(&mut enc, &inputs).unwrap();
@@ -576,6 +569,8 @@ fn denoise_host_never_writes_the_callers_buffers() {
         let got = gpu.read_buffer(buf, 0, buf.size()).unwrap();
         assert_eq!(got, bytemuck::cast_slice::<[f32; 4], u8>(want), "{}", buf.size());
     }
+    let e = FrameInputs::from_slice(&caller[..5]).unwrap_err().to_string();
+    assert!(e.contains("5 buffers, expected 6 (color_mask,"), "{e}");
     let mut fresh = Denoiser::with_gpu(&gpu, &weights, w, h).unwrap();
     common::assert_close("frame a", &out_a, &fresh.denoise_host(&a).unwrap(), common::EXACT);
     common::assert_close("frame b", &out_b, &fresh.denoise_host(&b).unwrap(), common::EXACT);

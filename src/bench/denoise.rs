@@ -93,14 +93,7 @@ pub fn bench_denoise(
             })
         })
         .collect();
-    let inputs = FrameInputs {
-        color_mask: &bufs[0],
-        albedo_depth: &bufs[1],
-        normal_metallic: &bufs[2],
-        shadow_roughness: &bufs[3],
-        transparent: &bufs[4],
-        motion: &bufs[5],
-    };
+    let inputs = FrameInputs::from_slice(&bufs)?;
     let flops: Vec<(&'static str, String, u64)> = den.network().step_flops();
     let total_flops: u64 = flops.iter().map(|f| f.2).sum();
     let mut run = |granularity: Granularity| -> Result<(Profiler, Vec<f64>)> {

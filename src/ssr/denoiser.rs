@@ -45,7 +45,38 @@ pub struct FrameInputs<'a> {
     pub motion: &'a wgpu::Buffer,
 }
 
-impl FrameInputs<'_> {
+impl<'a> FrameInputs<'a> {
+    /// The six buffers in the order of the table above (e.g. a `Vec` of them); an error
+    /// naming the count for any other number.
+    pub fn from_slice(buffers: &'a [wgpu::Buffer]) -> Result<Self> {
+        let [
+            color_mask,
+            albedo_depth,
+            normal_metallic,
+            shadow_roughness,
+            transparent,
+            motion,
+        ] = buffers
+        else {
+            return Err(Error::shape(
+                "denoiser input",
+                format!(
+                    "{} buffers, expected 6 ({})",
+                    buffers.len(),
+                    Self::NAMES.join(", ")
+                ),
+            ));
+        };
+        Ok(Self {
+            color_mask,
+            albedo_depth,
+            normal_metallic,
+            shadow_roughness,
+            transparent,
+            motion,
+        })
+    }
+
     fn buffers(&self) -> [&wgpu::Buffer; 6] {
         [
             self.color_mask,
@@ -496,14 +527,7 @@ impl Denoiser {
             self.gpu.queue.write_buffer(b, 0, bytemuck::cast_slice(data));
         }
         let mut enc = self.gpu.device.create_command_encoder(&Default::default());
-        let inputs = FrameInputs {
-            color_mask: &bufs[0],
-            albedo_depth: &bufs[1],
-            normal_metallic: &bufs[2],
-            shadow_roughness: &bufs[3],
-            transparent: &bufs[4],
-            motion: &bufs[5],
-        };
+        let inputs = FrameInputs::from_slice(&bufs)?;
         self.denoise(&mut enc, &inputs)?;
         self.gpu.queue.submit([enc.finish()]);
         self.gpu.wait()?;
