@@ -311,16 +311,12 @@ pub fn kernel_needs(name: &str, params: ParamsBinding) -> Result<KernelNeeds> {
     Ok(n)
 }
 
-/// Checks that every kernel in `kernels`, its parameters bound as `params`, fits `limits`
-/// (a device's); the error names `what` needs them, each kernel and each limit it
-/// exceeds, with the numbers.
-pub fn check_limits(
-    what: &str,
-    kernels: &[&str],
-    limits: &wgpu::Limits,
-    params: ParamsBinding,
-) -> Result<()> {
-    let bound: Vec<_> = kernels.iter().map(|&k| (k, params)).collect();
+/// Checks that every kernel in `kernels`, as written (parameters in a uniform block), fits
+/// `limits` (a device's); the error names `what` needs them, each kernel and each limit it
+/// exceeds, with the numbers. [`KernelRegistry::check_limits`] checks the bindings a
+/// device actually uses.
+pub fn check_limits(what: &str, kernels: &[&str], limits: &wgpu::Limits) -> Result<()> {
+    let bound: Vec<_> = kernels.iter().map(|&k| (k, ParamsBinding::Uniform)).collect();
     check_bound_limits(what, &bound, limits)
 }
 
@@ -699,13 +695,7 @@ mod tests {
     #[test]
     fn denoiser_kernels_fit_the_default_limits() {
         let ssr = crate::ssr::KERNELS_USED;
-        check_limits(
-            "the denoiser",
-            ssr,
-            &wgpu::Limits::default(),
-            ParamsBinding::Uniform,
-        )
-        .unwrap();
+        check_limits("the denoiser", ssr, &wgpu::Limits::default()).unwrap();
         // Independent expectations: counted by hand from the WGSL.
         let pack = kernel_needs("ssr/pack_inputs", ParamsBinding::Uniform).unwrap();
         assert_eq!((pack.storage_buffers, pack.uniform_buffers), (7, 1));
@@ -724,9 +714,7 @@ mod tests {
             max_compute_workgroup_storage_size: 8192,
             ..wgpu::Limits::default()
         };
-        let e = check_limits("the denoiser", ssr, &tight, ParamsBinding::Uniform)
-            .unwrap_err()
-            .to_string();
+        let e = check_limits("the denoiser", ssr, &tight).unwrap_err().to_string();
         assert!(
             e.contains("the denoiser")
                 && e.contains("kernel 'nn/tfa_blend' needs max_storage_buffers_per_shader_stage >= 8, the device allows 7")
