@@ -454,7 +454,7 @@ fn write_sequence_json(
                     continue;
                 }
                 if let Some(o) = old.get(k)
-                    && o != v
+                    && !same_setting(o, v)
                 {
                     bail!(
                         "{} holds frames rendered with {k} = {o}, not {v}: render into another folder, \
@@ -473,6 +473,23 @@ fn write_sequence_json(
         .with_context(|| format!("cannot write {}", tmp.display()))?;
     std::fs::rename(&tmp, &p).with_context(|| format!("cannot write {}", p.display()))?;
     Ok(())
+}
+
+/// Whether a setting read back from a `sequence.json` is the one about to be written. The
+/// renderer's real-valued settings (`far`) are `f32`: two numbers are the same setting when
+/// they round to the same `f32`, so a decimal written and read back by another JSON
+/// implementation (or an older parser that was one f64 ulp off) still matches.
+fn same_setting(old: &serde_json::Value, new: &serde_json::Value) -> bool {
+    use serde_json::Value;
+    match (old, new) {
+        (Value::Number(a), Value::Number(b)) if a.is_f64() || b.is_f64() => {
+            matches!((a.as_f64(), b.as_f64()), (Some(x), Some(y)) if x as f32 == y as f32)
+        }
+        (Value::Array(a), Value::Array(b)) => {
+            a.len() == b.len() && a.iter().zip(b).all(|(x, y)| same_setting(x, y))
+        }
+        _ => old == new,
+    }
 }
 
 /// Tonemapped 8-bit preview of an HDR tensor's first 3 channels (the tonemap of the
@@ -791,5 +808,27 @@ impl StageTiming {
                 "quarter vs full: trace {t:.2}x faster, gbuffer + trace {a:.2}x (paper: 12.79 ms -> 4.35 ms, 2.94x)"
             );
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::same_setting;
+    use serde_json::json;
+
+    /// The far distance of a sequence rendered in an earlier session, as read back from its
+    /// sequence.json (one f64 ulp away from the f32 the renderer computes now), is the same
+    /// setting; a different far distance, count or name is not.
+    #[test]
+    fn settings_read_back_match_at_the_renderers_precision() {
+        let now = json!(18.337_331_f32);
+        let written: serde_json::Value = serde_json::from_str(&now.to_string()).unwrap();
+        assert!(same_setting(&written, &now));
+        assert!(same_setting(&json!(18.337331771850582_f64), &now));
+        assert!(!same_setting(&json!(18.3374_f64), &now));
+        assert!(same_setting(&json!([128, 128]), &json!([128, 128])));
+        assert!(!same_setting(&json!([128, 128]), &json!([128, 64])));
+        assert!(!same_setting(&json!(8), &json!(9)));
+        assert!(!same_setting(&json!("flythrough"), &json!("orbit")));
     }
 }
