@@ -2,7 +2,7 @@
 //! (metal, opaque dielectric and glass lobes; GGX with visible-normal sampling; one-sample
 //! MIS over the sampling strategies).
 
-use glam::{Mat3, Vec2, Vec3};
+use glam::{Mat3A as Mat3, Vec2, Vec3A as Vec3};
 
 use super::common::{INV_PI, PI, TWO_PI, finite3, onb, pow5, reflect, refract, to_local, to_world};
 use super::material::Surface;

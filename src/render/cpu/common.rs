@@ -2,7 +2,7 @@
 //! the GPU's, so one seed drives both backends through the same sample sequence), the
 //! orthonormal basis, ray offsetting and small helpers.
 
-use glam::{Mat3, Vec3};
+use glam::{Mat3A as Mat3, Vec3A as Vec3};
 
 pub(crate) const PI: f32 = std::f32::consts::PI;
 pub(crate) const TWO_PI: f32 = std::f32::consts::TAU;

@@ -2,7 +2,7 @@
 //! Russian roulette, Beer-Lambert media, alpha cut-outs), the mean of a pixel's jittered
 //! samples, the G-buffers of primary visibility, and the pinhole camera.
 
-use glam::{Vec2, Vec3};
+use glam::{Vec2, Vec3A as Vec3};
 
 use super::bsdf::{Lobes, bsdf_eval_with, bsdf_sample_with};
 use super::common::{BIG, NO_HIT, Rng, finite3, max3, offset_ray, rng_seed};
@@ -132,8 +132,7 @@ pub(crate) fn trace_path(
         prev_pdf = bs.pdf;
         if bs.transmitted && s.transmission > 0.0 && s.flags & MAT_THIN == 0 {
             sigma = if s.front && s.attenuation.w > 0.0 {
-                -s.attenuation
-                    .truncate()
+                -Vec3::from_vec4(s.attenuation)
                     .clamp(Vec3::splat(1.0e-6), Vec3::ONE)
                     .ln()
                     / s.attenuation.w

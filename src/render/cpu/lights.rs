@@ -1,7 +1,7 @@
 //! Twin of `wgsl/trace/lib/lights.wgsl`: next-event estimation on emissive triangles (by
 //! power) and the environment (importance sampled from its CDFs), and the MIS weights.
 
-use glam::Vec3;
+use glam::Vec3A as Vec3;
 
 use super::common::{BIG, PI, TWO_PI, luminance};
 use super::material::{interp_uv, material_emission, material_of, tri_info, tri_vec};

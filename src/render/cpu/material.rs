@@ -1,7 +1,7 @@
 //! Twin of `wgsl/trace/lib/material.wgsl`: bilinear texture lookups with wrap modes over the
 //! packed RGBA8 texels, alpha cut-outs, emission, and the shading point of a hit.
 
-use glam::{Vec2, Vec3, Vec4};
+use glam::{Vec2, Vec3A as Vec3, Vec4};
 
 use super::common::{finite3, srgb_to_linear};
 use super::traverse::Hit;
@@ -115,7 +115,7 @@ pub(crate) fn alpha_passes(sc: &PackedScene, prim: u32, u: f32, v: f32) -> bool 
 pub(crate) fn material_emission(sc: &PackedScene, m: &GpuMaterial, uv: Vec2) -> Vec3 {
     let mut e = Vec3::new(m.emissive[0], m.emissive[1], m.emissive[2]);
     if m.textures[3] != NO_TEX && e.cmpgt(Vec3::ZERO).any() {
-        e *= tex_sample(sc, m.textures[3], uv).truncate();
+        e *= Vec3::from_vec4(tex_sample(sc, m.textures[3], uv));
     }
     e
 }
@@ -172,7 +172,7 @@ pub(crate) fn surface_at(sc: &PackedScene, h: &Hit, d: Vec3) -> Surface {
     let uv1 = Vec2::new(a1.w, b1.w);
     let uv2 = Vec2::new(a2.w, b2.w);
     let uv = uv0 * w0 + uv1 * h.u + uv2 * h.v;
-    let mut n = a0.truncate() * w0 + a1.truncate() * h.u + a2.truncate() * h.v;
+    let mut n = Vec3::from_vec4(a0) * w0 + Vec3::from_vec4(a1) * h.u + Vec3::from_vec4(a2) * h.v;
     if !(n.dot(n) > 1.0e-12) || !finite3(n) {
         n = ng_ccw;
     }
@@ -183,7 +183,7 @@ pub(crate) fn surface_at(sc: &PackedScene, h: &Hit, d: Vec3) -> Surface {
 
     let mut base = Vec3::new(m.base_color[0], m.base_color[1], m.base_color[2]);
     if m.textures[0] != NO_TEX {
-        base *= tex_sample(sc, m.textures[0], uv).truncate();
+        base *= Vec3::from_vec4(tex_sample(sc, m.textures[0], uv));
     }
     let mut metallic = m.pbr[0];
     let mut roughness = m.pbr[1];
@@ -196,7 +196,7 @@ pub(crate) fn surface_at(sc: &PackedScene, h: &Hit, d: Vec3) -> Surface {
         let mut t;
         let bsign;
         if info[3] & TRI_FLAG_HAS_TANGENT != 0 {
-            t = b0.truncate() * w0 + b1.truncate() * h.u + b2.truncate() * h.v;
+            t = Vec3::from_vec4(b0) * w0 + Vec3::from_vec4(b1) * h.u + Vec3::from_vec4(b2) * h.v;
             bsign = if info[3] & TRI_FLAG_TANGENT_NEG != 0 {
                 -1.0
             } else {
@@ -217,7 +217,7 @@ pub(crate) fn surface_at(sc: &PackedScene, h: &Hit, d: Vec3) -> Surface {
         if t.dot(t) > 1.0e-20 && finite3(t) {
             t = t.normalize();
             let bt = n.cross(t) * bsign;
-            let tn = tex_sample(sc, m.textures[2], uv).truncate() * 2.0 - 1.0;
+            let tn = Vec3::from_vec4(tex_sample(sc, m.textures[2], uv)) * 2.0 - 1.0;
             let tn = Vec3::new(tn.x * m.extra[1], tn.y * m.extra[1], tn.z);
             let mapped = t * tn.x + bt * tn.y + n * tn.z;
             if mapped.dot(mapped) > 1.0e-12 && mapped.dot(ng_ccw) > 0.0 {

@@ -149,7 +149,7 @@ impl CpuTracer {
     ) -> Vec<PrimarySurface> {
         let p = self.params(s, s.seed);
         let d = primary_dir(&p, x, y);
-        let o = glam::Vec3::from_slice(&p.cam.pos[..3]);
+        let o = glam::Vec3A::from_slice(&p.cam.pos[..3]);
         let mut hits: Vec<traverse::Hit> = (0..scene.tris.len() as u32 / 4)
             .filter_map(|prim| {
                 let (t, u, v) = traverse::intersect_tri(scene, prim, o, d, 0.0, common::BIG)?;

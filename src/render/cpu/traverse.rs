@@ -2,7 +2,7 @@
 //! hit, the triangle a ray leaves from skipped, alpha-masked triangles tested against their
 //! material's cutoff, and the same Moeller-Trumbore test as the GPU.
 
-use glam::{Vec3, Vec3A};
+use glam::Vec3A as Vec3;
 use obvhs::ray::{Ray, RayHit};
 
 use super::common::{BIG, NO_HIT};
@@ -72,7 +72,7 @@ pub(crate) fn traverse(
     if bvh.nodes.is_empty() {
         return best;
     }
-    let ray = Ray::new(Vec3A::from(o), Vec3A::from(d), 0.0, best.t);
+    let ray = Ray::new(o, d, 0.0, best.t);
     // The candidate test: the GPU's triangle test, then the skip and alpha rules. Passed by
     // value so that obvhs's traversal inlines it.
     let test = |r: &Ray, id: usize, best: &mut Hit| -> f32 {
