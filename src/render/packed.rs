@@ -49,7 +49,8 @@ pub struct PackedScene {
     pub name: String,
     /// The CWBVH (its nodes are the `bvh_nodes` array) and the leaf order.
     pub bvh: SceneBvh,
-    /// Triangles in BVH order, 4 vec4 each (`tris`).
+    /// Triangles in BVH order, 4 vec4 each (`tris`): v0, e1, e2 (w: the normal e1 x e2),
+    /// vertex indices and material word.
     pub tris: Vec<[f32; 4]>,
     /// Vertex attributes, 2 vec4 each (`verts`).
     pub verts: Vec<[f32; 4]>,
@@ -241,7 +242,8 @@ impl PackedScene {
         let bvh = SceneBvh::build(name, &g.positions, &g.triangles)?;
         let mats = gpu_materials(scene);
 
-        // Triangles in BVH order: v0, e1 = v0 - v1, e2 = v2 - v0, info.
+        // Triangles in BVH order: v0, e1 = v0 - v1, e2 = v2 - v0 (their w components hold the
+        // unnormalised normal e1 x e2, for the CPU twin's ray test), info.
         let mut tris: Vec<[f32; 4]> = Vec::with_capacity(4 * bvh.order.len());
         let mut lights: Vec<(u32, f64, f32)> = Vec::new(); // (slot, power, area)
         for (slot, &orig) in bvh.order.iter().enumerate() {
@@ -260,9 +262,10 @@ impl PackedScene {
                     info |= TRI_FLAG_TANGENT_NEG;
                 }
             }
-            tris.push([v0.x, v0.y, v0.z, 0.0]);
-            tris.push([e1.x, e1.y, e1.z, 0.0]);
-            tris.push([e2.x, e2.y, e2.z, 0.0]);
+            let n = e1.cross(e2);
+            tris.push([v0.x, v0.y, v0.z, n.x]);
+            tris.push([e1.x, e1.y, e1.z, n.y]);
+            tris.push([e2.x, e2.y, e2.z, n.z]);
             tris.push([idx[0], idx[1], idx[2], info].map(f32::from_bits));
             let lum = mats[mat as usize].emissive[3];
             if lum > 0.0 {

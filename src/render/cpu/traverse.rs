@@ -6,7 +6,7 @@ use glam::Vec3A as Vec3;
 use obvhs::ray::{Ray, RayHit};
 
 use super::common::{BIG, NO_HIT};
-use super::material::{alpha_passes, tri_vec};
+use super::material::alpha_passes;
 use crate::render::packed::{PackedScene, TRI_FLAG_ALPHA};
 
 /// A ray hit (WGSL `Hit`): `prim` is the BVH-order triangle, [`NO_HIT`] on a miss; `u`, `v`
@@ -29,10 +29,14 @@ pub(crate) fn intersect_tri(
     tmin: f32,
     tmax: f32,
 ) -> Option<(f32, f32, f32)> {
-    let v0 = tri_vec(sc, prim, 0);
-    let e1 = tri_vec(sc, prim, 1);
-    let e2 = tri_vec(sc, prim, 2);
-    let n = e1.cross(e2);
+    let t4 = &sc.tris[4 * prim as usize..4 * prim as usize + 3];
+    let (v0, e1, e2) = (
+        Vec3::from_slice(&t4[0][..3]),
+        Vec3::from_slice(&t4[1][..3]),
+        Vec3::from_slice(&t4[2][..3]),
+    );
+    // The packed normal e1 x e2 (computed once per triangle when packing).
+    let n = Vec3::new(t4[0][3], t4[1][3], t4[2][3]);
     let c = v0 - o;
     let r = d.cross(c);
     let det = n.dot(d);
