@@ -27,6 +27,13 @@ Augmentation:
     pixel-centre convention). Normals are world-space and stay as they are. A flip permutes
     the tile pattern into one of its cyclic shifts (h) or its reverse (v); both keep the
     "diagonal, then vertical step" structure of the sequence.
+  * sample thinning (`thin`, off by default): a window drawn with probability `thin` keeps
+    each traced pixel's sample with probability `keep` (log-uniform in [THIN_KEEP_MIN, 1],
+    one value per window) and divides a kept sample by `keep`; a dropped one becomes a
+    traced pixel that found no light (color and shadow 0, mask still 1). The expectation of
+    every pixel is unchanged, so the reference stays right: this is Russian roulette on the
+    input samples. It shows the network scenes where most traced samples carry no light
+    (an interior lit through its windows), which the rendered scenes rarely are.
 
 Non-finite values in every buffer but `motion` become 0 (the engine sanitises its inputs
 the same way); non-finite motion is kept (the warp treats it as invalid).
@@ -412,6 +419,30 @@ class WindowKey(NamedTuple):
     x0: int
     hflip: bool
     vflip: bool
+    keep: float = 1.0  # sample thinning: probability of keeping a traced sample (1: off)
+    thin_seed: int = 0  # seeds the keep/drop choices of a thinned window
+
+
+# Smallest fraction of traced samples a thinned window keeps.
+THIN_KEEP_MIN = 0.1
+
+
+def thin_frame(frame: Dict[str, torch.Tensor], keep: float, g: torch.Generator) -> Dict[str, torch.Tensor]:
+    """Russian roulette on the traced samples of one CHW frame: each traced pixel (mask >
+    0.5) keeps its sample with probability `keep`, divided by `keep`; a dropped one gets
+    color 0 and shadow 0 (a traced path that found no light). Other buffers unchanged."""
+    if keep >= 1.0:
+        return frame
+    if not (0.0 < keep):
+        raise ValueError(f"keep must be in (0, 1], got {keep}")
+    traced = frame["mask"] > 0.5
+    u = torch.rand(traced.shape, generator=g)
+    kept = (u < keep) & traced
+    dropped = traced & ~kept
+    out = dict(frame)
+    out["color"] = torch.where(kept, frame["color"] / keep, torch.where(dropped, torch.zeros_like(frame["color"]), frame["color"]))
+    out["shadow"] = torch.where(dropped, torch.zeros_like(frame["shadow"]), frame["shadow"])
+    return out
 
 
 def effective_crop(seqs: Sequence[SequenceInfo], crop: Optional[int]) -> Tuple[int, int]:
@@ -471,11 +502,15 @@ class SequenceDataset(torch.utils.data.Dataset):
         cache: str = "none",
         cache_mb: float = 4096.0,
         cache_dir: Optional[str] = None,
+        thin: float = 0.0,
     ):
         self.root = root
         self.split = split
         self.window = int(window)
         self.flips = flips
+        if not (0.0 <= thin <= 1.0):
+            raise ValueError(f"thin must be a probability in [0, 1], got {thin}")
+        self.thin = float(thin)
         self.sequences = list_sequences(root, split, scenes)
         if not self.sequences:
             raise DatasetError(f"{os.path.join(root, split)}: no sequences")
@@ -500,7 +535,9 @@ class SequenceDataset(torch.utils.data.Dataset):
         return len(self.windows)
 
     def random_key(self, g: torch.Generator) -> WindowKey:
-        """A uniformly random window (over every window of every sequence), crop and flips."""
+        """A uniformly random window (over every window of every sequence), crop, flips and,
+        with `thin` > 0, sample thinning (drawn after the rest, so thin = 0 draws exactly
+        what it always did)."""
         si, start = self.windows[int(torch.randint(len(self.windows), (1,), generator=g))]
         s = self.sequences[si]
         ch, cw = self.crop_hw
@@ -510,7 +547,13 @@ class SequenceDataset(torch.utils.data.Dataset):
         hf = vf = False
         if self.flips:
             hf, vf = (bool(v) for v in torch.randint(2, (2,), generator=g))
-        return WindowKey(si, start, y0, x0, hf, vf)
+        keep, thin_seed = 1.0, 0
+        if self.thin > 0.0:
+            u, v = torch.rand(2, generator=g, dtype=torch.float64).tolist()
+            if u < self.thin:
+                keep = float(THIN_KEEP_MIN ** (1.0 - v))  # log-uniform in [THIN_KEEP_MIN, 1]
+                thin_seed = int(torch.randint(1 << 62, (1,), generator=g))
+        return WindowKey(si, start, y0, x0, hf, vf, keep, thin_seed)
 
     def load(self, key: WindowKey) -> List[Dict[str, torch.Tensor]]:
         s = self.sequences[key.seq]
@@ -520,15 +563,19 @@ class SequenceDataset(torch.utils.data.Dataset):
         if key.y0 + ch > s.height or key.x0 + cw > s.width or key.y0 < 0 or key.x0 < 0:
             raise IndexError(f"{s.path}: crop {cw}x{ch} at ({key.x0}, {key.y0}) outside {s.width}x{s.height}")
         frames = []
+        g = torch.Generator().manual_seed(key.thin_seed) if key.keep < 1.0 else None
         for t in range(key.start, key.start + self.window):
             arr = self.store.read(s, t, rows=(key.y0, key.y0 + ch))[:, key.x0 : key.x0 + cw]
-            frames.append(flip_frame(to_frame(arr), key.hflip, key.vflip))
+            frame = to_frame(arr)
+            if g is not None:
+                frame = thin_frame(frame, key.keep, g)
+            frames.append(flip_frame(frame, key.hflip, key.vflip))
         return frames
 
     def __getitem__(self, index) -> List[Dict[str, torch.Tensor]]:
         if isinstance(index, WindowKey):
             return self.load(index)
-        if isinstance(index, (tuple, list)) and len(index) == 6:
+        if isinstance(index, (tuple, list)) and len(index) in (6, 8):
             return self.load(WindowKey(*index))
         si, start = self.windows[int(index)]
         return self.load(WindowKey(si, start, 0, 0, False, False))

@@ -47,7 +47,7 @@ from torch import nn
 
 from . import losses
 from .baselines import build_model, export_model, loss_aux
-from .data import DatasetError, SequenceDataset, WindowSampler, collate, pad_frame
+from .data import THIN_KEEP_MIN, DatasetError, SequenceDataset, WindowSampler, collate, pad_frame
 from .metrics import image_metrics, mean_metrics
 from .model import SSRModel
 
@@ -77,6 +77,10 @@ def parse_args(argv=None) -> argparse.Namespace:
     ap.add_argument("--window", type=int, default=5, help="frames per training sequence")
     ap.add_argument("--scenes", nargs="+", default=None, help="train (and validate) on these scenes only")
     ap.add_argument("--no-flips", action="store_true", help="no random flips")
+    ap.add_argument(
+        "--thin", type=float, default=0.0,
+        help="probability of sample thinning per window (ssr/data.py: Russian roulette on the input samples; 0: off)",
+    )
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--resume", action="store_true", help="continue from RUN_DIR/checkpoint.pt")
     ap.add_argument("--ckpt-every", type=int, default=1000)
@@ -161,6 +165,8 @@ def run_config(args: argparse.Namespace) -> dict:
         "lambdas": dict(args.lambdas),
         # Only present for runs started from weights (older checkpoints have no such key).
         **({"init": init_identity(args.init)} if args.init is not None else {}),
+        # Only present when sample thinning is on (older checkpoints have no such key).
+        **({"thin": args.thin} if args.thin > 0 else {}),
     }
 
 
@@ -452,7 +458,7 @@ def _train(args, config: dict, dd: Dist) -> dict:
     # data
     train_ds = SequenceDataset(
         args.data, "train", window=args.window, crop=args.crop, flips=not args.no_flips, scenes=args.scenes,
-        cache=args.cache, cache_mb=args.cache_mb, cache_dir=args.cache_dir,
+        cache=args.cache, cache_mb=args.cache_mb, cache_dir=args.cache_dir, thin=args.thin,
     )
     if tuple(train_ds.crop_hw) != (args.crop, args.crop):
         say(f"note: frames smaller than --crop {args.crop}: crops are {train_ds.crop_hw[1]}x{train_ds.crop_hw[0]}")
@@ -626,6 +632,7 @@ def _train(args, config: dict, dd: Dist) -> dict:
             "batch": args.batch,
             "crop": list(train_ds.crop_hw),
             "window": args.window,
+            "augmentation": {"flips": not args.no_flips, "thin": args.thin, "thin_keep_min": THIN_KEEP_MIN},
             "lr": args.lr,
             "lr_schedule": "Adam; halved at 1/3 and 2/3 of the iterations",
             "losses": {"frame_weights": list(weights), "lambdas": dict(args.lambdas)},

@@ -8,6 +8,7 @@ import torch
 
 from ssr.data import (
     EXR_CHANNELS,
+    THIN_KEEP_MIN,
     DatasetError,
     SequenceDataset,
     WindowKey,
@@ -18,6 +19,7 @@ from ssr.data import (
     flip_frame,
     pad_frame,
     read_exr,
+    thin_frame,
     to_frame,
     write_exr,
 )
@@ -245,3 +247,54 @@ def test_split_mixing_spp_or_sizes_is_named(tmp_path):
     json.dump(meta, open(jp, "w"))
     with pytest.raises(DatasetError, match=r"s1/sequence\.json: spp \d+, but .*s0/sequence\.json has spp \d+"):
         SequenceDataset(root, "train", crop=8)
+
+
+def test_thinning_keeps_every_pixels_expectation():
+    # Russian roulette on the samples: over many thinned copies the mean of each traced
+    # pixel's color is the original (independent check: the per-pixel mean of 4,000 draws
+    # against the source, within 5 standard errors), untraced pixels and the other buffers
+    # are untouched, and about `keep` of the traced samples survive.
+    g = torch.Generator().manual_seed(3)
+    h, w = 8, 8
+    mask = torch.zeros(1, h, w)
+    mask[:, ::2, ::2] = 1.0
+    color = torch.rand(3, h, w, generator=g) * mask
+    frame = {"color": color, "mask": mask, "shadow": torch.rand(3, h, w, generator=g), "albedo": torch.rand(3, h, w, generator=g)}
+    keep, n = 0.25, 4000
+    acc = torch.zeros_like(color)
+    acc2 = torch.zeros_like(color)
+    survived = 0.0
+    for i in range(n):
+        out = thin_frame(frame, keep, torch.Generator().manual_seed(i))
+        acc += out["color"]
+        acc2 += out["color"] ** 2
+        survived += float(((out["color"].amax(0, keepdim=True) > 0) & (mask > 0)).sum()) / float(mask.sum())
+        assert torch.equal(out["albedo"], frame["albedo"]) and torch.equal(out["mask"], mask)
+        assert torch.equal(out["color"] * (1 - mask), color * (1 - mask))
+        dropped = (mask > 0) & (out["color"].amax(0, keepdim=True) == 0)
+        assert torch.all(out["shadow"][dropped.expand(3, h, w)] == 0)
+    mean = acc / n
+    se = ((acc2 / n - mean**2).clamp(min=0) / n).sqrt()
+    traced = mask.expand(3, h, w) > 0
+    assert torch.all((mean - color).abs()[traced] <= 5 * se[traced] + 1e-6)
+    assert abs(survived / n - keep) < 0.02
+
+
+def test_thinning_is_deterministic_and_off_by_default(dataset):
+    plain = SequenceDataset(dataset, "train", crop=16)
+    g1, g2 = torch.Generator().manual_seed(5), torch.Generator().manual_seed(5)
+    k_plain = [plain.random_key(g1) for _ in range(20)]
+    k_again = [SequenceDataset(dataset, "train", crop=16).random_key(g2) for _ in range(20)]
+    assert k_plain == k_again and all(k.keep == 1.0 for k in k_plain)
+    thin = SequenceDataset(dataset, "train", crop=16, thin=1.0)
+    g = torch.Generator().manual_seed(5)
+    keys = [thin.random_key(g) for _ in range(20)]
+    assert all(THIN_KEEP_MIN <= k.keep < 1.0 for k in keys)
+    # the choices before thinning are those of the plain dataset
+    assert [k[:6] for k in keys[:1]] == [k[:6] for k in k_plain[:1]]
+    a, b = thin[keys[0]], thin[keys[0]]
+    for fa, fb in zip(a, b):
+        for k in fa:
+            assert torch.equal(fa[k], fb[k])
+    with pytest.raises(ValueError, match="thin"):
+        SequenceDataset(dataset, "train", crop=16, thin=1.5)
