@@ -10,6 +10,30 @@
 //! - [`render`]: the 1/4-spp path tracer, its scenes and G-buffers.
 //! - [`io`]: EXR frames, PNG previews, frame folders.
 //! - [`metrics`]: image quality metrics; [`view`]: showing tensors on screen.
+//! - [`frame`]: one frame of the per-frame data contract in host memory.
+//! - [`cli`], [`bench`]: the `subpixel` command and its benchmarks (front ends).
+//!
+//! ## Data flow
+//!
+//! ```text
+//!  builtin:NAME | builtin:procedural:SEED | scene.json | .gltf/.glb
+//!        |  render::load_scene_with (render::loader, render::procedural)
+//!        v
+//!  render::Scene ----> render::bvh (obvhs CWBVH) ----> render::PackedScene (the tracer's arrays)
+//!                                                          |
+//!                     +------------------------------------+---------------------+
+//!                     v                                                          v
+//!        render::Tracer (WGSL, on the adapter)                 render::CpuTracer (CPU twin)
+//!        writes render::FrameBuffers on the GPU                writes frame::HostFrame
+//!                     |                                                          |
+//!                     +---- per-frame contract (DESIGN §3): color, mask, albedo, normal,
+//!                     |     shadow, transparent, depth, metallic, roughness, motion
+//!                     v
+//!        ssr::FrameInputs (borrowed GPU buffers; the user's own buffers work the same)
+//!                     |  ssr::Denoiser (the network: gpu kernels from nn, weights from ssr)
+//!                     v
+//!        denoised radiance ----> io (EXR, PNG), metrics, view (display)
+//! ```
 
 #![warn(missing_docs)]
 
