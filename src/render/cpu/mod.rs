@@ -3,7 +3,9 @@
 //! dielectrics) and the same G-buffers, in Rust over obvhs's CPU CWBVH traversal, reading
 //! the same [`PackedScene`] arrays as the GPU and drawing the same PCG random numbers, in
 //! parallel over all cores (rayon). For a seed it is deterministic, whatever the thread
-//! count. Each file mirrors one WGSL library file.
+//! count. Each file mirrors one WGSL library file. Its vectors are glam's SIMD `Vec3A` and
+//! `Mat3A`, imported under the names `Vec3` and `Mat3` so that the code reads like the WGSL
+//! it mirrors.
 //!
 //! ```
 //! # fn main() -> subpixel::Result<()> {
