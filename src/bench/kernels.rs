@@ -159,13 +159,8 @@ pub fn bench_kernels(gpu: &Gpu, o: &KernelBenchOptions) -> Result<Vec<KernelTimi
         let mut prof = Profiler::new(gpu, 1);
         for i in 0..o.warmup + o.iterations {
             let mut enc = gpu.device.create_command_encoder(&Default::default());
-            {
-                let mut pass = enc.begin_compute_pass(&wgpu::ComputePassDescriptor {
-                    label: Some(&case.name),
-                    timestamp_writes: prof.scope(&case.name),
-                });
-                case.dispatch.record(&mut pass);
-            }
+            case.dispatch
+                .record(&mut Profiler::pass(&mut enc, &case.name, Some(&mut prof)));
             prof.resolve(&mut enc);
             let t0 = std::time::Instant::now();
             gpu.queue.submit([enc.finish()]);

@@ -598,11 +598,7 @@ impl Dispatch {
 
     /// Records the dispatch in its own compute pass on `encoder`, labelled by the kernel.
     pub fn encode(&self, encoder: &mut wgpu::CommandEncoder) {
-        let mut pass = encoder.begin_compute_pass(&wgpu::ComputePassDescriptor {
-            label: Some(self.kernel),
-            timestamp_writes: None,
-        });
-        self.record(&mut pass);
+        self.record(&mut super::Profiler::pass(encoder, self.kernel, None));
     }
 }
 

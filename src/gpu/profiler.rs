@@ -121,6 +121,19 @@ impl Profiler {
         })
     }
 
+    /// Begins a compute pass labelled `label` on `encoder`, timed as a scope of `profiler`
+    /// when one is given (and has room): the one way every caller opens a pass.
+    pub fn pass<'e>(
+        encoder: &'e mut wgpu::CommandEncoder,
+        label: &str,
+        profiler: Option<&mut Profiler>,
+    ) -> wgpu::ComputePass<'e> {
+        encoder.begin_compute_pass(&wgpu::ComputePassDescriptor {
+            label: Some(label),
+            timestamp_writes: profiler.and_then(|p| p.scope(label)),
+        })
+    }
+
     /// Resolves this frame's timestamps into the readback buffer; call before `finish()`.
     pub fn resolve(&self, encoder: &mut wgpu::CommandEncoder) {
         if let (Some(qs), Some(buf)) = (&self.query_set, &self.resolve)

@@ -385,12 +385,7 @@ impl Tracer {
     }
 
     fn pass(encoder: &mut wgpu::CommandEncoder, d: &Dispatch, profiler: Option<&mut Profiler>, label: &str) {
-        let timestamp_writes = profiler.and_then(|p| p.scope(label));
-        let mut pass = encoder.begin_compute_pass(&wgpu::ComputePassDescriptor {
-            label: Some(label),
-            timestamp_writes,
-        });
-        d.record(&mut pass);
+        d.record(&mut Profiler::pass(encoder, label, profiler));
     }
 
     /// Records one quarter or full frame (G-buffer pass labelled `gbuffer`, trace pass

@@ -362,10 +362,7 @@ impl Denoiser {
     ) -> Result<&wgpu::Texture> {
         self.bind_inputs(inputs)?;
         {
-            let mut pass = encoder.begin_compute_pass(&wgpu::ComputePassDescriptor {
-                label: Some("pack"),
-                timestamp_writes: profiler.as_mut().and_then(|p| p.scope("pack")),
-            });
+            let mut pass = Profiler::pass(encoder, "pack", profiler.as_deref_mut());
             let (_, pack, exposure) = self.pack.as_ref().expect("bound above");
             if let Some(e) = exposure {
                 e[0].record(&mut pass);
@@ -378,10 +375,7 @@ impl Denoiser {
         self.net
             .record(encoder, self.first, profiler.as_deref_mut(), granularity);
         {
-            let mut pass = encoder.begin_compute_pass(&wgpu::ComputePassDescriptor {
-                label: Some("output"),
-                timestamp_writes: profiler.as_mut().and_then(|p| p.scope("output")),
-            });
+            let mut pass = Profiler::pass(encoder, "output", profiler);
             self.store.record(&mut pass);
         }
         self.first = false;

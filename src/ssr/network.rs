@@ -485,10 +485,7 @@ impl Network {
                 Granularity::Layer => ordered[i].label.as_str(),
                 Granularity::Stage => ordered[i].stage,
             };
-            let mut pass = encoder.begin_compute_pass(&wgpu::ComputePassDescriptor {
-                label: Some(label),
-                timestamp_writes: profiler.as_mut().and_then(|p| p.scope(label)),
-            });
+            let mut pass = Profiler::pass(encoder, label, profiler.as_deref_mut());
             for s in &ordered[i..j] {
                 s.dispatch.record(&mut pass);
             }
