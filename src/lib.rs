@@ -10,7 +10,7 @@
 //! - [`render`]: the 1/4-spp path tracer, its scenes and G-buffers.
 //! - [`io`]: EXR frames, PNG previews, frame folders.
 //! - [`metrics`]: image quality metrics; [`view`]: showing tensors on screen.
-//! - [`frame`]: one frame of the per-frame data contract in host memory.
+//! - [`frame`]: the per-frame data contract: a frame in host memory and on the GPU.
 //! - [`cli`], [`bench`]: the `subpixel` command and its benchmarks (front ends).
 //!
 //! ## Data flow
@@ -29,7 +29,7 @@
 //!                     +---- per-frame contract (DESIGN §3): color, mask, albedo, normal,
 //!                     |     shadow, transparent, depth, metallic, roughness, motion
 //!                     v
-//!        ssr::FrameInputs (borrowed GPU buffers; the user's own buffers work the same)
+//!        frame::FrameInputs (borrowed GPU buffers; the user's own buffers work the same)
 //!                     |  ssr::Denoiser (the network: gpu kernels from nn, weights from ssr)
 //!                     v
 //!        denoised radiance ----> io (EXR, PNG), metrics, view (display)

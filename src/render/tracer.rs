@@ -154,9 +154,9 @@ pub struct FrameBuffers {
 }
 
 impl FrameBuffers {
-    /// The buffers as the denoiser's [`crate::ssr::FrameInputs`] (the same layout).
-    pub fn inputs(&self) -> crate::ssr::FrameInputs<'_> {
-        crate::ssr::FrameInputs {
+    /// The buffers as the denoiser's [`crate::frame::FrameInputs`] (the same layout).
+    pub fn inputs(&self) -> crate::frame::FrameInputs<'_> {
+        crate::frame::FrameInputs {
             color_mask: &self.color_mask.buffer,
             albedo_depth: &self.albedo_depth.buffer,
             normal_metallic: &self.normal_metallic.buffer,

@@ -1,4 +1,4 @@
-//! One frame of the per-frame data contract (DESIGN §3) in host memory.
+//! One frame of the per-frame data contract in host memory.
 
 use crate::error::{Error, Result};
 use crate::nn::HostTensor;

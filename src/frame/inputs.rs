@@ -1,0 +1,85 @@
+//! One frame of inputs on the GPU, borrowed: what a renderer hands the denoiser.
+
+use crate::error::{Error, Result};
+
+/// One frame of inputs (DESIGN §3), borrowed from the caller's renderer: six storage
+/// buffers of `width * height` `vec4<f32>` (row-major, 16 bytes per pixel), each created
+/// with `BufferUsages::STORAGE`:
+///
+/// | buffer | x y z | w |
+/// |---|---|---|
+/// | `color_mask` | traced radiance (0 at untraced pixels) | mask (1 where traced) |
+/// | `albedo_depth` | first-hit albedo (sky 1) | linear depth / far (sky 1) |
+/// | `normal_metallic` | world normal in [-1, 1] (sky 0) | metallic |
+/// | `shadow_roughness` | NEE light x visibility at traced pixels | perceptual roughness |
+/// | `transparent` | first transmissive tint (0 where none) | unused |
+/// | `motion` | x, y: motion in pixels, `prev = pos + motion` | unused |
+#[derive(Debug, Clone, Copy)]
+pub struct FrameInputs<'a> {
+    /// Radiance rgb + mask.
+    pub color_mask: &'a wgpu::Buffer,
+    /// Albedo rgb + depth.
+    pub albedo_depth: &'a wgpu::Buffer,
+    /// Normal xyz + metallic.
+    pub normal_metallic: &'a wgpu::Buffer,
+    /// Shadow rgb + roughness.
+    pub shadow_roughness: &'a wgpu::Buffer,
+    /// Transparent tint rgb.
+    pub transparent: &'a wgpu::Buffer,
+    /// Motion xy.
+    pub motion: &'a wgpu::Buffer,
+}
+
+impl<'a> FrameInputs<'a> {
+    /// The six buffers in the order of the table above (e.g. a `Vec` of them); an error
+    /// naming the count for any other number.
+    pub fn from_slice(buffers: &'a [wgpu::Buffer]) -> Result<Self> {
+        let [
+            color_mask,
+            albedo_depth,
+            normal_metallic,
+            shadow_roughness,
+            transparent,
+            motion,
+        ] = buffers
+        else {
+            return Err(Error::shape(
+                "denoiser input",
+                format!(
+                    "{} buffers, expected 6 ({})",
+                    buffers.len(),
+                    Self::NAMES.join(", ")
+                ),
+            ));
+        };
+        Ok(Self {
+            color_mask,
+            albedo_depth,
+            normal_metallic,
+            shadow_roughness,
+            transparent,
+            motion,
+        })
+    }
+
+    /// The six buffers in the order of the table above.
+    pub(crate) fn buffers(&self) -> [&wgpu::Buffer; 6] {
+        [
+            self.color_mask,
+            self.albedo_depth,
+            self.normal_metallic,
+            self.shadow_roughness,
+            self.transparent,
+            self.motion,
+        ]
+    }
+    /// The buffers' names, in the order of the table above.
+    pub(crate) const NAMES: [&'static str; 6] = [
+        "color_mask",
+        "albedo_depth",
+        "normal_metallic",
+        "shadow_roughness",
+        "transparent",
+        "motion",
+    ];
+}
