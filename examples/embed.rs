@@ -48,15 +48,7 @@ fn main() -> anyhow::Result<()> {
             mapped_at_creation: false,
         })
     };
-    let bufs = [
-        "color_mask",
-        "albedo_depth",
-        "normal_metallic",
-        "shadow_roughness",
-        "transparent",
-        "motion",
-    ]
-    .map(buf);
+    let bufs = FrameInputs::NAMES.map(buf);
     let mut denoiser = Denoiser::new(&device, &queue, &weights, w, h)?;
 
     for t in 0..4u32 {

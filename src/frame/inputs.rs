@@ -73,8 +73,10 @@ impl<'a> FrameInputs<'a> {
             self.motion,
         ]
     }
-    /// The buffers' names, in the order of the table above.
-    pub(crate) const NAMES: [&'static str; 6] = [
+
+    /// The buffers' names, in the order of the table above (labels for a renderer's own
+    /// buffers, the order [`FrameInputs::from_slice`] takes them in).
+    pub const NAMES: [&'static str; 6] = [
         "color_mask",
         "albedo_depth",
         "normal_metallic",
