@@ -314,6 +314,16 @@ pub fn pool2x2(gpu: &Gpu, mode: PoolMode, input: &Tensor, out: &Tensor) -> Resul
         input.width.div_ceil(2),
         input.height.div_ceil(2),
     )?;
+    let mode = match mode {
+        PoolMode::Max => 0,
+        PoolMode::Average => 1,
+    };
+    resample(gpu, op, mode, input, out)
+}
+
+/// The dispatch of resampling kernel `op` (`pool2x2`, `upsample2x`) once the sizes are
+/// checked: same channels, distinct buffers, one thread per output pixel.
+fn resample(gpu: &Gpu, op: &str, mode: u32, input: &Tensor, out: &Tensor) -> Result<Dispatch> {
     check_channels(op, "output", out, input.channels)?;
     distinct(op, out, &[input])?;
     let params = ResampleParams {
@@ -322,14 +332,11 @@ pub fn pool2x2(gpu: &Gpu, mode: PoolMode, input: &Tensor, out: &Tensor) -> Resul
         out_w: out.width,
         out_h: out.height,
         c4: input.c4(),
-        mode: match mode {
-            PoolMode::Max => 0,
-            PoolMode::Average => 1,
-        },
+        mode,
         _pad: [0; 2],
     };
     gpu.kernels.dispatch(
-        "nn/pool2x2",
+        &format!("nn/{op}"),
         &Specialisation::none(),
         bytemuck::bytes_of(&params),
         &[&input.buffer, &out.buffer],
@@ -350,27 +357,11 @@ pub fn upsample2x(gpu: &Gpu, mode: UpsampleMode, input: &Tensor, out: &Tensor) -
             ),
         ));
     }
-    check_channels(op, "output", out, input.channels)?;
-    distinct(op, out, &[input])?;
-    let params = ResampleParams {
-        in_w: input.width,
-        in_h: input.height,
-        out_w: out.width,
-        out_h: out.height,
-        c4: input.c4(),
-        mode: match mode {
-            UpsampleMode::Nearest => 0,
-            UpsampleMode::Bilinear => 1,
-        },
-        _pad: [0; 2],
+    let mode = match mode {
+        UpsampleMode::Nearest => 0,
+        UpsampleMode::Bilinear => 1,
     };
-    gpu.kernels.dispatch(
-        "nn/upsample2x",
-        &Specialisation::none(),
-        bytemuck::bytes_of(&params),
-        &[&input.buffer, &out.buffer],
-        groups_2d(out.width, out.height, 1),
-    )
+    resample(gpu, op, mode, input, out)
 }
 
 // ---------------------------------------------------------------------------------------
