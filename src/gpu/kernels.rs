@@ -119,8 +119,8 @@ impl ParamsBinding {
 /// Every WGSL kernel of the crate.
 pub const KERNELS: &[KernelSource] = &[
     kernel!("nn/conv3x3"),
-    kernel!("nn/pool2x2"),
-    kernel!("nn/upsample2x"),
+    kernel!("nn/pool2x2", ["nn/lib/resample"]),
+    kernel!("nn/upsample2x", ["nn/lib/resample"]),
     kernel!("nn/tfa_blend"),
     kernel!("nn/warp"),
     kernel!("nn/demodulate"),

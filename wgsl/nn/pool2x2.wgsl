@@ -2,16 +2,7 @@
 // Output is ceil(w/2) x ceil(h/2); windows are clipped to the input, and the average is
 // taken over the pixels inside it.
 
-struct Params {
-    in_w: u32,
-    in_h: u32,
-    out_w: u32,
-    out_h: u32,
-    c4: u32,
-    mode: u32, // 0 max, 1 average
-    _pad0: u32,
-    _pad1: u32,
-}
+// Params: nn/lib/resample.wgsl (p.mode: 0 max, 1 average).
 
 @group(0) @binding(0) var<uniform> p: Params;
 @group(0) @binding(1) var<storage, read> src: array<vec4<f32>>;

@@ -2,16 +2,7 @@
 // align_corners=False)` semantics), NHWC vec4 tensors. The output size is a parameter
 // (normally 2w x 2h); source coordinates are clamped to the input.
 
-struct Params {
-    in_w: u32,
-    in_h: u32,
-    out_w: u32,
-    out_h: u32,
-    c4: u32,
-    mode: u32, // 0 nearest, 1 bilinear
-    _pad0: u32,
-    _pad1: u32,
-}
+// Params: nn/lib/resample.wgsl (p.mode: 0 nearest, 1 bilinear).
 
 @group(0) @binding(0) var<uniform> p: Params;
 @group(0) @binding(1) var<storage, read> src: array<vec4<f32>>;
