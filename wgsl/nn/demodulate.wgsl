@@ -2,37 +2,16 @@
 // the first 3 channels of `color` and `albedo`. Negative or non-finite colour counts as 0;
 // albedo is clamped to [0, inf). Output: 3 channels (padded to 4, the 4th is 0).
 
-struct Params {
-    width: u32,
-    height: u32,
-    color_c4: u32,
-    albedo_c4: u32,
-    albedo_offset: u32, // first albedo channel
-    _pad0: u32,
-    _pad1: u32,
-    _pad2: u32,
-}
+// Params, EPS and albedo3: nn/lib/modulation.wgsl.
 
 @group(0) @binding(0) var<uniform> p: Params;
 @group(0) @binding(1) var<storage, read> color: array<vec4<f32>>;
 @group(0) @binding(2) var<storage, read> albedo: array<vec4<f32>>;
 @group(0) @binding(3) var<storage, read_write> dst: array<vec4<f32>>;
 
-const EPS: f32 = 0.00316;
-
 fn clean(v: vec3<f32>) -> vec3<f32> {
     // NaN fails the comparison and becomes 0; +Inf fails the bound too.
     return select(vec3<f32>(0.0), v, v >= vec3<f32>(0.0) & v <= vec3<f32>(3.0e38));
-}
-
-// Three consecutive channels of `albedo` starting at `albedo_offset` (any alignment).
-fn albedo3(pix: u32) -> vec3<f32> {
-    var v: vec3<f32>;
-    for (var i = 0u; i < 3u; i++) {
-        let c = p.albedo_offset + i;
-        v[i] = albedo[pix * p.albedo_c4 + c / 4u][c % 4u];
-    }
-    return v;
 }
 
 @compute @workgroup_size(8, 8, 1)
@@ -43,7 +22,7 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>) {
         return;
     }
     let pix = y * p.width + x;
-    let c = clean(color[pix * p.color_c4].xyz);
+    let c = clean(color[pix * p.src_c4].xyz);
     let a = clean(albedo3(pix));
     dst[pix] = vec4<f32>(log(vec3<f32>(1.0) + c / (a + vec3<f32>(EPS))), 0.0);
 }

@@ -5,16 +5,7 @@
 // Guards against hostile input (issue 12): o is taken as at most O_MAX (radiance e^50 times
 // the exposure, far beyond any real pixel) and non-finite o as 0, so the output is finite.
 
-struct Params {
-    width: u32,
-    height: u32,
-    o_c4: u32,
-    albedo_c4: u32,
-    albedo_offset: u32, // first albedo channel
-    _pad0: u32,
-    _pad1: u32,
-    _pad2: u32,
-}
+// Params, EPS and albedo3: nn/lib/modulation.wgsl.
 
 @group(0) @binding(0) var<uniform> p: Params;
 @group(0) @binding(1) var<storage, read> o: array<vec4<f32>>;
@@ -22,18 +13,7 @@ struct Params {
 @group(0) @binding(3) var<storage, read_write> dst: array<vec4<f32>>;
 @group(0) @binding(4) var<storage, read> scale: array<vec4<f32>>;
 
-const EPS: f32 = 0.00316;
 const O_MAX: f32 = 50.0;
-
-// Three consecutive channels of `albedo` starting at `albedo_offset` (any alignment).
-fn albedo3(pix: u32) -> vec3<f32> {
-    var v: vec3<f32>;
-    for (var i = 0u; i < 3u; i++) {
-        let c = p.albedo_offset + i;
-        v[i] = albedo[pix * p.albedo_c4 + c / 4u][c % 4u];
-    }
-    return v;
-}
 
 @compute @workgroup_size(8, 8, 1)
 fn main(@builtin(global_invocation_id) gid: vec3<u32>) {
@@ -43,7 +23,7 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>) {
         return;
     }
     let pix = y * p.width + x;
-    let raw = o[pix * p.o_c4].xyz;
+    let raw = o[pix * p.src_c4].xyz;
     let e = min(select(vec3<f32>(0.0), raw, abs(raw) <= vec3<f32>(3.40282347e38)), vec3<f32>(O_MAX));
     let a = max(albedo3(pix), vec3<f32>(0.0));
     dst[pix] = vec4<f32>(max(exp(e) - vec3<f32>(1.0), vec3<f32>(0.0)) * (a + vec3<f32>(EPS)) * scale[0].xyz, 0.0);
