@@ -91,12 +91,14 @@ pub fn bench_kernels(gpu: &Gpu, o: &KernelBenchOptions) -> Result<Vec<KernelTimi
         c,
         Activation::Relu,
     )?;
-    cases.push(Case {
-        name: format!("conv3x3 {c}->{c} relu"),
-        dispatch: conv.bind(gpu, &[&x], &y)?,
-        bytes: b(&x) + b(&y) + (c * c * 9 * 4) as u64,
-        flops: conv.flops_per_pixel() * px,
-    });
+    for kernel in conv.candidates(gpu) {
+        cases.push(Case {
+            name: format!("conv3x3 {c}->{c} relu {kernel}"),
+            dispatch: conv.bind_with(gpu, kernel, &[&x], &y)?,
+            bytes: b(&x) + b(&y) + (c * c * 9 * 4) as u64,
+            flops: conv.flops_per_pixel() * px,
+        });
+    }
     for (mode, n) in [(PoolMode::Max, "max"), (PoolMode::Average, "avg")] {
         cases.push(Case {
             name: format!("pool2x2 {n}"),
@@ -198,7 +200,7 @@ pub fn bench_kernels(gpu: &Gpu, o: &KernelBenchOptions) -> Result<Vec<KernelTimi
 /// Formats the rows as a table.
 pub fn table(rows: &[KernelTiming]) -> String {
     let mut s = format!(
-        "{:<24} {:>10} {:>10} {:>10} {:>11} {:>9}\n",
+        "{:<34} {:>10} {:>10} {:>10} {:>11} {:>9}\n",
         "kernel", "median ms", "p95 ms", "GB/s", "GFLOP/s", "% peak"
     );
     for r in rows {
@@ -212,7 +214,7 @@ pub fn table(rows: &[KernelTiming]) -> String {
             .map(|f| format!("{:.1}", 100.0 * f))
             .unwrap_or_else(|| "-".into());
         s += &format!(
-            "{:<24} {:>10.4} {:>10.4} {:>10.1} {:>11} {:>9}\n",
+            "{:<34} {:>10.4} {:>10.4} {:>10.1} {:>11} {:>9}\n",
             r.name, r.stats.median_ms, r.stats.p95_ms, r.gb_per_s, gf, pk
         );
     }

@@ -71,12 +71,15 @@ macro_rules! trace_kernel {
 }
 
 impl KernelSource {
-    /// The WGSL compiled for this kernel when its parameters are bound as `params`.
-    pub fn wgsl(&self, params: ParamsBinding) -> std::borrow::Cow<'static, str> {
-        match params {
-            ParamsBinding::Uniform => self.source.into(),
-            ParamsBinding::Storage => self.source.replace(PARAMS_UNIFORM, PARAMS_STORAGE).into(),
-        }
+    /// The WGSL compiled for this kernel when its parameters are bound as `params` and its
+    /// template parameters (see [`super::template`]; defaults for those not given) take
+    /// `template`'s values.
+    pub fn wgsl(&self, params: ParamsBinding, template: &[(&str, u32)]) -> Result<String> {
+        let source = super::template::expand(self.name, self.source, template)?;
+        Ok(match params {
+            ParamsBinding::Uniform => source,
+            ParamsBinding::Storage => source.replace(PARAMS_UNIFORM, PARAMS_STORAGE),
+        })
     }
 }
 
@@ -119,6 +122,7 @@ impl ParamsBinding {
 /// Every WGSL kernel of the crate.
 pub const KERNELS: &[KernelSource] = &[
     kernel!("nn/conv3x3"),
+    kernel!("nn/conv3x3_blocked"),
     kernel!("nn/pool2x2", ["nn/lib/resample"]),
     kernel!("nn/upsample2x", ["nn/lib/resample"]),
     kernel!("nn/tfa_blend"),
@@ -275,7 +279,7 @@ impl KernelNeeds {
 /// [`KernelNeeds`]).
 pub fn kernel_needs(name: &str, params: ParamsBinding) -> Result<KernelNeeds> {
     let k = kernel_source(name)?;
-    let module = validate_wgsl(k.name, &k.wgsl(params))?;
+    let module = validate_wgsl(k.name, &k.wgsl(params, &[])?)?;
     let mut layouter = naga::proc::Layouter::default();
     layouter.update(module.to_ctx()).map_err(|e| Error::Kernel {
         kernel: k.name.to_string(),
@@ -356,13 +360,15 @@ impl Specialisation {
 }
 
 type PipelineKey = (&'static str, Vec<(&'static str, u64)>);
+/// A kernel and the values of its template parameters.
+type ModuleKey = (&'static str, Vec<(&'static str, u32)>);
 
 /// Compiled shader modules and pipelines of one device.
 pub struct KernelRegistry {
     device: wgpu::Device,
     preferred: ParamsBinding,
     bindings: Mutex<HashMap<&'static str, ParamsBinding>>,
-    modules: Mutex<HashMap<&'static str, Arc<wgpu::ShaderModule>>>,
+    modules: Mutex<HashMap<ModuleKey, Arc<wgpu::ShaderModule>>>,
     pipelines: Mutex<HashMap<PipelineKey, Arc<wgpu::ComputePipeline>>>,
 }
 
@@ -411,16 +417,17 @@ impl KernelRegistry {
         check_bound_limits(what, &bound, &self.device.limits())
     }
 
-    fn module(&self, k: &'static KernelSource) -> Result<Arc<wgpu::ShaderModule>> {
-        if let Some(m) = self.modules.lock().unwrap().get(k.name) {
+    fn module(&self, k: &'static KernelSource, template: &[(&'static str, u32)]) -> Result<Arc<wgpu::ShaderModule>> {
+        let key = (k.name, template.to_vec());
+        if let Some(m) = self.modules.lock().unwrap().get(&key) {
             return Ok(m.clone());
         }
-        let source = k.wgsl(self.params_binding(k.name)?);
+        let source = k.wgsl(self.params_binding(k.name)?, template)?;
         validate_wgsl(k.name, &source)?;
         let scope = self.device.push_error_scope(wgpu::ErrorFilter::Validation);
         let module = self.device.create_shader_module(wgpu::ShaderModuleDescriptor {
             label: Some(&format!("subpixel.{}", k.name)),
-            source: wgpu::ShaderSource::Wgsl(source),
+            source: wgpu::ShaderSource::Wgsl(source.into()),
         });
         if let Some(e) = pollster::block_on(scope.pop()) {
             return Err(Error::Kernel {
@@ -429,7 +436,7 @@ impl KernelRegistry {
             });
         }
         let module = Arc::new(module);
-        self.modules.lock().unwrap().insert(k.name, module.clone());
+        self.modules.lock().unwrap().insert(key, module.clone());
         Ok(module)
     }
 
@@ -440,7 +447,25 @@ impl KernelRegistry {
         if let Some(p) = self.pipelines.lock().unwrap().get(&key) {
             return Ok(p.clone());
         }
-        let module = self.module(k)?;
+        // Template parameters shape the source; the other names are `override` constants.
+        let declared = super::template::params(k.source);
+        let mut template = Vec::new();
+        let mut constants = Vec::new();
+        for &(n, v) in &spec.0 {
+            if declared.iter().any(|(d, _)| *d == n) {
+                if v < 0.0 || v.fract() != 0.0 || v > u32::MAX as f64 {
+                    return Err(Error::Kernel {
+                        kernel: k.name.to_string(),
+                        message: format!("template parameter {n} = {v} is not a non-negative integer"),
+                    });
+                }
+                template.push((n, v as u32));
+            } else {
+                constants.push((n, v));
+            }
+        }
+        template.sort_unstable();
+        let module = self.module(k, &template)?;
         let scope = self.device.push_error_scope(wgpu::ErrorFilter::Validation);
         let pipeline = self
             .device
@@ -450,7 +475,7 @@ impl KernelRegistry {
                 module: &module,
                 entry_point: Some("main"),
                 compilation_options: wgpu::PipelineCompilationOptions {
-                    constants: &spec.0,
+                    constants: &constants,
                     zero_initialize_workgroup_memory: false,
                 },
                 cache: None,
@@ -610,7 +635,8 @@ mod tests {
     #[test]
     fn every_kernel_validates_with_naga() {
         for k in KERNELS {
-            let module = validate_wgsl(k.name, k.source).unwrap_or_else(|e| panic!("{e}"));
+            let source = k.wgsl(ParamsBinding::Uniform, &[]).unwrap_or_else(|e| panic!("{e}"));
+            let module = validate_wgsl(k.name, &source).unwrap_or_else(|e| panic!("{e}"));
             assert!(
                 module.entry_points.iter().any(|e| e.name == "main"),
                 "kernel {} has no `main` entry point",
@@ -739,20 +765,12 @@ mod tests {
         for k in KERNELS {
             let u = kernel_needs(k.name, ParamsBinding::Uniform).unwrap();
             let s = kernel_needs(k.name, ParamsBinding::Storage).unwrap();
-            assert!(u.uniform_buffers <= 1, "{}", k.name);
-            assert_eq!(s.uniform_buffers, 0, "{}", k.name);
-            assert_eq!(
-                s.storage_buffers,
-                u.storage_buffers + u.uniform_buffers,
-                "{}",
-                k.name
-            );
-            assert_eq!(
-                k.source.contains(PARAMS_UNIFORM),
-                u.uniform_buffers == 1,
-                "{}: its uniform block is binding 0",
-                k.name
-            );
+            let params = k.source.contains(PARAMS_UNIFORM) as u32;
+            assert_eq!(s.uniform_buffers, u.uniform_buffers - params, "{}", k.name);
+            assert_eq!(s.storage_buffers, u.storage_buffers + params, "{}", k.name);
+            // Only the blocked convolution has a second uniform block (its weights).
+            let extra = (k.name == "nn/conv3x3_blocked") as u32;
+            assert_eq!(u.uniform_buffers, params + extra, "{}", k.name);
         }
     }
 
@@ -774,18 +792,21 @@ mod tests {
     fn param_struct_sizes_match_naga() {
         for (name, rust_size) in crate::nn::ops::PARAM_SIZES
             .iter()
+            .chain(crate::nn::conv::PARAM_SIZES)
             .chain(crate::ssr::PARAM_SIZES)
             .chain(crate::view::PARAM_SIZES)
             .chain(crate::render::PARAM_SIZES)
         {
             let k = kernel_source(name).unwrap();
-            let module = validate_wgsl(k.name, k.source).unwrap();
+            let module = validate_wgsl(k.name, &k.wgsl(ParamsBinding::Uniform, &[]).unwrap()).unwrap();
             let mut layouter = naga::proc::Layouter::default();
             layouter.update(module.to_ctx()).unwrap();
             let (_, var) = module
                 .global_variables
                 .iter()
-                .find(|(_, v)| v.space == naga::AddressSpace::Uniform)
+                .find(|(_, v)| {
+                    v.space == naga::AddressSpace::Uniform && v.binding.as_ref().is_some_and(|b| b.binding == 0)
+                })
                 .unwrap_or_else(|| panic!("{name} has no uniform block"));
             let size = layouter[var.ty].size as usize;
             assert_eq!(

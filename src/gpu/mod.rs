@@ -1,8 +1,10 @@
-//! GPU plumbing: device context, the WGSL kernel registry and the timestamp profiler.
+//! GPU plumbing: device context, the WGSL kernel registry (with its template expansion)
+//! and the timestamp profiler.
 
 mod context;
 mod kernels;
 mod profiler;
+pub mod template;
 
 pub use context::{AdapterKind, Gpu, GpuOptions};
 pub use kernels::{

@@ -4,7 +4,7 @@
 use bytemuck::{Pod, Zeroable};
 
 use super::Tensor;
-use super::tensor::padded;
+pub use super::conv::{Conv3x3, ConvKernel};
 use crate::error::{Error, Result};
 use crate::gpu::{Dispatch, Gpu, Specialisation};
 
@@ -34,7 +34,7 @@ impl Activation {
             }
         }
     }
-    fn code(self) -> (u32, f32) {
+    pub(super) fn code(self) -> (u32, f32) {
         match self {
             Activation::None => (0, 0.0),
             Activation::Relu => (1, 0.0),
@@ -63,11 +63,11 @@ pub enum UpsampleMode {
 
 const WG: u32 = 8;
 
-fn groups_2d(w: u32, h: u32, z: u32) -> [u32; 3] {
+pub(super) fn groups_2d(w: u32, h: u32, z: u32) -> [u32; 3] {
     [w.div_ceil(WG), h.div_ceil(WG), z]
 }
 
-fn check_size(op: &str, what: &str, t: &Tensor, w: u32, h: u32) -> Result<()> {
+pub(super) fn check_size(op: &str, what: &str, t: &Tensor, w: u32, h: u32) -> Result<()> {
     if (t.width, t.height) != (w, h) {
         return Err(Error::shape(
             op,
@@ -77,7 +77,7 @@ fn check_size(op: &str, what: &str, t: &Tensor, w: u32, h: u32) -> Result<()> {
     Ok(())
 }
 
-fn check_channels(op: &str, what: &str, t: &Tensor, c: u32) -> Result<()> {
+pub(super) fn check_channels(op: &str, what: &str, t: &Tensor, c: u32) -> Result<()> {
     if t.channels != c {
         return Err(Error::shape(
             op,
@@ -97,7 +97,7 @@ fn check_min_channels(op: &str, what: &str, t: &Tensor, c: u32) -> Result<()> {
     Ok(())
 }
 
-fn distinct(op: &str, out: &Tensor, inputs: &[&Tensor]) -> Result<()> {
+pub(super) fn distinct(op: &str, out: &Tensor, inputs: &[&Tensor]) -> Result<()> {
     if inputs.iter().any(|i| i.buffer == out.buffer) {
         return Err(Error::shape(
             op,
@@ -105,188 +105,6 @@ fn distinct(op: &str, out: &Tensor, inputs: &[&Tensor]) -> Result<()> {
         ));
     }
     Ok(())
-}
-
-// ---------------------------------------------------------------------------------------
-// conv3x3
-
-#[repr(C)]
-#[derive(Clone, Copy, Pod, Zeroable)]
-struct ConvParams {
-    width: u32,
-    height: u32,
-    n_inputs: u32,
-    cout4: u32,
-    cin4: [u32; 4],
-    cin4_total: u32,
-    act: u32,
-    slope: f32,
-    _pad: u32,
-}
-
-/// Output channels one conv3x3 invocation computes (4 vec4s).
-const CONV_COUT_BLOCK: u32 = 16;
-
-/// A 3x3 convolution layer (stride 1, zero padding, bias, activation) whose weights are
-/// packed for a given split of its input channels over up to 4 tensors.
-#[derive(Debug)]
-pub struct Conv3x3 {
-    /// Layer name (for errors).
-    pub name: String,
-    /// Logical channels of each input tensor, in concatenation order.
-    pub input_channels: Vec<u32>,
-    /// Output channels.
-    pub cout: u32,
-    /// Activation.
-    pub act: Activation,
-    weights: wgpu::Buffer,
-    bias: wgpu::Buffer,
-}
-
-impl Conv3x3 {
-    /// Packs OIHW `weight` (`[cout][sum(input_channels)][3][3]`) and `bias` (`[cout]`) and
-    /// uploads them.
-    pub fn new(
-        gpu: &Gpu,
-        name: &str,
-        weight: &[f32],
-        bias: &[f32],
-        input_channels: &[u32],
-        cout: u32,
-        act: Activation,
-    ) -> Result<Self> {
-        let packed = Self::pack(name, weight, bias, input_channels, cout)?;
-        use wgpu::util::DeviceExt;
-        let mk = |label: &str, data: &[f32]| {
-            gpu.device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
-                label: Some(&format!("subpixel.{name}.{label}")),
-                contents: bytemuck::cast_slice(data),
-                usage: wgpu::BufferUsages::STORAGE,
-            })
-        };
-        Ok(Self {
-            name: name.to_string(),
-            input_channels: input_channels.to_vec(),
-            cout,
-            act,
-            weights: mk("weight", &packed.0),
-            bias: mk("bias", &packed.1),
-        })
-    }
-
-    /// Packs weights into the kernel layout `[tap][ci4][co4][4 columns][4 rows]` and pads
-    /// the bias to a multiple of 4. Returns `(weights, bias)`.
-    pub fn pack(
-        name: &str,
-        weight: &[f32],
-        bias: &[f32],
-        input_channels: &[u32],
-        cout: u32,
-    ) -> Result<(Vec<f32>, Vec<f32>)> {
-        let op = format!("conv3x3 '{name}'");
-        if input_channels.is_empty() || input_channels.len() > 4 || input_channels.contains(&0) {
-            return Err(Error::shape(
-                &op,
-                format!("takes 1 to 4 non-empty inputs, got channel split {input_channels:?}"),
-            ));
-        }
-        if cout == 0 {
-            return Err(Error::shape(&op, "cout must be > 0"));
-        }
-        let cin: u32 = input_channels.iter().sum();
-        let expect = (cout * cin * 9) as usize;
-        if weight.len() != expect {
-            return Err(Error::shape(
-                &op,
-                format!(
-                    "weight has {} values, expected [{cout}, {cin}, 3, 3] = {expect}",
-                    weight.len()
-                ),
-            ));
-        }
-        if bias.len() != cout as usize {
-            return Err(Error::shape(
-                &op,
-                format!("bias has {} values, expected {cout}", bias.len()),
-            ));
-        }
-        let cin_p: u32 = input_channels.iter().map(|&c| padded(c)).sum();
-        let cout_p = padded(cout);
-        let mut packed = vec![0.0f32; (9 * cin_p * cout_p) as usize];
-        let mut base_logical = 0;
-        let mut base_padded = 0;
-        for &c in input_channels {
-            for ci in 0..c {
-                let li = base_logical + ci; // logical input channel (PyTorch index)
-                let pi = base_padded + ci; // padded slot
-                for co in 0..cout {
-                    for tap in 0..9 {
-                        let wv = weight[((co * cin + li) * 9 + tap) as usize];
-                        // [tap][ci4][co4][col k = pi%4][row = co%4]
-                        let idx = ((((tap * (cin_p / 4) + pi / 4) * (cout_p / 4) + co / 4) * 4 + pi % 4) * 4
-                            + co % 4) as usize;
-                        packed[idx] = wv;
-                    }
-                }
-            }
-            base_logical += c;
-            base_padded += padded(c);
-        }
-        let mut b = bias.to_vec();
-        b.resize(cout_p as usize, 0.0);
-        Ok((packed, b))
-    }
-
-    /// FLOPs per output pixel (multiply and add counted separately).
-    pub fn flops_per_pixel(&self) -> u64 {
-        18 * self.input_channels.iter().sum::<u32>() as u64 * self.cout as u64
-    }
-
-    /// Binds `inputs` (in concatenation order) and `out`.
-    pub fn bind(&self, gpu: &Gpu, inputs: &[&Tensor], out: &Tensor) -> Result<Dispatch> {
-        let op = format!("conv3x3 '{}'", self.name);
-        let got: Vec<u32> = inputs.iter().map(|t| t.channels).collect();
-        if got != self.input_channels {
-            return Err(Error::shape(
-                &op,
-                format!("input channels {got:?}, expected {:?}", self.input_channels),
-            ));
-        }
-        let (w, h) = (out.width, out.height);
-        for (i, t) in inputs.iter().enumerate() {
-            check_size(&op, &format!("input {i}"), t, w, h)?;
-        }
-        check_channels(&op, "output", out, self.cout)?;
-        distinct(&op, out, inputs)?;
-        let mut cin4 = [0u32; 4];
-        for (i, t) in inputs.iter().enumerate() {
-            cin4[i] = t.c4();
-        }
-        let (act, slope) = self.act.code();
-        let params = ConvParams {
-            width: w,
-            height: h,
-            n_inputs: inputs.len() as u32,
-            cout4: out.c4(),
-            cin4,
-            cin4_total: cin4.iter().sum(),
-            act,
-            slope,
-            _pad: 0,
-        };
-        let mut bufs: Vec<&wgpu::Buffer> = inputs.iter().map(|t| &t.buffer).collect();
-        while bufs.len() < 4 {
-            bufs.push(&inputs[0].buffer);
-        }
-        bufs.extend([&self.weights, &self.bias, &out.buffer]);
-        gpu.kernels.dispatch(
-            "nn/conv3x3",
-            &Specialisation::none(),
-            bytemuck::bytes_of(&params),
-            &bufs,
-            groups_2d(w, h, padded(self.cout).div_ceil(CONV_COUT_BLOCK)),
-        )
-    }
 }
 
 // ---------------------------------------------------------------------------------------
@@ -589,7 +407,6 @@ pub fn run(gpu: &Gpu, dispatches: &[&Dispatch]) -> Result<()> {
 /// Size in bytes of each kernel's uniform `Params` as the Rust side lays it out, for the
 /// test that compares them with naga's layout.
 pub const PARAM_SIZES: &[(&str, usize)] = &[
-    ("nn/conv3x3", std::mem::size_of::<ConvParams>()),
     ("nn/pool2x2", std::mem::size_of::<ResampleParams>()),
     ("nn/upsample2x", std::mem::size_of::<ResampleParams>()),
     ("nn/tfa_blend", std::mem::size_of::<BlendParams>()),

@@ -1,0 +1,490 @@
+//! The 3x3 convolution layer and its kernel family.
+//!
+//! One layer ([`Conv3x3`]) can run on two WGSL kernels, chosen per layer by
+//! [`ConvKernel`]:
+//! - `nn/conv3x3` ([`ConvKernel::Generic`]): one pixel and 16 output channels per
+//!   invocation, shapes as runtime parameters, weights in a storage buffer. Runs any layer.
+//! - `nn/conv3x3_blocked` ([`ConvKernel::Blocked`]): `px` adjacent pixels times `cob`
+//!   output vec4s per invocation, shapes and activation as override constants (one
+//!   pipeline per layer shape), weights in a 64 KiB uniform buffer. Runs layers whose
+//!   packed weights fit it ([`Conv3x3::candidates`]).
+//!
+//! Both compute the same sums in the same order per output value, so they agree with the
+//! CPU reference ([`super::reference::conv3x3`]) to the same tolerance; which one is
+//! fastest depends on the adapter, which is what [`super::autotune`] measures.
+
+use std::collections::HashMap;
+use std::sync::Mutex;
+
+use bytemuck::{Pod, Zeroable};
+
+use super::Tensor;
+use super::ops::{Activation, check_channels, check_size, distinct};
+use super::tensor::padded;
+use crate::error::{Error, Result};
+use crate::gpu::{Dispatch, Gpu, Specialisation};
+
+#[repr(C)]
+#[derive(Clone, Copy, Pod, Zeroable)]
+struct ConvParams {
+    width: u32,
+    height: u32,
+    n_inputs: u32,
+    cout4: u32,
+    cin4: [u32; 4],
+    cin4_total: u32,
+    act: u32,
+    slope: f32,
+    _pad: u32,
+}
+
+#[repr(C)]
+#[derive(Clone, Copy, Pod, Zeroable)]
+struct BlockedParams {
+    width: u32,
+    height: u32,
+    _pad: [u32; 2],
+}
+
+/// Output channels one `nn/conv3x3` invocation computes (4 vec4s).
+const GENERIC_COUT_BLOCK: u32 = 16;
+/// Workgroup edge of both kernels (8x8 invocations).
+const WG: u32 = 8;
+/// Capacity of `nn/conv3x3_blocked`'s uniform weight array, in vec4s (`MAX_WEIGHTS`).
+pub const BLOCKED_MAX_WEIGHTS: u32 = 4096;
+/// Most accumulators (`px * cob` vec4s) one blocked invocation may hold (`MAX_ACC`).
+pub const BLOCKED_MAX_ACC: u32 = 32;
+/// Most pixels per blocked invocation (`MAX_PX`).
+pub const BLOCKED_MAX_PX: u32 = 16;
+
+/// Which kernel runs a [`Conv3x3`], and with which tiling.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, serde::Serialize, serde::Deserialize)]
+pub enum ConvKernel {
+    /// `nn/conv3x3`: one pixel x 16 output channels per invocation, weights in storage.
+    Generic,
+    /// `nn/conv3x3_blocked`: `px` pixels x `cob` output vec4s per invocation, weights in a
+    /// uniform buffer.
+    Blocked {
+        /// Horizontally adjacent pixels per invocation (1..=16).
+        px: u32,
+        /// Output vec4s (4 channels each) per invocation (1..=32, `px * cob <= 32`).
+        cob: u32,
+    },
+}
+
+impl std::fmt::Display for ConvKernel {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            ConvKernel::Generic => write!(f, "generic"),
+            ConvKernel::Blocked { px, cob } => write!(f, "px{px}-cob{cob}"),
+        }
+    }
+}
+
+impl std::str::FromStr for ConvKernel {
+    type Err = Error;
+    /// Parses `generic` or `pxP-cobC` (as [`ConvKernel`]'s `Display` writes them).
+    fn from_str(s: &str) -> Result<Self> {
+        let bad = || Error::Invalid(format!("conv kernel '{s}': expected 'generic' or 'pxP-cobC' (e.g. px4-cob2)"));
+        if s == "generic" {
+            return Ok(ConvKernel::Generic);
+        }
+        let (a, b) = s.split_once('-').ok_or_else(bad)?;
+        let px = a.strip_prefix("px").and_then(|v| v.parse().ok()).ok_or_else(bad)?;
+        let cob = b.strip_prefix("cob").and_then(|v| v.parse().ok()).ok_or_else(bad)?;
+        let k = ConvKernel::Blocked { px, cob };
+        k.check_tiling().map_err(|m| Error::Invalid(format!("conv kernel '{s}': {m}")))?;
+        Ok(k)
+    }
+}
+
+impl ConvKernel {
+    /// The tilings the autotuner tries besides [`ConvKernel::Generic`] (before a layer's
+    /// own limits prune them): pixels 1-8 and output blocks 1-8 with at most 32
+    /// accumulators.
+    pub fn blocked_tilings() -> Vec<ConvKernel> {
+        let mut v = Vec::new();
+        for px in [1, 2, 4, 8] {
+            for cob in [1, 2, 4, 8] {
+                if px * cob <= BLOCKED_MAX_ACC {
+                    v.push(ConvKernel::Blocked { px, cob });
+                }
+            }
+        }
+        v
+    }
+
+    fn check_tiling(&self) -> std::result::Result<(), String> {
+        if let ConvKernel::Blocked { px, cob } = *self {
+            if px == 0 || cob == 0 || px > BLOCKED_MAX_PX || px * cob > BLOCKED_MAX_ACC {
+                return Err(format!(
+                    "px and cob must be >= 1, px <= {BLOCKED_MAX_PX} and px * cob <= {BLOCKED_MAX_ACC}"
+                ));
+            }
+        }
+        Ok(())
+    }
+}
+
+/// A 3x3 convolution layer (stride 1, zero padding, bias, activation) over up to 4 input
+/// tensors read as if concatenated along channels.
+#[derive(Debug)]
+pub struct Conv3x3 {
+    /// Layer name (for errors).
+    pub name: String,
+    /// Logical channels of each input tensor, in concatenation order.
+    pub input_channels: Vec<u32>,
+    /// Output channels.
+    pub cout: u32,
+    /// Activation.
+    pub act: Activation,
+    weight: Vec<f32>,
+    bias_host: Vec<f32>,
+    weights: wgpu::Buffer,
+    bias: wgpu::Buffer,
+    /// Uniform weight buffers of the blocked kernel, by output block `cob` (the packing's
+    /// output stride depends on it).
+    blocked: Mutex<HashMap<u32, wgpu::Buffer>>,
+}
+
+impl Conv3x3 {
+    /// Checks OIHW `weight` (`[cout][sum(input_channels)][3][3]`) and `bias` (`[cout]`)
+    /// and uploads them.
+    pub fn new(
+        gpu: &Gpu,
+        name: &str,
+        weight: &[f32],
+        bias: &[f32],
+        input_channels: &[u32],
+        cout: u32,
+        act: Activation,
+    ) -> Result<Self> {
+        let (packed, b) = Self::pack(name, weight, bias, input_channels, cout)?;
+        use wgpu::util::DeviceExt;
+        let mk = |label: &str, data: &[f32]| {
+            gpu.device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
+                label: Some(&format!("subpixel.{name}.{label}")),
+                contents: bytemuck::cast_slice(data),
+                usage: wgpu::BufferUsages::STORAGE,
+            })
+        };
+        Ok(Self {
+            name: name.to_string(),
+            input_channels: input_channels.to_vec(),
+            cout,
+            act,
+            weight: weight.to_vec(),
+            bias_host: bias.to_vec(),
+            weights: mk("weight", &packed),
+            bias: mk("bias", &b),
+            blocked: Mutex::new(HashMap::new()),
+        })
+    }
+
+    /// Packs weights into `nn/conv3x3`'s layout `[tap][ci4][co4][4 columns][4 rows]` and
+    /// pads the bias to a multiple of 4. Returns `(weights, bias)`.
+    pub fn pack(
+        name: &str,
+        weight: &[f32],
+        bias: &[f32],
+        input_channels: &[u32],
+        cout: u32,
+    ) -> Result<(Vec<f32>, Vec<f32>)> {
+        Self::pack_strided(name, weight, bias, input_channels, cout, padded(cout) / 4)
+    }
+
+    /// [`Conv3x3::pack`] with `cout4_stride >= cout4` output vec4s per `(tap, ci4)` row
+    /// (the blocked kernel rounds the output up to its block; extra columns are zero).
+    fn pack_strided(
+        name: &str,
+        weight: &[f32],
+        bias: &[f32],
+        input_channels: &[u32],
+        cout: u32,
+        cout4_stride: u32,
+    ) -> Result<(Vec<f32>, Vec<f32>)> {
+        let op = format!("conv3x3 '{name}'");
+        if input_channels.is_empty() || input_channels.len() > 4 || input_channels.contains(&0) {
+            return Err(Error::shape(
+                &op,
+                format!("takes 1 to 4 non-empty inputs, got channel split {input_channels:?}"),
+            ));
+        }
+        if cout == 0 {
+            return Err(Error::shape(&op, "cout must be > 0"));
+        }
+        let cin: u32 = input_channels.iter().sum();
+        let expect = (cout * cin * 9) as usize;
+        if weight.len() != expect {
+            return Err(Error::shape(
+                &op,
+                format!(
+                    "weight has {} values, expected [{cout}, {cin}, 3, 3] = {expect}",
+                    weight.len()
+                ),
+            ));
+        }
+        if bias.len() != cout as usize {
+            return Err(Error::shape(
+                &op,
+                format!("bias has {} values, expected {cout}", bias.len()),
+            ));
+        }
+        let cin4: u32 = input_channels.iter().map(|&c| padded(c) / 4).sum();
+        let mut packed = vec![0.0f32; (9 * cin4 * cout4_stride * 16) as usize];
+        let mut base_logical = 0;
+        let mut base_padded = 0;
+        for &c in input_channels {
+            for ci in 0..c {
+                let li = base_logical + ci; // logical input channel (PyTorch index)
+                let pi = base_padded + ci; // padded slot
+                for co in 0..cout {
+                    for tap in 0..9 {
+                        let wv = weight[((co * cin + li) * 9 + tap) as usize];
+                        // [tap][ci4][co4][col k = pi%4][row = co%4]
+                        let idx = ((((tap * cin4 + pi / 4) * cout4_stride + co / 4) * 4 + pi % 4) * 4
+                            + co % 4) as usize;
+                        packed[idx] = wv;
+                    }
+                }
+            }
+            base_logical += c;
+            base_padded += padded(c);
+        }
+        let mut b = bias.to_vec();
+        b.resize(padded(cout) as usize, 0.0);
+        Ok((packed, b))
+    }
+
+    /// FLOPs per output pixel (multiply and add counted separately).
+    pub fn flops_per_pixel(&self) -> u64 {
+        18 * self.input_channels.iter().sum::<u32>() as u64 * self.cout as u64
+    }
+
+    fn cin4_total(&self) -> u32 {
+        self.input_channels.iter().map(|&c| padded(c) / 4).sum()
+    }
+
+    /// Vec4s of packed weights the blocked kernel needs with output block `cob`.
+    fn blocked_weights(&self, cob: u32) -> u32 {
+        let cout4 = padded(self.cout) / 4;
+        9 * self.cin4_total() * cout4.div_ceil(cob) * cob * 4
+    }
+
+    /// Why `kernel` cannot run this layer on `gpu`, or `None` when it can.
+    pub fn unsupported(&self, gpu: &Gpu, kernel: ConvKernel) -> Option<String> {
+        let ConvKernel::Blocked { cob, .. } = kernel else {
+            return None;
+        };
+        if let Err(m) = kernel.check_tiling() {
+            return Some(m);
+        }
+        let cout4 = padded(self.cout) / 4;
+        if cob > cout4 {
+            return Some(format!("cob {cob} exceeds the layer's {cout4} output vec4s"));
+        }
+        let need = self.blocked_weights(cob);
+        if need > BLOCKED_MAX_WEIGHTS {
+            return Some(format!(
+                "its packed weights are {need} vec4s, more than the uniform array's {BLOCKED_MAX_WEIGHTS}"
+            ));
+        }
+        let have = gpu.device.limits().max_uniform_buffer_binding_size as u64;
+        if have < BLOCKED_MAX_WEIGHTS as u64 * 16 {
+            return Some(format!(
+                "the device's uniform bindings hold {have} bytes, the kernel needs {}",
+                BLOCKED_MAX_WEIGHTS * 16
+            ));
+        }
+        None
+    }
+
+    /// The kernels that can run this layer on `gpu`: [`ConvKernel::Generic`] and every
+    /// blocked tiling of [`ConvKernel::blocked_tilings`] that fits.
+    pub fn candidates(&self, gpu: &Gpu) -> Vec<ConvKernel> {
+        std::iter::once(ConvKernel::Generic)
+            .chain(ConvKernel::blocked_tilings())
+            .filter(|&k| self.unsupported(gpu, k).is_none())
+            .collect()
+    }
+
+    /// Checks the inputs' channel split, sizes and the output against the layer.
+    fn check(&self, inputs: &[&Tensor], out: &Tensor) -> Result<()> {
+        let op = format!("conv3x3 '{}'", self.name);
+        let got: Vec<u32> = inputs.iter().map(|t| t.channels).collect();
+        if got != self.input_channels {
+            return Err(Error::shape(
+                &op,
+                format!("input channels {got:?}, expected {:?}", self.input_channels),
+            ));
+        }
+        for (i, t) in inputs.iter().enumerate() {
+            check_size(&op, &format!("input {i}"), t, out.width, out.height)?;
+        }
+        check_channels(&op, "output", out, self.cout)?;
+        distinct(&op, out, inputs)
+    }
+
+    /// Binds `inputs` (in concatenation order) and `out` on [`ConvKernel::Generic`], which
+    /// runs every layer.
+    pub fn bind(&self, gpu: &Gpu, inputs: &[&Tensor], out: &Tensor) -> Result<Dispatch> {
+        self.bind_with(gpu, ConvKernel::Generic, inputs, out)
+    }
+
+    /// Binds `inputs` and `out` on `kernel`; an error names the layer and why when the
+    /// kernel cannot run it ([`Conv3x3::unsupported`]).
+    pub fn bind_with(&self, gpu: &Gpu, kernel: ConvKernel, inputs: &[&Tensor], out: &Tensor) -> Result<Dispatch> {
+        self.check(inputs, out)?;
+        if let Some(why) = self.unsupported(gpu, kernel) {
+            return Err(Error::shape(
+                &format!("conv3x3 '{}'", self.name),
+                format!("kernel {kernel} cannot run it: {why}"),
+            ));
+        }
+        let (w, h) = (out.width, out.height);
+        let mut bufs: Vec<&wgpu::Buffer> = inputs.iter().map(|t| &t.buffer).collect();
+        let mut cin4 = [0u32; 4];
+        for (i, t) in inputs.iter().enumerate() {
+            cin4[i] = t.c4();
+        }
+        let (act, slope) = self.act.code();
+        match kernel {
+            ConvKernel::Generic => {
+                let params = ConvParams {
+                    width: w,
+                    height: h,
+                    n_inputs: inputs.len() as u32,
+                    cout4: out.c4(),
+                    cin4,
+                    cin4_total: cin4.iter().sum(),
+                    act,
+                    slope,
+                    _pad: 0,
+                };
+                // nn/conv3x3 declares 4 inputs: repeat the first in unused slots.
+                while bufs.len() < 4 {
+                    bufs.push(&inputs[0].buffer);
+                }
+                bufs.extend([&self.weights, &self.bias, &out.buffer]);
+                gpu.kernels.dispatch(
+                    "nn/conv3x3",
+                    &Specialisation::none(),
+                    bytemuck::bytes_of(&params),
+                    &bufs,
+                    [
+                        w.div_ceil(WG),
+                        h.div_ceil(WG),
+                        padded(self.cout).div_ceil(GENERIC_COUT_BLOCK),
+                    ],
+                )
+            }
+            ConvKernel::Blocked { px, cob } => {
+                let weights = self.blocked_buffer(gpu, cob)?;
+                let spec = Specialisation(vec![
+                    ("N_IN", inputs.len() as f64),
+                    ("CIN4_0", cin4[0] as f64),
+                    ("CIN4_1", cin4[1] as f64),
+                    ("CIN4_2", cin4[2] as f64),
+                    ("CIN4_3", cin4[3] as f64),
+                    ("COUT4", out.c4() as f64),
+                    ("PX", px as f64),
+                    ("COB", cob as f64),
+                    ("ACT", act as f64),
+                    ("SLOPE", slope as f64),
+                ]);
+                let params = BlockedParams {
+                    width: w,
+                    height: h,
+                    _pad: [0; 2],
+                };
+                bufs.extend([&weights, &self.bias, &out.buffer]);
+                gpu.kernels.dispatch(
+                    "nn/conv3x3_blocked",
+                    &spec,
+                    bytemuck::bytes_of(&params),
+                    &bufs,
+                    [
+                        w.div_ceil(px).div_ceil(WG),
+                        h.div_ceil(WG),
+                        out.c4().div_ceil(cob),
+                    ],
+                )
+            }
+        }
+    }
+
+    /// The blocked kernel's uniform weights for output block `cob` (a full 64 KiB array,
+    /// zero beyond the packed layer), uploaded on first use.
+    fn blocked_buffer(&self, gpu: &Gpu, cob: u32) -> Result<wgpu::Buffer> {
+        let mut cache = self.blocked.lock().unwrap();
+        if let Some(b) = cache.get(&cob) {
+            return Ok(b.clone());
+        }
+        let stride = (padded(self.cout) / 4).div_ceil(cob) * cob;
+        let (mut packed, _) = Self::pack_strided(
+            &self.name,
+            &self.weight,
+            &self.bias_host,
+            &self.input_channels,
+            self.cout,
+            stride,
+        )?;
+        packed.resize(BLOCKED_MAX_WEIGHTS as usize * 4, 0.0);
+        use wgpu::util::DeviceExt;
+        let b = gpu.device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
+            label: Some(&format!("subpixel.{}.weight.cob{cob}", self.name)),
+            contents: bytemuck::cast_slice(&packed),
+            usage: wgpu::BufferUsages::UNIFORM,
+        });
+        cache.insert(cob, b.clone());
+        Ok(b)
+    }
+}
+
+/// Size in bytes of each conv kernel's `Params` as the Rust side lays it out.
+pub const PARAM_SIZES: &[(&str, usize)] = &[
+    ("nn/conv3x3", std::mem::size_of::<ConvParams>()),
+    ("nn/conv3x3_blocked", std::mem::size_of::<BlockedParams>()),
+];
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn kernel_names_round_trip() {
+        for k in std::iter::once(ConvKernel::Generic).chain(ConvKernel::blocked_tilings()) {
+            assert_eq!(k.to_string().parse::<ConvKernel>().unwrap(), k);
+        }
+        for bad in ["px0-cob1", "px8-cob8", "px4", "cob4-px4", "fast"] {
+            let e = bad.parse::<ConvKernel>().unwrap_err().to_string();
+            assert!(e.contains(bad), "{e}");
+        }
+    }
+
+    /// The strided packing puts each weight where the blocked kernel reads it and zeroes
+    /// the padding columns.
+    #[test]
+    fn strided_packing_places_every_weight() {
+        let (split, cout) = ([3u32, 5], 6u32);
+        let cin: u32 = split.iter().sum();
+        let w: Vec<f32> = (0..cout * cin * 9).map(|i| i as f32 + 1.0).collect();
+        let stride = 4; // cout4 = 2, rounded up to a block of 4
+        let (p, _) = Conv3x3::pack_strided("t", &w, &vec![0.0; cout as usize], &split, cout, stride).unwrap();
+        let cin4 = 1 + 2;
+        assert_eq!(p.len(), (9 * cin4 * stride * 16) as usize);
+        let slot = |li: u32| if li < 3 { li } else { 4 + li - 3 };
+        let mut seen = 0;
+        for co in 0..cout {
+            for li in 0..cin {
+                for tap in 0..9 {
+                    let pi = slot(li);
+                    let idx = (((tap * cin4 + pi / 4) * stride + co / 4) * 4 + pi % 4) * 4 + co % 4;
+                    assert_eq!(p[idx as usize], w[((co * cin + li) * 9 + tap) as usize]);
+                    seen += 1;
+                }
+            }
+        }
+        assert_eq!(p.iter().filter(|&&v| v != 0.0).count(), seen);
+    }
+}

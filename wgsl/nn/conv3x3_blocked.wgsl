@@ -1,0 +1,120 @@
+// 3x3 convolution, register-blocked and specialised (issue 14): the same operation as
+// nn/conv3x3 (stride 1, zero padding, bias, activation, up to 4 NHWC inputs read as if
+// concatenated along channels, output kept finite; sums in another order), shaped at
+// compile time so the driver gets one straight-line kernel per layer shape and tiling:
+// - each invocation computes PX horizontally adjacent pixels times COB output vec4s, in
+//   PX * COB named accumulators (unrolled by the registry's template expansion, see
+//   src/gpu/template.rs: drivers such as lavapipe do not unroll loops, and an indexed
+//   accumulator array would live in memory). Every input vec4 it loads serves 3 taps and
+//   COB output blocks; every weight vec4 serves PX pixels;
+// - N_IN inputs are bound, their channel counts and the output's are override constants:
+//   no dynamic `switch` and no runtime loop bounds; only the image size is a parameter;
+// - weights live in a uniform buffer (broadcast loads), packed per layer as
+//   [tap(9)][ci4 over the concatenated inputs][co4 (COUT4 rounded up to COB)][4 columns];
+//   column k of block (ci4, co4) holds the weights of input channel 4*ci4+k for output
+//   channels 4*co4..4*co4+3. The Rust side (nn::conv) packs them and refuses layers that
+//   do not fit MAX_WEIGHTS (those run on nn/conv3x3, which reads weights from storage).
+// The grid: x over groups of PX pixels, y over rows, z over blocks of COB output vec4s.
+//
+//#param N_IN 4
+//#param PX 1
+//#param COB 1
+
+override CIN4_0: u32 = 1u;  // padded channels / 4 of each input (inputs N_IN.. unused)
+override CIN4_1: u32 = 1u;
+override CIN4_2: u32 = 1u;
+override CIN4_3: u32 = 1u;
+override COUT4: u32 = 1u;   // padded output channels / 4
+override ACT: u32 = 0u;     // 0 none, 1 relu, 2 leaky relu
+override SLOPE: f32 = 0.0;  // leaky relu slope
+
+struct Params {
+    width: u32,
+    height: u32,
+    _pad0: u32,
+    _pad1: u32,
+}
+
+const MAX_WEIGHTS: u32 = 4096u; // vec4s: 64 KiB, WebGPU's default uniform binding size
+const ACT_MAX: f32 = 1.0e15;
+
+@group(0) @binding(0) var<uniform> p: Params;
+//#repeat k N_IN
+@group(0) @binding({k+1}) var<storage, read> in{k}: array<vec4<f32>>;
+//#end
+@group(0) @binding({N_IN+1}) var<uniform> weights: array<vec4<f32>, MAX_WEIGHTS>;
+@group(0) @binding({N_IN+2}) var<storage, read> bias: array<vec4<f32>>;
+@group(0) @binding({N_IN+3}) var<storage, read_write> out: array<vec4<f32>>;
+
+// Activation and finiteness (a non-finite sum becomes 0, finite ones are clamped to
+// +-ACT_MAX, as in nn/conv3x3), stored when the pixel and output block exist.
+fn store(x: u32, y: u32, co4: u32, acc: vec4<f32>) {
+    if (x >= p.width || co4 >= COUT4) {
+        return;
+    }
+    var r = acc;
+    if (ACT == 1u) {
+        r = max(r, vec4<f32>(0.0));
+    } else if (ACT == 2u) {
+        r = select(r * SLOPE, r, r >= vec4<f32>(0.0));
+    }
+    let lim = vec4<f32>(ACT_MAX);
+    out[(y * p.width + x) * COUT4 + co4] = select(vec4<f32>(0.0), clamp(r, -lim, lim), abs(r) <= vec4<f32>(3.40282347e38));
+}
+
+@compute @workgroup_size(8, 8, 1)
+fn main(@builtin(global_invocation_id) gid: vec3<u32>) {
+    let x0 = gid.x * {PX}u;
+    let y = gid.y;
+    let co0 = gid.z * {COB}u;
+    if (x0 >= p.width || y >= p.height) {
+        return;
+    }
+    let cout4_stride = ((COUT4 + {COB}u - 1u) / {COB}u) * {COB}u;
+    var cin4_total = 0u;
+    //#repeat k N_IN
+    cin4_total += CIN4_{k};
+    //#end
+    //#repeat j COB
+    let b{j} = bias[min(co0 + {j}u, COUT4 - 1u)];
+    //#repeat q PX
+    var a{q}_{j} = b{j};
+    //#end
+    //#end
+    let w_last = i32(p.width) - 1;
+    for (var ty = 0u; ty < 3u; ty++) {
+        let yy = i32(y) + i32(ty) - 1;
+        if (yy < 0 || yy >= i32(p.height)) {
+            continue;
+        }
+        let row = u32(yy) * p.width;
+        var ci_base = 0u;
+        //#repeat k N_IN
+        for (var ci = 0u; ci < CIN4_{k}; ci++) {
+            // The row's PX + 2 input vec4s (zero outside the image).
+            //#repeat i PX+2
+            let xx{i} = i32(x0) + {i} - 1;
+            let v{i} = select(vec4<f32>(0.0), in{k}[(row + u32(clamp(xx{i}, 0, w_last))) * CIN4_{k} + ci], xx{i} >= 0 && xx{i} <= w_last);
+            //#end
+            //#repeat tx 3
+            let wr{tx} = (((ty * 3u + {tx}u) * cin4_total + ci_base + ci) * cout4_stride + co0) * 4u;
+            //#repeat j COB
+            let w{tx}_{j}_0 = weights[wr{tx} + {j}u * 4u];
+            let w{tx}_{j}_1 = weights[wr{tx} + {j}u * 4u + 1u];
+            let w{tx}_{j}_2 = weights[wr{tx} + {j}u * 4u + 2u];
+            let w{tx}_{j}_3 = weights[wr{tx} + {j}u * 4u + 3u];
+            //#repeat q PX
+            a{q}_{j} += w{tx}_{j}_0 * v{q+tx}.x + w{tx}_{j}_1 * v{q+tx}.y + w{tx}_{j}_2 * v{q+tx}.z + w{tx}_{j}_3 * v{q+tx}.w;
+            //#end
+            //#end
+            //#end
+        }
+        ci_base += CIN4_{k};
+        //#end
+    }
+    //#repeat q PX
+    //#repeat j COB
+    store(x0 + {q}u, y, co0 + {j}u, a{q}_{j});
+    //#end
+    //#end
+}
