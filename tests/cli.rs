@@ -264,7 +264,9 @@ fn bench_kernels_prints_a_table() {
     let out = String::from_utf8_lossy(&o.stdout);
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
     for k in [
-        "conv3x3 8->8",
+        "conv3x3 8->8 relu generic",
+        "conv3x3 8->8 relu px8-cob2",
+        "autotuner's choice for conv3x3 8->8 relu",
         "pool2x2 max",
         "upsample2x bilinear",
         "tfa_blend",
@@ -274,6 +276,51 @@ fn bench_kernels_prints_a_table() {
     ] {
         assert!(out.contains(k), "missing {k} in\n{out}");
     }
+}
+
+/// Issue 14: the roofline model alone (no timing) at a size the machine could not time
+/// quickly, and a fixed kernel through the environment; a bad value is a named error.
+#[test]
+fn bench_denoise_models_passes_and_takes_fixed_kernels() {
+    let o = bin()
+        .env("SUBPIXEL_CONV_KERNEL", "px4-cob2")
+        .args([
+            "bench",
+            "denoise",
+            "--width",
+            "64",
+            "--height",
+            "48",
+            "--model-only",
+            "--model",
+            "rtx4070",
+        ])
+        .output()
+        .unwrap();
+    let out = String::from_utf8_lossy(&o.stdout);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    for k in [
+        "roofline model on NVIDIA RTX 4070",
+        "unet.enc1.0",
+        "compute",
+        "memory",
+        "not timed (--model-only)",
+        "unet.enc2.2 px4-cob2",
+    ] {
+        assert!(out.contains(k), "missing {k} in\n{out}");
+    }
+    let o = bin()
+        .env("SUBPIXEL_CONV_KERNEL", "fastest")
+        .args([
+            "bench", "denoise", "--width", "16", "--height", "16", "--frames", "1",
+        ])
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(
+        !o.status.success() && err.contains("SUBPIXEL_CONV_KERNEL") && err.contains("fastest"),
+        "{err}"
+    );
 }
 
 #[test]

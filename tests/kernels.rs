@@ -4,7 +4,7 @@
 mod common;
 
 use common::*;
-use subpixel::nn::ops::{self, Activation, Conv3x3, PoolMode, TfaBlend, UpsampleMode};
+use subpixel::nn::ops::{self, Activation, Conv3x3, ConvKernel, PoolMode, TfaBlend, UpsampleMode};
 use subpixel::nn::{HostTensor, Tensor, reference};
 
 fn up(gpu: &subpixel::gpu::Gpu, name: &str, t: &HostTensor) -> Tensor {
@@ -64,6 +64,92 @@ fn conv3x3_concatenates_up_to_four_inputs() {
             assert_close(&format!("conv3x3 concat {split:?} {w}x{h}"), &g, &r, REDUCTION);
         }
     }
+}
+
+/// Issue 14: every kernel the autotuner can pick for a layer (the generic kernel and every
+/// register-blocked tiling that fits) agrees with the CPU reference, on shapes that
+/// exercise partial pixel groups (odd widths), output blocks that do not divide the output
+/// (28 channels = 7 vec4s), concatenated inputs, padded channels and each activation.
+#[test]
+fn conv3x3_every_autotuner_candidate_matches_reference() {
+    let g = gpu();
+    // (input split, output channels, activation, size)
+    type Shape = (&'static [u32], u32, Activation, (u32, u32));
+    let shapes: &[Shape] = &[
+        (&[15, 4, 15, 3], 16, Activation::Relu, (33, 17)),
+        (&[32, 3], 28, Activation::Relu, (19, 9)),
+        (&[8], 8, Activation::None, (40, 7)),
+        (&[5], 17, Activation::LeakyRelu(0.1), (1, 3)),
+    ];
+    let mut tried = 0;
+    for (i, &(split, cout, act, (w, h))) in shapes.iter().enumerate() {
+        let inputs: Vec<HostTensor> = split
+            .iter()
+            .enumerate()
+            .map(|(k, &c)| random(300 + 10 * i as u64 + k as u64, w, h, c, -1.0, 1.0))
+            .collect();
+        let cin: u32 = split.iter().sum();
+        let weight = random_vec(50 + i as u64, (cout * cin * 9) as usize, -0.5, 0.5);
+        let bias = random_vec(60 + i as u64, cout as usize, -0.5, 0.5);
+        let conv = Conv3x3::new(&g, "candidate", &weight, &bias, split, cout, act).unwrap();
+        let gins: Vec<Tensor> = inputs.iter().map(|t| up(&g, "in", t)).collect();
+        let refs: Vec<&Tensor> = gins.iter().collect();
+        let hin: Vec<&HostTensor> = inputs.iter().collect();
+        let want = reference::conv3x3(&hin, &weight, &bias, cout, act);
+        let candidates = conv.candidates(&g);
+        assert!(candidates.len() > 1, "{split:?}->{cout}: only {candidates:?}");
+        for kernel in candidates {
+            let out = Tensor::new(&g, "out", w, h, cout).unwrap();
+            let d = conv.bind_with(&g, kernel, &refs, &out).unwrap();
+            // Compulsory traffic (roofline model): every input once, the output once.
+            let inputs: u64 = gins.iter().map(|t| t.bytes()).sum();
+            assert_eq!(d.bytes_written, out.bytes(), "{kernel}");
+            assert!(
+                d.bytes_read > inputs && d.bytes_read < inputs + 70_000,
+                "{kernel}: {}",
+                d.bytes_read
+            );
+            ops::run(&g, &[&d]).unwrap();
+            let got = out.read(&g).unwrap();
+            assert_close(
+                &format!("conv3x3 {kernel} {split:?}->{cout} {w}x{h}"),
+                &got,
+                &want,
+                REDUCTION,
+            );
+            tried += 1;
+        }
+    }
+    assert!(tried >= 40, "{tried} kernel/shape pairs");
+}
+
+/// A layer whose packed weights exceed the blocked kernel's uniform array runs on the
+/// generic kernel only; asking for a tiling anyway is an error naming the layer and why.
+#[test]
+fn conv3x3_too_large_for_uniform_weights_falls_back_to_generic() {
+    let g = gpu();
+    let (cin, cout) = (128u32, 64u32); // 9 * 32 * 16 * 4 = 18432 vec4s > 4096
+    let conv = Conv3x3::new(
+        &g,
+        "wide",
+        &vec![0.01; (cin * cout * 9) as usize],
+        &vec![0.0; cout as usize],
+        &[cin],
+        cout,
+        Activation::Relu,
+    )
+    .unwrap();
+    assert_eq!(conv.candidates(&g), vec![ConvKernel::Generic]);
+    let x = Tensor::new(&g, "x", 8, 8, cin).unwrap();
+    let out = Tensor::new(&g, "out", 8, 8, cout).unwrap();
+    let e = conv
+        .bind_with(&g, ConvKernel::Blocked { px: 4, cob: 1 }, &[&x], &out)
+        .unwrap_err()
+        .to_string();
+    assert!(
+        e.contains("wide") && e.contains("px4-cob1") && e.contains("4096"),
+        "{e}"
+    );
 }
 
 #[test]

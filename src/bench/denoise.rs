@@ -1,5 +1,6 @@
 //! `subpixel bench denoise`: the SSR network timed per layer and per stage.
 
+use super::roofline::{self, GpuModel, ModelledPass};
 use crate::error::Result;
 use crate::gpu::{Gpu, Profiler, Stats};
 use crate::nn::HostTensor;
@@ -47,6 +48,16 @@ pub struct DenoiseBench {
     pub gflop_per_s: f64,
     /// Fraction of the adapter's FP32 peak, where known.
     pub fraction_of_peak: Option<f64>,
+    /// Each convolution layer and its kernel (autotuned or fixed).
+    pub conv_kernels: Vec<(String, String)>,
+    /// Compute passes per frame in production (one per stage) and dispatches per frame.
+    pub dispatches: usize,
+    /// The GPU the roofline model describes.
+    pub model: GpuModel,
+    /// Every pass of a frame in the roofline model.
+    pub modelled: Vec<ModelledPass>,
+    /// Their sum, ms.
+    pub modelled_ms: f64,
 }
 
 /// A synthetic frame with every buffer non-trivial.
@@ -71,7 +82,8 @@ pub fn synthetic_frame(w: u32, h: u32, t: u32) -> HostFrame {
 }
 
 /// Times the network on synthetic frames: `warmup` untimed frames, then `frames` timed,
-/// once with a pass per layer and once with a pass per stage.
+/// once with a pass per layer and once with a pass per stage (with `frames == 0`: one
+/// untimed frame, for the roofline model alone), and models each pass on `model`.
 pub fn bench_denoise(
     gpu: &Gpu,
     weights: &Weights,
@@ -79,6 +91,7 @@ pub fn bench_denoise(
     h: u32,
     warmup: u32,
     frames: u32,
+    model: &GpuModel,
 ) -> Result<DenoiseBench> {
     let mut den = Denoiser::with_gpu(gpu, weights, w, h)?;
     let packed = synthetic_frame(w, h, 0).pack()?;
@@ -94,8 +107,14 @@ pub fn bench_denoise(
         })
         .collect();
     let inputs = FrameInputs::from_slice(&bufs)?;
-    let flops: Vec<(&'static str, String, u64)> = den.network().step_flops();
+    let flops: Vec<(&'static str, String, u64)> = den
+        .network()
+        .step_costs()
+        .into_iter()
+        .map(|c| (c.stage, c.label, c.flops))
+        .collect();
     let total_flops: u64 = flops.iter().map(|f| f.2).sum();
+    let (warmup, frames) = if frames == 0 { (1, 0) } else { (warmup, frames) };
     let mut run = |granularity: Granularity| -> Result<(Profiler, Vec<f64>)> {
         let mut prof = Profiler::new(gpu, 64);
         let mut totals = Vec::new();
@@ -151,8 +170,15 @@ pub fn bench_denoise(
     } else {
         sp.stat("frame (CPU wall)").map(|s| s.median_ms).unwrap_or(0.0)
     };
-    let gflop_per_s = total_flops as f64 / (total_ms * 1e-3) * 1e-9;
+    let gflop_per_s = if total_ms > 0.0 {
+        total_flops as f64 / (total_ms * 1e-3) * 1e-9
+    } else {
+        0.0
+    };
     let peak = crate::bench::peak_fp32_gflops(&gpu.info.name);
+    let costs = den.step_costs();
+    let modelled = roofline::model(model, &costs);
+    let modelled_ms = modelled.iter().map(|p| p.modelled_ms).sum();
     Ok(DenoiseBench {
         adapter: gpu.describe(),
         width: w,
@@ -166,6 +192,16 @@ pub fn bench_denoise(
         flops_per_pixel: total_flops as f64 / (den.network().width as f64 * den.network().height as f64),
         gflop_per_s,
         fraction_of_peak: peak.map(|p| gflop_per_s / p),
+        conv_kernels: den
+            .network()
+            .conv_kernels()
+            .into_iter()
+            .map(|(n, k)| (n.to_string(), k.to_string()))
+            .collect(),
+        dispatches: costs.len(),
+        model: model.clone(),
+        modelled,
+        modelled_ms,
     })
 }
 
@@ -230,6 +266,51 @@ pub fn table(b: &DenoiseBench) -> String {
         b.fraction_of_peak
             .map(|f| format!(", {:.1}% of FP32 peak", 100.0 * f))
             .unwrap_or_default()
+    );
+    s += &format!(
+        "\nconv kernels: {}\n",
+        b.conv_kernels
+            .iter()
+            .map(|(n, k)| format!("{n} {k}"))
+            .collect::<Vec<_>>()
+            .join(", ")
+    );
+    s += &format!(
+        "\nroofline model on {} ({:.1} TFLOP/s FP32, {:.0} GB/s, {} us per pass) at {}x{}, {} passes per frame:\n",
+        b.model.name,
+        b.model.peak_gflops * 1e-3,
+        b.model.bandwidth_gbs,
+        b.model.pass_us,
+        b.width,
+        b.height,
+        b.dispatches
+    );
+    s += &format!(
+        "{:<7} {:<20} {:>10} {:>10} {:>10} {:>8} {:>12}\n",
+        "stage", "pass", "MFLOP", "MB read", "MB written", "bound", "modelled ms"
+    );
+    for p in &b.modelled {
+        s += &format!(
+            "{:<7} {:<20} {:>10.1} {:>10.2} {:>10.2} {:>8} {:>12.4}\n",
+            p.stage,
+            p.name,
+            p.flops as f64 * 1e-6,
+            p.bytes_read as f64 * 1e-6,
+            p.bytes_written as f64 * 1e-6,
+            p.bound,
+            p.modelled_ms
+        );
+    }
+    let bytes: u64 = b.modelled.iter().map(|p| p.bytes_read + p.bytes_written).sum();
+    let measured = if b.frames > 0 {
+        format!("measured here {:.4} ms", b.total_ms)
+    } else {
+        "not timed (--model-only)".to_string()
+    };
+    s += &format!(
+        "modelled total {:.4} ms ({:.1} MB moved); {measured}\n",
+        b.modelled_ms,
+        bytes as f64 * 1e-6,
     );
     s
 }

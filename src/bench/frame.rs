@@ -86,7 +86,7 @@ pub fn bench_frame(
     } else {
         Stats::from_samples(&walls).map(|s| s.median_ms).unwrap_or(0.0)
     };
-    let ssr_flops: u64 = den.network().step_flops().iter().map(|f| f.2).sum();
+    let ssr_flops: u64 = den.network().step_costs().iter().map(|c| c.flops).sum();
     let ssr_ms: f64 = stages
         .iter()
         .filter(|(n, _)| n == "tfa" || n == "unet")

@@ -1,8 +1,9 @@
 //! `subpixel bench kernels`: every network kernel timed in isolation.
 
 use crate::error::Result;
-use crate::gpu::{Dispatch, Gpu, Profiler, Stats};
-use crate::nn::ops::{self, Activation, Conv3x3, PoolMode, TfaBlend, UpsampleMode};
+use crate::gpu::{Dispatch, Gpu, Stats, time_dispatch};
+use crate::nn::autotune;
+use crate::nn::ops::{self, Activation, Conv3x3, ConvKernel, PoolMode, TfaBlend, UpsampleMode};
 use crate::nn::{HostTensor, Tensor};
 
 /// Options of the kernel benchmark.
@@ -158,25 +159,7 @@ pub fn bench_kernels(gpu: &Gpu, o: &KernelBenchOptions) -> Result<Vec<KernelTimi
     let peak = crate::bench::peak_fp32_gflops(&gpu.info.name);
     let mut rows = Vec::new();
     for case in &cases {
-        let mut prof = Profiler::new(gpu, 1);
-        for i in 0..o.warmup + o.iterations {
-            let mut enc = gpu.device.create_command_encoder(&Default::default());
-            case.dispatch
-                .record(&mut Profiler::pass(&mut enc, &case.name, Some(&mut prof)));
-            prof.resolve(&mut enc);
-            let t0 = std::time::Instant::now();
-            gpu.queue.submit([enc.finish()]);
-            gpu.wait()?;
-            let wall = t0.elapsed().as_secs_f64() * 1e3;
-            prof.collect(gpu)?;
-            if !prof.gpu_timed() {
-                prof.record(&case.name, wall);
-            }
-            if i + 1 == o.warmup {
-                prof.clear();
-            }
-        }
-        let stats = prof.stat(&case.name).expect("timed iterations ran");
+        let (stats, gpu_timestamps) = time_dispatch(gpu, &case.dispatch, o.warmup, o.iterations)?;
         let secs = stats.median_ms * 1e-3;
         let gflop_per_s = if case.flops > 0 {
             case.flops as f64 / secs * 1e-9
@@ -186,7 +169,7 @@ pub fn bench_kernels(gpu: &Gpu, o: &KernelBenchOptions) -> Result<Vec<KernelTimi
         rows.push(KernelTiming {
             name: case.name.clone(),
             stats,
-            gpu_timestamps: prof.gpu_timed(),
+            gpu_timestamps,
             bytes: case.bytes,
             flops: case.flops,
             gb_per_s: case.bytes as f64 / secs * 1e-9,
@@ -195,6 +178,24 @@ pub fn bench_kernels(gpu: &Gpu, o: &KernelBenchOptions) -> Result<Vec<KernelTimi
         });
     }
     Ok(rows)
+}
+
+/// The autotuner's kernel for the benchmark's conv3x3 (`channels -> channels`, relu) at
+/// its size: `(choice, whether it came from the cache, the size it was tuned at)`.
+pub fn conv_choice(gpu: &Gpu, o: &KernelBenchOptions) -> Result<(ConvKernel, bool, (u32, u32))> {
+    let c = o.channels;
+    let wts: Vec<f32> = (0..c * c * 9).map(|i| ((i % 17) as f32 - 8.0) * 0.01).collect();
+    let conv = Conv3x3::new(
+        gpu,
+        "bench",
+        &wts,
+        &vec![0.0; c as usize],
+        &[c],
+        c,
+        Activation::Relu,
+    )?;
+    let (t, cached) = autotune::tune(gpu, &conv, o.width, o.height)?;
+    Ok((t.choice, cached, autotune::tune_size(o.width, o.height)))
 }
 
 /// Formats the rows as a table.

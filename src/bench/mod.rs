@@ -4,5 +4,6 @@ pub mod denoise;
 pub mod frame;
 pub mod kernels;
 mod peak;
+pub mod roofline;
 
 pub use peak::peak_fp32_gflops;

@@ -84,6 +84,13 @@ pub(super) struct DenoiseBenchArgs {
     /// Print JSON instead of tables.
     #[arg(long)]
     json: bool,
+    /// GPU of the roofline model: h100 or rtx4070.
+    #[arg(long, default_value = "h100")]
+    model: String,
+    /// Skip the timing (one untimed frame) and print the roofline model only, e.g. at
+    /// 1920x1080 on a machine without that GPU.
+    #[arg(long)]
+    model_only: bool,
 }
 
 pub(super) fn run(what: Option<BenchCommand>) -> Result<()> {
@@ -153,12 +160,24 @@ pub(super) fn run(what: Option<BenchCommand>) -> Result<()> {
                 iterations,
             };
             let rows = bench_kernels(&gpu, &opts)?;
+            let (choice, cached, (tw, th)) = crate::bench::kernels::conv_choice(&gpu, &opts)?;
+            let tuned = format!(
+                "autotuner's choice for conv3x3 {c}->{c} relu: {choice} ({} at {tw}x{th}; {} overrides)",
+                if cached {
+                    "cached, measured"
+                } else {
+                    "measured now"
+                },
+                crate::nn::autotune::ENV_KERNEL,
+                c = a.channels
+            );
             if a.json {
                 let out = serde_json::json!({
                     "adapter": gpu.describe(),
                     "width": a.width, "height": a.height, "channels": a.channels,
                     "iterations": iterations,
                     "kernels": rows,
+                    "conv_choice": choice.to_string(),
                 });
                 println!("{}", serde_json::to_string_pretty(&out)?);
             } else {
@@ -176,18 +195,22 @@ pub(super) fn run(what: Option<BenchCommand>) -> Result<()> {
                     }
                 );
                 print!("{}", kernels_table(&rows));
+                println!("{tuned}");
             }
         }
         BenchCommand::Denoise(a) => {
             let (dw, dh, df) = if cpu { (128, 128, 5) } else { (1920, 1080, 100) };
             let weights = super::weights_or_random(a.weights.as_deref())?;
+            let model = crate::bench::roofline::GpuModel::preset(&a.model)?;
+            let frames = if a.model_only { 0 } else { a.frames.unwrap_or(df) };
             let b = bench_denoise(
                 &gpu,
                 &weights,
                 a.width.unwrap_or(dw),
                 a.height.unwrap_or(dh),
                 a.warmup,
-                a.frames.unwrap_or(df),
+                frames,
+                &model,
             )?;
             if a.json {
                 println!("{}", serde_json::to_string_pretty(&b)?);

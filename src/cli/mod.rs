@@ -49,7 +49,10 @@ enum Command {
 
 /// Runs the CLI; errors are printed with their causes.
 pub fn main() -> ExitCode {
-    env_logger::Builder::from_env(env_logger::Env::default().default_filter_or("warn")).init();
+    env_logger::Builder::from_env(
+        env_logger::Env::default().default_filter_or("warn,subpixel::nn::autotune=info"),
+    )
+    .init();
     let cli = Cli::parse();
     let result = match cli.command {
         Some(Command::Render(a)) => crate::render::cli::render_command(&a),

@@ -362,14 +362,44 @@ impl Specialisation {
 type PipelineKey = (&'static str, Vec<(&'static str, u64)>);
 /// A kernel and the values of its template parameters.
 type ModuleKey = (&'static str, Vec<(&'static str, u32)>);
+/// Per binding index of group 0, whether the kernel may write it.
+type Writable = Arc<HashMap<u32, bool>>;
+/// A compiled module and its bindings' access.
+type CompiledModule = (Arc<wgpu::ShaderModule>, Writable);
+/// A pipeline and its bindings' access.
+type CompiledPipeline = (Arc<wgpu::ComputePipeline>, Writable);
+
+/// Per binding of group 0: whether the kernel may write it (`read_write` storage, storage
+/// textures that are not read-only); read from its naga module.
+fn writable_bindings(module: &naga::Module) -> HashMap<u32, bool> {
+    let mut out = HashMap::new();
+    for (_, var) in module.global_variables.iter() {
+        let Some(b) = &var.binding else { continue };
+        let writable = match var.space {
+            naga::AddressSpace::Storage { access } => access.contains(naga::StorageAccess::STORE),
+            naga::AddressSpace::Handle => matches!(
+                &module.types[var.ty].inner,
+                naga::TypeInner::Image {
+                    class: naga::ImageClass::Storage { access, .. },
+                    ..
+                } if access.contains(naga::StorageAccess::STORE)
+            ),
+            _ => false,
+        };
+        if b.group == 0 {
+            out.insert(b.binding, writable);
+        }
+    }
+    out
+}
 
 /// Compiled shader modules and pipelines of one device.
 pub struct KernelRegistry {
     device: wgpu::Device,
     preferred: ParamsBinding,
     bindings: Mutex<HashMap<&'static str, ParamsBinding>>,
-    modules: Mutex<HashMap<ModuleKey, Arc<wgpu::ShaderModule>>>,
-    pipelines: Mutex<HashMap<PipelineKey, Arc<wgpu::ComputePipeline>>>,
+    modules: Mutex<HashMap<ModuleKey, CompiledModule>>,
+    pipelines: Mutex<HashMap<PipelineKey, CompiledPipeline>>,
 }
 
 impl KernelRegistry {
@@ -417,13 +447,13 @@ impl KernelRegistry {
         check_bound_limits(what, &bound, &self.device.limits())
     }
 
-    fn module(&self, k: &'static KernelSource, template: &[(&'static str, u32)]) -> Result<Arc<wgpu::ShaderModule>> {
+    fn module(&self, k: &'static KernelSource, template: &[(&'static str, u32)]) -> Result<CompiledModule> {
         let key = (k.name, template.to_vec());
         if let Some(m) = self.modules.lock().unwrap().get(&key) {
             return Ok(m.clone());
         }
         let source = k.wgsl(self.params_binding(k.name)?, template)?;
-        validate_wgsl(k.name, &source)?;
+        let writable = Arc::new(writable_bindings(&validate_wgsl(k.name, &source)?));
         let scope = self.device.push_error_scope(wgpu::ErrorFilter::Validation);
         let module = self.device.create_shader_module(wgpu::ShaderModuleDescriptor {
             label: Some(&format!("subpixel.{}", k.name)),
@@ -435,13 +465,18 @@ impl KernelRegistry {
                 message: format!("shader module creation failed: {e}"),
             });
         }
-        let module = Arc::new(module);
-        self.modules.lock().unwrap().insert(key, module.clone());
-        Ok(module)
+        let compiled = (Arc::new(module), writable);
+        self.modules.lock().unwrap().insert(key, compiled.clone());
+        Ok(compiled)
     }
 
     /// The compute pipeline of kernel `name` (entry point `main`) under `spec`, cached.
     pub fn pipeline(&self, name: &str, spec: &Specialisation) -> Result<Arc<wgpu::ComputePipeline>> {
+        Ok(self.compiled(name, spec)?.0)
+    }
+
+    /// The pipeline and, per binding, whether the kernel writes it.
+    fn compiled(&self, name: &str, spec: &Specialisation) -> Result<CompiledPipeline> {
         let k = kernel_source(name)?;
         let key = (k.name, spec.key());
         if let Some(p) = self.pipelines.lock().unwrap().get(&key) {
@@ -465,7 +500,7 @@ impl KernelRegistry {
             }
         }
         template.sort_unstable();
-        let module = self.module(k, &template)?;
+        let (module, writable) = self.module(k, &template)?;
         let scope = self.device.push_error_scope(wgpu::ErrorFilter::Validation);
         let pipeline = self
             .device
@@ -486,9 +521,9 @@ impl KernelRegistry {
                 message: format!("pipeline creation failed (specialisation {:?}): {e}", spec.0),
             });
         }
-        let pipeline = Arc::new(pipeline);
-        self.pipelines.lock().unwrap().insert(key, pipeline.clone());
-        Ok(pipeline)
+        let compiled = (Arc::new(pipeline), writable);
+        self.pipelines.lock().unwrap().insert(key, compiled.clone());
+        Ok(compiled)
     }
 
     /// Builds a ready-to-record dispatch: pipeline, bind group (uniform `params` at binding 0
@@ -516,7 +551,23 @@ impl KernelRegistry {
         }
         let resources: Vec<wgpu::BindingResource<'_>> =
             buffers.iter().map(|b| b.as_entire_binding()).collect();
-        self.dispatch_with(name, spec, params, &resources, groups)
+        let mut d = self.dispatch_with(name, spec, params, &resources, groups)?;
+        // Compulsory traffic: each distinct buffer once, by whether the kernel writes it.
+        let (_, writable) = self.compiled(name, spec)?;
+        let mut seen: Vec<&wgpu::Buffer> = Vec::new();
+        d.bytes_read = params.len() as u64;
+        for (i, b) in buffers.iter().enumerate() {
+            if seen.contains(b) {
+                continue;
+            }
+            seen.push(b);
+            if writable.get(&(i as u32 + 1)).copied().unwrap_or(false) {
+                d.bytes_written += b.size();
+            } else {
+                d.bytes_read += b.size();
+            }
+        }
+        Ok(d)
     }
 
     /// Like [`KernelRegistry::dispatch`] with arbitrary resources (textures, samplers) at
@@ -587,6 +638,8 @@ impl KernelRegistry {
             bind_group,
             groups,
             uniform,
+            bytes_read: 0,
+            bytes_written: 0,
         })
     }
 }
@@ -602,6 +655,12 @@ pub struct Dispatch {
     /// Workgroup counts.
     pub groups: [u32; 3],
     uniform: Option<wgpu::Buffer>,
+    /// Bytes of the buffers (and parameters) it only reads, each distinct buffer counted
+    /// once: its compulsory memory traffic, for roofline models. 0 for dispatches bound
+    /// with [`KernelRegistry::dispatch_with`] (textures).
+    pub bytes_read: u64,
+    /// Bytes of the buffers it may write, each counted once.
+    pub bytes_written: u64,
 }
 
 impl Dispatch {
@@ -635,7 +694,9 @@ mod tests {
     #[test]
     fn every_kernel_validates_with_naga() {
         for k in KERNELS {
-            let source = k.wgsl(ParamsBinding::Uniform, &[]).unwrap_or_else(|e| panic!("{e}"));
+            let source = k
+                .wgsl(ParamsBinding::Uniform, &[])
+                .unwrap_or_else(|e| panic!("{e}"));
             let module = validate_wgsl(k.name, &source).unwrap_or_else(|e| panic!("{e}"));
             assert!(
                 module.entry_points.iter().any(|e| e.name == "main"),
@@ -805,7 +866,8 @@ mod tests {
                 .global_variables
                 .iter()
                 .find(|(_, v)| {
-                    v.space == naga::AddressSpace::Uniform && v.binding.as_ref().is_some_and(|b| b.binding == 0)
+                    v.space == naga::AddressSpace::Uniform
+                        && v.binding.as_ref().is_some_and(|b| b.binding == 0)
                 })
                 .unwrap_or_else(|| panic!("{name} has no uniform block"));
             let size = layouter[var.ty].size as usize;

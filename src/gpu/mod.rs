@@ -11,4 +11,4 @@ pub use kernels::{
     Dispatch, KERNELS, KernelNeeds, KernelRegistry, KernelSource, ParamsBinding, Specialisation,
     check_limits, kernel_needs, kernel_source, libraries,
 };
-pub use profiler::{Profiler, StageStats, Stats};
+pub use profiler::{Profiler, StageStats, Stats, time_dispatch};

@@ -200,6 +200,37 @@ impl Profiler {
     }
 }
 
+/// Times `dispatch` alone, each run in its own submission: `warmup` untimed runs, then
+/// `iterations` timed ones (GPU timestamps where the adapter has them, else wall time
+/// around submit and wait). Returns the statistics and whether they are GPU-timed.
+pub fn time_dispatch(
+    gpu: &Gpu,
+    dispatch: &super::Dispatch,
+    warmup: u32,
+    iterations: u32,
+) -> Result<(Stats, bool)> {
+    let label = dispatch.kernel;
+    let mut prof = Profiler::new(gpu, 1);
+    for i in 0..warmup + iterations.max(1) {
+        let mut enc = gpu.device.create_command_encoder(&Default::default());
+        dispatch.record(&mut Profiler::pass(&mut enc, label, Some(&mut prof)));
+        prof.resolve(&mut enc);
+        let t0 = std::time::Instant::now();
+        gpu.queue.submit([enc.finish()]);
+        gpu.wait()?;
+        let wall = t0.elapsed().as_secs_f64() * 1e3;
+        prof.collect(gpu)?;
+        if !prof.gpu_timed() {
+            prof.record(label, wall);
+        }
+        if i + 1 == warmup {
+            prof.clear();
+        }
+    }
+    let stats = prof.stat(label).expect("timed iterations ran");
+    Ok((stats, prof.gpu_timed()))
+}
+
 #[cfg(test)]
 mod tests {
     use super::Stats;

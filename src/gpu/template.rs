@@ -47,13 +47,11 @@ fn eval(expr: &str, vars: &BTreeMap<String, u32>) -> std::result::Result<u32, St
         let term = term.trim();
         let v = match term.parse::<u32>() {
             Ok(v) => v,
-            Err(_) => *vars
-                .get(term)
-                .ok_or_else(|| format!("'{term}' is neither a number nor a template parameter or repeat variable"))?,
+            Err(_) => *vars.get(term).ok_or_else(|| {
+                format!("'{term}' is neither a number nor a template parameter or repeat variable")
+            })?,
         };
-        sum = sum
-            .checked_add(v)
-            .ok_or_else(|| format!("'{expr}' overflows"))?;
+        sum = sum.checked_add(v).ok_or_else(|| format!("'{expr}' overflows"))?;
     }
     Ok(sum)
 }
@@ -180,7 +178,10 @@ mod tests {
             "//#param N 2\n//#param M 1\nlet a = 3;\nx_0_0 = v[0];\nx_1_0 = v[1];\nstruct S { a: u32 }\n"
         );
         let out = expand("t", SRC, &[("N", 1)]).unwrap();
-        assert!(out.contains("x_0_0 = v[0];\nx_0_1 = v[1];\n") && !out.contains("x_1"), "{out}");
+        assert!(
+            out.contains("x_0_0 = v[0];\nx_0_1 = v[1];\n") && !out.contains("x_1"),
+            "{out}"
+        );
         assert_eq!(params(SRC), vec![("N", 2), ("M", 1)]);
     }
 

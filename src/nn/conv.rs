@@ -85,26 +85,37 @@ impl std::str::FromStr for ConvKernel {
     type Err = Error;
     /// Parses `generic` or `pxP-cobC` (as [`ConvKernel`]'s `Display` writes them).
     fn from_str(s: &str) -> Result<Self> {
-        let bad = || Error::Invalid(format!("conv kernel '{s}': expected 'generic' or 'pxP-cobC' (e.g. px4-cob2)"));
+        let bad = || {
+            Error::Invalid(format!(
+                "conv kernel '{s}': expected 'generic' or 'pxP-cobC' (e.g. px4-cob2)"
+            ))
+        };
         if s == "generic" {
             return Ok(ConvKernel::Generic);
         }
         let (a, b) = s.split_once('-').ok_or_else(bad)?;
-        let px = a.strip_prefix("px").and_then(|v| v.parse().ok()).ok_or_else(bad)?;
-        let cob = b.strip_prefix("cob").and_then(|v| v.parse().ok()).ok_or_else(bad)?;
+        let px = a
+            .strip_prefix("px")
+            .and_then(|v| v.parse().ok())
+            .ok_or_else(bad)?;
+        let cob = b
+            .strip_prefix("cob")
+            .and_then(|v| v.parse().ok())
+            .ok_or_else(bad)?;
         let k = ConvKernel::Blocked { px, cob };
-        k.check_tiling().map_err(|m| Error::Invalid(format!("conv kernel '{s}': {m}")))?;
+        k.check_tiling()
+            .map_err(|m| Error::Invalid(format!("conv kernel '{s}': {m}")))?;
         Ok(k)
     }
 }
 
 impl ConvKernel {
     /// The tilings the autotuner tries besides [`ConvKernel::Generic`] (before a layer's
-    /// own limits prune them): pixels 1-8 and output blocks 1-8 with at most 32
+    /// own limits prune them): 1 to 16 pixels times 1 to 8 output blocks, at most 32
     /// accumulators.
     pub fn blocked_tilings() -> Vec<ConvKernel> {
         let mut v = Vec::new();
-        for px in [1, 2, 4, 8] {
+        for px in [1, 2, 4, 8, 16] {
             for cob in [1, 2, 4, 8] {
                 if px * cob <= BLOCKED_MAX_ACC {
                     v.push(ConvKernel::Blocked { px, cob });
@@ -142,6 +153,8 @@ pub struct Conv3x3 {
     bias_host: Vec<f32>,
     weights: wgpu::Buffer,
     bias: wgpu::Buffer,
+    /// The kernel [`Conv3x3::bind`] uses ([`ConvKernel::Generic`] until set).
+    kernel: ConvKernel,
     /// Uniform weight buffers of the blocked kernel, by output block `cob` (the packing's
     /// output stride depends on it).
     blocked: Mutex<HashMap<u32, wgpu::Buffer>>,
@@ -177,6 +190,7 @@ impl Conv3x3 {
             bias_host: bias.to_vec(),
             weights: mk("weight", &packed),
             bias: mk("bias", &b),
+            kernel: ConvKernel::Generic,
             blocked: Mutex::new(HashMap::new()),
         })
     }
@@ -289,7 +303,7 @@ impl Conv3x3 {
                 "its packed weights are {need} vec4s, more than the uniform array's {BLOCKED_MAX_WEIGHTS}"
             ));
         }
-        let have = gpu.device.limits().max_uniform_buffer_binding_size as u64;
+        let have = gpu.device.limits().max_uniform_buffer_binding_size;
         if have < BLOCKED_MAX_WEIGHTS as u64 * 16 {
             return Some(format!(
                 "the device's uniform bindings hold {have} bytes, the kernel needs {}",
@@ -325,15 +339,39 @@ impl Conv3x3 {
         distinct(&op, out, inputs)
     }
 
-    /// Binds `inputs` (in concatenation order) and `out` on [`ConvKernel::Generic`], which
-    /// runs every layer.
+    /// The kernel [`Conv3x3::bind`] uses.
+    pub fn kernel(&self) -> ConvKernel {
+        self.kernel
+    }
+
+    /// Makes [`Conv3x3::bind`] use `kernel`; an error names the layer and why when the
+    /// kernel cannot run it.
+    pub fn set_kernel(&mut self, gpu: &Gpu, kernel: ConvKernel) -> Result<()> {
+        if let Some(why) = self.unsupported(gpu, kernel) {
+            return Err(Error::shape(
+                &format!("conv3x3 '{}'", self.name),
+                format!("kernel {kernel} cannot run it: {why}"),
+            ));
+        }
+        self.kernel = kernel;
+        Ok(())
+    }
+
+    /// Binds `inputs` (in concatenation order) and `out` on the layer's kernel
+    /// ([`Conv3x3::set_kernel`]; [`ConvKernel::Generic`], which runs every layer, unless set).
     pub fn bind(&self, gpu: &Gpu, inputs: &[&Tensor], out: &Tensor) -> Result<Dispatch> {
-        self.bind_with(gpu, ConvKernel::Generic, inputs, out)
+        self.bind_with(gpu, self.kernel, inputs, out)
     }
 
     /// Binds `inputs` and `out` on `kernel`; an error names the layer and why when the
     /// kernel cannot run it ([`Conv3x3::unsupported`]).
-    pub fn bind_with(&self, gpu: &Gpu, kernel: ConvKernel, inputs: &[&Tensor], out: &Tensor) -> Result<Dispatch> {
+    pub fn bind_with(
+        &self,
+        gpu: &Gpu,
+        kernel: ConvKernel,
+        inputs: &[&Tensor],
+        out: &Tensor,
+    ) -> Result<Dispatch> {
         self.check(inputs, out)?;
         if let Some(why) = self.unsupported(gpu, kernel) {
             return Err(Error::shape(
@@ -456,7 +494,7 @@ mod tests {
         for k in std::iter::once(ConvKernel::Generic).chain(ConvKernel::blocked_tilings()) {
             assert_eq!(k.to_string().parse::<ConvKernel>().unwrap(), k);
         }
-        for bad in ["px0-cob1", "px8-cob8", "px4", "cob4-px4", "fast"] {
+        for bad in ["px0-cob1", "px8-cob8", "px32-cob1", "px4", "cob4-px4", "fast"] {
             let e = bad.parse::<ConvKernel>().unwrap_err().to_string();
             assert!(e.contains(bad), "{e}");
         }

@@ -6,6 +6,7 @@
 //! property of [`Tensor`] ([`DType`]) so an f16 path can be added behind `SHADER_F16`
 //! without changing callers.
 
+pub mod autotune;
 pub mod conv;
 pub mod ops;
 pub mod reference;

@@ -5,6 +5,7 @@ use bytemuck::{Pod, Zeroable};
 
 use super::config::ExposureMode;
 pub use super::network::Granularity;
+use super::network::StepCost;
 use super::network::{Network, exposure_groups};
 use super::weights::Weights;
 use crate::error::{Error, Result};
@@ -12,6 +13,7 @@ pub use crate::frame::FrameInputs;
 use crate::frame::HostFrame;
 use crate::gpu::{Dispatch, Gpu, Profiler, Specialisation};
 use crate::nn::HostTensor;
+use crate::nn::autotune::KernelChoice;
 
 /// Rounds up to a multiple of 4 (the U-Net depth): the engine pads internally.
 pub fn round_up4(n: u32) -> u32 {
@@ -69,6 +71,7 @@ pub const KERNELS_USED: &[&str] = &[
     "ssr/history",
     "ssr/store_output",
     "nn/conv3x3",
+    "nn/conv3x3_blocked",
     "nn/warp",
     "nn/tfa_blend",
     "nn/pool2x2",
@@ -120,6 +123,7 @@ pub struct Denoiser {
     sanitized: wgpu::Buffer,
     first: bool,
     frames: u64,
+    kernels: KernelChoice,
 }
 
 impl Denoiser {
@@ -137,8 +141,22 @@ impl Denoiser {
         Self::with_gpu(&gpu, weights, width, height)
     }
 
-    /// A denoiser on a [`Gpu`] context.
+    /// A denoiser on a [`Gpu`] context. Each convolution runs on the kernel the
+    /// autotuner picks for this adapter ([`crate::nn::autotune`]: measured once per layer
+    /// shape and cached on disk), or the one `SUBPIXEL_CONV_KERNEL` fixes.
     pub fn with_gpu(gpu: &Gpu, weights: &Weights, width: u32, height: u32) -> Result<Self> {
+        Self::with_kernels(gpu, weights, width, height, KernelChoice::FromEnv)
+    }
+
+    /// [`Denoiser::with_gpu`] with the convolution kernels chosen by `kernels` (e.g.
+    /// `KernelChoice::Fixed(..)` for reproducible timings).
+    pub fn with_kernels(
+        gpu: &Gpu,
+        weights: &Weights,
+        width: u32,
+        height: u32,
+        kernels: KernelChoice,
+    ) -> Result<Self> {
         if width == 0 || height == 0 {
             return Err(Error::shape(
                 "denoiser",
@@ -146,7 +164,7 @@ impl Denoiser {
             ));
         }
         gpu.kernels.check_limits("the denoiser", KERNELS_USED)?;
-        let net = Network::new(gpu, weights, round_up4(width), round_up4(height))?;
+        let net = Network::new(gpu, weights, round_up4(width), round_up4(height), kernels)?;
         let output = Self::make_output(gpu, width, height);
         let store = Self::make_store(gpu, &net, &output, width, height)?;
         let sanitized = gpu.device.create_buffer(&wgpu::BufferDescriptor {
@@ -168,6 +186,7 @@ impl Denoiser {
             sanitized,
             first: true,
             frames: 0,
+            kernels,
         })
     }
 
@@ -216,6 +235,33 @@ impl Denoiser {
         )
     }
 
+    /// What each pass of a frame costs, in execution order: `pack` (exposure and input
+    /// packing; empty until the first frame bound the caller's buffers), the network's
+    /// steps, `output` (the copy into the output texture).
+    pub fn step_costs(&self) -> Vec<StepCost> {
+        let mut out = Vec::new();
+        if let Some((_, pack, exposure)) = &self.pack {
+            for d in exposure.iter().flatten().chain(pack.iter()) {
+                out.push(StepCost {
+                    stage: "pack",
+                    label: d.kernel.trim_start_matches("ssr/").to_string(),
+                    flops: 0,
+                    bytes_read: d.bytes_read,
+                    bytes_written: d.bytes_written,
+                });
+            }
+        }
+        out.extend(self.net.step_costs());
+        out.push(StepCost {
+            stage: "output",
+            label: "store output".into(),
+            flops: 0,
+            bytes_read: self.net.output().bytes(),
+            bytes_written: self.width as u64 * self.height as u64 * 16,
+        });
+        out
+    }
+
     /// Frame width.
     pub fn width(&self) -> u32 {
         self.width
@@ -253,7 +299,7 @@ impl Denoiser {
         if (width, height) == (self.width, self.height) {
             return Ok(());
         }
-        *self = Self::with_gpu(&self.gpu, &self.weights, width, height)?;
+        *self = Self::with_kernels(&self.gpu, &self.weights, width, height, self.kernels)?;
         Ok(())
     }
 

@@ -10,6 +10,8 @@ use super::config::{A_CHANNELS, ExposureMode, HistoryTest, MT_CHANNELS, RGB, Rem
 use super::weights::Weights;
 use crate::error::{Error, Result};
 use crate::gpu::{Dispatch, Gpu, Profiler, Specialisation};
+use crate::nn::autotune::{self, KernelChoice};
+use crate::nn::conv::ConvKernel;
 use crate::nn::ops::{self, Conv3x3, PoolMode, TfaBlend};
 use crate::nn::{HostTensor, Tensor};
 
@@ -90,8 +92,9 @@ pub const INTERMEDIATES: &[&str] = &[
 ];
 
 impl Network {
-    /// Uploads `weights` and allocates everything for a `width x height` padded image.
-    pub fn new(gpu: &Gpu, weights: &Weights, width: u32, height: u32) -> Result<Self> {
+    /// Uploads `weights` and allocates everything for a `width x height` padded image;
+    /// each convolution runs on the kernel `choice` picks for its shape and resolution.
+    pub fn new(gpu: &Gpu, weights: &Weights, width: u32, height: u32, choice: KernelChoice) -> Result<Self> {
         if width == 0 || height == 0 || !width.is_multiple_of(4) || !height.is_multiple_of(4) {
             return Err(Error::shape(
                 "ssr network",
@@ -103,10 +106,11 @@ impl Network {
         let mut convs = BTreeMap::new();
         for l in config.layers() {
             let (w, b) = weights.layer(&l.name)?;
-            convs.insert(
-                l.name.clone(),
-                Conv3x3::new(gpu, &l.name, w, b, &l.inputs, l.cout, l.act)?,
-            );
+            let mut conv = Conv3x3::new(gpu, &l.name, w, b, &l.inputs, l.cout, l.act)?;
+            let (lw, lh) = (width >> l.level, height >> l.level);
+            let kernel = autotune::choose(gpu, &conv, lw, lh, choice)?;
+            conv.set_kernel(gpu, kernel)?;
+            convs.insert(l.name.clone(), conv);
         }
         let [c1, c2, c3] = config.enc;
         let (h, k) = (config.tfa_hidden, config.k);
@@ -185,6 +189,11 @@ impl Network {
             net.steps[p] = s;
         }
         Ok(net)
+    }
+
+    /// Each convolution layer and the kernel it runs on.
+    pub fn conv_kernels(&self) -> Vec<(&str, ConvKernel)> {
+        self.convs.iter().map(|(n, c)| (n.as_str(), c.kernel())).collect()
     }
 
     fn t(&self, name: &str) -> &Tensor {
@@ -495,9 +504,9 @@ impl Network {
         self.parity = 1 - p;
     }
 
-    /// Every step in execution order (history warps included) with its stage and its
-    /// FLOPs per frame at this resolution (0 for data movement): `(stage, label, flops)`.
-    pub fn step_flops(&self) -> Vec<(&'static str, String, u64)> {
+    /// Every step in execution order (history warps included) with its stage, FLOPs per
+    /// frame at this resolution (0 for data movement) and compulsory memory traffic.
+    pub fn step_costs(&self) -> Vec<StepCost> {
         let levels: BTreeMap<String, u32> = self
             .config
             .layers()
@@ -519,9 +528,30 @@ impl Network {
                     }
                     _ => 0,
                 };
-                out.push((stage, s.label.clone(), flops));
+                out.push(StepCost {
+                    stage,
+                    label: s.label.clone(),
+                    flops,
+                    bytes_read: s.dispatch.bytes_read,
+                    bytes_written: s.dispatch.bytes_written,
+                });
             }
         }
         out
     }
+}
+
+/// What one step of the network costs per frame.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct StepCost {
+    /// Its stage (`tfa`, `unet`).
+    pub stage: &'static str,
+    /// Its label (layer name or operation).
+    pub label: String,
+    /// Floating-point operations (multiply and add counted separately; 0 for data movement).
+    pub flops: u64,
+    /// Bytes it reads, each tensor once (compulsory traffic).
+    pub bytes_read: u64,
+    /// Bytes it writes.
+    pub bytes_written: u64,
 }

@@ -1,0 +1,122 @@
+//! Roofline model of a frame on a named GPU (issue 14): each pass takes the longer of its
+//! FLOPs at the GPU's FP32 peak and its compulsory memory traffic at the GPU's bandwidth,
+//! plus a fixed cost per pass. It judges kernel designs on paper where no such GPU is at
+//! hand; where one is, `subpixel bench denoise` prints it beside the measured time.
+
+use crate::error::{Error, Result};
+use crate::ssr::StepCost;
+
+/// A GPU as the model sees it.
+#[derive(Debug, Clone, PartialEq, serde::Serialize)]
+pub struct GpuModel {
+    /// Name.
+    pub name: String,
+    /// FP32 peak (non-tensor), GFLOP/s.
+    pub peak_gflops: f64,
+    /// Memory bandwidth, GB/s.
+    pub bandwidth_gbs: f64,
+    /// Fixed cost per pass (dispatch and barrier), microseconds.
+    pub pass_us: f64,
+}
+
+/// Presets: vendor FP32 peaks and memory bandwidths; 2 us per pass is an assumption
+/// (dispatches in one command buffer with a barrier between them).
+pub const PRESETS: &[(&str, &str, f64, f64, f64)] = &[
+    ("h100", "NVIDIA H100 SXM (model)", 66_900.0, 3_350.0, 2.0),
+    ("rtx4070", "NVIDIA RTX 4070 (model)", 29_150.0, 504.0, 2.0),
+];
+
+impl GpuModel {
+    /// The preset named `name` (`h100`, `rtx4070`).
+    pub fn preset(name: &str) -> Result<Self> {
+        PRESETS
+            .iter()
+            .find(|p| p.0 == name.to_ascii_lowercase())
+            .map(|&(_, n, f, b, l)| GpuModel {
+                name: n.to_string(),
+                peak_gflops: f,
+                bandwidth_gbs: b,
+                pass_us: l,
+            })
+            .ok_or_else(|| {
+                let names: Vec<&str> = PRESETS.iter().map(|p| p.0).collect();
+                Error::Invalid(format!("GPU model '{name}': expected one of {names:?}"))
+            })
+    }
+
+    /// Modelled milliseconds of one pass.
+    pub fn pass_ms(&self, c: &StepCost) -> f64 {
+        let compute = c.flops as f64 / (self.peak_gflops * 1e9);
+        let memory = (c.bytes_read + c.bytes_written) as f64 / (self.bandwidth_gbs * 1e9);
+        compute.max(memory) * 1e3 + self.pass_us * 1e-3
+    }
+
+    /// Whether the pass is bound by memory (else by compute).
+    pub fn memory_bound(&self, c: &StepCost) -> bool {
+        (c.bytes_read + c.bytes_written) as f64 / self.bandwidth_gbs > c.flops as f64 / self.peak_gflops
+    }
+}
+
+/// One pass in the model.
+#[derive(Debug, Clone, serde::Serialize)]
+pub struct ModelledPass {
+    /// Stage.
+    pub stage: String,
+    /// Label.
+    pub name: String,
+    /// FLOPs per frame.
+    pub flops: u64,
+    /// Bytes read per frame.
+    pub bytes_read: u64,
+    /// Bytes written per frame.
+    pub bytes_written: u64,
+    /// Modelled time, ms.
+    pub modelled_ms: f64,
+    /// `"memory"` or `"compute"`.
+    pub bound: &'static str,
+}
+
+/// The model of every pass.
+pub fn model(gpu: &GpuModel, costs: &[StepCost]) -> Vec<ModelledPass> {
+    costs
+        .iter()
+        .map(|c| ModelledPass {
+            stage: c.stage.to_string(),
+            name: c.label.clone(),
+            flops: c.flops,
+            bytes_read: c.bytes_read,
+            bytes_written: c.bytes_written,
+            modelled_ms: gpu.pass_ms(c),
+            bound: if gpu.memory_bound(c) { "memory" } else { "compute" },
+        })
+        .collect()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn cost(flops: u64, bytes: u64) -> StepCost {
+        StepCost {
+            stage: "unet",
+            label: "x".into(),
+            flops,
+            bytes_read: bytes,
+            bytes_written: 0,
+        }
+    }
+
+    /// Analytic cases: 1 TFLOP at 66.9 TFLOP/s is 14.95 ms; 3.35 GB at 3,350 GB/s is 1 ms;
+    /// the longer wins; each pass adds its fixed cost.
+    #[test]
+    fn passes_take_the_longer_of_compute_and_memory() {
+        let h = GpuModel::preset("H100").unwrap();
+        let t = h.pass_ms(&cost(1_000_000_000_000, 0));
+        assert!((t - (1000.0 / 66.9 + 0.002)).abs() < 1e-9, "{t}");
+        let t = h.pass_ms(&cost(0, 3_350_000_000));
+        assert!((t - 1.002).abs() < 1e-9, "{t}");
+        assert!(h.memory_bound(&cost(1, 1_000)) && !h.memory_bound(&cost(1_000_000, 1)));
+        let e = GpuModel::preset("a770").unwrap_err().to_string();
+        assert!(e.contains("a770") && e.contains("h100"), "{e}");
+    }
+}

@@ -1,0 +1,323 @@
+//! Choosing each convolution's kernel on the adapter it runs on (issue 14).
+//!
+//! The fastest [`ConvKernel`] for a layer depends on the driver: on a CPU Vulkan driver
+//! many accumulators per invocation win, on a discrete GPU fewer (occupancy). So the
+//! engine measures: for each layer shape it times every candidate kernel on scratch
+//! tensors with GPU timestamps and keeps the fastest. Results are cached in memory for
+//! the process and on disk per adapter, driver, kernel sources and shape, in
+//! `autotune.json` under the cache folder ([`cache_dir`]); a corrupt cache file is
+//! ignored (with a warning) and rewritten.
+//!
+//! For reproducibility the choice can be fixed: [`KernelChoice::Fixed`] through the API,
+//! or the environment variable `SUBPIXEL_CONV_KERNEL` (`auto`, `generic` or a tiling such
+//! as `px8-cob4`; a layer the tiling cannot run falls back to `generic`).
+
+use std::collections::BTreeMap;
+use std::hash::{Hash, Hasher};
+use std::path::PathBuf;
+use std::sync::{Mutex, OnceLock};
+
+use super::conv::{Conv3x3, ConvKernel};
+use super::{HostTensor, Tensor};
+use crate::error::{Error, Result};
+use crate::gpu::{Gpu, time_dispatch};
+
+/// The environment variable that fixes the convolution kernel.
+pub const ENV_KERNEL: &str = "SUBPIXEL_CONV_KERNEL";
+/// The environment variable that moves the cache folder.
+pub const ENV_CACHE_DIR: &str = "SUBPIXEL_CACHE_DIR";
+/// Layers are tuned on at most this many pixels per side (the ranking, not the time, is
+/// what is kept; a 1080p layer would make tuning slow on a CPU driver).
+pub const TUNE_MAX_SIDE: u32 = 128;
+/// Timed runs per candidate (after one warm-up run); the median is compared.
+pub const TUNE_ITERATIONS: u32 = 3;
+
+/// How convolution layers pick their kernel.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub enum KernelChoice {
+    /// `SUBPIXEL_CONV_KERNEL` if set, else [`KernelChoice::Autotune`].
+    #[default]
+    FromEnv,
+    /// Time the candidates on this adapter and keep the fastest (cached).
+    Autotune,
+    /// This kernel wherever it can run the layer, [`ConvKernel::Generic`] elsewhere.
+    Fixed(ConvKernel),
+}
+
+impl KernelChoice {
+    /// Resolves [`KernelChoice::FromEnv`] (an unparsable value is an error naming the
+    /// variable); the other choices come back as they are.
+    pub fn resolve(self) -> Result<Self> {
+        if self != KernelChoice::FromEnv {
+            return Ok(self);
+        }
+        match std::env::var(ENV_KERNEL) {
+            Err(_) => Ok(KernelChoice::Autotune),
+            Ok(v) if v.trim().is_empty() || v.trim() == "auto" => Ok(KernelChoice::Autotune),
+            Ok(v) => v
+                .trim()
+                .parse()
+                .map(KernelChoice::Fixed)
+                .map_err(|e| Error::Invalid(format!("{ENV_KERNEL}: {e} (or 'auto')"))),
+        }
+    }
+}
+
+/// One candidate's measurement.
+#[derive(Debug, Clone, PartialEq, serde::Serialize, serde::Deserialize)]
+pub struct Candidate {
+    /// The kernel.
+    pub kernel: ConvKernel,
+    /// Median time in ms over [`TUNE_ITERATIONS`] runs, `None` when it failed.
+    pub median_ms: Option<f64>,
+    /// Why it could not run (compile or validation failure), when it failed.
+    pub error: Option<String>,
+}
+
+/// The outcome of tuning one layer shape.
+#[derive(Debug, Clone, PartialEq, serde::Serialize, serde::Deserialize)]
+pub struct Tuning {
+    /// The chosen kernel.
+    pub choice: ConvKernel,
+    /// Every candidate, in the order tried.
+    pub candidates: Vec<Candidate>,
+    /// Whether the times were GPU timestamps (else wall time).
+    pub gpu_timestamps: bool,
+}
+
+/// The folder for the crate's caches: `SUBPIXEL_CACHE_DIR`, else `$XDG_CACHE_HOME/subpixel`,
+/// else `$HOME/.cache/subpixel`; `None` when none is set.
+pub fn cache_dir() -> Option<PathBuf> {
+    let env = |k: &str| std::env::var_os(k).filter(|v| !v.is_empty()).map(PathBuf::from);
+    env(ENV_CACHE_DIR)
+        .or_else(|| env("XDG_CACHE_HOME").map(|d| d.join("subpixel")))
+        .or_else(|| env("HOME").map(|d| d.join(".cache").join("subpixel")))
+}
+
+fn cache_file() -> Option<PathBuf> {
+    cache_dir().map(|d| d.join("autotune.json"))
+}
+
+/// The on-disk cache: key -> tuning.
+type Cache = BTreeMap<String, Tuning>;
+
+/// The process's tunings, loaded from disk on first use.
+fn memory() -> &'static Mutex<Cache> {
+    static MEMORY: OnceLock<Mutex<Cache>> = OnceLock::new();
+    MEMORY.get_or_init(|| Mutex::new(cache_file().map(|f| load(&f)).unwrap_or_default()))
+}
+
+/// Reads the cache file; a missing file is empty, an unreadable or corrupt one is ignored
+/// with a warning (it is rewritten at the next tuning).
+pub fn load(path: &std::path::Path) -> Cache {
+    match std::fs::read_to_string(path) {
+        Err(e) if e.kind() == std::io::ErrorKind::NotFound => Cache::new(),
+        Err(e) => {
+            log::warn!("autotune cache {}: {e}; ignored", path.display());
+            Cache::new()
+        }
+        Ok(text) => serde_json::from_str(&text).unwrap_or_else(|e| {
+            log::warn!(
+                "autotune cache {} is corrupt ({e}); ignored and rebuilt",
+                path.display()
+            );
+            Cache::new()
+        }),
+    }
+}
+
+/// Adds `key` to the cache file (merging with what other processes wrote since), written
+/// to a temporary file and renamed so readers never see half a file. Failures only warn:
+/// the cache is an optimisation.
+fn store(key: &str, tuning: &Tuning) {
+    let Some(path) = cache_file() else { return };
+    let mut cache = load(&path);
+    cache.insert(key.to_string(), tuning.clone());
+    let write = || -> std::io::Result<()> {
+        if let Some(d) = path.parent() {
+            std::fs::create_dir_all(d)?;
+        }
+        let tmp = path.with_extension(format!("json.{}.tmp", std::process::id()));
+        std::fs::write(&tmp, serde_json::to_string_pretty(&cache).unwrap_or_default())?;
+        std::fs::rename(&tmp, &path)
+    };
+    if let Err(e) = write() {
+        log::warn!("autotune cache {}: {e}; not saved", path.display());
+    }
+}
+
+/// The cache key of `conv` tuned at `w x h` on `gpu`: adapter, driver, the kernels'
+/// sources (a change of either kernel invalidates old choices) and the layer's shape.
+pub fn key(gpu: &Gpu, conv: &Conv3x3, w: u32, h: u32) -> String {
+    let mut hasher = std::collections::hash_map::DefaultHasher::new();
+    for name in ["nn/conv3x3", "nn/conv3x3_blocked"] {
+        if let Ok(k) = crate::gpu::kernel_source(name) {
+            k.source.hash(&mut hasher);
+        }
+    }
+    format!(
+        "{} | {:?} | {} {} | kernels {:016x} | conv3x3 {:?}->{} {:?} at {w}x{h}",
+        gpu.info.name,
+        gpu.info.backend,
+        gpu.info.driver,
+        gpu.info.driver_info,
+        hasher.finish(),
+        conv.input_channels,
+        conv.cout,
+        conv.act,
+    )
+}
+
+/// Layers are tuned on at least this many pixels per side.
+pub const TUNE_MIN_SIDE: u32 = 32;
+
+/// The size a layer of `w x h` is tuned at: each side rounded up to a power of two within
+/// [`TUNE_MIN_SIDE`]..=[`TUNE_MAX_SIDE`], so nearby sizes share one measurement.
+pub fn tune_size(w: u32, h: u32) -> (u32, u32) {
+    let side = |n: u32| n.next_power_of_two().clamp(TUNE_MIN_SIDE, TUNE_MAX_SIDE);
+    (side(w), side(h))
+}
+
+/// Times every candidate of `conv` at `w x h` on scratch tensors (deterministic
+/// pseudo-random inputs). A candidate that fails to build or run is recorded with its
+/// error and skipped (logged), never fatal; the generic kernel always runs.
+pub fn measure(gpu: &Gpu, conv: &Conv3x3, w: u32, h: u32, warmup: u32, iterations: u32) -> Result<Tuning> {
+    let inputs: Vec<Tensor> = conv
+        .input_channels
+        .iter()
+        .enumerate()
+        .map(|(i, &c)| {
+            let host = HostTensor::from_fn(w, h, c, |x, y, ch| {
+                let v = (x * 7 + y * 13 + ch * 5 + i as u32 * 3) % 17;
+                v as f32 / 8.0 - 1.0
+            });
+            Tensor::from_host(gpu, "autotune.in", &host)
+        })
+        .collect::<Result<_>>()?;
+    let out = Tensor::new(gpu, "autotune.out", w, h, conv.cout)?;
+    let refs: Vec<&Tensor> = inputs.iter().collect();
+    let mut candidates = Vec::new();
+    let mut gpu_timestamps = true;
+    for kernel in conv.candidates(gpu) {
+        let timed = conv
+            .bind_with(gpu, kernel, &refs, &out)
+            .and_then(|d| time_dispatch(gpu, &d, warmup, iterations));
+        match timed {
+            Ok((stats, timestamps)) => {
+                gpu_timestamps &= timestamps;
+                candidates.push(Candidate {
+                    kernel,
+                    median_ms: Some(stats.median_ms),
+                    error: None,
+                });
+            }
+            Err(e) => {
+                log::warn!("conv3x3 '{}': kernel {kernel} skipped: {e}", conv.name);
+                candidates.push(Candidate {
+                    kernel,
+                    median_ms: None,
+                    error: Some(e.to_string()),
+                });
+            }
+        }
+    }
+    let choice = candidates
+        .iter()
+        .filter_map(|c| c.median_ms.map(|t| (t, c.kernel)))
+        .min_by(|a, b| a.0.total_cmp(&b.0))
+        .map(|(_, k)| k)
+        .ok_or_else(|| Error::Kernel {
+            kernel: "nn/conv3x3".into(),
+            message: format!("no candidate kernel could run layer '{}'", conv.name),
+        })?;
+    Ok(Tuning {
+        choice,
+        candidates,
+        gpu_timestamps,
+    })
+}
+
+/// The tuning of `conv` for a `w x h` layer: from the process's memory, else the disk
+/// cache, else measured now (at [`tune_size`]) and cached. Returns it and whether it
+/// came from a cache.
+pub fn tune(gpu: &Gpu, conv: &Conv3x3, w: u32, h: u32) -> Result<(Tuning, bool)> {
+    let (tw, th) = tune_size(w, h);
+    let key = key(gpu, conv, tw, th);
+    if let Some(t) = memory().lock().unwrap().get(&key) {
+        // A cached choice this build cannot run (an edited cache) is re-measured.
+        if conv.unsupported(gpu, t.choice).is_none() {
+            return Ok((t.clone(), true));
+        }
+    }
+    let started = std::time::Instant::now();
+    let t = measure(gpu, conv, tw, th, 1, TUNE_ITERATIONS)?;
+    log::info!(
+        "autotuned conv3x3 {:?}->{} at {tw}x{th}: {} of {} kernels in {:.1} s (once per adapter; cached in {})",
+        conv.input_channels,
+        conv.cout,
+        t.choice,
+        t.candidates.len(),
+        started.elapsed().as_secs_f64(),
+        cache_file()
+            .map(|f| f.display().to_string())
+            .unwrap_or_else(|| "memory only".into())
+    );
+    memory().lock().unwrap().insert(key.clone(), t.clone());
+    store(&key, &t);
+    Ok((t, false))
+}
+
+/// The kernel `conv` runs on for a `w x h` layer under `choice`.
+pub fn choose(gpu: &Gpu, conv: &Conv3x3, w: u32, h: u32, choice: KernelChoice) -> Result<ConvKernel> {
+    match choice.resolve()? {
+        KernelChoice::Fixed(k) if conv.unsupported(gpu, k).is_none() => Ok(k),
+        KernelChoice::Fixed(_) => Ok(ConvKernel::Generic),
+        _ => Ok(tune(gpu, conv, w, h)?.0.choice),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn corrupt_or_missing_cache_files_are_empty() {
+        let dir = std::env::temp_dir().join(format!("subpixel-autotune-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let f = dir.join("autotune.json");
+        assert!(load(&f).is_empty());
+        std::fs::write(&f, "{ not json").unwrap();
+        assert!(load(&f).is_empty());
+        let mut c = Cache::new();
+        c.insert(
+            "k".into(),
+            Tuning {
+                choice: ConvKernel::Blocked { px: 8, cob: 4 },
+                candidates: vec![Candidate {
+                    kernel: ConvKernel::Generic,
+                    median_ms: Some(1.5),
+                    error: None,
+                }],
+                gpu_timestamps: true,
+            },
+        );
+        std::fs::write(&f, serde_json::to_string(&c).unwrap()).unwrap();
+        assert_eq!(load(&f), c);
+        std::fs::remove_dir_all(&dir).unwrap();
+    }
+
+    #[test]
+    fn nearby_sizes_share_a_tuning_size() {
+        assert_eq!(tune_size(1920, 1080), (128, 128));
+        assert_eq!(tune_size(16, 20), (32, 32));
+        assert_eq!(tune_size(33, 64), (64, 64));
+        assert_eq!(tune_size(100, 8), (128, 32));
+    }
+
+    #[test]
+    fn fixed_choices_resolve_to_themselves() {
+        let k = KernelChoice::Fixed(ConvKernel::Generic);
+        assert_eq!(k.resolve().unwrap(), k);
+        assert_eq!(KernelChoice::Autotune.resolve().unwrap(), KernelChoice::Autotune);
+    }
+}
