@@ -1,0 +1,88 @@
+#!/usr/bin/env python
+"""The WGSL engine and PyTorch side by side, in one run, on the same weights and size.
+
+    python training/bench_vs_torch.py [--bin target/release/subpixel] \\
+        [--weights weights/ssr.safetensors] [--width 128] [--height 128] [--rounds 3]
+
+Each round runs `subpixel bench denoise --json` (GPU timestamps where the adapter has them;
+one pass per stage, as in production) and then `training/bench_torch.py --modes eager`
+(fp32, on the device it is given: `--device cpu` by default, both cores) on the same
+weights and frame size; alternating them spreads the noise of a busy machine over both.
+It prints each round and the ratio engine / PyTorch of the medians over rounds of each
+side's per-frame median. `SUBPIXEL_CONV_KERNEL` and the autotune cache apply to the engine
+as they do everywhere (the first round may include the engine's autotuning: it happens
+before the timed frames and is not timed).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import statistics
+import subprocess
+import sys
+import tempfile
+
+HERE = os.path.dirname(os.path.abspath(__file__))
+ROOT = os.path.dirname(HERE)
+
+
+def run_engine(binary: str, weights: str, w: int, h: int, frames: int) -> dict:
+    cmd = [binary, "bench", "denoise", "--json", "--width", str(w), "--height", str(h), "--weights", weights, "--frames", str(frames)]
+    out = subprocess.run(cmd, capture_output=True, text=True)
+    if out.returncode != 0:
+        raise SystemExit(f"{' '.join(cmd)} failed:\n{out.stderr.strip()}")
+    return json.loads(out.stdout)
+
+
+def run_torch(python: str, weights: str, w: int, h: int, frames: int, device: str) -> dict:
+    with tempfile.TemporaryDirectory() as tmp:
+        path = os.path.join(tmp, "torch.json")
+        cmd = [python, os.path.join(HERE, "bench_torch.py"), "--weights", weights, "--width", str(w), "--height", str(h),
+               "--frames", str(frames), "--device", device, "--modes", "eager", "--json", path]
+        out = subprocess.run(cmd, capture_output=True, text=True, cwd=HERE)
+        if out.returncode != 0:
+            raise SystemExit(f"{' '.join(cmd)} failed:\n{out.stderr.strip()}")
+        with open(path) as f:
+            return json.load(f)
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description="subpixel bench denoise and bench_torch.py side by side; prints the ratio.")
+    ap.add_argument("--bin", default=os.path.join(ROOT, "target", "release", "subpixel"), help="the subpixel binary")
+    ap.add_argument("--weights", default=os.path.join(ROOT, "weights", "ssr.safetensors"))
+    ap.add_argument("--width", type=int, default=128)
+    ap.add_argument("--height", type=int, default=128)
+    ap.add_argument("--rounds", type=int, default=3)
+    ap.add_argument("--frames", type=int, default=10, help="timed frames per side and round")
+    ap.add_argument("--device", default="cpu", choices=["cpu", "cuda"], help="PyTorch's device")
+    ap.add_argument("--json", default=None, help="also write the rounds and the ratio here")
+    args = ap.parse_args(argv)
+    if args.rounds < 1 or args.frames < 1 or args.width < 1 or args.height < 1:
+        ap.error("rounds, frames, width and height must be positive")
+    for path, what in ((args.bin, "the subpixel binary (cargo build --release)"), (args.weights, "the weights")):
+        if not os.path.exists(path):
+            ap.error(f"{path}: not found ({what})")
+    rounds = []
+    for r in range(args.rounds):
+        eng = run_engine(args.bin, args.weights, args.width, args.height, args.frames)
+        tor = run_torch(sys.executable, args.weights, args.width, args.height, args.frames, args.device)
+        t_ms = tor["results"][0]["stages"]["total"]["median_ms"]
+        rounds.append({"engine_ms": eng["total_ms"], "torch_ms": t_ms})
+        print(f"round {r + 1}: engine {eng['total_ms']:.2f} ms, PyTorch {t_ms:.2f} ms, ratio {eng['total_ms'] / t_ms:.2f}", flush=True)
+    e = statistics.median(x["engine_ms"] for x in rounds)
+    t = statistics.median(x["torch_ms"] for x in rounds)
+    print(f"engine:  {eng['adapter']}, conv kernels autotuned or fixed as `subpixel bench denoise` prints")
+    print(f"PyTorch: {tor['device_name']}, torch {tor['torch']}, eager fp32")
+    print(f"SSR at {args.width}x{args.height}, median over {args.rounds} rounds of {args.frames} frames: "
+          f"engine {e:.2f} ms, PyTorch {t:.2f} ms, engine / PyTorch = {e / t:.2f}")
+    if args.json:
+        with open(args.json, "w") as f:
+            json.dump({"width": args.width, "height": args.height, "rounds": rounds, "engine_ms": e, "torch_ms": t,
+                       "ratio": e / t, "adapter": eng["adapter"], "torch_device": tor["device_name"]}, f, indent=2)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
