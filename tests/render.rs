@@ -513,8 +513,8 @@ fn textured_room_renders() {
 /// the reference's noise measured from its halves; resuming with other parameters is refused.
 #[test]
 fn render_command_writes_exr_frames() {
+    use subpixel::cli::render::{RenderArgs, render_command};
     use subpixel::render::Backend;
-    use subpixel::render::cli::{RenderArgs, render_command};
     for backend in [Backend::Gpu, Backend::Cpu] {
         let out = std::env::temp_dir().join(format!(
             "subpixel-render-cli-{}-{}",

@@ -16,7 +16,7 @@ pub(super) enum BenchCommand {
     /// The SSR network: per layer (FLOPs, ms, GFLOP/s) and per stage (TFA, U-Net).
     Denoise(DenoiseBenchArgs),
     /// The path tracer: G-buffer and trace stages, quarter vs full.
-    Render(crate::render::cli::BenchRenderArgs),
+    Render(crate::bench::render::BenchRenderArgs),
 }
 
 #[derive(clap::Args)]
@@ -101,7 +101,7 @@ pub(super) fn run(what: Option<BenchCommand>) -> Result<()> {
     }));
     if let BenchCommand::Render(a) = &what {
         // The renderer's benchmark picks its own adapter and defaults.
-        return crate::render::cli::bench_render_command(a);
+        return crate::bench::render::bench_render_command(a);
     }
     let gpu = Gpu::new()?;
     let cpu = gpu.kind() == AdapterKind::Cpu;

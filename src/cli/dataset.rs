@@ -11,7 +11,7 @@ use std::path::PathBuf;
 
 use anyhow::{Context, Result, bail};
 
-use crate::render::cli::{RenderArgs, render_command};
+use super::render::{RenderArgs, render_command};
 use crate::render::{Backend, DEFAULT_MAX_DEPTH, Mode};
 
 #[derive(clap::Args)]

@@ -4,6 +4,7 @@ mod bench;
 mod dataset;
 mod denoise;
 mod eval;
+pub mod render;
 mod run;
 mod scene;
 
@@ -29,7 +30,7 @@ struct Cli {
 #[derive(Subcommand)]
 enum Command {
     /// Path trace a scene into one multi-channel EXR per frame.
-    Render(crate::render::cli::RenderArgs),
+    Render(render::RenderArgs),
     /// The main job: render a short 1/4-spp sequence, denoise it, compare with a reference.
     Run(run::RunArgs),
     /// Render training / validation / test sequences (inputs, buffers and references).
@@ -55,7 +56,7 @@ pub fn main() -> ExitCode {
     .init();
     let cli = Cli::parse();
     let result = match cli.command {
-        Some(Command::Render(a)) => crate::render::cli::render_command(&a),
+        Some(Command::Render(a)) => render::render_command(&a),
         Some(Command::Run(a)) => run::run(&a),
         Some(Command::Dataset(a)) => dataset::run(&a),
         Some(Command::Denoise(a)) => denoise::run(&a),

@@ -234,7 +234,7 @@ pub(super) fn run(a: &SceneArgs) -> Result<()> {
             .map_err(|e| anyhow::anyhow!("scene {}: {e}", scene.name))?
             .camera(a.frame)
     };
-    let gpu = crate::render::cli::open_gpu(a.backend)?;
+    let gpu = super::render::open_gpu(a.backend)?;
     let mut renderer = FrameRenderer::new(&scene, a.backend, gpu.as_ref(), a.width, a.height)?;
     let far = scene.far_distance([&camera.position]);
     let settings = FrameSettings {

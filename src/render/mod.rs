@@ -19,7 +19,6 @@ pub mod backend;
 pub mod builtin;
 pub mod bvh;
 pub mod camera;
-pub mod cli;
 pub mod cpu;
 pub mod gpu_scene;
 pub mod loader;
