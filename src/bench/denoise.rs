@@ -121,15 +121,7 @@ pub fn bench_denoise(
         for i in 0..warmup + frames {
             let mut enc = gpu.device.create_command_encoder(&Default::default());
             den.denoise_profiled(&mut enc, &inputs, Some(&mut prof), granularity)?;
-            prof.resolve(&mut enc);
-            let t0 = std::time::Instant::now();
-            gpu.queue.submit([enc.finish()]);
-            gpu.wait()?;
-            let wall = t0.elapsed().as_secs_f64() * 1e3;
-            prof.collect(gpu)?;
-            if !prof.gpu_timed() {
-                prof.record("frame (CPU wall)", wall);
-            }
+            let wall = prof.submit(gpu, enc, Some("frame (CPU wall)"))?;
             if i + 1 == warmup {
                 prof.clear();
                 totals.clear();

@@ -65,12 +65,7 @@ pub fn bench_frame(
         let b = &tracer.buffers;
         let inputs = b.inputs();
         den.denoise_profiled(&mut enc, &inputs, Some(&mut prof), Granularity::Stage)?;
-        prof.resolve(&mut enc);
-        let t0 = std::time::Instant::now();
-        gpu.queue.submit([enc.finish()]);
-        gpu.wait()?;
-        let wall = t0.elapsed().as_secs_f64() * 1e3;
-        prof.collect(gpu)?;
+        let wall = prof.submit(gpu, enc, None)?;
         if f + 1 == warmup {
             prof.clear();
         } else if f >= warmup {

@@ -60,6 +60,20 @@ fn random(w: u32, h: u32, c: u32, seed: u32) -> HostTensor {
     })
 }
 
+/// The benchmark's convolution: `c -> c` channels, relu, fixed non-trivial weights.
+fn bench_conv(gpu: &Gpu, c: u32) -> Result<Conv3x3> {
+    let wts: Vec<f32> = (0..c * c * 9).map(|i| ((i % 17) as f32 - 8.0) * 0.01).collect();
+    Conv3x3::new(
+        gpu,
+        "bench",
+        &wts,
+        &vec![0.0; c as usize],
+        &[c],
+        c,
+        Activation::Relu,
+    )
+}
+
 /// Runs the benchmark and returns one row per kernel variant.
 pub fn bench_kernels(gpu: &Gpu, o: &KernelBenchOptions) -> Result<Vec<KernelTiming>> {
     let (w, h, c) = (o.width, o.height, o.channels);
@@ -82,16 +96,7 @@ pub fn bench_kernels(gpu: &Gpu, o: &KernelBenchOptions) -> Result<Vec<KernelTimi
     let px = w as u64 * h as u64;
     let b = |t: &Tensor| t.bytes();
     let mut cases = Vec::new();
-    let wts: Vec<f32> = (0..c * c * 9).map(|i| ((i % 17) as f32 - 8.0) * 0.01).collect();
-    let conv = Conv3x3::new(
-        gpu,
-        "bench",
-        &wts,
-        &vec![0.0; c as usize],
-        &[c],
-        c,
-        Activation::Relu,
-    )?;
+    let conv = bench_conv(gpu, c)?;
     for kernel in conv.candidates(gpu) {
         cases.push(Case {
             name: format!("conv3x3 {c}->{c} relu {kernel}"),

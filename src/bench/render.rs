@@ -239,14 +239,9 @@ fn gpu_stage_timing(
                 seed: 7,
                 far,
             };
-            let t = Instant::now();
             let mut enc = gpu.device.create_command_encoder(&Default::default());
             tracer.encode_frame(&mut enc, &gs, &s, Some(&mut prof))?;
-            prof.resolve(&mut enc);
-            gpu.queue.submit([enc.finish()]);
-            gpu.wait()?;
-            let wall = t.elapsed().as_secs_f64();
-            prof.collect(&gpu)?;
+            let wall = prof.submit(&gpu, enc, None)? * 1e-3;
             if i < args.warmup {
                 prof.clear();
                 continue;

@@ -114,11 +114,8 @@ pub(super) fn run(a: &RunArgs) -> Result<()> {
         let b = &tracer.buffers;
         let inputs = b.inputs();
         den.denoise_profiled(&mut enc, &inputs, Some(&mut prof), Granularity::Stage)?;
-        prof.resolve(&mut enc);
-        gpu.queue.submit([enc.finish()]);
-        gpu.wait()?;
+        prof.submit(&gpu, enc, None)?;
         walls.push(t0.elapsed().as_secs_f64() * 1e3);
-        prof.collect(&gpu)?;
         let input = tracer.buffers.download(&gpu)?.color;
         let ssr = den.read_output()?;
         let rref = reference.reference(&settings, spp)?.mean(spp);

@@ -134,6 +134,28 @@ impl Profiler {
         })
     }
 
+    /// Ends a timed frame: resolves its timestamps into `encoder`, submits it, waits for
+    /// the GPU and collects them. Where the adapter has no timestamps and `wall_label` is
+    /// given, the wall time is recorded under that label instead. Returns the wall time
+    /// from submit to done, in ms.
+    pub fn submit(
+        &mut self,
+        gpu: &Gpu,
+        mut encoder: wgpu::CommandEncoder,
+        wall_label: Option<&str>,
+    ) -> Result<f64> {
+        self.resolve(&mut encoder);
+        let t0 = std::time::Instant::now();
+        gpu.queue.submit([encoder.finish()]);
+        gpu.wait()?;
+        let wall = t0.elapsed().as_secs_f64() * 1e3;
+        self.collect(gpu)?;
+        if let Some(label) = wall_label.filter(|_| !self.gpu_timed) {
+            self.record(label, wall);
+        }
+        Ok(wall)
+    }
+
     /// Resolves this frame's timestamps into the readback buffer; call before `finish()`.
     pub fn resolve(&self, encoder: &mut wgpu::CommandEncoder) {
         if let (Some(qs), Some(buf)) = (&self.query_set, &self.resolve)
@@ -214,15 +236,7 @@ pub fn time_dispatch(
     for i in 0..warmup + iterations.max(1) {
         let mut enc = gpu.device.create_command_encoder(&Default::default());
         dispatch.record(&mut Profiler::pass(&mut enc, label, Some(&mut prof)));
-        prof.resolve(&mut enc);
-        let t0 = std::time::Instant::now();
-        gpu.queue.submit([enc.finish()]);
-        gpu.wait()?;
-        let wall = t0.elapsed().as_secs_f64() * 1e3;
-        prof.collect(gpu)?;
-        if !prof.gpu_timed() {
-            prof.record(label, wall);
-        }
+        prof.submit(gpu, enc, Some(label))?;
         if i + 1 == warmup {
             prof.clear();
         }

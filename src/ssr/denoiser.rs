@@ -191,22 +191,12 @@ impl Denoiser {
     }
 
     fn make_output(gpu: &Gpu, width: u32, height: u32) -> wgpu::Texture {
-        gpu.device.create_texture(&wgpu::TextureDescriptor {
-            label: Some("subpixel.ssr.output"),
-            size: wgpu::Extent3d {
-                width,
-                height,
-                depth_or_array_layers: 1,
-            },
-            mip_level_count: 1,
-            sample_count: 1,
-            dimension: wgpu::TextureDimension::D2,
-            format: wgpu::TextureFormat::Rgba32Float,
-            usage: wgpu::TextureUsages::STORAGE_BINDING
-                | wgpu::TextureUsages::TEXTURE_BINDING
-                | wgpu::TextureUsages::COPY_SRC,
-            view_formats: &[],
-        })
+        gpu.storage_texture(
+            "subpixel.ssr.output",
+            width,
+            height,
+            wgpu::TextureFormat::Rgba32Float,
+        )
     }
 
     fn make_store(

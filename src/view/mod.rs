@@ -137,22 +137,12 @@ impl Display {
             usage: wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_DST,
             mapped_at_creation: false,
         });
-        let target = gpu.device.create_texture(&wgpu::TextureDescriptor {
-            label: Some("subpixel.view.target"),
-            size: wgpu::Extent3d {
-                width,
-                height,
-                depth_or_array_layers: 1,
-            },
-            mip_level_count: 1,
-            sample_count: 1,
-            dimension: wgpu::TextureDimension::D2,
-            format: wgpu::TextureFormat::Rgba8Unorm,
-            usage: wgpu::TextureUsages::STORAGE_BINDING
-                | wgpu::TextureUsages::TEXTURE_BINDING
-                | wgpu::TextureUsages::COPY_SRC,
-            view_formats: &[],
-        });
+        let target = gpu.storage_texture(
+            "subpixel.view.target",
+            width,
+            height,
+            wgpu::TextureFormat::Rgba8Unorm,
+        );
         Ok(Self {
             gpu: gpu.clone(),
             font,

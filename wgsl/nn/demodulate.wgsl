@@ -16,12 +16,10 @@ fn clean(v: vec3<f32>) -> vec3<f32> {
 
 @compute @workgroup_size(8, 8, 1)
 fn main(@builtin(global_invocation_id) gid: vec3<u32>) {
-    let x = gid.x;
-    let y = gid.y;
-    if (x >= p.width || y >= p.height) {
+    let pix = pixel_index(gid, p.width, p.height);
+    if (pix == OUTSIDE) {
         return;
     }
-    let pix = y * p.width + x;
     let c = clean(color[pix * p.src_c4].xyz);
     let a = clean(albedo3(pix));
     dst[pix] = vec4<f32>(log(vec3<f32>(1.0) + c / (a + vec3<f32>(EPS))), 0.0);

@@ -17,12 +17,10 @@ const O_MAX: f32 = 50.0;
 
 @compute @workgroup_size(8, 8, 1)
 fn main(@builtin(global_invocation_id) gid: vec3<u32>) {
-    let x = gid.x;
-    let y = gid.y;
-    if (x >= p.width || y >= p.height) {
+    let pix = pixel_index(gid, p.width, p.height);
+    if (pix == OUTSIDE) {
         return;
     }
-    let pix = y * p.width + x;
     let raw = o[pix * p.src_c4].xyz;
     let e = min(select(vec3<f32>(0.0), raw, abs(raw) <= vec3<f32>(3.40282347e38)), vec3<f32>(O_MAX));
     let a = max(albedo3(pix), vec3<f32>(0.0));

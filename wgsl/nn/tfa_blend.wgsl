@@ -23,12 +23,10 @@ struct Params {
 
 @compute @workgroup_size(8, 8, 1)
 fn main(@builtin(global_invocation_id) gid: vec3<u32>) {
-    let x = gid.x;
-    let y = gid.y;
-    if (x >= p.width || y >= p.height) {
+    let pix = pixel_index(gid, p.width, p.height);
+    if (pix == OUTSIDE) {
         return;
     }
-    let pix = y * p.width + x;
     var s_cur = 0.0;
     var s_prev = 0.0;
     for (var k = 0u; k < p.k4; k++) {

@@ -23,12 +23,12 @@ fn finite(v: f32) -> bool {
 
 @compute @workgroup_size(8, 8, 1)
 fn main(@builtin(global_invocation_id) gid: vec3<u32>) {
-    let x = gid.x;
-    let y = gid.y;
-    if (x >= p.width || y >= p.height) {
+    let pix = pixel_index(gid, p.width, p.height);
+    if (pix == OUTSIDE) {
         return;
     }
-    let pix = y * p.width + x;
+    let x = gid.x;
+    let y = gid.y;
     let mv = motion[pix * p.motion_c4].xy;
     let pos = vec2<f32>(f32(x) + 0.5, f32(y) + 0.5) + mv;
     let w = f32(p.width);

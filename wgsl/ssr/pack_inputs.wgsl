@@ -11,13 +11,6 @@
 // `sanitized` (only for pixels inside W x H, once each; the mask, read again by
 // ssr/pack_mt, is counted here).
 
-struct Params {
-    width: u32,
-    height: u32,
-    padded_width: u32,
-    padded_height: u32,
-}
-
 @group(0) @binding(0) var<uniform> p: Params;
 @group(0) @binding(1) var<storage, read> color_mask: array<vec4<f32>>;
 @group(0) @binding(2) var<storage, read> albedo_depth: array<vec4<f32>>;
@@ -36,7 +29,7 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>) {
     if (x >= p.padded_width || y >= p.padded_height) {
         return;
     }
-    let src = min(y, p.height - 1u) * p.width + min(x, p.width - 1u);
+    let src = source_pixel(x, y);
     var bad = 0u;
     let cm = color_mask[src];
     let ad = albedo_depth[src];

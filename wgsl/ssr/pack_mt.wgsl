@@ -5,13 +5,6 @@
 // sanitised as in ssr/lib/sanitize; the changed transparent and motion values are counted
 // in `sanitized` (inside W x H; the mask is counted by ssr/pack_inputs).
 
-struct Params {
-    width: u32,
-    height: u32,
-    padded_width: u32,
-    padded_height: u32,
-}
-
 @group(0) @binding(0) var<uniform> p: Params;
 @group(0) @binding(1) var<storage, read> color_mask: array<vec4<f32>>;
 @group(0) @binding(2) var<storage, read> transparent: array<vec4<f32>>;
@@ -27,7 +20,7 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>) {
     if (x >= p.padded_width || y >= p.padded_height) {
         return;
     }
-    let src = min(y, p.height - 1u) * p.width + min(x, p.width - 1u);
+    let src = source_pixel(x, y);
     var counted_elsewhere = 0u;
     let mask = sanitize_mask(color_mask[src].w, &counted_elsewhere);
     var bad = 0u;
