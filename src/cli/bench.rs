@@ -49,18 +49,37 @@ pub(super) struct FrameBenchArgs {
     /// Scene.
     #[arg(long, default_value = "builtin:cornell")]
     scene: String,
-    /// Weights (default: shipped, else random weights of the default config: timing only).
+    #[command(flatten)]
+    run: NetworkRunArgs,
+}
+
+/// Weights and frame counts of the benchmarks that run the network.
+#[derive(clap::Args)]
+pub(super) struct NetworkRunArgs {
+    /// Weights file (default: the shipped weights, else random weights of the default
+    /// config; the values do not change the timing).
     #[arg(long)]
     weights: Option<std::path::PathBuf>,
-    /// Timed frames (default 100 on a GPU, 3 on a CPU adapter).
+    /// Timed frames (default 100 on a GPU; 3 for `frame`, 5 for `denoise` on a CPU adapter).
     #[arg(long, value_parser = clap::value_parser!(u32).range(1..))]
     frames: Option<u32>,
     /// Untimed warm-up frames.
     #[arg(long, default_value_t = 5)]
     warmup: u32,
-    /// Print JSON instead of a table.
+    /// Print JSON instead of tables.
     #[arg(long)]
     json: bool,
+}
+
+impl Default for NetworkRunArgs {
+    fn default() -> Self {
+        Self {
+            weights: None,
+            frames: None,
+            warmup: 5,
+            json: false,
+        }
+    }
 }
 
 #[derive(clap::Args)]
@@ -71,19 +90,8 @@ pub(super) struct DenoiseBenchArgs {
     /// Frame height (default 1080, or 128 on a CPU adapter).
     #[arg(long)]
     height: Option<u32>,
-    /// Weights file (default: the shipped weights, else random weights of the default
-    /// config; the values do not change the timing).
-    #[arg(long)]
-    weights: Option<std::path::PathBuf>,
-    /// Timed frames (default 100 on a GPU, 5 on a CPU adapter).
-    #[arg(long, value_parser = clap::value_parser!(u32).range(1..))]
-    frames: Option<u32>,
-    /// Untimed warm-up frames.
-    #[arg(long, default_value_t = 5)]
-    warmup: u32,
-    /// Print JSON instead of tables.
-    #[arg(long)]
-    json: bool,
+    #[command(flatten)]
+    run: NetworkRunArgs,
     /// GPU of the roofline model: h100 or rtx4070.
     #[arg(long, default_value = "h100")]
     model: String,
@@ -96,7 +104,6 @@ pub(super) struct DenoiseBenchArgs {
 pub(super) fn run(what: Option<BenchCommand>) -> Result<()> {
     let what = what.unwrap_or(BenchCommand::Frame(FrameBenchArgs {
         scene: "builtin:cornell".into(),
-        warmup: 5,
         ..Default::default()
     }));
     if let BenchCommand::Render(a) = &what {
@@ -117,8 +124,8 @@ pub(super) fn run(what: Option<BenchCommand>) -> Result<()> {
             } else {
                 a.sizes.clone()
             };
-            let frames = a.frames.unwrap_or(if cpu { 3 } else { 100 });
-            let weights = super::weights_or_random(a.weights.as_deref())?;
+            let frames = a.run.frames.unwrap_or(if cpu { 3 } else { 100 });
+            let weights = super::weights_or_random(a.run.weights.as_deref())?;
             let scene = crate::render::load_scene(&a.scene)?;
             let gs = crate::render::GpuScene::new(&gpu, &scene)?;
             let mut rows = Vec::new();
@@ -135,11 +142,11 @@ pub(super) fn run(what: Option<BenchCommand>) -> Result<()> {
                         &weights,
                         (w, h),
                         mode,
-                        (a.warmup, frames),
+                        (a.run.warmup, frames),
                     )?);
                 }
             }
-            if a.json {
+            if a.run.json {
                 println!(
                     "{}",
                     serde_json::to_string_pretty(
@@ -200,19 +207,23 @@ pub(super) fn run(what: Option<BenchCommand>) -> Result<()> {
         }
         BenchCommand::Denoise(a) => {
             let (dw, dh, df) = if cpu { (128, 128, 5) } else { (1920, 1080, 100) };
-            let weights = super::weights_or_random(a.weights.as_deref())?;
+            let weights = super::weights_or_random(a.run.weights.as_deref())?;
             let model = crate::bench::roofline::GpuModel::preset(&a.model)?;
-            let frames = if a.model_only { 0 } else { a.frames.unwrap_or(df) };
+            let frames = if a.model_only {
+                0
+            } else {
+                a.run.frames.unwrap_or(df)
+            };
             let b = bench_denoise(
                 &gpu,
                 &weights,
                 a.width.unwrap_or(dw),
                 a.height.unwrap_or(dh),
-                a.warmup,
+                a.run.warmup,
                 frames,
                 &model,
             )?;
-            if a.json {
+            if a.run.json {
                 println!("{}", serde_json::to_string_pretty(&b)?);
             } else {
                 print!("{}", denoise_table(&b));
