@@ -3,6 +3,7 @@
 
 mod config;
 mod denoiser;
+pub mod graph;
 mod network;
 mod weights;
 

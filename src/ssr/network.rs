@@ -1,18 +1,19 @@
-//! The SSR network on the WGSL kernels: layers uploaded once, activations allocated once
-//! per resolution, dispatches built once per resolution and history parity, replayed
-//! every frame.
+//! The SSR network on the WGSL kernels, built from its declaration in [`super::graph`]:
+//! layers uploaded once, every [`TensorId`] allocated once per resolution, each step's
+//! dispatch built once per resolution and history parity and replayed every frame.
 
 use std::collections::BTreeMap;
 
 use bytemuck::{Pod, Zeroable};
 
-use super::config::{A_CHANNELS, ExposureMode, HistoryTest, MT_CHANNELS, RGB, RemodulationAlbedo, SsrConfig};
+use super::config::{RGB, SsrConfig};
+use super::graph::{self, Extent, Op, StepSpec, TensorId};
 use super::weights::Weights;
 use crate::error::{Error, Result};
 use crate::gpu::{Dispatch, Gpu, Profiler, Specialisation};
 use crate::nn::autotune::{self, KernelChoice};
 use crate::nn::conv::ConvKernel;
-use crate::nn::ops::{self, Conv3x3, PoolMode, TfaBlend};
+use crate::nn::ops::{self, Conv3x3, TfaBlend};
 use crate::nn::{HostTensor, Tensor};
 
 #[repr(C)]
@@ -38,15 +39,8 @@ pub enum Granularity {
     Layer,
 }
 
-/// One recorded step: its stage, its label and the dispatch.
-#[derive(Debug)]
-struct Step {
-    stage: &'static str,
-    label: String,
-    dispatch: Dispatch,
-}
-
-/// The network at one padded resolution (a multiple of 4 in both dimensions).
+/// The network at one padded resolution (a multiple of 4 in both dimensions), built from
+/// the declaration in [`super::graph`].
 pub struct Network {
     /// Its configuration.
     pub config: SsrConfig,
@@ -55,16 +49,16 @@ pub struct Network {
     /// Padded height.
     pub height: u32,
     convs: BTreeMap<String, Conv3x3>,
-    tensors: BTreeMap<&'static str, Tensor>,
+    tensors: BTreeMap<TensorId, Tensor>,
     /// Accumulated features A_acc, ping-pong by frame parity.
     a_acc: [Tensor; 2],
     /// Log-space outputs o, ping-pong by frame parity.
     o: [Tensor; 2],
     ones: Tensor,
-    /// `[parity]` -> warps of the history (skipped on the first frame).
-    warps: [Vec<Step>; 2],
-    /// `[parity]` -> the rest of the network.
-    steps: [Vec<Step>; 2],
+    /// The steps of a frame, in execution order.
+    specs: Vec<StepSpec>,
+    /// `[parity][step]` -> its dispatch.
+    dispatches: [Vec<Dispatch>; 2],
     parity: usize,
 }
 
@@ -112,64 +106,39 @@ impl Network {
             conv.set_kernel(gpu, kernel)?;
             convs.insert(l.name.clone(), conv);
         }
-        let [c1, c2, c3] = config.enc;
-        let (h, k) = (config.tfa_hidden, config.k);
-        let (w1, h1, w2, h2, w4, h4) = (width, height, width / 2, height / 2, width / 4, height / 4);
-        let mut tensors = BTreeMap::new();
-        let mut add = |name: &'static str, w, hh, c| -> Result<()> {
-            tensors.insert(name, Tensor::new(gpu, name, w, hh, c)?);
-            Ok(())
+        let dims = |id: TensorId| {
+            let (extent, c) = id.shape(&config);
+            let (w, h) = match extent {
+                Extent::Level(l) => (width >> l, height >> l),
+                Extent::Single => (1, 1),
+                Extent::ExposureGroups => (exposure_groups(width, height), 1),
+            };
+            (w, h, c)
         };
-        // Exposure of the colour (rgb) and of the shadow (rgb), and its ratio to the last
-        // frame's; the reduction's partial sums (4 vec4 per workgroup).
-        add("exposure", 1, 1, 2 * RGB)?;
-        add("exposure_ratio", 1, 1, 2 * RGB)?;
-        add("exposure_partials", exposure_groups(w1, h1), 1, 16)?;
-        add("a_t", w1, h1, A_CHANNELS)?;
-        add("mt", w1, h1, MT_CHANNELS)?;
-        add("motion", w1, h1, 2)?;
-        add("warp_acc", w1, h1, A_CHANNELS)?;
-        add("warp_valid", w1, h1, 1)?;
-        add("ref_hidden", w1, h1, h)?;
-        add("ref_feat", w1, h1, k)?;
-        add("emb_hidden_cur", w1, h1, h)?;
-        add("emb_cur", w1, h1, k)?;
-        add("emb_hidden_prev", w1, h1, h)?;
-        add("emb_prev", w1, h1, k)?;
-        add("tfa_weights", w1, h1, 4)?;
-        add("warp_out", w1, h1, RGB)?;
-        add("warp_out_valid", w1, h1, 1)?;
-        add("wo2", w2, h2, RGB)?;
-        add("wo4", w4, h4, RGB)?;
-        add("enc1_hidden", w1, h1, c1)?;
-        add("enc1", w1, h1, c1)?;
-        add("pool1", w2, h2, c1)?;
-        add("enc2_hidden", w2, h2, c2)?;
-        add("enc2", w2, h2, c2)?;
-        add("pool2", w4, h4, c2)?;
-        add("enc3_hidden", w4, h4, c3)?;
-        add("enc3", w4, h4, c3)?;
-        add("dec3_hidden", w4, h4, c3)?;
-        add("i3", w4, h4, RGB)?;
-        add("up3", w2, h2, RGB)?;
-        add("dec2_hidden", w2, h2, c2)?;
-        add("i2", w2, h2, RGB)?;
-        add("up2", w1, h1, RGB)?;
-        add("dec1_hidden", w1, h1, c1)?;
-        add("output", w1, h1, RGB)?;
+        let alloc = |id: TensorId, label: &str| {
+            let (w, h, c) = dims(id);
+            Tensor::new(gpu, label, w, h, c)
+        };
+        let mut tensors = BTreeMap::new();
+        for id in TensorId::ALL {
+            if !matches!(
+                id,
+                TensorId::AAcc | TensorId::AAccPrev | TensorId::O | TensorId::OPrev
+            ) {
+                tensors.insert(id, alloc(id, id.name())?);
+            }
+        }
         let a_acc = [
-            Tensor::new(gpu, "a_acc.0", w1, h1, A_CHANNELS)?,
-            Tensor::new(gpu, "a_acc.1", w1, h1, A_CHANNELS)?,
+            alloc(TensorId::AAcc, "a_acc.0")?,
+            alloc(TensorId::AAcc, "a_acc.1")?,
         ];
-        let o = [
-            Tensor::new(gpu, "o.0", w1, h1, RGB)?,
-            Tensor::new(gpu, "o.1", w1, h1, RGB)?,
-        ];
-        let ones = Tensor::from_host(gpu, "ones", &HostTensor::from_fn(w1, h1, 1, |_, _, _| 1.0))?;
+        let o = [alloc(TensorId::O, "o.0")?, alloc(TensorId::O, "o.1")?];
+        let ones = Tensor::from_host(gpu, "ones", &HostTensor::from_fn(width, height, 1, |_, _, _| 1.0))?;
         // Without exposure normalisation (version-1 weights) the exposure is 1 for good.
         let unit = HostTensor::from_vec(1, 1, 2 * RGB, vec![1.0; 2 * RGB as usize]);
-        tensors["exposure"].write(gpu, &unit)?;
-        tensors["exposure_ratio"].write(gpu, &unit)?;
+        tensors[&TensorId::Exposure].write(gpu, &unit)?;
+        tensors[&TensorId::ExposureRatio].write(gpu, &unit)?;
+        let specs = graph::steps(&config)?;
         let mut net = Self {
             config,
             width,
@@ -179,14 +148,16 @@ impl Network {
             a_acc,
             o,
             ones,
-            warps: [Vec::new(), Vec::new()],
-            steps: [Vec::new(), Vec::new()],
+            specs,
+            dispatches: [Vec::new(), Vec::new()],
             parity: 0,
         };
         for p in 0..2 {
-            let (w, s) = net.build(gpu, p)?;
-            net.warps[p] = w;
-            net.steps[p] = s;
+            net.dispatches[p] = net
+                .specs
+                .iter()
+                .map(|s| net.bind(gpu, s, p))
+                .collect::<Result<_>>()?;
         }
         Ok(net)
     }
@@ -196,254 +167,92 @@ impl Network {
         self.convs.iter().map(|(n, c)| (n.as_str(), c.kernel())).collect()
     }
 
-    fn t(&self, name: &str) -> &Tensor {
-        &self.tensors[name]
+    /// Tensor `id` when the frame of parity `p` is recorded.
+    fn at(&self, id: TensorId, p: usize) -> &Tensor {
+        match id {
+            TensorId::AAcc => &self.a_acc[p],
+            TensorId::AAccPrev => &self.a_acc[1 - p],
+            TensorId::O => &self.o[p],
+            TensorId::OPrev => &self.o[1 - p],
+            _ => &self.tensors[&id],
+        }
     }
 
-    fn build(&self, gpu: &Gpu, p: usize) -> Result<(Vec<Step>, Vec<Step>)> {
-        let q = 1 - p;
-        let t = |n: &str| self.t(n);
-        let conv = |name: &str, inputs: &[&Tensor], out: &Tensor| self.convs[name].bind(gpu, inputs, out);
-        let step = |stage, label: &str, dispatch| Step {
-            stage,
-            label: label.to_string(),
-            dispatch,
-        };
-        let pool = self.config.pool_mode()?;
-        let up = self.config.upsample_mode()?;
-        let mut warps = vec![
-            step(
-                "tfa",
-                "warp A_acc",
-                ops::warp(gpu, &self.a_acc[q], t("motion"), t("warp_acc"), t("warp_valid"))?,
+    /// The dispatch of step `s` for the frame of parity `p`.
+    fn bind(&self, gpu: &Gpu, s: &StepSpec, p: usize) -> Result<Dispatch> {
+        let t: Vec<&Tensor> = s.tensors.iter().map(|&id| self.at(id, p)).collect();
+        match s.op {
+            Op::Conv(layer) => {
+                let (out, inputs) = t.split_last().expect("a convolution has an output");
+                self.convs[layer].bind(gpu, inputs, out)
+            }
+            Op::Warp => ops::warp(gpu, t[0], t[1], t[2], t[3]),
+            Op::History { rescale, geometry } => {
+                let params = HistoryParams {
+                    width: self.width,
+                    height: self.height,
+                    rescale: rescale as u32,
+                    geometry: geometry as u32,
+                };
+                let buffers: Vec<&wgpu::Buffer> = t.iter().map(|x| &x.buffer).collect();
+                gpu.kernels.dispatch(
+                    "ssr/history",
+                    &Specialisation::none(),
+                    bytemuck::bytes_of(&params),
+                    &buffers,
+                    [self.width.div_ceil(8), self.height.div_ceil(8), 1],
+                )
+            }
+            Op::TfaBlend => ops::tfa_blend(
+                gpu,
+                TfaBlend {
+                    r: t[0],
+                    e_cur: t[1],
+                    e_prev: t[2],
+                    cur: t[3],
+                    prev: t[4],
+                    valid: t[5],
+                    out: t[6],
+                    weights: t[7],
+                },
             ),
-            step(
-                "tfa",
-                "warp o",
-                ops::warp(gpu, &self.o[q], t("motion"), t("warp_out"), t("warp_out_valid"))?,
-            ),
-        ];
-        let rescale = self.config.exposure_mode()? == ExposureMode::Channel;
-        let geometry = self.config.history_test()? == HistoryTest::Geometry;
-        if rescale || geometry {
-            // Re-expose the history and reject what disagrees with this frame's geometry.
-            let params = HistoryParams {
-                width: self.width,
-                height: self.height,
-                rescale: rescale as u32,
-                geometry: geometry as u32,
-            };
-            let d = gpu.kernels.dispatch(
-                "ssr/history",
-                &Specialisation::none(),
-                bytemuck::bytes_of(&params),
-                &[
-                    &t("a_t").buffer,
-                    &t("warp_acc").buffer,
-                    &t("warp_out").buffer,
-                    &t("warp_valid").buffer,
-                    &t("exposure_ratio").buffer,
-                ],
-                [self.width.div_ceil(8), self.height.div_ceil(8), 1],
-            )?;
-            warps.push(step("tfa", "history", d));
+            Op::Pool(mode) => ops::pool2x2(gpu, mode, t[0], t[1]),
+            Op::Upsample => ops::upsample2x(gpu, self.config.upsample_mode()?, t[0], t[1]),
+            Op::Remodulate => ops::remodulate(gpu, t[0], t[1], 3, t[2], t[3]),
         }
-        let (a_t, mt) = (t("a_t"), t("mt"));
-        let (albedo, albedo_channel) = match self.config.remodulation_albedo()? {
-            RemodulationAlbedo::Current => (a_t, 3),
-            RemodulationAlbedo::Accumulated => (&self.a_acc[p], 3),
-        };
-        let steps = vec![
-            step(
-                "tfa",
-                "tfa.ref.0",
-                conv("tfa.ref.0", &[a_t, mt], t("ref_hidden"))?,
-            ),
-            step(
-                "tfa",
-                "tfa.ref.2",
-                conv("tfa.ref.2", &[t("ref_hidden")], t("ref_feat"))?,
-            ),
-            step(
-                "tfa",
-                "tfa.emb.0 (cur)",
-                conv("tfa.emb.0", &[a_t], t("emb_hidden_cur"))?,
-            ),
-            step(
-                "tfa",
-                "tfa.emb.2 (cur)",
-                conv("tfa.emb.2", &[t("emb_hidden_cur")], t("emb_cur"))?,
-            ),
-            step(
-                "tfa",
-                "tfa.emb.0 (prev)",
-                conv("tfa.emb.0", &[t("warp_acc")], t("emb_hidden_prev"))?,
-            ),
-            step(
-                "tfa",
-                "tfa.emb.2 (prev)",
-                conv("tfa.emb.2", &[t("emb_hidden_prev")], t("emb_prev"))?,
-            ),
-            step(
-                "tfa",
-                "tfa blend",
-                ops::tfa_blend(
-                    gpu,
-                    TfaBlend {
-                        r: t("ref_feat"),
-                        e_cur: t("emb_cur"),
-                        e_prev: t("emb_prev"),
-                        cur: a_t,
-                        prev: t("warp_acc"),
-                        valid: t("warp_valid"),
-                        out: &self.a_acc[p],
-                        weights: t("tfa_weights"),
-                    },
-                )?,
-            ),
-            step(
-                "unet",
-                "pool W(o)/2",
-                ops::pool2x2(gpu, PoolMode::Average, t("warp_out"), t("wo2"))?,
-            ),
-            step(
-                "unet",
-                "pool W(o)/4",
-                ops::pool2x2(gpu, PoolMode::Average, t("wo2"), t("wo4"))?,
-            ),
-            step(
-                "unet",
-                "unet.enc1.0",
-                conv(
-                    "unet.enc1.0",
-                    &[a_t, mt, &self.a_acc[p], t("warp_out")],
-                    t("enc1_hidden"),
-                )?,
-            ),
-            step(
-                "unet",
-                "unet.enc1.2",
-                conv("unet.enc1.2", &[t("enc1_hidden")], t("enc1"))?,
-            ),
-            step(
-                "unet",
-                "pool enc1",
-                ops::pool2x2(gpu, pool, t("enc1"), t("pool1"))?,
-            ),
-            step(
-                "unet",
-                "unet.enc2.0",
-                conv("unet.enc2.0", &[t("pool1"), t("wo2")], t("enc2_hidden"))?,
-            ),
-            step(
-                "unet",
-                "unet.enc2.2",
-                conv("unet.enc2.2", &[t("enc2_hidden")], t("enc2"))?,
-            ),
-            step(
-                "unet",
-                "pool enc2",
-                ops::pool2x2(gpu, pool, t("enc2"), t("pool2"))?,
-            ),
-            step(
-                "unet",
-                "unet.enc3.0",
-                conv("unet.enc3.0", &[t("pool2"), t("wo4")], t("enc3_hidden"))?,
-            ),
-            step(
-                "unet",
-                "unet.enc3.2",
-                conv("unet.enc3.2", &[t("enc3_hidden")], t("enc3"))?,
-            ),
-            step(
-                "unet",
-                "unet.dec3.0",
-                conv("unet.dec3.0", &[t("enc3"), t("wo4")], t("dec3_hidden"))?,
-            ),
-            step(
-                "unet",
-                "unet.dec3.2",
-                conv("unet.dec3.2", &[t("dec3_hidden")], t("i3"))?,
-            ),
-            step(
-                "unet",
-                "upsample I3",
-                ops::upsample2x(gpu, up, t("i3"), t("up3"))?,
-            ),
-            step(
-                "unet",
-                "unet.dec2.0",
-                conv("unet.dec2.0", &[t("enc2"), t("up3"), t("wo2")], t("dec2_hidden"))?,
-            ),
-            step(
-                "unet",
-                "unet.dec2.2",
-                conv("unet.dec2.2", &[t("dec2_hidden")], t("i2"))?,
-            ),
-            step(
-                "unet",
-                "upsample I2",
-                ops::upsample2x(gpu, up, t("i2"), t("up2"))?,
-            ),
-            step(
-                "unet",
-                "unet.dec1.0",
-                conv(
-                    "unet.dec1.0",
-                    &[t("enc1"), t("up2"), t("warp_out")],
-                    t("dec1_hidden"),
-                )?,
-            ),
-            step(
-                "unet",
-                "unet.dec1.2",
-                conv("unet.dec1.2", &[t("dec1_hidden")], &self.o[p])?,
-            ),
-            step(
-                "unet",
-                "remodulate",
-                ops::remodulate(
-                    gpu,
-                    &self.o[p],
-                    albedo,
-                    albedo_channel,
-                    t("exposure"),
-                    t("output"),
-                )?,
-            ),
-        ];
-        Ok((warps, steps))
     }
 
     /// The packed input tensors the caller fills before [`Network::record`]:
     /// `(A_t, MT, motion)`.
     pub fn inputs(&self) -> (&Tensor, &Tensor, &Tensor) {
-        (self.t("a_t"), self.t("mt"), self.t("motion"))
+        let t = |id| &self.tensors[&id];
+        (t(TensorId::ATt), t(TensorId::Mt), t(TensorId::Motion))
     }
 
     /// The exposure tensors the caller's exposure pass writes before [`Network::record`]
     /// (`ssr/exposure_partial`, `ssr/exposure_final`): `(partials, exposure, ratio)`.
     pub fn exposure(&self) -> (&Tensor, &Tensor, &Tensor) {
+        let t = |id| &self.tensors[&id];
         (
-            self.t("exposure_partials"),
-            self.t("exposure"),
-            self.t("exposure_ratio"),
+            t(TensorId::ExposurePartials),
+            t(TensorId::Exposure),
+            t(TensorId::ExposureRatio),
         )
     }
 
     /// The remodulated output (padded size, 3 channels) of the last recorded frame.
     pub fn output(&self) -> &Tensor {
-        self.t("output")
+        &self.tensors[&TensorId::Output]
     }
 
-    /// An intermediate tensor of the last recorded frame by name (see [`INTERMEDIATES`]).
+    /// A tensor of the last recorded frame by name ([`INTERMEDIATES`], or any
+    /// [`TensorId::name`]).
     pub fn tensor(&self, name: &str) -> Option<&Tensor> {
         let cur = 1 - self.parity; // parity was advanced after recording
-        match name {
-            "a_acc" => Some(&self.a_acc[cur]),
-            "o" => Some(&self.o[cur]),
-            n => self.tensors.get(n),
-        }
+        TensorId::ALL
+            .iter()
+            .find(|id| id.name() == name)
+            .map(|&id| self.at(id, cur))
     }
 
     /// Records one frame. `first` means there is no history (first frame, camera cut,
@@ -459,44 +268,37 @@ impl Network {
     ) {
         let p = self.parity;
         if first {
-            let (a_t, warp_acc) = (self.t("a_t"), self.t("warp_acc"));
+            let (a_t, warp_acc) = (self.at(TensorId::ATt, p), self.at(TensorId::WarpAcc, p));
             encoder.copy_buffer_to_buffer(&a_t.buffer, 0, &warp_acc.buffer, 0, a_t.bytes());
-            encoder.copy_buffer_to_buffer(
-                &self.ones.buffer,
-                0,
-                &self.t("warp_valid").buffer,
-                0,
-                self.ones.bytes(),
-            );
-            encoder.clear_buffer(&self.t("warp_out").buffer, 0, None);
+            let valid = self.at(TensorId::WarpValid, p);
+            encoder.copy_buffer_to_buffer(&self.ones.buffer, 0, &valid.buffer, 0, self.ones.bytes());
+            encoder.clear_buffer(&self.at(TensorId::WarpOut, p).buffer, 0, None);
         }
-        let warps = if first { &[][..] } else { &self.warps[p][..] };
-        // Warps first (each belongs to its stage), then the rest in order.
-        let mut ordered: Vec<&Step> = Vec::new();
-        let steps = &self.steps[p];
-        ordered.extend(warps.iter().filter(|s| s.stage == "tfa"));
-        ordered.extend(steps.iter().filter(|s| s.stage == "tfa"));
-        ordered.extend(warps.iter().filter(|s| s.stage == "unet"));
-        ordered.extend(steps.iter().filter(|s| s.stage == "unet"));
+        let ordered: Vec<(&StepSpec, &Dispatch)> = self
+            .specs
+            .iter()
+            .zip(&self.dispatches[p])
+            .filter(|(s, _)| !(first && s.history))
+            .collect();
         let mut i = 0;
         while i < ordered.len() {
             let j = match granularity {
                 Granularity::Layer => i + 1,
                 Granularity::Stage => {
                     let mut j = i;
-                    while j < ordered.len() && ordered[j].stage == ordered[i].stage {
+                    while j < ordered.len() && ordered[j].0.stage == ordered[i].0.stage {
                         j += 1;
                     }
                     j
                 }
             };
             let label = match granularity {
-                Granularity::Layer => ordered[i].label.as_str(),
-                Granularity::Stage => ordered[i].stage,
+                Granularity::Layer => ordered[i].0.label,
+                Granularity::Stage => ordered[i].0.stage,
             };
             let mut pass = Profiler::pass(encoder, label, profiler.as_deref_mut());
-            for s in &ordered[i..j] {
-                s.dispatch.record(&mut pass);
+            for (_, d) in &ordered[i..j] {
+                d.record(&mut pass);
             }
             drop(pass);
             i = j;
@@ -504,7 +306,7 @@ impl Network {
         self.parity = 1 - p;
     }
 
-    /// Every step in execution order (history warps included) with its stage, FLOPs per
+    /// Every step in execution order (history steps included) with its stage, FLOPs per
     /// frame at this resolution (0 for data movement) and compulsory memory traffic.
     pub fn step_costs(&self) -> Vec<StepCost> {
         let levels: BTreeMap<String, u32> = self
@@ -513,31 +315,28 @@ impl Network {
             .into_iter()
             .map(|l| (l.name, l.level))
             .collect();
-        let p = self.parity;
-        let mut out = Vec::new();
-        for stage in ["tfa", "unet"] {
-            for s in self.warps[p]
-                .iter()
-                .chain(&self.steps[p])
-                .filter(|s| s.stage == stage)
-            {
-                let name = s.label.split(' ').next().unwrap_or_default();
-                let flops = match (self.convs.get(name), levels.get(name)) {
-                    (Some(c), Some(&lv)) => {
-                        c.flops_per_pixel() * (self.width as u64 >> lv) * (self.height as u64 >> lv)
+        self.specs
+            .iter()
+            .zip(&self.dispatches[self.parity])
+            .map(|(s, d)| {
+                let flops = match s.op {
+                    Op::Conv(layer) => {
+                        let lv = levels[layer];
+                        self.convs[layer].flops_per_pixel()
+                            * (self.width as u64 >> lv)
+                            * (self.height as u64 >> lv)
                     }
                     _ => 0,
                 };
-                out.push(StepCost {
-                    stage,
-                    label: s.label.clone(),
+                StepCost {
+                    stage: s.stage,
+                    label: s.label.to_string(),
                     flops,
-                    bytes_read: s.dispatch.bytes_read,
-                    bytes_written: s.dispatch.bytes_written,
-                });
-            }
-        }
-        out
+                    bytes_read: d.bytes_read,
+                    bytes_written: d.bytes_written,
+                }
+            })
+            .collect()
     }
 }
 

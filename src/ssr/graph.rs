@@ -1,0 +1,440 @@
+//! The SSR network declared once (DESIGN §4), typed: every tensor ([`TensorId`], with its
+//! name, resolution level and channels) and every step of a frame ([`StepSpec`]: its
+//! operation and the tensors it takes, in the operation's argument order). The network
+//! allocates, binds, counts FLOPs and traffic from this table alone; the layer list of
+//! [`SsrConfig::layers`] (shared with the PyTorch mirror through the weight names) is
+//! checked against it.
+
+use super::config::{A_CHANNELS, ExposureMode, HistoryTest, MT_CHANNELS, RGB, RemodulationAlbedo, SsrConfig};
+use crate::error::Result;
+use crate::nn::ops::PoolMode;
+
+/// Every tensor of the network. The names ([`TensorId::name`]) are those of the PyTorch
+/// mirror's golden intermediates where it has them.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, PartialOrd, Ord)]
+pub enum TensorId {
+    /// Exposure of the colour (rgb) and of the shadow (rgb), 1x1.
+    Exposure,
+    /// Its ratio to the last frame's, 1x1.
+    ExposureRatio,
+    /// The exposure reduction's partial sums (4 vec4 per workgroup).
+    ExposurePartials,
+    /// A_t: the packed per-frame features.
+    ATt,
+    /// MT: mask and transparency.
+    Mt,
+    /// Motion vectors.
+    Motion,
+    /// Warped A_acc of the last frame.
+    WarpAcc,
+    /// Its validity.
+    WarpValid,
+    /// TFA reference net, hidden layer.
+    RefHidden,
+    /// TFA reference features R.
+    RefFeat,
+    /// TFA embedding of the current features, hidden layer.
+    EmbHiddenCur,
+    /// TFA embedding of the current features.
+    EmbCur,
+    /// TFA embedding of the warped history, hidden layer.
+    EmbHiddenPrev,
+    /// TFA embedding of the warped history.
+    EmbPrev,
+    /// Per-pixel TFA weights (beta, alpha, s_cur, s_prev).
+    TfaWeights,
+    /// The accumulated features of this frame (ping-pong by frame parity).
+    AAcc,
+    /// The accumulated features of the last frame.
+    AAccPrev,
+    /// Warped log-space output of the last frame, W(o).
+    WarpOut,
+    /// Its validity.
+    WarpOutValid,
+    /// W(o) at half resolution.
+    Wo2,
+    /// W(o) at quarter resolution.
+    Wo4,
+    /// U-Net encoder level 1, hidden layer.
+    Enc1Hidden,
+    /// U-Net encoder level 1.
+    Enc1,
+    /// Its pooling.
+    Pool1,
+    /// Encoder level 2, hidden layer.
+    Enc2Hidden,
+    /// Encoder level 2.
+    Enc2,
+    /// Its pooling.
+    Pool2,
+    /// Encoder level 3, hidden layer.
+    Enc3Hidden,
+    /// Encoder level 3.
+    Enc3,
+    /// Decoder level 3, hidden layer.
+    Dec3Hidden,
+    /// Decoder level 3 output I3.
+    I3,
+    /// I3 upsampled.
+    Up3,
+    /// Decoder level 2, hidden layer.
+    Dec2Hidden,
+    /// Decoder level 2 output I2.
+    I2,
+    /// I2 upsampled.
+    Up2,
+    /// Decoder level 1, hidden layer.
+    Dec1Hidden,
+    /// The log-space output o of this frame (ping-pong by frame parity).
+    O,
+    /// The log-space output of the last frame.
+    OPrev,
+    /// The remodulated output.
+    Output,
+}
+
+/// Where a tensor's size comes from.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Extent {
+    /// The padded image at resolution level `l` (0 full, 1 half, 2 quarter).
+    Level(u32),
+    /// One pixel.
+    Single,
+    /// One pixel per workgroup of the exposure reduction.
+    ExposureGroups,
+}
+
+impl TensorId {
+    /// Every tensor, in allocation order.
+    pub const ALL: [TensorId; 39] = {
+        use TensorId::*;
+        [
+            Exposure,
+            ExposureRatio,
+            ExposurePartials,
+            ATt,
+            Mt,
+            Motion,
+            WarpAcc,
+            WarpValid,
+            RefHidden,
+            RefFeat,
+            EmbHiddenCur,
+            EmbCur,
+            EmbHiddenPrev,
+            EmbPrev,
+            TfaWeights,
+            AAcc,
+            AAccPrev,
+            WarpOut,
+            WarpOutValid,
+            Wo2,
+            Wo4,
+            Enc1Hidden,
+            Enc1,
+            Pool1,
+            Enc2Hidden,
+            Enc2,
+            Pool2,
+            Enc3Hidden,
+            Enc3,
+            Dec3Hidden,
+            I3,
+            Up3,
+            Dec2Hidden,
+            I2,
+            Up2,
+            Dec1Hidden,
+            O,
+            OPrev,
+            Output,
+        ]
+    };
+
+    /// Its name (the PyTorch mirror's, where the mirror exports it as a golden
+    /// intermediate; [`super::Network::tensor`] looks tensors up by it).
+    pub fn name(self) -> &'static str {
+        use TensorId::*;
+        match self {
+            Exposure => "exposure",
+            ExposureRatio => "exposure_ratio",
+            ExposurePartials => "exposure_partials",
+            ATt => "a_t",
+            Mt => "mt",
+            Motion => "motion",
+            WarpAcc => "warp_acc",
+            WarpValid => "warp_valid",
+            RefHidden => "ref_hidden",
+            RefFeat => "ref_feat",
+            EmbHiddenCur => "emb_hidden_cur",
+            EmbCur => "emb_cur",
+            EmbHiddenPrev => "emb_hidden_prev",
+            EmbPrev => "emb_prev",
+            TfaWeights => "tfa_weights",
+            AAcc => "a_acc",
+            AAccPrev => "a_acc_prev",
+            WarpOut => "warp_out",
+            WarpOutValid => "warp_out_valid",
+            Wo2 => "wo2",
+            Wo4 => "wo4",
+            Enc1Hidden => "enc1_hidden",
+            Enc1 => "enc1",
+            Pool1 => "pool1",
+            Enc2Hidden => "enc2_hidden",
+            Enc2 => "enc2",
+            Pool2 => "pool2",
+            Enc3Hidden => "enc3_hidden",
+            Enc3 => "enc3",
+            Dec3Hidden => "dec3_hidden",
+            I3 => "i3",
+            Up3 => "up3",
+            Dec2Hidden => "dec2_hidden",
+            I2 => "i2",
+            Up2 => "up2",
+            Dec1Hidden => "dec1_hidden",
+            O => "o",
+            OPrev => "o_prev",
+            Output => "output",
+        }
+    }
+
+    /// Its extent and channel count under `config`.
+    pub fn shape(self, config: &SsrConfig) -> (Extent, u32) {
+        use Extent::*;
+        use TensorId::*;
+        let [c1, c2, c3] = config.enc;
+        let (h, k) = (config.tfa_hidden, config.k);
+        match self {
+            Exposure | ExposureRatio => (Single, 2 * RGB),
+            ExposurePartials => (ExposureGroups, 16),
+            ATt | WarpAcc | AAcc | AAccPrev => (Level(0), A_CHANNELS),
+            Mt => (Level(0), MT_CHANNELS),
+            Motion => (Level(0), 2),
+            WarpValid | WarpOutValid => (Level(0), 1),
+            RefHidden | EmbHiddenCur | EmbHiddenPrev => (Level(0), h),
+            RefFeat | EmbCur | EmbPrev => (Level(0), k),
+            TfaWeights => (Level(0), 4),
+            WarpOut | Up2 | O | OPrev | Output => (Level(0), RGB),
+            Wo2 | Up3 | I2 => (Level(1), RGB),
+            Wo4 | I3 => (Level(2), RGB),
+            Enc1Hidden | Enc1 | Dec1Hidden => (Level(0), c1),
+            Pool1 => (Level(1), c1),
+            Enc2Hidden | Enc2 | Dec2Hidden => (Level(1), c2),
+            Pool2 => (Level(2), c2),
+            Enc3Hidden | Enc3 | Dec3Hidden => (Level(2), c3),
+        }
+    }
+}
+
+/// What a step computes.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum Op {
+    /// The 3x3 convolution layer of that name (`inputs..., output`).
+    Conv(&'static str),
+    /// Backward warp by the motion (`src, motion, out, valid`).
+    Warp,
+    /// Re-exposure and geometric test of the warped history (`a_t, warp_acc, warp_out,
+    /// warp_valid, exposure_ratio`; the warped tensors are updated in place).
+    History {
+        /// Rescale by the exposure ratio.
+        rescale: bool,
+        /// Reject history whose geometry disagrees.
+        geometry: bool,
+    },
+    /// TFA scores, softmax and blend (`r, e_cur, e_prev, cur, prev, valid, out, weights`).
+    TfaBlend,
+    /// 2x2 pooling (`in, out`).
+    Pool(PoolMode),
+    /// 2x upsampling in the config's mode (`in, out`).
+    Upsample,
+    /// Remodulation by the albedo at channel 3 of the second tensor and the colour
+    /// exposure (`o, albedo, exposure, output`).
+    Remodulate,
+}
+
+/// One step of a frame.
+#[derive(Debug, Clone, PartialEq)]
+pub struct StepSpec {
+    /// Its stage (`tfa`, `unet`): the production pass it is recorded in.
+    pub stage: &'static str,
+    /// Its label (timings, errors).
+    pub label: &'static str,
+    /// The operation.
+    pub op: Op,
+    /// The tensors it takes, in the operation's argument order.
+    pub tensors: Vec<TensorId>,
+    /// Whether it runs only when there is history (not on the first frame after a reset).
+    pub history: bool,
+}
+
+fn step(stage: &'static str, label: &'static str, op: Op, tensors: &[TensorId]) -> StepSpec {
+    StepSpec {
+        stage,
+        label,
+        op,
+        tensors: tensors.to_vec(),
+        history: false,
+    }
+}
+
+/// The steps of one frame under `config`, in execution order.
+pub fn steps(config: &SsrConfig) -> Result<Vec<StepSpec>> {
+    use Op::*;
+    use TensorId::*;
+    let mut warps = vec![
+        step("tfa", "warp A_acc", Warp, &[AAccPrev, Motion, WarpAcc, WarpValid]),
+        step("tfa", "warp o", Warp, &[OPrev, Motion, WarpOut, WarpOutValid]),
+    ];
+    let rescale = config.exposure_mode()? == ExposureMode::Channel;
+    let geometry = config.history_test()? == HistoryTest::Geometry;
+    if rescale || geometry {
+        warps.push(step(
+            "tfa",
+            "history",
+            History { rescale, geometry },
+            &[ATt, WarpAcc, WarpOut, WarpValid, ExposureRatio],
+        ));
+    }
+    for w in &mut warps {
+        w.history = true;
+    }
+    let albedo = match config.remodulation_albedo()? {
+        RemodulationAlbedo::Current => ATt,
+        RemodulationAlbedo::Accumulated => AAcc,
+    };
+    let pool = config.pool_mode()?;
+    let mut all = warps;
+    all.extend([
+        step("tfa", "tfa.ref.0", Conv("tfa.ref.0"), &[ATt, Mt, RefHidden]),
+        step("tfa", "tfa.ref.2", Conv("tfa.ref.2"), &[RefHidden, RefFeat]),
+        step("tfa", "tfa.emb.0 (cur)", Conv("tfa.emb.0"), &[ATt, EmbHiddenCur]),
+        step(
+            "tfa",
+            "tfa.emb.2 (cur)",
+            Conv("tfa.emb.2"),
+            &[EmbHiddenCur, EmbCur],
+        ),
+        step(
+            "tfa",
+            "tfa.emb.0 (prev)",
+            Conv("tfa.emb.0"),
+            &[WarpAcc, EmbHiddenPrev],
+        ),
+        step(
+            "tfa",
+            "tfa.emb.2 (prev)",
+            Conv("tfa.emb.2"),
+            &[EmbHiddenPrev, EmbPrev],
+        ),
+        step(
+            "tfa",
+            "tfa blend",
+            TfaBlend,
+            &[
+                RefFeat, EmbCur, EmbPrev, ATt, WarpAcc, WarpValid, AAcc, TfaWeights,
+            ],
+        ),
+        step("unet", "pool W(o)/2", Pool(PoolMode::Average), &[WarpOut, Wo2]),
+        step("unet", "pool W(o)/4", Pool(PoolMode::Average), &[Wo2, Wo4]),
+        step(
+            "unet",
+            "unet.enc1.0",
+            Conv("unet.enc1.0"),
+            &[ATt, Mt, AAcc, WarpOut, Enc1Hidden],
+        ),
+        step("unet", "unet.enc1.2", Conv("unet.enc1.2"), &[Enc1Hidden, Enc1]),
+        step("unet", "pool enc1", Pool(pool), &[Enc1, Pool1]),
+        step(
+            "unet",
+            "unet.enc2.0",
+            Conv("unet.enc2.0"),
+            &[Pool1, Wo2, Enc2Hidden],
+        ),
+        step("unet", "unet.enc2.2", Conv("unet.enc2.2"), &[Enc2Hidden, Enc2]),
+        step("unet", "pool enc2", Pool(pool), &[Enc2, Pool2]),
+        step(
+            "unet",
+            "unet.enc3.0",
+            Conv("unet.enc3.0"),
+            &[Pool2, Wo4, Enc3Hidden],
+        ),
+        step("unet", "unet.enc3.2", Conv("unet.enc3.2"), &[Enc3Hidden, Enc3]),
+        step(
+            "unet",
+            "unet.dec3.0",
+            Conv("unet.dec3.0"),
+            &[Enc3, Wo4, Dec3Hidden],
+        ),
+        step("unet", "unet.dec3.2", Conv("unet.dec3.2"), &[Dec3Hidden, I3]),
+        step("unet", "upsample I3", Upsample, &[I3, Up3]),
+        step(
+            "unet",
+            "unet.dec2.0",
+            Conv("unet.dec2.0"),
+            &[Enc2, Up3, Wo2, Dec2Hidden],
+        ),
+        step("unet", "unet.dec2.2", Conv("unet.dec2.2"), &[Dec2Hidden, I2]),
+        step("unet", "upsample I2", Upsample, &[I2, Up2]),
+        step(
+            "unet",
+            "unet.dec1.0",
+            Conv("unet.dec1.0"),
+            &[Enc1, Up2, WarpOut, Dec1Hidden],
+        ),
+        step("unet", "unet.dec1.2", Conv("unet.dec1.2"), &[Dec1Hidden, O]),
+        step("unet", "remodulate", Remodulate, &[O, albedo, Exposure, Output]),
+    ]);
+    // Production order: each stage's history steps, then its other steps.
+    let mut ordered = Vec::with_capacity(all.len());
+    for stage in ["tfa", "unet"] {
+        ordered.extend(all.iter().filter(|s| s.stage == stage && s.history).cloned());
+        ordered.extend(all.iter().filter(|s| s.stage == stage && !s.history).cloned());
+    }
+    Ok(ordered)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The graph and the layer list agree: every layer of `SsrConfig::layers` (whose names
+    /// are the PyTorch mirror's weight names) runs as often as it says, with the channel
+    /// split of the tensors the graph gives it, at its level.
+    #[test]
+    fn graph_matches_the_layer_list() {
+        let config = SsrConfig::default();
+        let steps = steps(&config).unwrap();
+        for l in config.layers() {
+            let uses: Vec<&StepSpec> = steps
+                .iter()
+                .filter(|s| matches!(s.op, Op::Conv(n) if n == l.name))
+                .collect();
+            assert_eq!(uses.len() as u32, l.runs, "{}", l.name);
+            for s in uses {
+                let (ins, out) = s.tensors.split_at(s.tensors.len() - 1);
+                let split: Vec<u32> = ins.iter().map(|t| t.shape(&config).1).collect();
+                assert_eq!(split, l.inputs, "{}", s.label);
+                assert_eq!(
+                    out[0].shape(&config),
+                    (Extent::Level(l.level), l.cout),
+                    "{}",
+                    s.label
+                );
+                for t in ins {
+                    assert_eq!(t.shape(&config).0, Extent::Level(l.level), "{}: {t:?}", s.label);
+                }
+            }
+        }
+        let convs = steps.iter().filter(|s| matches!(s.op, Op::Conv(_))).count() as u32;
+        assert_eq!(convs, config.layers().iter().map(|l| l.runs).sum::<u32>());
+    }
+
+    #[test]
+    fn names_are_unique() {
+        let mut names: Vec<&str> = TensorId::ALL.iter().map(|t| t.name()).collect();
+        names.sort_unstable();
+        let n = names.len();
+        names.dedup();
+        assert_eq!(names.len(), n);
+    }
+}
