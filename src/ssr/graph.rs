@@ -9,88 +9,110 @@ use super::config::{A_CHANNELS, ExposureMode, HistoryTest, MT_CHANNELS, RGB, Rem
 use crate::error::Result;
 use crate::nn::ops::PoolMode;
 
-/// Every tensor of the network. The names ([`TensorId::name`]) are those of the PyTorch
-/// mirror's golden intermediates where it has them.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, PartialOrd, Ord)]
-pub enum TensorId {
+/// Declares [`TensorId`]: each variant with its doc and its name, in allocation order.
+macro_rules! tensor_ids {
+    ($($(#[$doc:meta])* $id:ident = $name:literal,)*) => {
+        /// Every tensor of the network. The names ([`TensorId::name`]) are those of the
+        /// PyTorch mirror's golden intermediates where it has them.
+        #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, PartialOrd, Ord)]
+        pub enum TensorId {
+            $($(#[$doc])* $id,)*
+        }
+
+        impl TensorId {
+            /// Every tensor, in allocation order.
+            pub const ALL: &[TensorId] = &[$(TensorId::$id,)*];
+
+            /// Its name (the PyTorch mirror's, where the mirror exports it as a golden
+            /// intermediate; [`super::Network::tensor`] looks tensors up by it).
+            pub fn name(self) -> &'static str {
+                match self {
+                    $(TensorId::$id => $name,)*
+                }
+            }
+        }
+    };
+}
+
+tensor_ids! {
     /// Exposure of the colour (rgb) and of the shadow (rgb), 1x1.
-    Exposure,
+    Exposure = "exposure",
     /// Its ratio to the last frame's, 1x1.
-    ExposureRatio,
+    ExposureRatio = "exposure_ratio",
     /// The exposure reduction's partial sums (4 vec4 per workgroup).
-    ExposurePartials,
+    ExposurePartials = "exposure_partials",
     /// A_t: the packed per-frame features.
-    ATt,
+    ATt = "a_t",
     /// MT: mask and transparency.
-    Mt,
+    Mt = "mt",
     /// Motion vectors.
-    Motion,
+    Motion = "motion",
     /// Warped A_acc of the last frame.
-    WarpAcc,
+    WarpAcc = "warp_acc",
     /// Its validity.
-    WarpValid,
+    WarpValid = "warp_valid",
     /// TFA reference net, hidden layer.
-    RefHidden,
+    RefHidden = "ref_hidden",
     /// TFA reference features R.
-    RefFeat,
+    RefFeat = "ref_feat",
     /// TFA embedding of the current features, hidden layer.
-    EmbHiddenCur,
+    EmbHiddenCur = "emb_hidden_cur",
     /// TFA embedding of the current features.
-    EmbCur,
+    EmbCur = "emb_cur",
     /// TFA embedding of the warped history, hidden layer.
-    EmbHiddenPrev,
+    EmbHiddenPrev = "emb_hidden_prev",
     /// TFA embedding of the warped history.
-    EmbPrev,
+    EmbPrev = "emb_prev",
     /// Per-pixel TFA weights (beta, alpha, s_cur, s_prev).
-    TfaWeights,
+    TfaWeights = "tfa_weights",
     /// The accumulated features of this frame (ping-pong by frame parity).
-    AAcc,
+    AAcc = "a_acc",
     /// The accumulated features of the last frame.
-    AAccPrev,
+    AAccPrev = "a_acc_prev",
     /// Warped log-space output of the last frame, W(o).
-    WarpOut,
+    WarpOut = "warp_out",
     /// Its validity.
-    WarpOutValid,
+    WarpOutValid = "warp_out_valid",
     /// W(o) at half resolution.
-    Wo2,
+    Wo2 = "wo2",
     /// W(o) at quarter resolution.
-    Wo4,
+    Wo4 = "wo4",
     /// U-Net encoder level 1, hidden layer.
-    Enc1Hidden,
+    Enc1Hidden = "enc1_hidden",
     /// U-Net encoder level 1.
-    Enc1,
+    Enc1 = "enc1",
     /// Its pooling.
-    Pool1,
+    Pool1 = "pool1",
     /// Encoder level 2, hidden layer.
-    Enc2Hidden,
+    Enc2Hidden = "enc2_hidden",
     /// Encoder level 2.
-    Enc2,
+    Enc2 = "enc2",
     /// Its pooling.
-    Pool2,
+    Pool2 = "pool2",
     /// Encoder level 3, hidden layer.
-    Enc3Hidden,
+    Enc3Hidden = "enc3_hidden",
     /// Encoder level 3.
-    Enc3,
+    Enc3 = "enc3",
     /// Decoder level 3, hidden layer.
-    Dec3Hidden,
+    Dec3Hidden = "dec3_hidden",
     /// Decoder level 3 output I3.
-    I3,
+    I3 = "i3",
     /// I3 upsampled.
-    Up3,
+    Up3 = "up3",
     /// Decoder level 2, hidden layer.
-    Dec2Hidden,
+    Dec2Hidden = "dec2_hidden",
     /// Decoder level 2 output I2.
-    I2,
+    I2 = "i2",
     /// I2 upsampled.
-    Up2,
+    Up2 = "up2",
     /// Decoder level 1, hidden layer.
-    Dec1Hidden,
+    Dec1Hidden = "dec1_hidden",
     /// The log-space output o of this frame (ping-pong by frame parity).
-    O,
+    O = "o",
     /// The log-space output of the last frame.
-    OPrev,
+    OPrev = "o_prev",
     /// The remodulated output.
-    Output,
+    Output = "output",
 }
 
 /// Where a tensor's size comes from.
@@ -105,99 +127,6 @@ pub enum Extent {
 }
 
 impl TensorId {
-    /// Every tensor, in allocation order.
-    pub const ALL: [TensorId; 39] = {
-        use TensorId::*;
-        [
-            Exposure,
-            ExposureRatio,
-            ExposurePartials,
-            ATt,
-            Mt,
-            Motion,
-            WarpAcc,
-            WarpValid,
-            RefHidden,
-            RefFeat,
-            EmbHiddenCur,
-            EmbCur,
-            EmbHiddenPrev,
-            EmbPrev,
-            TfaWeights,
-            AAcc,
-            AAccPrev,
-            WarpOut,
-            WarpOutValid,
-            Wo2,
-            Wo4,
-            Enc1Hidden,
-            Enc1,
-            Pool1,
-            Enc2Hidden,
-            Enc2,
-            Pool2,
-            Enc3Hidden,
-            Enc3,
-            Dec3Hidden,
-            I3,
-            Up3,
-            Dec2Hidden,
-            I2,
-            Up2,
-            Dec1Hidden,
-            O,
-            OPrev,
-            Output,
-        ]
-    };
-
-    /// Its name (the PyTorch mirror's, where the mirror exports it as a golden
-    /// intermediate; [`super::Network::tensor`] looks tensors up by it).
-    pub fn name(self) -> &'static str {
-        use TensorId::*;
-        match self {
-            Exposure => "exposure",
-            ExposureRatio => "exposure_ratio",
-            ExposurePartials => "exposure_partials",
-            ATt => "a_t",
-            Mt => "mt",
-            Motion => "motion",
-            WarpAcc => "warp_acc",
-            WarpValid => "warp_valid",
-            RefHidden => "ref_hidden",
-            RefFeat => "ref_feat",
-            EmbHiddenCur => "emb_hidden_cur",
-            EmbCur => "emb_cur",
-            EmbHiddenPrev => "emb_hidden_prev",
-            EmbPrev => "emb_prev",
-            TfaWeights => "tfa_weights",
-            AAcc => "a_acc",
-            AAccPrev => "a_acc_prev",
-            WarpOut => "warp_out",
-            WarpOutValid => "warp_out_valid",
-            Wo2 => "wo2",
-            Wo4 => "wo4",
-            Enc1Hidden => "enc1_hidden",
-            Enc1 => "enc1",
-            Pool1 => "pool1",
-            Enc2Hidden => "enc2_hidden",
-            Enc2 => "enc2",
-            Pool2 => "pool2",
-            Enc3Hidden => "enc3_hidden",
-            Enc3 => "enc3",
-            Dec3Hidden => "dec3_hidden",
-            I3 => "i3",
-            Up3 => "up3",
-            Dec2Hidden => "dec2_hidden",
-            I2 => "i2",
-            Up2 => "up2",
-            Dec1Hidden => "dec1_hidden",
-            O => "o",
-            OPrev => "o_prev",
-            Output => "output",
-        }
-    }
-
     /// Its extent and channel count under `config`.
     pub fn shape(self, config: &SsrConfig) -> (Extent, u32) {
         use Extent::*;

@@ -120,7 +120,7 @@ impl Network {
             Tensor::new(gpu, label, w, h, c)
         };
         let mut tensors = BTreeMap::new();
-        for id in TensorId::ALL {
+        for &id in TensorId::ALL {
             if !matches!(
                 id,
                 TensorId::AAcc | TensorId::AAccPrev | TensorId::O | TensorId::OPrev
