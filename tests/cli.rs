@@ -244,10 +244,21 @@ fn bad_input_gives_clear_errors() {
     std::fs::remove_dir_all(&input).ok();
 }
 
+/// Runs `cmd`, asserts it succeeded and printed every one of `keys`; returns stdout.
+fn prints_all(cmd: &mut Command, keys: &[&str]) -> String {
+    let o = cmd.output().unwrap();
+    let out = String::from_utf8_lossy(&o.stdout).to_string();
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    for k in keys {
+        assert!(out.contains(k), "missing {k} in\n{out}");
+    }
+    out
+}
+
 #[test]
 fn bench_kernels_prints_a_table() {
-    let o = bin()
-        .args([
+    prints_all(
+        bin().args([
             "bench",
             "kernels",
             "--width",
@@ -258,33 +269,27 @@ fn bench_kernels_prints_a_table() {
             "8",
             "--iterations",
             "2",
-        ])
-        .output()
-        .unwrap();
-    let out = String::from_utf8_lossy(&o.stdout);
-    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
-    for k in [
-        "conv3x3 8->8 relu generic",
-        "conv3x3 8->8 relu px8-cob2",
-        "autotuner's choice for conv3x3 8->8 relu",
-        "pool2x2 max",
-        "upsample2x bilinear",
-        "tfa_blend",
-        "warp",
-        "demodulate",
-        "GFLOP/s",
-    ] {
-        assert!(out.contains(k), "missing {k} in\n{out}");
-    }
+        ]),
+        &[
+            "conv3x3 8->8 relu generic",
+            "conv3x3 8->8 relu px8-cob2",
+            "autotuner's choice for conv3x3 8->8 relu",
+            "pool2x2 max",
+            "upsample2x bilinear",
+            "tfa_blend",
+            "warp",
+            "demodulate",
+            "GFLOP/s",
+        ],
+    );
 }
 
 /// Issue 14: the roofline model alone (no timing) at a size the machine could not time
 /// quickly, and a fixed kernel through the environment; a bad value is a named error.
 #[test]
 fn bench_denoise_models_passes_and_takes_fixed_kernels() {
-    let o = bin()
-        .env("SUBPIXEL_CONV_KERNEL", "px4-cob2")
-        .args([
+    prints_all(
+        bin().env("SUBPIXEL_CONV_KERNEL", "px4-cob2").args([
             "bench",
             "denoise",
             "--width",
@@ -294,21 +299,16 @@ fn bench_denoise_models_passes_and_takes_fixed_kernels() {
             "--model-only",
             "--model",
             "rtx4070",
-        ])
-        .output()
-        .unwrap();
-    let out = String::from_utf8_lossy(&o.stdout);
-    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
-    for k in [
-        "roofline model on NVIDIA RTX 4070",
-        "unet.enc1.0",
-        "compute",
-        "memory",
-        "not timed (--model-only)",
-        "unet.enc2.2 px4-cob2",
-    ] {
-        assert!(out.contains(k), "missing {k} in\n{out}");
-    }
+        ]),
+        &[
+            "roofline model on NVIDIA RTX 4070",
+            "unet.enc1.0",
+            "compute",
+            "memory",
+            "not timed (--model-only)",
+            "unet.enc2.2 px4-cob2",
+        ],
+    );
     let o = bin()
         .env("SUBPIXEL_CONV_KERNEL", "fastest")
         .args([
@@ -666,18 +666,7 @@ fn denoise_never_destroys_its_input() {
     }
     let mut small = read_frame(&input.join("frame_0002.exr")).unwrap();
     let f = small.frame.as_mut().unwrap();
-    for t in [
-        &mut f.color,
-        &mut f.mask,
-        &mut f.albedo,
-        &mut f.normal,
-        &mut f.shadow,
-        &mut f.transparent,
-        &mut f.depth,
-        &mut f.metallic,
-        &mut f.roughness,
-        &mut f.motion,
-    ] {
+    for t in f.tensors_mut() {
         *t = HostTensor::from_fn(20, 12, t.channels, |x, y, c| t.at(x, y, c));
     }
     small.reference = None;

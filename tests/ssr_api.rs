@@ -433,18 +433,7 @@ fn garbage_frames_give_finite_output() {
                         }
                     }
                 };
-                for t in [
-                    &mut f.color,
-                    &mut f.mask,
-                    &mut f.albedo,
-                    &mut f.normal,
-                    &mut f.shadow,
-                    &mut f.transparent,
-                    &mut f.depth,
-                    &mut f.metallic,
-                    &mut f.roughness,
-                    &mut f.motion,
-                ] {
+                for t in f.tensors_mut() {
                     garble(t, &mut rng);
                 }
                 let out = den.denoise_host(&f).unwrap();

@@ -188,17 +188,7 @@ pub fn bench_kernels(gpu: &Gpu, o: &KernelBenchOptions) -> Result<Vec<KernelTimi
 /// The autotuner's kernel for the benchmark's conv3x3 (`channels -> channels`, relu) at
 /// its size: `(choice, whether it came from the cache, the size it was tuned at)`.
 pub fn conv_choice(gpu: &Gpu, o: &KernelBenchOptions) -> Result<(ConvKernel, bool, (u32, u32))> {
-    let c = o.channels;
-    let wts: Vec<f32> = (0..c * c * 9).map(|i| ((i % 17) as f32 - 8.0) * 0.01).collect();
-    let conv = Conv3x3::new(
-        gpu,
-        "bench",
-        &wts,
-        &vec![0.0; c as usize],
-        &[c],
-        c,
-        Activation::Relu,
-    )?;
+    let conv = bench_conv(gpu, o.channels)?;
     let (t, cached) = autotune::tune(gpu, &conv, o.width, o.height)?;
     Ok((t.choice, cached, autotune::tune_size(o.width, o.height)))
 }

@@ -45,6 +45,22 @@ impl HostFrame {
         ]
     }
 
+    /// Every buffer, mutable, in the order of [`HostFrame::fields`].
+    pub fn tensors_mut(&mut self) -> [&mut HostTensor; 10] {
+        [
+            &mut self.color,
+            &mut self.mask,
+            &mut self.albedo,
+            &mut self.normal,
+            &mut self.shadow,
+            &mut self.transparent,
+            &mut self.depth,
+            &mut self.metallic,
+            &mut self.roughness,
+            &mut self.motion,
+        ]
+    }
+
     /// Width and height, after checking every buffer has them and the right channels.
     pub fn size(&self) -> Result<(u32, u32)> {
         let (w, h) = (self.color.width, self.color.height);
