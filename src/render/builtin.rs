@@ -68,9 +68,27 @@ impl Default for CornellOptions {
 
 /// A UV sphere (smooth normals, uvs) centred at `c`.
 pub fn push_sphere(g: &mut Geometry, c: Vec3, r: f32, segments: u32, rings: u32, material: u32) {
+    push_uv_sphere(g, c, r, (segments, rings), Vec2::ONE, false, material);
+}
+
+/// A UV sphere of radius `r` centred at `c` (faces outwards): `segments` around, `rings`
+/// from the north pole (at least 3 and 2), smooth normals, texture coordinates (u around,
+/// v from the north pole, each in [0, 1] times `uv_scale`) and, with `tangents`, tangents
+/// along u (for normal maps).
+pub fn push_uv_sphere(
+    g: &mut Geometry,
+    c: Vec3,
+    r: f32,
+    (segments, rings): (u32, u32),
+    uv_scale: Vec2,
+    tangents: bool,
+    material: u32,
+) {
+    let (segments, rings) = (segments.max(3), rings.max(2));
     let mut pos = Vec::new();
     let mut nrm = Vec::new();
     let mut uv = Vec::new();
+    let mut tan = Vec::new();
     for j in 0..=rings {
         let v = j as f32 / rings as f32;
         let theta = v * std::f32::consts::PI;
@@ -80,7 +98,8 @@ pub fn push_sphere(g: &mut Geometry, c: Vec3, r: f32, segments: u32, rings: u32,
             let n = Vec3::new(theta.sin() * phi.cos(), theta.cos(), -theta.sin() * phi.sin());
             pos.push(c + r * n);
             nrm.push(n);
-            uv.push(Vec2::new(u, v));
+            uv.push(Vec2::new(u, v) * uv_scale);
+            tan.push(Vec4::new(-phi.sin(), 0.0, -phi.cos(), 1.0));
         }
     }
     let mut tris = Vec::new();
@@ -98,7 +117,8 @@ pub fn push_sphere(g: &mut Geometry, c: Vec3, r: f32, segments: u32, rings: u32,
             }
         }
     }
-    g.push_mesh(&pos, Some(&nrm), Some(&uv), None, &tris, material);
+    let tan = tangents.then_some(tan.as_slice());
+    g.push_mesh(&pos, Some(&nrm), Some(&uv), tan, &tris, material);
 }
 
 /// A box of half-extents `h`, rotated by `rot`, centred at `c` (faces outwards).

@@ -595,39 +595,8 @@ pub fn push_box(g: &mut Geometry, c: Vec3, h: Vec3, rot: Quat, tile: f32, materi
 /// texture coordinates (u around, repeated `repeat` times; v from the north pole) and
 /// tangents along u.
 pub fn push_sphere(g: &mut Geometry, c: Vec3, r: f32, segments: u32, rings: u32, repeat: f32, material: u32) {
-    let (segments, rings) = (segments.max(3), rings.max(2));
-    let mut pos = Vec::new();
-    let mut nrm = Vec::new();
-    let mut uv = Vec::new();
-    let mut tan = Vec::new();
-    for j in 0..=rings {
-        let v = j as f32 / rings as f32;
-        let theta = v * std::f32::consts::PI;
-        for i in 0..=segments {
-            let u = i as f32 / segments as f32;
-            let phi = u * std::f32::consts::TAU;
-            let n = Vec3::new(theta.sin() * phi.cos(), theta.cos(), -theta.sin() * phi.sin());
-            pos.push(c + r * n);
-            nrm.push(n);
-            uv.push(Vec2::new(u * repeat, v * repeat * 0.5));
-            tan.push(Vec4::new(-phi.sin(), 0.0, -phi.cos(), 1.0));
-        }
-    }
-    let mut tris = Vec::new();
-    let row = segments + 1;
-    for j in 0..rings {
-        for i in 0..segments {
-            let a = j * row + i;
-            let b = a + row;
-            if j != 0 {
-                tris.push([a, b, a + 1]);
-            }
-            if j != rings - 1 {
-                tris.push([a + 1, b, b + 1]);
-            }
-        }
-    }
-    g.push_mesh(&pos, Some(&nrm), Some(&uv), Some(&tan), &tris, material);
+    let uv_scale = Vec2::new(repeat, repeat * 0.5);
+    super::builtin::push_uv_sphere(g, c, r, (segments, rings), uv_scale, true, material);
 }
 
 /// Appends a closed cylinder of radius `r` and height `h` standing on the point `base`
