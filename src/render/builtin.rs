@@ -226,28 +226,8 @@ pub fn cornell(o: &CornellOptions) -> Scene {
         light,
     );
     if o.objects {
-        let glass = add_material(
-            &mut s,
-            Material {
-                name: "glass".into(),
-                metallic: 0.0,
-                roughness: 0.0,
-                transmission: 1.0,
-                ior: 1.5,
-                thin: false,
-                ..Default::default()
-            },
-        );
-        let metal = add_material(
-            &mut s,
-            Material {
-                name: "metal".into(),
-                base_color: [0.91, 0.92, 0.92, 1.0],
-                metallic: 1.0,
-                roughness: 0.25,
-                ..Default::default()
-            },
-        );
+        let glass = add_material(&mut s, Material::glass("glass", [1.0; 3], 0.0, 1.5, false));
+        let metal = add_material(&mut s, Material::metal("metal", [0.91, 0.92, 0.92], 0.25));
         let g = &mut s.geometry;
         push_sphere(g, v(-0.42, 0.35, 0.3), 0.35, 48, 24, glass);
         push_box(
@@ -457,28 +437,10 @@ pub fn room() -> Scene {
             ..Material::diffuse("table", [0.45, 0.3, 0.18])
         },
     );
-    let metal = add_material(
-        &mut s,
-        Material {
-            name: "gold".into(),
-            base_color: [0.97, 0.8, 0.32, 1.0],
-            metallic: 1.0,
-            roughness: 0.3,
-            ..Default::default()
-        },
-    );
+    let metal = add_material(&mut s, Material::metal("gold", [0.97, 0.8, 0.32], 0.3));
     let glass = add_material(
         &mut s,
-        Material {
-            name: "thin glass".into(),
-            base_color: [0.85, 0.95, 0.9, 1.0],
-            metallic: 0.0,
-            roughness: 0.05,
-            transmission: 1.0,
-            thin: true,
-            double_sided: true,
-            ..Default::default()
-        },
+        Material::glass("thin glass", [0.85, 0.95, 0.9], 0.05, 1.5, true),
     );
     let leaf = add_material(
         &mut s,

@@ -1175,13 +1175,7 @@ impl<'a> Builder<'a> {
             2 => r.range(0.15, 0.5),
             _ => r.range(0.5, 1.0),
         };
-        Material {
-            name: format!("{name} r{roughness:.2}"),
-            base_color: [f0[0], f0[1], f0[2], 1.0],
-            metallic: 1.0,
-            roughness,
-            ..Default::default()
-        }
+        Material::metal(&format!("{name} r{roughness:.2}"), f0, roughness)
     }
 
     fn glass(&mut self, thin: bool) -> Material {
@@ -1198,21 +1192,14 @@ impl<'a> Builder<'a> {
         } else {
             ([1.0; 3], f32::INFINITY)
         };
+        let name = format!(
+            "{} glass ior {ior:.2} r{roughness:.2}",
+            if thin { "thin" } else { "solid" }
+        );
         Material {
-            name: format!(
-                "{} glass ior {ior:.2} r{roughness:.2}",
-                if thin { "thin" } else { "solid" }
-            ),
-            base_color: [tint.x, tint.y, tint.z, 1.0],
-            metallic: 0.0,
-            roughness,
-            transmission: 1.0,
-            ior,
-            thin,
-            double_sided: thin,
             attenuation_color,
             attenuation_distance,
-            ..Default::default()
+            ..Material::glass(&name, tint.to_array(), roughness, ior, thin)
         }
     }
 
@@ -2754,13 +2741,7 @@ impl<'a> Builder<'a> {
         self.object_tris = self.tris()..self.tris();
         let mats = [
             Material::diffuse("red", [0.7, 0.15, 0.1]),
-            Material {
-                name: "metal".into(),
-                base_color: [0.95, 0.93, 0.88, 1.0],
-                metallic: 1.0,
-                roughness: 0.2,
-                ..Default::default()
-            },
+            Material::metal("metal", [0.95, 0.93, 0.88], 0.2),
             Material::diffuse("blue", [0.1, 0.2, 0.7]),
         ];
         for (i, m) in mats.into_iter().enumerate() {
@@ -2787,14 +2768,7 @@ impl<'a> Builder<'a> {
             id,
         );
         self.done_object(Vec3::new(0.0, 0.4, -1.5));
-        let id = self.material(Material {
-            name: "glass".into(),
-            transmission: 1.0,
-            thin: false,
-            metallic: 0.0,
-            roughness: 0.0,
-            ..Default::default()
-        });
+        let id = self.material(Material::glass("glass", [1.0; 3], 0.0, 1.5, false));
         push_sphere(
             &mut self.scene.geometry,
             Vec3::new(1.0, 0.3, 1.2),

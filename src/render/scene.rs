@@ -195,6 +195,33 @@ impl Material {
         }
     }
 
+    /// A metal (metallic 1) of reflectance at normal incidence `rgb` and `roughness`.
+    pub fn metal(name: &str, rgb: [f32; 3], roughness: f32) -> Self {
+        Self {
+            name: name.into(),
+            base_color: [rgb[0], rgb[1], rgb[2], 1.0],
+            metallic: 1.0,
+            roughness,
+            ..Default::default()
+        }
+    }
+
+    /// A dielectric (transmission 1) of tint `rgb`, `roughness` and index of refraction
+    /// `ior`: a solid that refracts (`thin == false`), or a thin sheet seen from both sides.
+    pub fn glass(name: &str, rgb: [f32; 3], roughness: f32, ior: f32, thin: bool) -> Self {
+        Self {
+            name: name.into(),
+            base_color: [rgb[0], rgb[1], rgb[2], 1.0],
+            metallic: 0.0,
+            roughness,
+            transmission: 1.0,
+            ior,
+            thin,
+            double_sided: thin,
+            ..Default::default()
+        }
+    }
+
     /// Luminance of the emitted radiance, texture mean included: the light-selection weight.
     pub fn emitted_luminance(&self, textures: &[Texture]) -> f32 {
         let mut e = Vec3::from(self.emissive);
