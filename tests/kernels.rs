@@ -4,6 +4,7 @@
 mod common;
 
 use common::*;
+use subpixel::gpu::Grid;
 use subpixel::nn::ops::{self, Activation, Conv3x3, ConvKernel, PoolMode, TfaBlend, UpsampleMode};
 use subpixel::nn::{HostTensor, Tensor, reference};
 
@@ -476,17 +477,34 @@ fn zero_sized_and_oversized_dispatches_are_errors() {
     let g = gpu();
     let e = g
         .kernels
-        .dispatch("nn/pool2x2", &Default::default(), &[0u8; 32], &[], [0, 1, 1])
+        .dispatch(
+            "nn/pool2x2",
+            &Default::default(),
+            &[0u8; 32],
+            &[],
+            Grid::Workgroups([0, 1, 1]),
+        )
         .unwrap_err()
         .to_string();
     assert!(e.contains("nn/pool2x2") && e.contains("zero-sized"), "{e}");
     let big = g.device.limits().max_compute_workgroups_per_dimension + 1;
     let e = g
         .kernels
-        .dispatch("nn/pool2x2", &Default::default(), &[0u8; 32], &[], [big, 1, 1])
+        .dispatch(
+            "nn/pool2x2",
+            &Default::default(),
+            &[0u8; 32],
+            &[],
+            Grid::Invocations([8 * big, 1, 1]),
+        )
         .unwrap_err()
         .to_string();
     assert!(e.contains("exceeds"), "{e}");
+    // Invocation grids become workgroups of the kernel's own size (pool2x2: 8x8).
+    let x = Tensor::new(&g, "x", 18, 10, 4).unwrap();
+    let out = Tensor::new(&g, "out", 9, 5, 4).unwrap();
+    let d = ops::pool2x2(&g, PoolMode::Max, &x, &out).unwrap();
+    assert_eq!(d.groups, [2, 1, 1]);
 }
 
 #[test]

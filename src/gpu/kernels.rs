@@ -343,6 +343,31 @@ fn check_bound_limits(what: &str, kernels: &[(&str, ParamsBinding)], limits: &wg
     })
 }
 
+/// How many workgroups a dispatch runs.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Grid {
+    /// One invocation per element of this extent (pixels, rays, ...); the workgroup counts
+    /// follow from the kernel's own `@workgroup_size`, read from its WGSL.
+    Invocations([u32; 3]),
+    /// These workgroup counts, for kernels whose workgroups stride over their data
+    /// (reductions).
+    Workgroups([u32; 3]),
+}
+
+impl Grid {
+    /// One invocation per pixel of a `width x height` image.
+    pub fn pixels(width: u32, height: u32) -> Self {
+        Grid::Invocations([width, height, 1])
+    }
+
+    fn workgroups(self, size: [u32; 3]) -> [u32; 3] {
+        match self {
+            Grid::Invocations(n) => [0, 1, 2].map(|i| n[i].div_ceil(size[i].max(1))),
+            Grid::Workgroups(g) => g,
+        }
+    }
+}
+
 /// Values of a kernel's WGSL `override` constants.
 #[derive(Debug, Clone, Default, PartialEq)]
 pub struct Specialisation(pub Vec<(&'static str, f64)>);
@@ -362,8 +387,14 @@ impl Specialisation {
 type PipelineKey = (&'static str, Vec<(&'static str, u64)>);
 /// A kernel and the values of its template parameters.
 type ModuleKey = (&'static str, Vec<(&'static str, u32)>);
-/// Per binding index of group 0, whether the kernel may write it.
-type Writable = Arc<HashMap<u32, bool>>;
+/// What the registry reads from a kernel's naga module once: per binding index of group 0
+/// whether the kernel may write it, and the workgroup size of `main`.
+#[derive(Debug)]
+struct ModuleInfo {
+    writable: HashMap<u32, bool>,
+    workgroup: [u32; 3],
+}
+type Writable = Arc<ModuleInfo>;
 /// A compiled module and its bindings' access.
 type CompiledModule = (Arc<wgpu::ShaderModule>, Writable);
 /// A pipeline and its bindings' access.
@@ -453,7 +484,17 @@ impl KernelRegistry {
             return Ok(m.clone());
         }
         let source = k.wgsl(self.params_binding(k.name)?, template)?;
-        let writable = Arc::new(writable_bindings(&validate_wgsl(k.name, &source)?));
+        let naga_module = validate_wgsl(k.name, &source)?;
+        let workgroup = naga_module
+            .entry_points
+            .iter()
+            .find(|e| e.name == "main")
+            .map(|e| e.workgroup_size)
+            .unwrap_or([1, 1, 1]);
+        let writable = Arc::new(ModuleInfo {
+            writable: writable_bindings(&naga_module),
+            workgroup,
+        });
         let scope = self.device.push_error_scope(wgpu::ErrorFilter::Validation);
         let module = self.device.create_shader_module(wgpu::ShaderModuleDescriptor {
             label: Some(&format!("subpixel.{}", k.name)),
@@ -527,14 +568,14 @@ impl KernelRegistry {
     }
 
     /// Builds a ready-to-record dispatch: pipeline, bind group (uniform `params` at binding 0
-    /// when non-empty, then `buffers` at bindings 1..), and the workgroup counts.
+    /// when non-empty, then `buffers` at bindings 1..), and the workgroup counts of `grid`.
     pub fn dispatch(
         &self,
         name: &str,
         spec: &Specialisation,
         params: &[u8],
         buffers: &[&wgpu::Buffer],
-        groups: [u32; 3],
+        grid: Grid,
     ) -> Result<Dispatch> {
         let max_binding = self.device.limits().max_storage_buffer_binding_size;
         for (i, b) in buffers.iter().enumerate() {
@@ -551,7 +592,7 @@ impl KernelRegistry {
         }
         let resources: Vec<wgpu::BindingResource<'_>> =
             buffers.iter().map(|b| b.as_entire_binding()).collect();
-        let mut d = self.dispatch_with(name, spec, params, &resources, groups)?;
+        let mut d = self.dispatch_with(name, spec, params, &resources, grid)?;
         // Compulsory traffic: each distinct buffer once, by whether the kernel writes it.
         let (_, writable) = self.compiled(name, spec)?;
         let mut seen: Vec<&wgpu::Buffer> = Vec::new();
@@ -561,7 +602,7 @@ impl KernelRegistry {
                 continue;
             }
             seen.push(b);
-            if writable.get(&(i as u32 + 1)).copied().unwrap_or(false) {
+            if writable.writable.get(&(i as u32 + 1)).copied().unwrap_or(false) {
                 d.bytes_written += b.size();
             } else {
                 d.bytes_read += b.size();
@@ -578,8 +619,10 @@ impl KernelRegistry {
         spec: &Specialisation,
         params: &[u8],
         resources: &[wgpu::BindingResource<'_>],
-        groups: [u32; 3],
+        grid: Grid,
     ) -> Result<Dispatch> {
+        let (pipeline, info) = self.compiled(name, spec)?;
+        let groups = grid.workgroups(info.workgroup);
         let limit = self.device.limits().max_compute_workgroups_per_dimension;
         if groups.contains(&0) {
             return Err(Error::Kernel {
@@ -595,7 +638,6 @@ impl KernelRegistry {
                 ),
             });
         }
-        let pipeline = self.pipeline(name, spec)?;
         let uniform = (!params.is_empty()).then(|| {
             use wgpu::util::DeviceExt;
             self.device.create_buffer_init(&wgpu::util::BufferInitDescriptor {

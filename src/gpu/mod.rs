@@ -8,7 +8,7 @@ pub mod template;
 
 pub use context::{AdapterKind, Gpu, GpuOptions};
 pub use kernels::{
-    Dispatch, KERNELS, KernelNeeds, KernelRegistry, KernelSource, ParamsBinding, Specialisation,
+    Dispatch, Grid, KERNELS, KernelNeeds, KernelRegistry, KernelSource, ParamsBinding, Specialisation,
     check_limits, kernel_needs, kernel_source, libraries,
 };
 pub use profiler::{Profiler, StageStats, Stats, time_dispatch};

@@ -22,7 +22,7 @@ use super::Tensor;
 use super::ops::{Activation, check_channels, check_size, distinct};
 use super::tensor::padded;
 use crate::error::{Error, Result};
-use crate::gpu::{Dispatch, Gpu, Specialisation};
+use crate::gpu::{Dispatch, Gpu, Grid, Specialisation};
 
 #[repr(C)]
 #[derive(Clone, Copy, Pod, Zeroable)]
@@ -48,8 +48,6 @@ struct BlockedParams {
 
 /// Output channels one `nn/conv3x3` invocation computes (4 vec4s).
 const GENERIC_COUT_BLOCK: u32 = 16;
-/// Workgroup edge of both kernels (8x8 invocations).
-const WG: u32 = 8;
 /// Capacity of `nn/conv3x3_blocked`'s uniform weight array, in vec4s (`MAX_WEIGHTS`).
 pub const BLOCKED_MAX_WEIGHTS: u32 = 4096;
 /// Most accumulators (`px * cob` vec4s) one blocked invocation may hold (`MAX_ACC`).
@@ -409,11 +407,7 @@ impl Conv3x3 {
                     &Specialisation::none(),
                     bytemuck::bytes_of(&params),
                     &bufs,
-                    [
-                        w.div_ceil(WG),
-                        h.div_ceil(WG),
-                        padded(self.cout).div_ceil(GENERIC_COUT_BLOCK),
-                    ],
+                    Grid::Invocations([w, h, padded(self.cout).div_ceil(GENERIC_COUT_BLOCK)]),
                 )
             }
             ConvKernel::Blocked { px, cob } => {
@@ -441,11 +435,7 @@ impl Conv3x3 {
                     &spec,
                     bytemuck::bytes_of(&params),
                     &bufs,
-                    [
-                        w.div_ceil(px).div_ceil(WG),
-                        h.div_ceil(WG),
-                        out.c4().div_ceil(cob),
-                    ],
+                    Grid::Invocations([w.div_ceil(px), h, out.c4().div_ceil(cob)]),
                 )
             }
         }

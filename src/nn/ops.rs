@@ -6,7 +6,7 @@ use bytemuck::{Pod, Zeroable};
 use super::Tensor;
 pub use super::conv::{Conv3x3, ConvKernel};
 use crate::error::{Error, Result};
-use crate::gpu::{Dispatch, Gpu, Specialisation};
+use crate::gpu::{Dispatch, Gpu, Grid, Specialisation};
 
 /// Activation applied after a convolution.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -59,12 +59,6 @@ pub enum UpsampleMode {
     Nearest,
     /// Bilinear, PyTorch `align_corners=False`.
     Bilinear,
-}
-
-const WG: u32 = 8;
-
-pub(super) fn groups_2d(w: u32, h: u32, z: u32) -> [u32; 3] {
-    [w.div_ceil(WG), h.div_ceil(WG), z]
 }
 
 pub(super) fn check_size(op: &str, what: &str, t: &Tensor, w: u32, h: u32) -> Result<()> {
@@ -158,7 +152,7 @@ fn resample(gpu: &Gpu, op: &str, mode: u32, input: &Tensor, out: &Tensor) -> Res
         &Specialisation::none(),
         bytemuck::bytes_of(&params),
         &[&input.buffer, &out.buffer],
-        groups_2d(out.width, out.height, 1),
+        Grid::pixels(out.width, out.height),
     )
 }
 
@@ -262,7 +256,7 @@ pub fn tfa_blend(gpu: &Gpu, t: TfaBlend<'_>) -> Result<Dispatch> {
             &t.out.buffer,
             &t.weights.buffer,
         ],
-        groups_2d(w, h, 1),
+        Grid::pixels(w, h),
     )
 }
 
@@ -304,7 +298,7 @@ pub fn warp(gpu: &Gpu, src: &Tensor, motion: &Tensor, out: &Tensor, valid: &Tens
         &Specialisation::none(),
         bytemuck::bytes_of(&params),
         &[&src.buffer, &motion.buffer, &out.buffer, &valid.buffer],
-        groups_2d(w, h, 1),
+        Grid::pixels(w, h),
     )
 }
 
@@ -360,7 +354,7 @@ fn modulation(
         &Specialisation::none(),
         bytemuck::bytes_of(&params),
         &buffers,
-        groups_2d(w, h, 1),
+        Grid::pixels(w, h),
     )
 }
 

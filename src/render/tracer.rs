@@ -8,7 +8,7 @@ use super::camera::{Camera, CameraPath, GpuCamera};
 use super::gpu_scene::GpuScene;
 use crate::error::{Error, Result};
 use crate::frame::HostFrame;
-use crate::gpu::{Dispatch, Gpu, Profiler, Specialisation};
+use crate::gpu::{Dispatch, Gpu, Grid, Profiler, Specialisation};
 use crate::nn::{HostTensor, Tensor};
 
 /// Sampling mode of the path tracer.
@@ -251,10 +251,6 @@ impl std::fmt::Debug for Tracer {
     }
 }
 
-fn groups(w: u32, h: u32) -> [u32; 3] {
-    [w.div_ceil(8), h.div_ceil(8), 1]
-}
-
 /// Default bound on the paths of one reference dispatch (see [`Tracer::paths_per_pass`]).
 pub const PATHS_PER_PASS: u64 = 1 << 18;
 
@@ -344,7 +340,7 @@ impl Tracer {
                 &b.transparent.buffer,
                 &b.motion.buffer,
             ],
-            groups(self.width(), self.height()),
+            Grid::pixels(self.width(), self.height()),
         )
     }
 
@@ -360,9 +356,9 @@ impl Tracer {
     ) -> Result<Dispatch> {
         let (w, h) = (self.width(), self.height());
         let g = if s.mode == Mode::Quarter {
-            groups(w.div_ceil(2), h.div_ceil(2))
+            Grid::pixels(w.div_ceil(2), h.div_ceil(2))
         } else {
-            groups(w, h)
+            Grid::pixels(w, h)
         };
         self.gpu.kernels.dispatch(
             "trace/pathtrace",
@@ -608,12 +604,6 @@ pub fn query_rays(
         pad: [0; 2],
     };
     let n = rays.len() as u32;
-    let groups = n.div_ceil(64);
-    if groups > gpu.device.limits().max_compute_workgroups_per_dimension {
-        return Err(Error::Invalid(format!(
-            "query_rays: {n} rays are too many for one dispatch"
-        )));
-    }
     let d = gpu.kernels.dispatch(
         "trace/query",
         &Specialisation::none(),
@@ -627,7 +617,7 @@ pub fn query_rays(
             &ray_buf,
             &hits,
         ],
-        [groups, 1, 1],
+        Grid::Invocations([n, 1, 1]),
     )?;
     let mut enc = gpu.device.create_command_encoder(&Default::default());
     d.encode(&mut enc);

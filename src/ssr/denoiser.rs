@@ -11,7 +11,7 @@ use super::weights::Weights;
 use crate::error::{Error, Result};
 pub use crate::frame::FrameInputs;
 use crate::frame::HostFrame;
-use crate::gpu::{Dispatch, Gpu, Profiler, Specialisation};
+use crate::gpu::{Dispatch, Gpu, Grid, Profiler, Specialisation};
 use crate::nn::HostTensor;
 use crate::nn::autotune::KernelChoice;
 
@@ -221,7 +221,7 @@ impl Denoiser {
                 net.output().buffer.as_entire_binding(),
                 wgpu::BindingResource::TextureView(&view),
             ],
-            [width.div_ceil(8), height.div_ceil(8), 1],
+            Grid::pixels(width, height),
         )
     }
 
@@ -375,7 +375,7 @@ impl Denoiser {
             padded_height: self.net.height,
         };
         let (partials, exposure, ratio) = self.net.exposure();
-        let groups = [self.net.width.div_ceil(8), self.net.height.div_ceil(8), 1];
+        let grid = Grid::pixels(self.net.width, self.net.height);
         let pack_a = self.gpu.kernels.dispatch(
             "ssr/pack_inputs",
             &Specialisation::none(),
@@ -389,7 +389,7 @@ impl Denoiser {
                 &self.sanitized,
                 &exposure.buffer,
             ],
-            groups,
+            grid,
         )?;
         let pack_mt = self.gpu.kernels.dispatch(
             "ssr/pack_mt",
@@ -403,7 +403,7 @@ impl Denoiser {
                 &motion.buffer,
                 &self.sanitized,
             ],
-            groups,
+            grid,
         )?;
         let e = match self.weights.config.exposure_mode()? {
             ExposureMode::None => None,
@@ -427,7 +427,7 @@ impl Denoiser {
                         inputs.shadow_roughness,
                         &partials.buffer,
                     ],
-                    [groups, 1, 1],
+                    Grid::Workgroups([groups, 1, 1]),
                 )?;
                 let update = |first: bool| {
                     let params = ExposureFinalParams {
@@ -440,7 +440,7 @@ impl Denoiser {
                         &Specialisation::none(),
                         bytemuck::bytes_of(&params),
                         &[&partials.buffer, &exposure.buffer, &ratio.buffer],
-                        [1, 1, 1],
+                        Grid::Workgroups([1, 1, 1]),
                     )
                 };
                 Some([reduce, update(true)?, update(false)?])

@@ -10,7 +10,7 @@ use super::config::{RGB, SsrConfig};
 use super::graph::{self, Extent, Op, StepSpec, TensorId};
 use super::weights::Weights;
 use crate::error::{Error, Result};
-use crate::gpu::{Dispatch, Gpu, Profiler, Specialisation};
+use crate::gpu::{Dispatch, Gpu, Grid, Profiler, Specialisation};
 use crate::nn::autotune::{self, KernelChoice};
 use crate::nn::conv::ConvKernel;
 use crate::nn::ops::{self, Conv3x3, TfaBlend};
@@ -200,7 +200,7 @@ impl Network {
                     &Specialisation::none(),
                     bytemuck::bytes_of(&params),
                     &buffers,
-                    [self.width.div_ceil(8), self.height.div_ceil(8), 1],
+                    Grid::pixels(self.width, self.height),
                 )
             }
             Op::TfaBlend => ops::tfa_blend(

@@ -5,7 +5,7 @@
 use bytemuck::{Pod, Zeroable};
 
 use crate::error::{Error, Result};
-use crate::gpu::{Gpu, Specialisation};
+use crate::gpu::{Gpu, Grid, Specialisation};
 use crate::nn::{HostTensor, Tensor};
 
 /// How source values become display colours.
@@ -228,7 +228,7 @@ impl Display {
                         self.font.as_entire_binding(),
                         wgpu::BindingResource::TextureView(&tv),
                     ],
-                    [self.width.div_ceil(8), self.height.div_ceil(8), 1],
+                    Grid::pixels(self.width, self.height),
                 )?;
                 d.encode(encoder);
                 *cached = Some((a.buffer.clone(), b.buffer.clone(), d));
