@@ -1,11 +1,13 @@
 //! GPU plumbing: device context, the WGSL kernel registry (with its template expansion)
 //! and the timestamp profiler.
 
+mod bound;
 mod context;
 mod kernels;
 mod profiler;
 pub mod template;
 
+pub use bound::Bound;
 pub use context::{AdapterKind, Gpu, GpuOptions};
 pub use kernels::{
     Dispatch, Grid, KERNELS, KernelNeeds, KernelRegistry, KernelSource, ParamsBinding, Specialisation,

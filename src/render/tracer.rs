@@ -8,7 +8,7 @@ use super::camera::{Camera, CameraPath, GpuCamera};
 use super::gpu_scene::GpuScene;
 use crate::error::{Error, Result};
 use crate::frame::HostFrame;
-use crate::gpu::{Dispatch, Gpu, Grid, Profiler, Specialisation};
+use crate::gpu::{Bound, Dispatch, Gpu, Grid, Profiler, Specialisation};
 use crate::nn::{HostTensor, Tensor};
 
 /// Sampling mode of the path tracer.
@@ -236,7 +236,7 @@ pub struct Tracer {
     counters: wgpu::Buffer,
     scratch: Option<(Tensor, Tensor)>,
     /// G-buffer and trace dispatches of `encode_frame`, for (scene BVH buffer, mode).
-    frame_dispatches: Option<(wgpu::Buffer, Mode, Dispatch, Dispatch)>,
+    frame_dispatches: Bound<(wgpu::Buffer, Mode), (Dispatch, Dispatch)>,
     /// Most paths one reference dispatch traces (more samples are split into passes): keeps
     /// each dispatch short for the driver.
     pub paths_per_pass: u64,
@@ -286,7 +286,7 @@ impl Tracer {
             counters,
             scratch: None,
             paths_per_pass: PATHS_PER_PASS,
-            frame_dispatches: None,
+            frame_dispatches: Bound::new(),
         })
     }
 
@@ -400,16 +400,19 @@ impl Tracer {
         }
         // The two dispatches are built once per scene and mode; every frame only rewrites
         // their (shared) parameters. One encode_frame per submission, as write_params says.
-        let cached =
-            matches!(&self.frame_dispatches, Some((n, m, _, _)) if *n == scene.nodes && *m == s.mode);
-        if !cached {
+        let mut dispatches = std::mem::take(&mut self.frame_dispatches);
+        let built = dispatches.get_or_build((scene.nodes.clone(), s.mode), || {
             let gb = self.gbuffer_dispatch(scene, s)?;
             let b = &self.buffers;
             let tr = self.trace_dispatch(scene, s, [0, 1], &b.color_mask, &b.shadow_roughness)?;
-            self.frame_dispatches = Some((scene.nodes.clone(), s.mode, gb, tr));
-        }
+            Ok::<_, Error>((gb, tr))
+        });
+        let built = built.map(|_| ());
+        // (Taken out so the build can borrow the tracer; put back before any return.)
+        self.frame_dispatches = dispatches;
+        built?;
         let params = self.params(s, [0, 1]);
-        let (_, _, gb, tr) = self.frame_dispatches.as_ref().expect("built above");
+        let (gb, tr) = self.frame_dispatches.get().expect("built above");
         gb.write_params(&self.gpu.queue, bytemuck::bytes_of(&params));
         tr.write_params(&self.gpu.queue, bytemuck::bytes_of(&params));
         encoder.clear_buffer(&self.counters, 0, None);

@@ -11,7 +11,7 @@ use super::weights::Weights;
 use crate::error::{Error, Result};
 pub use crate::frame::FrameInputs;
 use crate::frame::HostFrame;
-use crate::gpu::{Dispatch, Gpu, Grid, Profiler, Specialisation};
+use crate::gpu::{Bound, Dispatch, Gpu, Grid, Profiler, Specialisation};
 use crate::nn::HostTensor;
 use crate::nn::autotune::KernelChoice;
 
@@ -116,7 +116,8 @@ pub struct Denoiser {
     height: u32,
     output: wgpu::Texture,
     store: Dispatch,
-    pack: Option<(Vec<wgpu::Buffer>, [Dispatch; 2], Option<ExposureDispatches>)>,
+    /// The input packing (and exposure) bound to the caller's six buffers.
+    pack: Bound<Vec<wgpu::Buffer>, ([Dispatch; 2], Option<ExposureDispatches>)>,
     /// The denoiser's own input buffers for [`Denoiser::denoise_host`], made on first use;
     /// never the caller's buffers of an earlier [`Denoiser::denoise`].
     host_inputs: Option<Vec<wgpu::Buffer>>,
@@ -181,7 +182,7 @@ impl Denoiser {
             height,
             output,
             store,
-            pack: None,
+            pack: Bound::new(),
             host_inputs: None,
             sanitized,
             first: true,
@@ -230,7 +231,7 @@ impl Denoiser {
     /// steps, `output` (the copy into the output texture).
     pub fn step_costs(&self) -> Vec<StepCost> {
         let mut out = Vec::new();
-        if let Some((_, pack, exposure)) = &self.pack {
+        if let Some((pack, exposure)) = self.pack.get() {
             for d in exposure.iter().flatten().chain(pack.iter()) {
                 out.push(StepCost {
                     stage: "pack",
@@ -320,7 +321,7 @@ impl Denoiser {
         self.bind_inputs(inputs)?;
         {
             let mut pass = Profiler::pass(encoder, "pack", profiler.as_deref_mut());
-            let (_, pack, exposure) = self.pack.as_ref().expect("bound above");
+            let (pack, exposure) = self.pack.get().expect("bound above");
             if let Some(e) = exposure {
                 e[0].record(&mut pass);
                 e[if self.first { 1 } else { 2 }].record(&mut pass);
@@ -341,12 +342,22 @@ impl Denoiser {
     }
 
     fn bind_inputs(&mut self, inputs: &FrameInputs<'_>) -> Result<()> {
+        let key = inputs.buffers().iter().map(|&b| b.clone()).collect();
+        let mut pack = std::mem::take(&mut self.pack);
+        let bound = pack
+            .get_or_build(key, || self.pack_dispatches(inputs))
+            .map(|_| ());
+        // (Taken out so the build can borrow the denoiser; put back before any return.)
+        self.pack = pack;
+        bound
+    }
+
+    /// The exposure and packing dispatches reading the caller's buffers, after checking them.
+    fn pack_dispatches(
+        &self,
+        inputs: &FrameInputs<'_>,
+    ) -> Result<([Dispatch; 2], Option<ExposureDispatches>)> {
         let bufs = inputs.buffers();
-        if let Some((cached, _, _)) = &self.pack
-            && cached.iter().zip(bufs).all(|(a, b)| a == b)
-        {
-            return Ok(());
-        }
         let need = self.width as u64 * self.height as u64 * 16;
         for (b, name) in bufs.iter().zip(FrameInputs::NAMES) {
             if b.size() < need {
@@ -446,8 +457,7 @@ impl Denoiser {
                 Some([reduce, update(true)?, update(false)?])
             }
         };
-        self.pack = Some((bufs.iter().map(|b| (*b).clone()).collect(), [pack_a, pack_mt], e));
-        Ok(())
+        Ok(([pack_a, pack_mt], e))
     }
 
     /// Number of input values changed by the sanitising since creation (blocks on a

@@ -5,7 +5,7 @@
 use bytemuck::{Pod, Zeroable};
 
 use crate::error::{Error, Result};
-use crate::gpu::{Gpu, Grid, Specialisation};
+use crate::gpu::{Bound, Gpu, Grid, Specialisation};
 use crate::nn::{HostTensor, Tensor};
 
 /// How source values become display colours.
@@ -113,7 +113,7 @@ pub struct Display {
     width: u32,
     height: u32,
     /// The last dispatch and the source buffers it binds.
-    cached: std::sync::Mutex<Option<(wgpu::Buffer, wgpu::Buffer, crate::gpu::Dispatch)>>,
+    cached: std::sync::Mutex<Bound<(wgpu::Buffer, wgpu::Buffer), crate::gpu::Dispatch>>,
 }
 
 impl Display {
@@ -150,7 +150,7 @@ impl Display {
             target,
             width,
             height,
-            cached: std::sync::Mutex::new(None),
+            cached: std::sync::Mutex::new(Bound::new()),
         })
     }
 
@@ -210,30 +210,24 @@ impl Display {
             _pad: [0; 2],
         };
         let mut cached = self.cached.lock().unwrap_or_else(|e| e.into_inner());
-        match &*cached {
-            Some((ca, cb, d)) if *ca == a.buffer && *cb == b.buffer => {
-                d.write_params(&self.gpu.queue, bytemuck::bytes_of(&params));
-                d.encode(encoder);
-            }
-            _ => {
-                let tv = self.target.create_view(&Default::default());
-                let d = self.gpu.kernels.dispatch_with(
-                    "view/display",
-                    &Specialisation::none(),
-                    bytemuck::bytes_of(&params),
-                    &[
-                        a.buffer.as_entire_binding(),
-                        b.buffer.as_entire_binding(),
-                        self.text.as_entire_binding(),
-                        self.font.as_entire_binding(),
-                        wgpu::BindingResource::TextureView(&tv),
-                    ],
-                    Grid::pixels(self.width, self.height),
-                )?;
-                d.encode(encoder);
-                *cached = Some((a.buffer.clone(), b.buffer.clone(), d));
-            }
-        }
+        let d = cached.get_or_build((a.buffer.clone(), b.buffer.clone()), || {
+            let tv = self.target.create_view(&Default::default());
+            self.gpu.kernels.dispatch_with(
+                "view/display",
+                &Specialisation::none(),
+                bytemuck::bytes_of(&params),
+                &[
+                    a.buffer.as_entire_binding(),
+                    b.buffer.as_entire_binding(),
+                    self.text.as_entire_binding(),
+                    self.font.as_entire_binding(),
+                    wgpu::BindingResource::TextureView(&tv),
+                ],
+                Grid::pixels(self.width, self.height),
+            )
+        })?;
+        d.write_params(&self.gpu.queue, bytemuck::bytes_of(&params));
+        d.encode(encoder);
         Ok(())
     }
 
