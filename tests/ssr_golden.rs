@@ -39,25 +39,26 @@ fn load_frame(prefix: &str, i: usize) -> std::collections::HashMap<String, HostT
         .collect()
 }
 
-/// (name in the golden file, name in the engine), in execution order.
-const COMPARED: &[(&str, &str)] = &[
-    ("exposure", "exposure"),
-    ("a_cur", "a_t"),
-    ("warp_acc", "warp_acc"),
-    ("warp_valid", "warp_valid"),
-    ("ref_feat", "ref_feat"),
-    ("emb_cur", "emb_cur"),
-    ("emb_prev", "emb_prev"),
-    ("tfa_weights", "tfa_weights"),
-    ("a_acc", "a_acc"),
-    ("warp_out", "warp_out"),
-    ("enc1", "enc1"),
-    ("enc2", "enc2"),
-    ("enc3", "enc3"),
-    ("i3", "i3"),
-    ("i2", "i2"),
-    ("o", "o"),
-    ("output", "output"),
+/// Tensors compared, in execution order: the golden files and the engine use the same
+/// names (`ssr::graph::TensorId::name`, `training/ssr/golden.py`; checked below).
+const COMPARED: &[&str] = &[
+    "exposure",
+    "a_cur",
+    "warp_acc",
+    "warp_valid",
+    "ref_feat",
+    "emb_cur",
+    "emb_prev",
+    "tfa_weights",
+    "a_acc",
+    "warp_out",
+    "enc1",
+    "enc2",
+    "enc3",
+    "i3",
+    "i2",
+    "o",
+    "output",
 ];
 
 /// Tolerance of the final output: 1e-3 of its range (the issue's bar). Intermediates use
@@ -107,12 +108,12 @@ fn golden_parity(prefix: &str, version: u32) {
             motion: g["motion"].clone(),
         };
         let out = den.denoise_host(&frame).unwrap();
-        for &(golden, engine) in COMPARED {
+        for &golden in COMPARED {
             let Some(want) = g.get(golden) else {
                 assert!(version == 1 && golden == "exposure", "{prefix}: no '{golden}'");
                 continue;
             };
-            let got = den.network().tensor(engine).unwrap().read(&gpu).unwrap();
+            let got = den.network().tensor(golden).unwrap().read(&gpu).unwrap();
             let rel = if golden == "output" {
                 OUTPUT_TOL
             } else {
@@ -136,4 +137,36 @@ fn golden_parity(prefix: &str, version: u32) {
         );
     }
     assert_eq!(den.sanitized_count().unwrap(), 0);
+}
+
+/// The PyTorch mirror and the engine name their tensors alike: every golden intermediate
+/// that `training/ssr/golden.py` exports is a tensor of the engine's graph by that name.
+#[test]
+fn golden_names_are_engine_tensor_names() {
+    let py = std::fs::read_to_string(concat!(env!("CARGO_MANIFEST_DIR"), "/training/ssr/golden.py")).unwrap();
+    let mut names = Vec::new();
+    for list in ["GOLDEN_INTERMEDIATES = [", "GOLDEN_EXTRAS = [", "GOLDEN_V2 = ["] {
+        let start = py.find(list).unwrap_or_else(|| panic!("golden.py has no {list}")) + list.len();
+        let body = &py[start..start + py[start..].find(']').unwrap()];
+        names.extend(
+            body.split(',')
+                .map(|n| n.trim().trim_matches('"').to_string())
+                .filter(|n| !n.is_empty()),
+        );
+    }
+    assert!(names.len() >= 17, "{names:?}");
+    let engine: Vec<&str> = subpixel::ssr::graph::TensorId::ALL
+        .iter()
+        .map(|t| t.name())
+        .collect();
+    for n in &names {
+        assert!(
+            engine.contains(&n.as_str()),
+            "golden tensor '{n}' has no engine tensor of that name"
+        );
+        assert!(
+            COMPARED.contains(&n.as_str()),
+            "golden tensor '{n}' is not compared"
+        );
+    }
 }

@@ -41,8 +41,8 @@ tensor_ids! {
     ExposureRatio = "exposure_ratio",
     /// The exposure reduction's partial sums (4 vec4 per workgroup).
     ExposurePartials = "exposure_partials",
-    /// A_t: the packed per-frame features.
-    ATt = "a_t",
+    /// A_t, the packed per-frame features (the mirror's `a_cur`).
+    ACur = "a_cur",
     /// MT: mask and transparency.
     Mt = "mt",
     /// Motion vectors.
@@ -136,7 +136,7 @@ impl TensorId {
         match self {
             Exposure | ExposureRatio => (Single, 2 * RGB),
             ExposurePartials => (ExposureGroups, 16),
-            ATt | WarpAcc | AAcc | AAccPrev => (Level(0), A_CHANNELS),
+            ACur | WarpAcc | AAcc | AAccPrev => (Level(0), A_CHANNELS),
             Mt => (Level(0), MT_CHANNELS),
             Motion => (Level(0), 2),
             WarpValid | WarpOutValid => (Level(0), 1),
@@ -221,22 +221,22 @@ pub fn steps(config: &SsrConfig) -> Result<Vec<StepSpec>> {
             "tfa",
             "history",
             History { rescale, geometry },
-            &[ATt, WarpAcc, WarpOut, WarpValid, ExposureRatio],
+            &[ACur, WarpAcc, WarpOut, WarpValid, ExposureRatio],
         ));
     }
     for w in &mut warps {
         w.history = true;
     }
     let albedo = match config.remodulation_albedo()? {
-        RemodulationAlbedo::Current => ATt,
+        RemodulationAlbedo::Current => ACur,
         RemodulationAlbedo::Accumulated => AAcc,
     };
     let pool = config.pool_mode()?;
     let mut all = warps;
     all.extend([
-        step("tfa", "tfa.ref.0", Conv("tfa.ref.0"), &[ATt, Mt, RefHidden]),
+        step("tfa", "tfa.ref.0", Conv("tfa.ref.0"), &[ACur, Mt, RefHidden]),
         step("tfa", "tfa.ref.2", Conv("tfa.ref.2"), &[RefHidden, RefFeat]),
-        step("tfa", "tfa.emb.0 (cur)", Conv("tfa.emb.0"), &[ATt, EmbHiddenCur]),
+        step("tfa", "tfa.emb.0 (cur)", Conv("tfa.emb.0"), &[ACur, EmbHiddenCur]),
         step(
             "tfa",
             "tfa.emb.2 (cur)",
@@ -260,7 +260,7 @@ pub fn steps(config: &SsrConfig) -> Result<Vec<StepSpec>> {
             "tfa blend",
             TfaBlend,
             &[
-                RefFeat, EmbCur, EmbPrev, ATt, WarpAcc, WarpValid, AAcc, TfaWeights,
+                RefFeat, EmbCur, EmbPrev, ACur, WarpAcc, WarpValid, AAcc, TfaWeights,
             ],
         ),
         step("unet", "pool W(o)/2", Pool(PoolMode::Average), &[WarpOut, Wo2]),
@@ -269,7 +269,7 @@ pub fn steps(config: &SsrConfig) -> Result<Vec<StepSpec>> {
             "unet",
             "unet.enc1.0",
             Conv("unet.enc1.0"),
-            &[ATt, Mt, AAcc, WarpOut, Enc1Hidden],
+            &[ACur, Mt, AAcc, WarpOut, Enc1Hidden],
         ),
         step("unet", "unet.enc1.2", Conv("unet.enc1.2"), &[Enc1Hidden, Enc1]),
         step("unet", "pool enc1", Pool(pool), &[Enc1, Pool1]),

@@ -65,7 +65,7 @@ pub struct Network {
 /// Names of the intermediate tensors [`Network::tensor`] exposes.
 pub const INTERMEDIATES: &[&str] = &[
     "exposure",
-    "a_t",
+    "a_cur",
     "mt",
     "motion",
     "warp_acc",
@@ -226,7 +226,7 @@ impl Network {
     /// `(A_t, MT, motion)`.
     pub fn inputs(&self) -> (&Tensor, &Tensor, &Tensor) {
         let t = |id| &self.tensors[&id];
-        (t(TensorId::ATt), t(TensorId::Mt), t(TensorId::Motion))
+        (t(TensorId::ACur), t(TensorId::Mt), t(TensorId::Motion))
     }
 
     /// The exposure tensors the caller's exposure pass writes before [`Network::record`]
@@ -268,7 +268,7 @@ impl Network {
     ) {
         let p = self.parity;
         if first {
-            let (a_t, warp_acc) = (self.at(TensorId::ATt, p), self.at(TensorId::WarpAcc, p));
+            let (a_t, warp_acc) = (self.at(TensorId::ACur, p), self.at(TensorId::WarpAcc, p));
             encoder.copy_buffer_to_buffer(&a_t.buffer, 0, &warp_acc.buffer, 0, a_t.bytes());
             let valid = self.at(TensorId::WarpValid, p);
             encoder.copy_buffer_to_buffer(&self.ones.buffer, 0, &valid.buffer, 0, self.ones.bytes());
