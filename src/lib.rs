@@ -4,9 +4,12 @@
 //! denoiser ("High-Quality Real-Time Rendering Using Subpixel Sampling Reconstruction"),
 //! with every kernel hand-written in WGSL on wgpu.
 //!
-//! - [`gpu`]: device context, kernel registry, timestamp profiler.
-//! - [`nn`]: GPU tensors, the network kernels and their CPU references.
-//! - [`ssr`]: the SSR network, its weights and the embeddable [`ssr::Denoiser`].
+//! - [`gpu`]: device context, kernel registry (WGSL templates, dispatch grids, the
+//!   [`gpu::Bound`] caching policy), timestamp profiler.
+//! - [`nn`]: GPU tensors, the network kernels (the conv3x3 family and its per-adapter
+//!   autotuner) and their CPU references.
+//! - [`ssr`]: the SSR network (declared once in [`ssr::graph`]), its weights and the
+//!   embeddable [`ssr::Denoiser`].
 //! - [`render`]: the 1/4-spp path tracer, its scenes and G-buffers.
 //! - [`io`]: EXR frames, PNG previews, frame folders.
 //! - [`metrics`]: image quality metrics; [`view`]: showing tensors on screen.
@@ -30,7 +33,7 @@
 //!                     |     shadow, transparent, depth, metallic, roughness, motion
 //!                     v
 //!        frame::FrameInputs (borrowed GPU buffers; the user's own buffers work the same)
-//!                     |  ssr::Denoiser (the network: gpu kernels from nn, weights from ssr)
+//!                     |  ssr::Denoiser (ssr::graph's steps on nn kernels, autotuned per adapter)
 //!                     v
 //!        denoised radiance ----> io (EXR, PNG), metrics, view (display)
 //! ```
