@@ -14,7 +14,7 @@
 //! - [`io`]: EXR frames, PNG previews, frame folders.
 //! - [`metrics`]: image quality metrics; [`view`]: showing tensors on screen.
 //! - [`frame`]: the per-frame data contract: a frame in host memory and on the GPU.
-//! - [`cli`], [`bench`]: the `subpixel` command and its benchmarks (front ends).
+//! - [`cli`], [`bench`](mod@bench): the `subpixel` command and its benchmarks (front ends).
 //!
 //! ## Data flow
 //!

@@ -170,7 +170,7 @@ fn first_existing(candidates: &[PathBuf], from_env: bool) -> Result<PathBuf> {
 }
 
 /// The default weights file (no `--weights`): `$SUBPIXEL_WEIGHTS`, else the first of the
-/// places [`weights_candidates`] lists that exists; the error lists them all.
+/// places `weights_candidates` lists that exists; the error lists them all.
 pub fn default_weights_path() -> Result<PathBuf> {
     let env = std::env::var_os(WEIGHTS_ENV)
         .filter(|v| !v.is_empty())

@@ -78,7 +78,7 @@ impl HostFrame {
         Ok((w, h))
     }
 
-    /// The six packed `vec4` buffers of [`FrameInputs`], in its field order.
+    /// The six packed `vec4` buffers of [`FrameInputs`](super::FrameInputs), in its field order.
     pub fn pack(&self) -> Result<[Vec<[f32; 4]>; 6]> {
         let (w, h) = self.size()?;
         let n = (w * h) as usize;

@@ -1,6 +1,6 @@
-//! Loading scenes from files, one module per format: [`gltf`] (glTF 2.0, `.gltf` and
-//! `.glb`), [`sidecar`] (the `scene.json` of `scenes/README.md`: environment map, camera,
-//! film, optional camera path) and [`environment`] (lat-long environment maps). This module
+//! Loading scenes from files, one module per format: `gltf` (glTF 2.0, `.gltf` and
+//! `.glb`), `sidecar` (the `scene.json` of `scenes/README.md`: environment map, camera,
+//! film, optional camera path) and `environment` (lat-long environment maps). This module
 //! picks the loader for a scene specification.
 
 mod environment;
