@@ -76,7 +76,7 @@ impl std::fmt::Debug for Gpu {
 impl Gpu {
     /// Picks the best adapter (discrete > integrated > CPU), honouring `WGPU_BACKEND` and
     /// `WGPU_ADAPTER_NAME`, and creates a device with the adapter's real limits and the
-    /// optional features in `WANTED_FEATURES` (SHADER_F16, timestamp queries) it offers.
+    /// optional features in `WANTED_FEATURES` (f16, subgroups, timestamp queries) it offers.
     pub fn new() -> Result<Self> {
         Self::with_options(&GpuOptions::default())
     }
