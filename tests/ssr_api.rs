@@ -118,6 +118,48 @@ fn random_frame(w: u32, h: u32, seed: u64) -> HostFrame {
     }
 }
 
+/// Issue 13: transient tensors (hidden layers, pooled and resampled copies) share memory
+/// by lifetime. Expectation from the graph's shapes alone: the network holds more than its
+/// persistent tensors and less than all tensors apart; transient ones are not exposed.
+#[test]
+fn transient_tensors_share_memory() {
+    use subpixel::ssr::graph::{Extent, TensorId};
+    let gpu = common::gpu();
+    let weights = Weights::load(golden_weights_path()).unwrap();
+    let (w, h) = (32u32, 24u32);
+    let den = Denoiser::with_gpu(&gpu, &weights, w, h).unwrap();
+    let net = den.network();
+    let bytes = |id: TensorId| {
+        let (extent, c) = id.shape(&net.config);
+        let px = match extent {
+            Extent::Level(l) => ((w >> l) * (h >> l)) as u64,
+            Extent::Single => 1,
+            Extent::ExposureGroups => 0, // a few bytes; left out of both bounds
+        };
+        px * c.div_ceil(4) as u64 * 16
+    };
+    let all: u64 = TensorId::ALL.iter().map(|&id| bytes(id)).sum();
+    let persistent: u64 = TensorId::ALL
+        .iter()
+        .filter(|id| !id.is_transient())
+        .map(|&id| bytes(id))
+        .sum();
+    let held = net.memory_bytes();
+    assert!(
+        held > persistent && held < all,
+        "held {held}, persistent {persistent}, all apart {all}"
+    );
+    // ref_hidden, emb_hidden_cur and emb_hidden_prev (same shape, one after the other)
+    // take one buffer: at least two of them saved (`held` also has the 1-channel `ones`).
+    let ones = (w * h) as u64 * 16;
+    let hidden = bytes(TensorId::RefHidden);
+    assert!(
+        all + ones - held >= 2 * hidden,
+        "held {held} of {all}, hidden {hidden}"
+    );
+    assert!(net.tensor("enc1_hidden").is_none() && net.tensor("enc1").is_some());
+}
+
 #[test]
 fn odd_sizes_are_padded_internally() {
     let gpu = common::gpu();

@@ -50,8 +50,10 @@ pub struct DenoiseBench {
     pub fraction_of_peak: Option<f64>,
     /// Each convolution layer and its kernel (autotuned or fixed).
     pub conv_kernels: Vec<(String, String)>,
-    /// Compute passes per frame in production (one per stage) and dispatches per frame.
+    /// Dispatches per frame.
     pub dispatches: usize,
+    /// Bytes of GPU memory the network's tensors hold (transient tensors share memory).
+    pub tensor_bytes: u64,
     /// The GPU the roofline model describes.
     pub model: GpuModel,
     /// Every pass of a frame in the roofline model.
@@ -191,6 +193,7 @@ pub fn bench_denoise(
             .map(|(n, k)| (n.to_string(), k.to_string()))
             .collect(),
         dispatches: costs.len(),
+        tensor_bytes: den.network().memory_bytes(),
         model: model.clone(),
         modelled,
         modelled_ms,
@@ -260,7 +263,11 @@ pub fn table(b: &DenoiseBench) -> String {
             .unwrap_or_default()
     );
     s += &format!(
-        "\nconv kernels: {}\n",
+        "\nnetwork tensors: {:.1} MB of GPU memory (transient tensors share it by lifetime)\n",
+        b.tensor_bytes as f64 * 1e-6
+    );
+    s += &format!(
+        "conv kernels: {}\n",
         b.conv_kernels
             .iter()
             .map(|(n, k)| format!("{n} {k}"))

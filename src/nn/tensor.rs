@@ -73,6 +73,18 @@ impl Tensor {
         })
     }
 
+    /// Another handle to the same memory, for a tensor of the same shape whose lifetime
+    /// does not overlap this one's (the network's memory sharing).
+    pub fn share(&self) -> Self {
+        Self {
+            buffer: self.buffer.clone(),
+            width: self.width,
+            height: self.height,
+            channels: self.channels,
+            dtype: self.dtype,
+        }
+    }
+
     /// Uploads a host tensor (padding its channels).
     pub fn from_host(gpu: &Gpu, label: &str, host: &HostTensor) -> Result<Self> {
         let t = Self::new(gpu, label, host.width, host.height, host.channels)?;

@@ -127,6 +127,31 @@ pub enum Extent {
 }
 
 impl TensorId {
+    /// Whether only the steps of a frame use it (hidden layers, pooled, upsampled and
+    /// downsampled copies): the network lets such tensors share memory when their
+    /// lifetimes within the frame do not overlap, and does not expose them after it.
+    pub fn is_transient(self) -> bool {
+        use TensorId::*;
+        matches!(
+            self,
+            RefHidden
+                | EmbHiddenCur
+                | EmbHiddenPrev
+                | Enc1Hidden
+                | Enc2Hidden
+                | Enc3Hidden
+                | Dec3Hidden
+                | Dec2Hidden
+                | Dec1Hidden
+                | Pool1
+                | Pool2
+                | Up3
+                | Up2
+                | Wo2
+                | Wo4
+        )
+    }
+
     /// Its extent and channel count under `config`.
     pub fn shape(self, config: &SsrConfig) -> (Extent, u32) {
         use Extent::*;

@@ -119,14 +119,45 @@ impl Network {
             let (w, h, c) = dims(id);
             Tensor::new(gpu, label, w, h, c)
         };
-        let mut tensors = BTreeMap::new();
-        for &id in TensorId::ALL {
-            if !matches!(
+        let specs = graph::steps(&config)?;
+        // Lifetimes within a frame (first and last step using each tensor): a transient
+        // tensor takes the memory of an earlier one of the same shape that is dead by then.
+        let mut life: BTreeMap<TensorId, (usize, usize)> = BTreeMap::new();
+        for (i, s) in specs.iter().enumerate() {
+            for &id in &s.tensors {
+                life.entry(id).and_modify(|l| l.1 = i).or_insert((i, i));
+            }
+        }
+        let mut tensors: BTreeMap<TensorId, Tensor> = BTreeMap::new();
+        // Shared memory: (the tensor that owns it, last step of its current occupant).
+        let mut slots: Vec<(TensorId, usize)> = Vec::new();
+        let mut order: Vec<TensorId> = TensorId::ALL.to_vec();
+        order.sort_by_key(|id| life.get(id).map_or(0, |l| l.0));
+        for id in order {
+            if matches!(
                 id,
                 TensorId::AAcc | TensorId::AAccPrev | TensorId::O | TensorId::OPrev
             ) {
-                tensors.insert(id, alloc(id, id.name())?);
+                continue;
             }
+            let transient = life.get(&id).copied().filter(|_| id.is_transient());
+            let shared = transient.and_then(|(first, last)| {
+                let slot = slots
+                    .iter_mut()
+                    .find(|(owner, free_after)| *free_after < first && dims(*owner) == dims(id))?;
+                slot.1 = last;
+                Some(slot.0)
+            });
+            let t = match shared {
+                Some(owner) => tensors[&owner].share(),
+                None => {
+                    if let Some((_, last)) = transient {
+                        slots.push((id, last));
+                    }
+                    alloc(id, id.name())?
+                }
+            };
+            tensors.insert(id, t);
         }
         let a_acc = [
             alloc(TensorId::AAcc, "a_acc.0")?,
@@ -138,7 +169,6 @@ impl Network {
         let unit = HostTensor::from_vec(1, 1, 2 * RGB, vec![1.0; 2 * RGB as usize]);
         tensors[&TensorId::Exposure].write(gpu, &unit)?;
         tensors[&TensorId::ExposureRatio].write(gpu, &unit)?;
-        let specs = graph::steps(&config)?;
         let mut net = Self {
             config,
             width,
@@ -246,13 +276,33 @@ impl Network {
     }
 
     /// A tensor of the last recorded frame by name ([`INTERMEDIATES`], or any
-    /// [`TensorId::name`]).
+    /// [`TensorId::name`] that is not transient: transient tensors share memory, so their
+    /// contents after the frame are not theirs).
     pub fn tensor(&self, name: &str) -> Option<&Tensor> {
         let cur = 1 - self.parity; // parity was advanced after recording
         TensorId::ALL
             .iter()
-            .find(|id| id.name() == name)
+            .find(|id| id.name() == name && !id.is_transient())
             .map(|&id| self.at(id, cur))
+    }
+
+    /// Bytes of GPU memory the network's tensors hold (shared memory counted once; the
+    /// weights not included).
+    pub fn memory_bytes(&self) -> u64 {
+        let mut seen: Vec<&wgpu::Buffer> = Vec::new();
+        let all = self
+            .tensors
+            .values()
+            .chain(&self.a_acc)
+            .chain(&self.o)
+            .chain([&self.ones]);
+        all.filter(|t| {
+            let new = !seen.contains(&&t.buffer);
+            seen.push(&t.buffer);
+            new
+        })
+        .map(|t| t.bytes())
+        .sum()
     }
 
     /// Records one frame. `first` means there is no history (first frame, camera cut,
