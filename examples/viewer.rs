@@ -20,7 +20,7 @@ use std::time::Instant;
 use anyhow::{Context, Result};
 use clap::Parser;
 use glam::Vec3;
-use subpixel::gpu::{AdapterKind, Gpu, Profiler};
+use subpixel::gpu::{AdapterKind, Bound, Dispatch, Gpu, Profiler};
 use subpixel::nn::{Tensor, ops};
 use subpixel::render::{Camera, CameraPath, FrameSettings, GpuScene, Mode, Tracer, load_scene};
 use subpixel::ssr::{Denoiser, Granularity, Weights};
@@ -55,12 +55,15 @@ struct Args {
     /// Screenshot path (F12, or at exit with --frames).
     #[arg(long, default_value = "subpixel-screenshot.png")]
     screenshot: PathBuf,
-    /// Start with the split input | SSR view.
+    /// Start with the split input | SSR view (the same as `--view split`).
     #[arg(long)]
     split: bool,
+    /// Start with this view (keys 1-9 and 0 switch views later).
+    #[arg(long, value_enum)]
+    view: Option<ViewKind>,
 }
 
-#[derive(Clone, Copy, PartialEq, Eq, Debug)]
+#[derive(Clone, Copy, PartialEq, Eq, Debug, clap::ValueEnum)]
 enum ViewKind {
     Input,
     Ssr,
@@ -138,6 +141,8 @@ struct Frame {
     reference: Tensor,
     reference_shadow: Tensor,
     reference_spp: u32,
+    /// The reference trace, bound once per scene; its parameters change every frame.
+    reference_trace: Bound<wgpu::Buffer, Dispatch>,
 }
 
 struct App {
@@ -185,6 +190,7 @@ impl App {
             reference: Tensor::new(&self.gpu, "viewer.reference", rw, rh, 4)?,
             reference_shadow: Tensor::new(&self.gpu, "viewer.reference_shadow", rw, rh, 4)?,
             reference_spp: 0,
+            reference_trace: Bound::new(),
         })
     }
 
@@ -235,13 +241,13 @@ impl App {
                 seed: 7 + self.index,
                 ..settings
             };
-            let d = frame.tracer.trace_dispatch(
-                &self.scene,
-                &s,
-                [frame.reference_spp, 1],
-                &frame.reference,
-                &frame.reference_shadow,
-            )?;
+            let accum = [frame.reference_spp, 1];
+            let d = frame.reference_trace.get_or_build(self.scene.nodes.clone(), || {
+                frame
+                    .tracer
+                    .trace_dispatch(&self.scene, &s, accum, &frame.reference, &frame.reference_shadow)
+            })?;
+            frame.tracer.write_params(d, &s, accum);
             d.encode(&mut enc);
             frame.reference_spp += 1;
         }
@@ -525,11 +531,11 @@ fn main() -> Result<()> {
     let event_loop = EventLoop::new()?;
     event_loop.set_control_flow(ControlFlow::Poll);
     let mut app = App {
-        view: if args.split {
+        view: args.view.unwrap_or(if args.split {
             ViewKind::Split
         } else {
             ViewKind::Ssr
-        },
+        }),
         profiler: Profiler::new(&gpu, 16),
         fly: Fly::new(scene.camera, extent),
         playing: path.is_some() && args.frames.is_some(),

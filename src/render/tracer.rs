@@ -380,6 +380,14 @@ impl Tracer {
         )
     }
 
+    /// Rewrites the parameters of a dispatch made by [`Tracer::trace_dispatch`] (or
+    /// [`Tracer::gbuffer_dispatch`]) for frame `s` and accumulation `accum`, so a caller
+    /// binds it once ([`crate::gpu::Bound`]) and replays it every frame; like
+    /// [`Dispatch::write_params`], it takes effect at the next submission.
+    pub fn write_params(&self, d: &Dispatch, s: &FrameSettings, accum: [u32; 2]) {
+        d.write_params(&self.gpu.queue, bytemuck::bytes_of(&self.params(s, accum)));
+    }
+
     fn pass(encoder: &mut wgpu::CommandEncoder, d: &Dispatch, profiler: Option<&mut Profiler>, label: &str) {
         d.record(&mut Profiler::pass(encoder, label, profiler));
     }
@@ -411,10 +419,9 @@ impl Tracer {
         // (Taken out so the build can borrow the tracer; put back before any return.)
         self.frame_dispatches = dispatches;
         built?;
-        let params = self.params(s, [0, 1]);
         let (gb, tr) = self.frame_dispatches.get().expect("built above");
-        gb.write_params(&self.gpu.queue, bytemuck::bytes_of(&params));
-        tr.write_params(&self.gpu.queue, bytemuck::bytes_of(&params));
+        self.write_params(gb, s, [0, 1]);
+        self.write_params(tr, s, [0, 1]);
         encoder.clear_buffer(&self.counters, 0, None);
         Self::pass(encoder, gb, profiler.as_deref_mut(), "gbuffer");
         Self::pass(encoder, tr, profiler, "trace");
