@@ -1,0 +1,53 @@
+"""Tests for bench_vs_torch.py: the ratio it prints comes from the two benchmarks' own
+medians (stand-in engine binary and PyTorch results with known times), and a missing binary
+is an error naming it."""
+
+import json
+import os
+import stat
+
+import pytest
+
+import bench_vs_torch as bvt
+
+
+def _fake_engine(tmp_path, times):
+    """A stand-in `subpixel` that prints `bench denoise --json` output, one time per call."""
+    counter = tmp_path / "calls"
+    counter.write_text("0")
+    script = tmp_path / "subpixel"
+    script.write_text(
+        "#!/usr/bin/env python3\n"
+        "import json, pathlib\n"
+        f"c = pathlib.Path({str(counter)!r}); n = int(c.read_text()); c.write_text(str(n + 1))\n"
+        f"times = {times!r}\n"
+        "print(json.dumps({'total_ms': times[n], 'adapter': 'stand-in adapter'}))\n"
+    )
+    script.chmod(script.stat().st_mode | stat.S_IXUSR)
+    return script
+
+
+def test_ratio_is_median_engine_over_median_torch(tmp_path, monkeypatch, capsys):
+    engine = _fake_engine(tmp_path, [30.0, 10.0, 20.0])
+    torch_times = iter([4.0, 6.0, 5.0])
+
+    def fake_torch(python, weights, w, h, frames, device):
+        return {"results": [{"stages": {"total": {"median_ms": next(torch_times)}}}],
+                "device_name": "stand-in CPU", "torch": "0"}
+
+    monkeypatch.setattr(bvt, "run_torch", fake_torch)
+    weights = tmp_path / "w.safetensors"
+    weights.write_bytes(b"x")
+    out_json = tmp_path / "r.json"
+    assert bvt.main(["--bin", str(engine), "--weights", str(weights), "--rounds", "3", "--json", str(out_json)]) == 0
+    out = capsys.readouterr().out
+    # Medians: engine 20, PyTorch 5 -> 4.00.
+    assert "engine 20.00 ms, PyTorch 5.00 ms, engine / PyTorch = 4.00" in out
+    assert json.loads(out_json.read_text())["ratio"] == pytest.approx(4.0)
+
+
+def test_missing_binary_is_named(tmp_path, capsys):
+    missing = tmp_path / "no-such-subpixel"
+    with pytest.raises(SystemExit):
+        bvt.main(["--bin", str(missing)])
+    assert str(missing) in capsys.readouterr().err
