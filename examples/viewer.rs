@@ -20,10 +20,11 @@ use std::time::Instant;
 use anyhow::{Context, Result};
 use clap::Parser;
 use glam::Vec3;
+use subpixel::frame_loop::FrameLoop;
 use subpixel::gpu::{AdapterKind, Bound, Dispatch, Gpu, Profiler};
 use subpixel::nn::{Tensor, ops};
-use subpixel::render::{Camera, CameraPath, FrameSettings, GpuScene, Mode, Tracer, load_scene};
-use subpixel::ssr::{Denoiser, Granularity, Weights};
+use subpixel::render::{Camera, CameraPath, FrameSettings, GpuScene, Mode, load_scene};
+use subpixel::ssr::Weights;
 use subpixel::view::{Display, DisplayMode, View};
 use winit::application::ApplicationHandler;
 use winit::event::{ElementState, MouseButton, MouseScrollDelta, WindowEvent};
@@ -134,8 +135,8 @@ impl Fly {
 
 /// Everything that depends on the render size.
 struct Frame {
-    tracer: Tracer,
-    denoiser: Denoiser,
+    /// The path tracer and the denoiser.
+    fl: FrameLoop,
     display: Display,
     accumulated: Tensor,
     reference: Tensor,
@@ -183,8 +184,7 @@ impl App {
     fn make_frame(&self, w: u32, h: u32) -> Result<Frame> {
         let (rw, rh) = self.render_size(w, h);
         Ok(Frame {
-            tracer: Tracer::new(&self.gpu, rw, rh)?,
-            denoiser: Denoiser::with_gpu(&self.gpu, &self.weights, rw, rh)?,
+            fl: FrameLoop::new(&self.gpu, &self.weights, rw, rh)?,
             display: Display::new(&self.gpu, w, h)?,
             accumulated: Tensor::new(&self.gpu, "viewer.accumulated", rw, rh, 3)?,
             reference: Tensor::new(&self.gpu, "viewer.reference", rw, rh, 4)?,
@@ -225,13 +225,9 @@ impl App {
         };
         let mut enc = self.gpu.device.create_command_encoder(&Default::default());
         frame
-            .tracer
-            .encode_frame(&mut enc, &self.scene, &settings, Some(&mut self.profiler))?;
-        let b = &frame.tracer.buffers;
-        let inputs = b.inputs();
-        frame
-            .denoiser
-            .denoise_profiled(&mut enc, &inputs, Some(&mut self.profiler), Granularity::Stage)?;
+            .fl
+            .encode(&mut enc, &self.scene, &settings, Some(&mut self.profiler))?;
+        let b = &frame.fl.tracer.buffers;
         if moved {
             frame.reference_spp = 0;
         }
@@ -243,21 +239,25 @@ impl App {
             };
             let accum = [frame.reference_spp, 1];
             let d = frame.reference_trace.get_or_build(self.scene.nodes.clone(), || {
-                frame
-                    .tracer
-                    .trace_dispatch(&self.scene, &s, accum, &frame.reference, &frame.reference_shadow)
+                frame.fl.tracer.trace_dispatch(
+                    &self.scene,
+                    &s,
+                    accum,
+                    &frame.reference,
+                    &frame.reference_shadow,
+                )
             })?;
-            frame.tracer.write_params(d, &s, accum);
+            frame.fl.tracer.write_params(d, &s, accum);
             d.encode(&mut enc);
             frame.reference_spp += 1;
         }
         if self.view == ViewKind::Accumulated {
-            let net = frame.denoiser.network();
+            let net = frame.fl.denoiser.network();
             let a_acc = net.tensor("a_acc").expect("a_acc exists");
             let exposure = net.tensor("exposure").expect("exposure exists");
             ops::remodulate(&self.gpu, a_acc, a_acc, 3, exposure, &frame.accumulated)?.encode(&mut enc);
         }
-        let net = frame.denoiser.network();
+        let net = frame.fl.denoiser.network();
         let ssr = net.output();
         let (src, other, mode, first, channels): (&Tensor, Option<&Tensor>, DisplayMode, u32, u32) =
             match self.view {
@@ -281,8 +281,8 @@ impl App {
             "{:?}  {:.1} fps  {}x{}  {}",
             self.view,
             fps,
-            frame.tracer.width(),
-            frame.tracer.height(),
+            frame.fl.tracer.width(),
+            frame.fl.tracer.height(),
             self.gpu.info.name
         )];
         let stages = ["gbuffer", "trace", "pack", "tfa", "unet", "output"];

@@ -14,6 +14,8 @@
 //! - [`io`]: EXR frames, PNG previews, frame folders.
 //! - [`metrics`]: image quality metrics; [`view`]: showing tensors on screen.
 //! - [`frame`]: the per-frame data contract: a frame in host memory and on the GPU.
+//! - [`frame_loop`]: the product's frame (trace at 1/4 spp, then SSR, in one command
+//!   buffer), joining `render` and `ssr`.
 //! - [`cli`], [`bench`](mod@bench): the `subpixel` command and its benchmarks (front ends).
 //!
 //! ## Data flow
@@ -44,6 +46,7 @@ pub mod bench;
 pub mod cli;
 pub mod error;
 pub mod frame;
+pub mod frame_loop;
 pub mod gpu;
 pub mod io;
 pub mod metrics;

@@ -1,9 +1,10 @@
 //! `subpixel bench` (and `bench frame`): the whole frame, path tracer + SSR, per stage.
 
 use crate::error::Result;
+use crate::frame_loop::FrameLoop;
 use crate::gpu::{Gpu, Profiler, Stats};
-use crate::render::{CameraPath, FrameSettings, GpuScene, Mode, Scene, Tracer};
-use crate::ssr::{Denoiser, Granularity, Weights};
+use crate::render::{FrameSettings, GpuScene, Mode, Scene};
+use crate::ssr::Weights;
 
 /// Stages of a frame, in order.
 pub const STAGES: [&str; 6] = ["gbuffer", "trace", "pack", "tfa", "unet", "output"];
@@ -42,29 +43,16 @@ pub fn bench_frame(
     mode: Mode,
     (warmup, frames): (u32, u32),
 ) -> Result<FrameBench> {
-    let mut tracer = Tracer::new(gpu, w, h)?;
-    tracer.compile()?;
-    let mut den = Denoiser::with_gpu(gpu, weights, w, h)?;
+    let mut fl = FrameLoop::new(gpu, weights, w, h)?;
+    fl.tracer.compile()?;
     let n = warmup + frames;
-    let path = CameraPath::checked(
-        &"orbit".parse().expect("known path"),
-        &scene.camera,
-        1,
-        n,
-        &gs.bvh,
-    )
-    .map_err(|e| crate::error::Error::Invalid(format!("scene {}: {e}", scene.name)))?;
-    let eyes: Vec<_> = (0..n).map(|f| path.camera(f).position).collect();
-    let far = scene.far_distance(eyes.iter().chain([&scene.camera.position]));
+    let (path, far) = scene.camera_path(&"orbit".parse().expect("known path"), 1, n, 0, &gs.bvh)?;
     let mut prof = Profiler::new(gpu, 16);
     let mut walls = Vec::new();
     for f in 0..n {
         let s = FrameSettings::along(&path, f, mode, 1, far);
         let mut enc = gpu.device.create_command_encoder(&Default::default());
-        tracer.encode_frame(&mut enc, gs, &s, Some(&mut prof))?;
-        let b = &tracer.buffers;
-        let inputs = b.inputs();
-        den.denoise_profiled(&mut enc, &inputs, Some(&mut prof), Granularity::Stage)?;
+        fl.encode(&mut enc, gs, &s, Some(&mut prof))?;
         let wall = prof.submit(gpu, enc, None)?;
         if f + 1 == warmup {
             prof.clear();
@@ -81,7 +69,7 @@ pub fn bench_frame(
     } else {
         Stats::from_samples(&walls).map(|s| s.median_ms).unwrap_or(0.0)
     };
-    let ssr_flops: u64 = den.network().step_costs().iter().map(|c| c.flops).sum();
+    let ssr_flops: u64 = fl.denoiser.network().step_costs().iter().map(|c| c.flops).sum();
     let ssr_ms: f64 = stages
         .iter()
         .filter(|(n, _)| n == "tfa" || n == "unet")

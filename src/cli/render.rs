@@ -12,7 +12,7 @@ use crate::gpu::Gpu;
 use crate::io::exr::FrameFile;
 use crate::nn::HostTensor;
 use crate::render::backend::{Backend, FrameRenderer};
-use crate::render::camera::{CameraPath, CameraPathSpec};
+use crate::render::camera::CameraPathSpec;
 use crate::render::scene::Scene;
 use crate::render::tracer::{DEFAULT_MAX_DEPTH, FrameSettings, Mode};
 
@@ -179,12 +179,7 @@ pub fn render_command(args: &RenderArgs) -> Result<()> {
             .unwrap_or_else(|| "none".into())
     );
     let spec = path_for(&scene, &args.path, &args.fallback_path, end_frame);
-    let path = CameraPath::checked(&spec, &scene.camera, args.seed, end_frame, &packed.bvh)
-        .map_err(|e| anyhow::anyhow!("scene {}: {e}", scene.name))?;
-    let horizon: Vec<_> = (0..FAR_HORIZON.max(end_frame))
-        .map(|f| path.camera(f).position)
-        .collect();
-    let far = scene.far_distance(horizon.iter().chain([&scene.camera.position]));
+    let (path, far) = scene.camera_path(&spec, args.seed, end_frame, FAR_HORIZON, &packed.bvh)?;
     write_sequence_json(args, &scene, &spec, w, h, far)?;
 
     let bar = indicatif::ProgressBar::new(args.frames as u64);

@@ -5,11 +5,12 @@ use std::path::PathBuf;
 
 use anyhow::{Context, Result, bail};
 
+use crate::frame_loop::FrameLoop;
 use crate::gpu::{AdapterKind, Gpu, Profiler};
 use crate::io::png::{scale_for_height, write_png_row_scaled};
 use crate::metrics;
-use crate::render::{Backend, CameraPath, FrameRenderer, FrameSettings, GpuScene, Mode, Tracer, load_scene};
-use crate::ssr::{Denoiser, Granularity, Weights};
+use crate::render::{Backend, FrameRenderer, FrameSettings, GpuScene, Mode, load_scene};
+use crate::ssr::Weights;
 
 /// The smallest height of the main job's preview images, in pixels.
 pub const PREVIEW_MIN_HEIGHT: u32 = 256;
@@ -84,18 +85,9 @@ pub(super) fn run(a: &RunArgs) -> Result<()> {
     let scene = load_scene(&a.scene)?;
     scene.warn_approximations();
     let gs = GpuScene::new(&gpu, &scene)?;
-    let path = CameraPath::checked(
-        &"flythrough".parse().expect("known path"),
-        &scene.camera,
-        a.seed,
-        a.frames,
-        &gs.bvh,
-    )
-    .map_err(|e| anyhow::anyhow!("scene {}: {e}", scene.name))?;
-    let eyes: Vec<_> = (0..a.frames).map(|f| path.camera(f).position).collect();
-    let far = scene.far_distance(eyes.iter().chain([&scene.camera.position]));
-    let mut tracer = Tracer::new(&gpu, w, h)?;
-    let mut den = Denoiser::with_gpu(&gpu, &weights, w, h)?;
+    let flythrough = "flythrough".parse().expect("known path");
+    let (path, far) = scene.camera_path(&flythrough, a.seed, a.frames, 0, &gs.bvh)?;
+    let mut frames = FrameLoop::new(&gpu, &weights, w, h)?;
     let mut reference = FrameRenderer::new(&scene, a.backend, Some(&gpu), w, h)?;
     println!("references: {} backend", reference.backend().name());
     std::fs::create_dir_all(&a.out).with_context(|| format!("cannot create {}", a.out.display()))?;
@@ -110,14 +102,11 @@ pub(super) fn run(a: &RunArgs) -> Result<()> {
         let settings = FrameSettings::along(&path, f, Mode::Quarter, a.seed as u32, far);
         let t0 = std::time::Instant::now();
         let mut enc = gpu.device.create_command_encoder(&Default::default());
-        tracer.encode_frame(&mut enc, &gs, &settings, Some(&mut prof))?;
-        let b = &tracer.buffers;
-        let inputs = b.inputs();
-        den.denoise_profiled(&mut enc, &inputs, Some(&mut prof), Granularity::Stage)?;
+        frames.encode(&mut enc, &gs, &settings, Some(&mut prof))?;
         prof.submit(&gpu, enc, None)?;
         walls.push(t0.elapsed().as_secs_f64() * 1e3);
-        let input = tracer.buffers.download(&gpu)?.color;
-        let ssr = den.read_output()?;
+        let input = frames.tracer.buffers.download(&gpu)?.color;
+        let ssr = frames.denoiser.read_output()?;
         let rref = reference.reference(&settings, spp)?.mean(spp);
         write_png_row_scaled(
             &a.out.join(format!("frame_{f:04}.png")),

@@ -6,7 +6,7 @@ use std::path::PathBuf;
 
 use glam::{Mat3, Vec2, Vec3, Vec4};
 
-use super::camera::{Camera, CameraPathSpec};
+use super::camera::{Camera, CameraPath, CameraPathSpec, RayProbe};
 use crate::error::{Error, Result};
 
 /// Texture coordinate wrap mode (glTF sampler).
@@ -478,6 +478,27 @@ impl Scene {
             .map(|e| e.distance(centre) + radius)
             .fold(radius.max(1e-6), f32::max);
         far.max(1e-6)
+    }
+
+    /// The camera path `spec` from the scene's camera, checked against its geometry
+    /// (`probe`: the CPU BVH, e.g. of its [`super::PackedScene`], before any upload), and
+    /// the [`Scene::far_distance`] covering the scene camera and the path's first
+    /// `horizon.max(frames)` eyes. An error names the scene and what is wrong with the path.
+    pub fn camera_path(
+        &self,
+        spec: &CameraPathSpec,
+        seed: u64,
+        frames: u32,
+        horizon: u32,
+        probe: &dyn RayProbe,
+    ) -> Result<(CameraPath, f32)> {
+        let path = CameraPath::checked(spec, &self.camera, seed, frames, probe)
+            .map_err(|e| Error::Invalid(format!("scene {}: {e}", self.name)))?;
+        let eyes: Vec<Vec3> = (0..horizon.max(frames))
+            .map(|f| path.camera(f).position)
+            .collect();
+        let far = self.far_distance(eyes.iter().chain([&self.camera.position]));
+        Ok((path, far))
     }
 
     /// Logs the approximations made while loading, as one warning.

@@ -1,0 +1,69 @@
+//! The product's frame: a scene traced at a quarter sample per pixel and reconstructed by
+//! SSR, both recorded into one command buffer. `subpixel run`, `subpixel bench frame` and
+//! the example viewer drive it; the data contract between its two halves is [`crate::frame`]
+//! (the tracer writes [`crate::render::FrameBuffers`], the denoiser reads them as
+//! [`crate::frame::FrameInputs`]), so neither [`crate::render`] nor [`crate::ssr`] imports
+//! the other: this module joins them.
+//!
+//! ```no_run
+//! # fn main() -> subpixel::Result<()> {
+//! use subpixel::frame_loop::FrameLoop;
+//! use subpixel::gpu::{Gpu, Profiler};
+//! use subpixel::render::{FrameSettings, GpuScene, Mode, load_scene};
+//! use subpixel::ssr::Weights;
+//! let gpu = Gpu::new()?;
+//! let scene = load_scene("builtin:cornell")?;
+//! let gs = GpuScene::new(&gpu, &scene)?;
+//! let (path, far) = scene.camera_path(&subpixel::render::CameraPathSpec::Static, 1, 8, 0, &gs.bvh)?;
+//! let mut frames = FrameLoop::new(&gpu, &Weights::load("weights/ssr.safetensors")?, 128, 128)?;
+//! let mut profiler = Profiler::new(&gpu, 16);
+//! for f in 0..8 {
+//!     let s = FrameSettings::along(&path, f, Mode::Quarter, 1, far);
+//!     let mut encoder = gpu.device.create_command_encoder(&Default::default());
+//!     frames.encode(&mut encoder, &gs, &s, Some(&mut profiler))?;
+//!     profiler.submit(&gpu, encoder, None)?;
+//! }
+//! let denoised = frames.denoiser.read_output()?; // linear HDR, 128x128x3
+//! # Ok(()) }
+//! ```
+
+use crate::error::Result;
+use crate::gpu::{Gpu, Profiler};
+use crate::render::{FrameSettings, GpuScene, Tracer};
+use crate::ssr::{Denoiser, Granularity, Weights};
+
+/// The path tracer and the denoiser of one render size.
+pub struct FrameLoop {
+    /// The 1/4-spp path tracer (its buffers hold the last frame's samples and G-buffers).
+    pub tracer: Tracer,
+    /// The SSR denoiser (its output holds the last frame's reconstruction).
+    pub denoiser: Denoiser,
+}
+
+impl FrameLoop {
+    /// A tracer and a denoiser (with `weights`) for `width x height` frames.
+    pub fn new(gpu: &Gpu, weights: &Weights, width: u32, height: u32) -> Result<Self> {
+        Ok(Self {
+            tracer: Tracer::new(gpu, width, height)?,
+            denoiser: Denoiser::with_gpu(gpu, weights, width, height)?,
+        })
+    }
+
+    /// Records frame `s` of `scene` into `encoder`: the tracer's `gbuffer` and `trace`
+    /// passes, then the denoiser's `pack`, `tfa`, `unet` and `output` passes, each timed by
+    /// `profiler` when given. Submit the encoder (e.g. [`Profiler::submit`]) to run it.
+    pub fn encode(
+        &mut self,
+        encoder: &mut wgpu::CommandEncoder,
+        scene: &GpuScene,
+        s: &FrameSettings,
+        mut profiler: Option<&mut Profiler>,
+    ) -> Result<()> {
+        self.tracer
+            .encode_frame(encoder, scene, s, profiler.as_deref_mut())?;
+        let inputs = self.tracer.buffers.inputs();
+        self.denoiser
+            .denoise_profiled(encoder, &inputs, profiler, Granularity::Stage)?;
+        Ok(())
+    }
+}
