@@ -160,6 +160,33 @@ fn transient_tensors_share_memory() {
     assert!(net.tensor("enc1_hidden").is_none() && net.tensor("enc1").is_some());
 }
 
+/// Issue 14: a fixed kernel runs every layer it can and the generic kernel the others; a
+/// tiling no layer can run (too many accumulators) leaves every layer on the generic one.
+/// Both give the autotuned denoiser's output to the parity tolerance.
+#[test]
+fn fixed_kernels_fall_back_to_generic_where_they_cannot_run() {
+    use subpixel::nn::autotune::KernelChoice;
+    use subpixel::nn::conv::ConvKernel;
+    let gpu = common::gpu();
+    let weights = Weights::load(golden_weights_path()).unwrap();
+    let frame = random_frame(20, 12, 3);
+    let run = |choice| {
+        let mut den = Denoiser::with_kernels(&gpu, &weights, 20, 12, choice).unwrap();
+        let kernels: Vec<ConvKernel> = den.network().conv_kernels().into_iter().map(|(_, k)| k).collect();
+        (kernels, den.denoise_host(&frame).unwrap())
+    };
+    let (auto, want) = run(KernelChoice::Autotune);
+    assert!(!auto.is_empty());
+    let too_big = ConvKernel::Blocked { px: 16, cob: 8 };
+    let (k, got) = run(KernelChoice::Fixed(too_big));
+    assert!(k.iter().all(|&k| k == ConvKernel::Generic), "{k:?}");
+    common::assert_close("fixed px16-cob8 (generic)", &got, &want, common::REDUCTION);
+    let px4 = ConvKernel::Blocked { px: 4, cob: 1 };
+    let (k, got) = run(KernelChoice::Fixed(px4));
+    assert!(k.iter().all(|&k| k == px4), "cob 1 fits every layer: {k:?}");
+    common::assert_close("fixed px4-cob1", &got, &want, common::REDUCTION);
+}
+
 #[test]
 fn odd_sizes_are_padded_internally() {
     let gpu = common::gpu();

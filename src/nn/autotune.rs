@@ -132,6 +132,9 @@ pub fn load(path: &std::path::Path) -> Cache {
 fn store(key: &str, tuning: &Tuning) {
     let Some(path) = cache_file() else { return };
     let mut cache = load(&path);
+    // Choices made for other versions of the kernels can never be used again.
+    let current = kernels_hash();
+    cache.retain(|k, _| k.contains(&current));
     cache.insert(key.to_string(), tuning.clone());
     let write = || -> std::io::Result<()> {
         if let Some(d) = path.parent() {
@@ -146,22 +149,27 @@ fn store(key: &str, tuning: &Tuning) {
     }
 }
 
-/// The cache key of `conv` tuned at `w x h` on `gpu`: adapter, driver, the kernels'
-/// sources (a change of either kernel invalidates old choices) and the layer's shape.
-pub fn key(gpu: &Gpu, conv: &Conv3x3, w: u32, h: u32) -> String {
+/// `kernels HASH`: a hash of both convolution kernels' sources, part of every cache key.
+fn kernels_hash() -> String {
     let mut hasher = std::collections::hash_map::DefaultHasher::new();
     for name in ["nn/conv3x3", "nn/conv3x3_blocked"] {
         if let Ok(k) = crate::gpu::kernel_source(name) {
             k.source.hash(&mut hasher);
         }
     }
+    format!("kernels {:016x}", hasher.finish())
+}
+
+/// The cache key of `conv` tuned at `w x h` on `gpu`: adapter, driver, the kernels'
+/// sources (a change of either kernel invalidates old choices) and the layer's shape.
+pub fn key(gpu: &Gpu, conv: &Conv3x3, w: u32, h: u32) -> String {
     format!(
-        "{} | {:?} | {} {} | kernels {:016x} | conv3x3 {:?}->{} {:?} at {w}x{h}",
+        "{} | {:?} | {} {} | {} | conv3x3 {:?}->{} {:?} at {w}x{h}",
         gpu.info.name,
         gpu.info.backend,
         gpu.info.driver,
         gpu.info.driver_info,
-        hasher.finish(),
+        kernels_hash(),
         conv.input_channels,
         conv.cout,
         conv.act,
