@@ -307,7 +307,22 @@ fn bench_denoise_models_passes_and_takes_fixed_kernels() {
             "memory",
             "not timed (--model-only)",
             "unet.enc2.2 px4-cob2",
+            "f32 activations",
         ],
+    );
+    prints_all(
+        bin().args([
+            "bench",
+            "denoise",
+            "--width",
+            "16",
+            "--height",
+            "16",
+            "--model-only",
+            "--model-storage",
+            "f16",
+        ]),
+        &["f16 (modelled only) activations", "modelled total"],
     );
     let o = bin()
         .env("SUBPIXEL_CONV_KERNEL", "fastest")

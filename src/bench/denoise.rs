@@ -1,6 +1,6 @@
 //! `subpixel bench denoise`: the SSR network timed per layer and per stage.
 
-use super::roofline::{self, GpuModel, ModelledPass};
+use super::roofline::{self, GpuModel, ModelledPass, Storage};
 use crate::error::Result;
 use crate::gpu::{Gpu, Profiler, Stats};
 use crate::nn::HostTensor;
@@ -56,6 +56,8 @@ pub struct DenoiseBench {
     pub tensor_bytes: u64,
     /// The GPU the roofline model describes.
     pub model: GpuModel,
+    /// The activation storage the model assumes.
+    pub storage: Storage,
     /// Every pass of a frame in the roofline model.
     pub modelled: Vec<ModelledPass>,
     /// Their sum, ms.
@@ -93,7 +95,7 @@ pub fn bench_denoise(
     h: u32,
     warmup: u32,
     frames: u32,
-    model: &GpuModel,
+    (model, storage): (&GpuModel, Storage),
 ) -> Result<DenoiseBench> {
     let mut den = Denoiser::with_gpu(gpu, weights, w, h)?;
     let packed = synthetic_frame(w, h, 0).pack()?;
@@ -171,7 +173,7 @@ pub fn bench_denoise(
     };
     let peak = crate::bench::peak_fp32_gflops(&gpu.info.name);
     let costs = den.step_costs();
-    let modelled = roofline::model(model, &costs);
+    let modelled = roofline::model(model, &costs, storage);
     let modelled_ms = modelled.iter().map(|p| p.modelled_ms).sum();
     Ok(DenoiseBench {
         adapter: gpu.describe(),
@@ -195,6 +197,7 @@ pub fn bench_denoise(
         dispatches: costs.len(),
         tensor_bytes: den.network().memory_bytes(),
         model: model.clone(),
+        storage,
         modelled,
         modelled_ms,
     })
@@ -275,14 +278,18 @@ pub fn table(b: &DenoiseBench) -> String {
             .join(", ")
     );
     s += &format!(
-        "\nroofline model on {} ({:.1} TFLOP/s FP32, {:.0} GB/s, {} us per pass) at {}x{}, {} passes per frame:\n",
+        "\nroofline model on {} ({:.1} TFLOP/s FP32, {:.0} GB/s, {} us per pass) at {}x{}, {} passes per frame, {} activations:\n",
         b.model.name,
         b.model.peak_gflops * 1e-3,
         b.model.bandwidth_gbs,
         b.model.pass_us,
         b.width,
         b.height,
-        b.dispatches
+        b.dispatches,
+        match b.storage {
+            Storage::F32 => "f32",
+            Storage::F16 => "f16 (modelled only)",
+        }
     );
     s += &format!(
         "{:<7} {:<20} {:>10} {:>10} {:>10} {:>8} {:>12}\n",

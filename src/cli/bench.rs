@@ -95,6 +95,10 @@ pub(super) struct DenoiseBenchArgs {
     /// GPU of the roofline model: h100 or rtx4070.
     #[arg(long, default_value = "h100")]
     model: String,
+    /// Activation storage in the roofline model: f32 (today's engine) or f16 (a paper
+    /// estimate of an f16 path).
+    #[arg(long, value_enum, default_value = "f32")]
+    model_storage: crate::bench::roofline::Storage,
     /// Skip the timing (one untimed frame) and print the roofline model only, e.g. at
     /// 1920x1080 on a machine without that GPU.
     #[arg(long)]
@@ -221,7 +225,7 @@ pub(super) fn run(what: Option<BenchCommand>) -> Result<()> {
                 a.height.unwrap_or(dh),
                 a.run.warmup,
                 frames,
-                &model,
+                (&model, a.model_storage),
             )?;
             if a.run.json {
                 println!("{}", serde_json::to_string_pretty(&b)?);
