@@ -10,7 +10,7 @@ use crate::gpu::{Gpu, Profiler, StageStats};
 use crate::render::CameraPath;
 use crate::render::backend::{Backend, FrameRenderer};
 use crate::render::gpu_scene::GpuScene;
-use crate::render::loader::load_scene;
+use crate::render::load_scene;
 use crate::render::scene::Scene;
 use crate::render::tracer::{DEFAULT_MAX_DEPTH, FrameSettings, Mode, Tracer};
 

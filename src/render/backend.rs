@@ -4,10 +4,11 @@
 
 use std::sync::Arc;
 
-use super::cpu::{CpuTracer, ReferenceHalves};
+use super::cpu::CpuTracer;
 use super::gpu_scene::GpuScene;
 use super::packed::PackedScene;
 use super::scene::Scene;
+use super::settings::ReferenceHalves;
 use super::tracer::{FrameSettings, FrameStats, Tracer};
 use crate::error::Result;
 use crate::frame::HostFrame;

@@ -13,7 +13,8 @@ use crate::error::{Error, Result};
 /// Names accepted after `builtin:`.
 pub const BUILTIN_SCENES: &[&str] = &["cornell", "cornell-empty", "room", "furnace"];
 
-/// The built-in scene `name` (without the `builtin:` prefix).
+/// The built-in scene `name` (without the `builtin:` prefix); `procedural:SEED` scenes
+/// come from [`super::procedural`] (through [`super::load_scene`]).
 pub fn builtin(name: &str) -> Result<Scene> {
     match name {
         "cornell" => Ok(cornell(&CornellOptions::default())),
@@ -23,19 +24,13 @@ pub fn builtin(name: &str) -> Result<Scene> {
         })),
         "room" => Ok(room()),
         "furnace" => Ok(furnace()),
-        _ => match name.strip_prefix("procedural:") {
-            Some(seed) => super::procedural::procedural(
-                super::procedural::parse_seed(seed)?,
-                &super::loader::SceneOptions::default(),
+        _ => Err(Error::Scene {
+            path: format!("builtin:{name}").into(),
+            message: format!(
+                "no such built-in scene (available: {}, procedural:SEED)",
+                BUILTIN_SCENES.join(", ")
             ),
-            None => Err(Error::Scene {
-                path: format!("builtin:{name}").into(),
-                message: format!(
-                    "no such built-in scene (available: {}, procedural:SEED)",
-                    BUILTIN_SCENES.join(", ")
-                ),
-            }),
-        },
+        }),
     }
 }
 
@@ -68,57 +63,7 @@ impl Default for CornellOptions {
 
 /// A UV sphere (smooth normals, uvs) centred at `c`.
 pub fn push_sphere(g: &mut Geometry, c: Vec3, r: f32, segments: u32, rings: u32, material: u32) {
-    push_uv_sphere(g, c, r, (segments, rings), Vec2::ONE, false, material);
-}
-
-/// A UV sphere of radius `r` centred at `c` (faces outwards): `segments` around, `rings`
-/// from the north pole (at least 3 and 2), smooth normals, texture coordinates (u around,
-/// v from the north pole, each in [0, 1] times `uv_scale`) and, with `tangents`, tangents
-/// along u (for normal maps).
-pub fn push_uv_sphere(
-    g: &mut Geometry,
-    c: Vec3,
-    r: f32,
-    (segments, rings): (u32, u32),
-    uv_scale: Vec2,
-    tangents: bool,
-    material: u32,
-) {
-    let (segments, rings) = (segments.max(3), rings.max(2));
-    let mut pos = Vec::new();
-    let mut nrm = Vec::new();
-    let mut uv = Vec::new();
-    let mut tan = Vec::new();
-    for j in 0..=rings {
-        let v = j as f32 / rings as f32;
-        let theta = v * std::f32::consts::PI;
-        for i in 0..=segments {
-            let u = i as f32 / segments as f32;
-            let phi = u * std::f32::consts::TAU;
-            let n = Vec3::new(theta.sin() * phi.cos(), theta.cos(), -theta.sin() * phi.sin());
-            pos.push(c + r * n);
-            nrm.push(n);
-            uv.push(Vec2::new(u, v) * uv_scale);
-            tan.push(Vec4::new(-phi.sin(), 0.0, -phi.cos(), 1.0));
-        }
-    }
-    let mut tris = Vec::new();
-    let row = segments + 1;
-    for j in 0..rings {
-        for i in 0..segments {
-            let a = j * row + i;
-            let b = a + row;
-            // Counter-clockwise seen from outside.
-            if j != 0 {
-                tris.push([a, b, a + 1]);
-            }
-            if j != rings - 1 {
-                tris.push([a + 1, b, b + 1]);
-            }
-        }
-    }
-    let tan = tangents.then_some(tan.as_slice());
-    g.push_mesh(&pos, Some(&nrm), Some(&uv), tan, &tris, material);
+    g.push_uv_sphere(c, r, (segments, rings), Vec2::ONE, false, material);
 }
 
 /// A box of half-extents `h`, rotated by `rot`, centred at `c` (faces outwards).

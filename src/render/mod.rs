@@ -21,19 +21,23 @@ pub mod bvh;
 pub mod camera;
 pub mod cpu;
 pub mod gpu_scene;
+pub mod load;
 pub mod loader;
 pub mod packed;
 pub mod procedural;
 pub mod scene;
+pub mod settings;
 pub mod tracer;
 
 pub use backend::{Backend, FrameRenderer, GpuFrameRenderer};
 pub use camera::{Camera, CameraPath, CameraPathSpec};
-pub use cpu::{CpuTracer, PrimarySurface, ReferenceHalves};
+pub use cpu::{CpuTracer, PrimarySurface};
 pub use gpu_scene::GpuScene;
-pub use loader::{SceneOptions, load_scene, load_scene_with};
+pub use load::{load_scene, load_scene_with};
+pub use loader::SceneOptions;
 pub use packed::PackedScene;
 pub use scene::{Material, Scene};
+pub use settings::ReferenceHalves;
 pub use tracer::{
     DEFAULT_MAX_DEPTH, FrameBuffers, FrameSettings, FrameStats, Mode, PARAM_SIZES, REFERENCE_SEED_XOR,
     TILE_OFFSETS, Tracer, query_rays, tile_offset,

@@ -596,7 +596,7 @@ pub fn push_box(g: &mut Geometry, c: Vec3, h: Vec3, rot: Quat, tile: f32, materi
 /// tangents along u.
 pub fn push_sphere(g: &mut Geometry, c: Vec3, r: f32, segments: u32, rings: u32, repeat: f32, material: u32) {
     let uv_scale = Vec2::new(repeat, repeat * 0.5);
-    super::builtin::push_uv_sphere(g, c, r, (segments, rings), uv_scale, true, material);
+    g.push_uv_sphere(c, r, (segments, rings), uv_scale, true, material);
 }
 
 /// Appends a closed cylinder of radius `r` and height `h` standing on the point `base`
@@ -3290,10 +3290,10 @@ mod tests {
         assert_eq!(parse_seed(&u64::MAX.to_string()).unwrap(), u64::MAX);
         let e = parse_seed("seven").unwrap_err().to_string();
         assert!(e.contains("builtin:procedural:seven"), "{e}");
-        let s = super::super::loader::load_scene("builtin:procedural:3").unwrap();
+        let s = super::super::load::load_scene("builtin:procedural:3").unwrap();
         assert_eq!(s.name, "builtin:procedural:3");
-        assert!(super::super::loader::load_scene("builtin:procedural:").is_err());
-        assert!(super::super::loader::load_scene("builtin:procedural:-1").is_err());
+        assert!(super::super::load::load_scene("builtin:procedural:").is_err());
+        assert!(super::super::load::load_scene("builtin:procedural:-1").is_err());
     }
 
     #[test]
@@ -3424,7 +3424,7 @@ mod tests {
         }
         assert!(used > 0, "the good prop was never placed");
         // The same through the public entry point.
-        let s = super::super::loader::load_scene_with("builtin:procedural:4", &opts).unwrap();
+        let s = super::super::load::load_scene_with("builtin:procedural:4", &opts).unwrap();
         s.validate().unwrap();
         // A props path that does not exist is an error naming it.
         let e = generate(

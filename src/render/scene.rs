@@ -342,6 +342,56 @@ impl Geometry {
         }
     }
 
+    /// A UV sphere of radius `r` centred at `c` (faces outwards): `segments` around, `rings`
+    /// from the north pole (at least 3 and 2), smooth normals, texture coordinates (u around,
+    /// v from the north pole, each in [0, 1] times `uv_scale`) and, with `tangents`, tangents
+    /// along u (for normal maps).
+    pub fn push_uv_sphere(
+        &mut self,
+        c: Vec3,
+        r: f32,
+        (segments, rings): (u32, u32),
+        uv_scale: Vec2,
+        tangents: bool,
+        material: u32,
+    ) {
+        let (segments, rings) = (segments.max(3), rings.max(2));
+        let mut pos = Vec::new();
+        let mut nrm = Vec::new();
+        let mut uv = Vec::new();
+        let mut tan = Vec::new();
+        for j in 0..=rings {
+            let v = j as f32 / rings as f32;
+            let theta = v * std::f32::consts::PI;
+            for i in 0..=segments {
+                let u = i as f32 / segments as f32;
+                let phi = u * std::f32::consts::TAU;
+                let n = Vec3::new(theta.sin() * phi.cos(), theta.cos(), -theta.sin() * phi.sin());
+                pos.push(c + r * n);
+                nrm.push(n);
+                uv.push(Vec2::new(u, v) * uv_scale);
+                tan.push(Vec4::new(-phi.sin(), 0.0, -phi.cos(), 1.0));
+            }
+        }
+        let mut tris = Vec::new();
+        let row = segments + 1;
+        for j in 0..rings {
+            for i in 0..segments {
+                let a = j * row + i;
+                let b = a + row;
+                // Counter-clockwise seen from outside.
+                if j != 0 {
+                    tris.push([a, b, a + 1]);
+                }
+                if j != rings - 1 {
+                    tris.push([a + 1, b, b + 1]);
+                }
+            }
+        }
+        let tan = tangents.then_some(tan.as_slice());
+        self.push_mesh(&pos, Some(&nrm), Some(&uv), tan, &tris, material);
+    }
+
     /// Appends a quad `a b c d` (counter-clockwise seen from the front).
     pub fn push_quad(&mut self, a: Vec3, b: Vec3, c: Vec3, d: Vec3, material: u32) {
         let uv = [

@@ -4,49 +4,16 @@
 
 use bytemuck::{Pod, Zeroable};
 
-use super::camera::{Camera, CameraPath, GpuCamera};
+use super::camera::GpuCamera;
 use super::gpu_scene::GpuScene;
+use super::settings::ReferenceHalves;
+pub use super::settings::{
+    DEFAULT_MAX_DEPTH, FrameSettings, FrameStats, Mode, REFERENCE_SEED_XOR, TILE_OFFSETS, tile_offset,
+};
 use crate::error::{Error, Result};
 use crate::frame::HostFrame;
 use crate::gpu::{Bound, Dispatch, Gpu, Grid, Profiler, Specialisation};
 use crate::nn::{HostTensor, Tensor};
-
-/// Sampling mode of the path tracer.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum, serde::Serialize, serde::Deserialize)]
-#[serde(rename_all = "lowercase")]
-pub enum Mode {
-    /// One pixel per 2x2 tile per frame (1/4 spp), rotating with [`TILE_OFFSETS`].
-    Quarter,
-    /// One sample in every pixel.
-    Full,
-    /// Progressive N spp per pixel, box filter (the plain mean of jittered samples).
-    Reference,
-}
-
-impl Mode {
-    fn code(self) -> u32 {
-        match self {
-            Mode::Quarter => 0,
-            Mode::Full => 1,
-            Mode::Reference => 2,
-        }
-    }
-}
-
-/// Traced pixel `(dx, dy)` inside each 2x2 tile, for frame `t` at index `t mod 4`.
-pub const TILE_OFFSETS: [(u32, u32); 4] = [(0, 0), (1, 1), (1, 0), (0, 1)];
-
-/// The traced tile offset of frame `frame`.
-pub fn tile_offset(frame: u32) -> (u32, u32) {
-    TILE_OFFSETS[(frame % 4) as usize]
-}
-
-/// Seed variation of references (so a frame's reference never shares its samples).
-pub const REFERENCE_SEED_XOR: u32 = 0x9e37_79b9;
-
-/// Default `max_depth`: the largest number of path segments (1 = emitters seen directly,
-/// 2 = direct lighting, 3 = one indirect bounce, ...).
-pub const DEFAULT_MAX_DEPTH: u32 = 8;
 
 /// Parameters of the image kernels (WGSL `FrameParams`, 192 bytes).
 #[repr(C)]
@@ -84,55 +51,6 @@ pub const PARAM_SIZES: &[(&str, usize)] = &[
     ("trace/gbuffer", std::mem::size_of::<FrameParams>()),
     ("trace/pathtrace", std::mem::size_of::<FrameParams>()),
 ];
-
-/// What one frame is rendered with.
-#[derive(Debug, Clone, Copy, PartialEq)]
-pub struct FrameSettings {
-    /// Frame index (tile offset, random numbers).
-    pub frame: u32,
-    /// Camera of this frame.
-    pub camera: Camera,
-    /// Camera of the previous frame (the same camera for a first frame: zero motion).
-    pub prev_camera: Camera,
-    /// Sampling mode.
-    pub mode: Mode,
-    /// Samples per pixel in reference mode (ignored otherwise).
-    pub spp: u32,
-    /// Largest number of path segments, see [`DEFAULT_MAX_DEPTH`].
-    pub max_depth: u32,
-    /// Random seed.
-    pub seed: u32,
-    /// Distance that normalises view depth to [0, 1] (see [`super::Scene::far_distance`]).
-    pub far: f32,
-}
-
-impl FrameSettings {
-    /// Settings for a static `camera` at frame 0.
-    pub fn new(camera: Camera, mode: Mode, far: f32) -> Self {
-        Self {
-            frame: 0,
-            camera,
-            prev_camera: camera,
-            mode,
-            spp: 1,
-            max_depth: DEFAULT_MAX_DEPTH,
-            seed: 0,
-            far,
-        }
-    }
-
-    /// Frame `frame` of a camera `path` at 1 spp: its camera, the previous frame's camera
-    /// for the motion vectors (the same one at frame 0), [`DEFAULT_MAX_DEPTH`].
-    pub fn along(path: &CameraPath, frame: u32, mode: Mode, seed: u32, far: f32) -> Self {
-        Self {
-            frame,
-            camera: path.camera(frame),
-            prev_camera: path.camera(frame.saturating_sub(1)),
-            seed,
-            ..Self::new(path.camera(frame), mode, far)
-        }
-    }
-}
 
 /// The per-frame GPU buffers of the denoiser contract: W x H `vec4<f32>` each.
 #[derive(Debug)]
@@ -217,15 +135,6 @@ pub fn channels(t: &HostTensor, which: &[u32]) -> HostTensor {
     HostTensor::from_fn(t.width, t.height, which.len() as u32, |x, y, c| {
         t.at(x, y, which[c as usize])
     })
-}
-
-/// Counts of one rendered frame.
-#[derive(Debug, Clone, Copy, Default, PartialEq)]
-pub struct FrameStats {
-    /// Rays traced by the path tracer (camera, bounce and shadow rays).
-    pub rays: u64,
-    /// Samples traced (paths).
-    pub samples: u64,
 }
 
 /// The image kernels and their per-frame buffers for one resolution.
@@ -495,7 +404,7 @@ impl Tracer {
         s: &FrameSettings,
         spp: u32,
         out: &Tensor,
-    ) -> Result<super::cpu::ReferenceHalves> {
+    ) -> Result<ReferenceHalves> {
         let spp = spp.max(1);
         let half = spp / 2;
         let mut rays = 0;
@@ -518,7 +427,7 @@ impl Tracer {
         }
         let full = channels(&out.read(&self.gpu)?, &[0, 1, 2]);
         let Some(first) = first else {
-            return Ok(super::cpu::ReferenceHalves {
+            return Ok(ReferenceHalves {
                 first: full.clone(),
                 second: full,
                 rays,
@@ -530,7 +439,7 @@ impl Tracer {
         for (o, f) in second.data.iter_mut().zip(&first.data) {
             *o = (spp as f32 * *o - a * f) / b;
         }
-        Ok(super::cpu::ReferenceHalves { first, second, rays })
+        Ok(ReferenceHalves { first, second, rays })
     }
 
     /// Adds samples `start .. start + spp` to `color` (which holds the mean of the `start`

@@ -33,7 +33,7 @@ mod traverse;
 use rayon::prelude::*;
 
 use super::packed::PackedScene;
-use super::tracer::{FrameSettings, FrameStats, Mode, tile_offset};
+use super::settings::{FrameSettings, FrameStats, Mode, REFERENCE_SEED_XOR, ReferenceHalves, tile_offset};
 use crate::error::{Error, Result};
 use crate::frame::HostFrame;
 use crate::nn::HostTensor;
@@ -75,30 +75,6 @@ pub struct PrimarySurface {
 pub struct CpuTracer {
     width: u32,
     height: u32,
-}
-
-/// A reference rendered as two independent halves of its samples: their mean is the
-/// reference, their difference measures its noise.
-#[derive(Debug, Clone)]
-pub struct ReferenceHalves {
-    /// Mean of samples `0 .. spp / 2` (3 channels).
-    pub first: HostTensor,
-    /// Mean of samples `spp / 2 .. spp` (3 channels).
-    pub second: HostTensor,
-    /// Rays traced.
-    pub rays: u64,
-}
-
-impl ReferenceHalves {
-    /// The reference: the mean of all `spp` samples (the halves weighted by their counts).
-    pub fn mean(&self, spp: u32) -> HostTensor {
-        let a = (spp / 2) as f32 / spp.max(1) as f32;
-        let mut out = self.first.clone();
-        for (o, s) in out.data.iter_mut().zip(&self.second.data) {
-            *o = a * *o + (1.0 - a) * s;
-        }
-        out
-    }
 }
 
 impl CpuTracer {
@@ -305,7 +281,7 @@ impl CpuTracer {
         spp: u32,
     ) -> Result<ReferenceHalves> {
         let spp = spp.max(1);
-        let seed = s.seed ^ super::tracer::REFERENCE_SEED_XOR;
+        let seed = s.seed ^ REFERENCE_SEED_XOR;
         let half = spp / 2;
         let (first, r1) = self.radiance(scene, s, seed, 0, half);
         let (second, r2) = self.radiance(scene, s, seed, half, spp - half);

@@ -1,7 +1,7 @@
 //! Loading scenes from files, one module per format: `gltf` (glTF 2.0, `.gltf` and
 //! `.glb`), `sidecar` (the `scene.json` of `scenes/README.md`: environment map, camera,
 //! film, optional camera path) and `environment` (lat-long environment maps). This module
-//! picks the loader for a scene specification.
+//! picks the loader for a path; [`super::load_scene`] reads scene specifications.
 
 mod environment;
 mod gltf;
@@ -15,7 +15,6 @@ pub use sidecar::load_sidecar;
 
 use std::path::{Path, PathBuf};
 
-use super::builtin::builtin;
 use super::scene::Scene;
 use crate::error::{Error, Result};
 
@@ -33,7 +32,7 @@ pub(super) fn file_err(path: &Path, message: impl Into<String>) -> Error {
     }
 }
 
-/// Options of [`load_scene_with`].
+/// Options of [`super::load_scene_with`].
 #[derive(Debug, Clone, Default, PartialEq)]
 pub struct SceneOptions {
     /// Props for `builtin:procedural:SEED`: `.gltf`/`.glb` files (their meshes become
@@ -43,25 +42,9 @@ pub struct SceneOptions {
     pub props: Vec<PathBuf>,
 }
 
-/// [`load_scene`] with options: `builtin:procedural:SEED` takes its props from `options`
-/// (see [`super::procedural`]); other scenes load as with [`load_scene`].
-pub fn load_scene_with(spec: &str, options: &SceneOptions) -> Result<Scene> {
-    if let Some(seed) = spec.strip_prefix("builtin:procedural:") {
-        return super::procedural::procedural(super::procedural::parse_seed(seed)?, options);
-    }
-    if !options.props.is_empty() {
-        log::warn!("props are used by builtin:procedural:SEED scenes only; ignored for {spec}");
-    }
-    load_scene(spec)
-}
-
-/// Loads `builtin:NAME` (including `builtin:procedural:SEED`, without props), a
-/// `scene.json`, a folder holding one, or a `.gltf`/`.glb` file.
-pub fn load_scene(spec: &str) -> Result<Scene> {
-    if let Some(name) = spec.strip_prefix("builtin:") {
-        return builtin(name);
-    }
-    let path = PathBuf::from(spec);
+/// Loads a scene file: a `scene.json`, a folder holding one, or a `.gltf`/`.glb` file.
+pub fn load_path(path: &Path) -> Result<Scene> {
+    let path = path.to_path_buf();
     if path.is_dir() {
         let json = path.join("scene.json");
         if !json.is_file() {

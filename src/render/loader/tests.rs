@@ -3,6 +3,7 @@
 use super::gltf::{base64_decode, load_gltf_checked, percent_decode};
 use super::*;
 use crate::render::camera::CameraPathSpec;
+use crate::render::load_scene;
 use glam::Vec3;
 
 #[test]
