@@ -10,7 +10,7 @@ mod common;
 use std::path::PathBuf;
 
 use subpixel::nn::HostTensor;
-use subpixel::ssr::{Denoiser, HostFrame, Weights};
+use subpixel::ssr::{Denoiser, HostFrame, INTERMEDIATES, Weights};
 
 fn data(name: &str) -> PathBuf {
     PathBuf::from(env!("CARGO_MANIFEST_DIR"))
@@ -38,28 +38,6 @@ fn load_frame(prefix: &str, i: usize) -> std::collections::HashMap<String, HostT
         })
         .collect()
 }
-
-/// Tensors compared, in execution order: the golden files and the engine use the same
-/// names (`ssr::graph::TensorId::name`, `training/ssr/golden.py`; checked below).
-const COMPARED: &[&str] = &[
-    "exposure",
-    "a_cur",
-    "warp_acc",
-    "warp_valid",
-    "ref_feat",
-    "emb_cur",
-    "emb_prev",
-    "tfa_weights",
-    "a_acc",
-    "warp_out",
-    "enc1",
-    "enc2",
-    "enc3",
-    "i3",
-    "i2",
-    "o",
-    "output",
-];
 
 /// Tolerance of the final output: 1e-3 of its range (the bar). Intermediates use
 /// a tighter 1e-4 of their own range: f32 sums in another order differ by ~1e-6.
@@ -108,11 +86,15 @@ fn golden_parity(prefix: &str, version: u32) {
             motion: g["motion"].clone(),
         };
         let out = den.denoise_host(&frame).unwrap();
-        for &golden in COMPARED {
+        // Every engine intermediate the golden file holds (the same names: checked by
+        // `golden_names_are_engine_tensor_names`), in execution order.
+        let inputs: Vec<&str> = frame.fields().iter().map(|f| f.0).collect();
+        let mut compared = 0;
+        for &golden in INTERMEDIATES.iter().filter(|n| !inputs.contains(n)) {
             let Some(want) = g.get(golden) else {
-                assert!(version == 1 && golden == "exposure", "{prefix}: no '{golden}'");
                 continue;
             };
+            compared += 1;
             let got = den.network().tensor(golden).unwrap().read(&gpu).unwrap();
             let rel = if golden == "output" {
                 OUTPUT_TOL
@@ -125,6 +107,12 @@ fn golden_parity(prefix: &str, version: u32) {
             };
             common::assert_close(&format!("{prefix} frame {i} layer '{golden}'"), &got, want, tol);
         }
+        // Version 2 golden files hold 17 intermediates, version 1 16 (no exposure).
+        assert_eq!(
+            compared,
+            if version == 1 { 16 } else { 17 },
+            "{prefix}: intermediates compared"
+        );
         let tol = common::Tol {
             abs: OUTPUT_TOL * range(&g["output"]),
             rel: 0.0,
@@ -165,8 +153,8 @@ fn golden_names_are_engine_tensor_names() {
             "golden tensor '{n}' has no engine tensor of that name"
         );
         assert!(
-            COMPARED.contains(&n.as_str()),
-            "golden tensor '{n}' is not compared"
+            INTERMEDIATES.contains(&n.as_str()),
+            "golden tensor '{n}' is not an exposed intermediate (so not compared)"
         );
     }
 }
