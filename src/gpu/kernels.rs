@@ -134,7 +134,7 @@ pub const KERNELS: &[KernelSource] = &[
     kernel!("ssr/store_output"),
     kernel!("ssr/exposure_partial", ["ssr/lib/sanitize"]),
     kernel!("ssr/exposure_final"),
-    kernel!("ssr/history"),
+    kernel!("ssr/warp_history", ["nn/lib/grid"]),
     kernel!("view/display"),
     trace_kernel!("trace/query"),
     trace_kernel!("trace/gbuffer"),

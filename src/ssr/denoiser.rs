@@ -68,11 +68,10 @@ pub const KERNELS_USED: &[&str] = &[
     "ssr/pack_mt",
     "ssr/exposure_partial",
     "ssr/exposure_final",
-    "ssr/history",
+    "ssr/warp_history",
     "ssr/store_output",
     "nn/conv3x3",
     "nn/conv3x3_blocked",
-    "nn/warp",
     "nn/tfa_blend",
     "nn/pool2x2",
     "nn/upsample2x",
@@ -90,7 +89,7 @@ pub const PARAM_SIZES: &[(&str, usize)] = &[
     ),
     ("ssr/exposure_final", std::mem::size_of::<ExposureFinalParams>()),
     (
-        "ssr/history",
+        "ssr/warp_history",
         std::mem::size_of::<super::network::HistoryParams>(),
     ),
 ];

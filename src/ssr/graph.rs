@@ -71,8 +71,6 @@ tensor_ids! {
     AAccPrev = "a_acc_prev",
     /// Warped log-space output of the last frame, W(o).
     WarpOut = "warp_out",
-    /// Its validity.
-    WarpOutValid = "warp_out_valid",
     /// W(o) at half resolution.
     Wo2 = "wo2",
     /// W(o) at quarter resolution.
@@ -164,7 +162,7 @@ impl TensorId {
             ACur | WarpAcc | AAcc | AAccPrev => (Level(0), A_CHANNELS),
             Mt => (Level(0), MT_CHANNELS),
             Motion => (Level(0), 2),
-            WarpValid | WarpOutValid => (Level(0), 1),
+            WarpValid => (Level(0), 1),
             RefHidden | EmbHiddenCur | EmbHiddenPrev => (Level(0), h),
             RefFeat | EmbCur | EmbPrev => (Level(0), k),
             TfaWeights => (Level(0), 4),
@@ -185,11 +183,10 @@ impl TensorId {
 pub enum Op {
     /// The 3x3 convolution layer of that name (`inputs..., output`).
     Conv(&'static str),
-    /// Backward warp by the motion (`src, motion, out, valid`).
-    Warp,
-    /// Re-exposure and geometric test of the warped history (`a_t, warp_acc, warp_out,
-    /// warp_valid, exposure_ratio`; the warped tensors are updated in place).
-    History {
+    /// The history warped by the motion, re-exposed and checked against this frame's
+    /// geometry, in one pass (`a_acc_prev, o_prev, motion, a_cur, exposure_ratio,
+    /// warp_acc, warp_out, warp_valid`).
+    WarpHistory {
         /// Rescale by the exposure ratio.
         rescale: bool,
         /// Reject history whose geometry disagrees.
@@ -235,29 +232,30 @@ fn step(stage: &'static str, label: &'static str, op: Op, tensors: &[TensorId]) 
 pub fn steps(config: &SsrConfig) -> Result<Vec<StepSpec>> {
     use Op::*;
     use TensorId::*;
-    let mut warps = vec![
-        step("tfa", "warp A_acc", Warp, &[AAccPrev, Motion, WarpAcc, WarpValid]),
-        step("tfa", "warp o", Warp, &[OPrev, Motion, WarpOut, WarpOutValid]),
-    ];
     let rescale = config.exposure_mode()? == ExposureMode::Channel;
     let geometry = config.history_test()? == HistoryTest::Geometry;
-    if rescale || geometry {
-        warps.push(step(
-            "tfa",
-            "history",
-            History { rescale, geometry },
-            &[ACur, WarpAcc, WarpOut, WarpValid, ExposureRatio],
-        ));
-    }
-    for w in &mut warps {
-        w.history = true;
-    }
+    let mut warp = step(
+        "tfa",
+        "warp history",
+        WarpHistory { rescale, geometry },
+        &[
+            AAccPrev,
+            OPrev,
+            Motion,
+            ACur,
+            ExposureRatio,
+            WarpAcc,
+            WarpOut,
+            WarpValid,
+        ],
+    );
+    warp.history = true;
     let albedo = match config.remodulation_albedo()? {
         RemodulationAlbedo::Current => ACur,
         RemodulationAlbedo::Accumulated => AAcc,
     };
     let pool = config.pool_mode()?;
-    let mut all = warps;
+    let mut all = vec![warp];
     all.extend([
         step("tfa", "tfa.ref.0", Conv("tfa.ref.0"), &[ACur, Mt, RefHidden]),
         step("tfa", "tfa.ref.2", Conv("tfa.ref.2"), &[RefHidden, RefFeat]),

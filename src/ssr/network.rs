@@ -216,8 +216,19 @@ impl Network {
                 let (out, inputs) = t.split_last().expect("a convolution has an output");
                 self.convs[layer].bind(gpu, inputs, out)
             }
-            Op::Warp => ops::warp(gpu, t[0], t[1], t[2], t[3]),
-            Op::History { rescale, geometry } => {
+            Op::WarpHistory { rescale, geometry } => {
+                // The kernel's fixed layout: A tensors of 4 vec4, o and motion of 1.
+                let expect = [4, 1, 1, 4, 2, 4, 1, 1];
+                if let Some(k) = (0..8).find(|&k| t[k].c4() != expect[k]) {
+                    return Err(Error::shape(
+                        "ssr/warp_history",
+                        format!(
+                            "tensor {k} has {} vec4s per pixel, expected {}",
+                            t[k].c4(),
+                            expect[k]
+                        ),
+                    ));
+                }
                 let params = HistoryParams {
                     width: self.width,
                     height: self.height,
@@ -226,7 +237,7 @@ impl Network {
                 };
                 let buffers: Vec<&wgpu::Buffer> = t.iter().map(|x| &x.buffer).collect();
                 gpu.kernels.dispatch(
-                    "ssr/history",
+                    "ssr/warp_history",
                     &Specialisation::none(),
                     bytemuck::bytes_of(&params),
                     &buffers,
@@ -308,7 +319,7 @@ impl Network {
     /// Records one frame. `first` means there is no history (first frame, camera cut,
     /// resize): the history is then the current frame itself (DESIGN §4) and W(o) is 0.
     /// Otherwise the history is warped, re-exposed and checked against this frame's
-    /// geometry (`ssr/history`, version-2 configs) before the TFA.
+    /// geometry (`ssr/warp_history`, one pass; re-exposure and test in version-2 configs) before the TFA.
     pub fn record(
         &mut self,
         encoder: &mut wgpu::CommandEncoder,
