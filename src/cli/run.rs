@@ -9,7 +9,7 @@ use crate::frame_loop::FrameLoop;
 use crate::gpu::{AdapterKind, Gpu, Profiler};
 use crate::io::png::{scale_for_height, write_png_row_scaled};
 use crate::metrics;
-use crate::render::{Backend, FrameRenderer, FrameSettings, GpuScene, Mode, load_scene};
+use crate::render::{Backend, FrameRenderer, FrameSettings, GpuScene, Mode, PackedScene, load_scene};
 use crate::ssr::Weights;
 
 /// The smallest height of the main job's preview images, in pixels.
@@ -84,9 +84,14 @@ pub(super) fn run(a: &RunArgs) -> Result<()> {
     }
     let scene = load_scene(&a.scene)?;
     scene.warn_approximations();
-    let gs = GpuScene::new(&gpu, &scene)?;
+    // The camera path is checked against the CPU BVH before anything is uploaded.
+    let packed = std::sync::Arc::new(PackedScene::new(
+        &scene,
+        gpu.device.limits().max_storage_buffer_binding_size,
+    )?);
     let flythrough = "flythrough".parse().expect("known path");
-    let (path, far) = scene.camera_path(&flythrough, a.seed, a.frames, 0, &gs.bvh)?;
+    let (path, far) = scene.camera_path(&flythrough, a.seed, a.frames, 0, &packed.bvh)?;
+    let gs = GpuScene::upload(&gpu, packed)?;
     let mut frames = FrameLoop::new(&gpu, &weights, w, h)?;
     let mut reference = FrameRenderer::new(&scene, a.backend, Some(&gpu), w, h)?;
     println!("references: {} backend", reference.backend().name());
