@@ -320,14 +320,21 @@ fn clear_position(
 /// outside the room the base camera is in), it has room around it and an unobstructed view
 /// of the focus point; after 12 failed candidates the view turns about the base position
 /// instead, and at worst the base camera is kept.
-fn shot_viewpoint(base: &Camera, probe: &dyn RayProbe, rng: &mut SplitMix) -> Camera {
+/// The distance to what `base` looks at (the first surface along its view, else its
+/// target) and that point.
+fn focus(base: &Camera, probe: &dyn RayProbe) -> (f32, Vec3) {
     let (_, _, f) = base.basis();
     let look = base.position.distance(base.target).max(1e-6);
     let focus = probe
         .first_hit(base.position, f, f32::INFINITY)
         .unwrap_or(look)
         .max(1e-6);
-    let aim = base.position + f * focus;
+    (focus, base.position + f * focus)
+}
+
+fn shot_viewpoint(base: &Camera, probe: &dyn RayProbe, rng: &mut SplitMix) -> Camera {
+    let (_, _, f) = base.basis();
+    let (focus, aim) = focus(base, probe);
     let margin = 0.05 * focus;
     let roomy = |p: Vec3| {
         [Vec3::X, Vec3::NEG_X, Vec3::Y, Vec3::NEG_Y, Vec3::Z, Vec3::NEG_Z]
@@ -519,15 +526,10 @@ impl CameraPath {
                 let fpk = frames_per_key.max(1.0);
                 let n = 2 + (frames as f32 / fpk).ceil() as usize;
                 let (r, u, f) = base.basis();
-                // The scale of the motion is the distance to what the camera looks at (its
-                // target where the view ray hits nothing): scenes whose target is only a unit
-                // direction move as much as those whose target is the object looked at.
-                let look = base.position.distance(base.target).max(1e-6);
-                let focus = probe
-                    .first_hit(base.position, f, f32::INFINITY)
-                    .unwrap_or(look)
-                    .max(1e-6);
-                let aim = base.position + f * focus;
+                // The scale of the motion is the distance to what the camera looks at:
+                // scenes whose target is only a unit direction move as much as those whose
+                // target is the object looked at.
+                let (focus, aim) = focus(base, probe);
                 let amp = 0.08 * focus;
                 let mut keys = Vec::with_capacity(n);
                 let mut prev = base.position;
