@@ -9,9 +9,10 @@
 //!   pipeline per layer shape), weights in a 64 KiB uniform buffer. Runs layers whose
 //!   packed weights fit it ([`Conv3x3::candidates`]).
 //!
-//! Both compute the same sums in the same order per output value, so they agree with the
-//! CPU reference ([`super::reference::conv3x3`]) to the same tolerance; which one is
-//! fastest depends on the adapter, which is what [`super::autotune`] measures.
+//! Both compute the same sums (in another order: taps by row, then inputs, then columns in
+//! the blocked kernel), so both agree with the CPU reference ([`super::reference::conv3x3`])
+//! to the same float tolerance; which one is fastest depends on the adapter, which is what
+//! [`super::autotune`] measures.
 
 use std::collections::HashMap;
 use std::sync::Mutex;
