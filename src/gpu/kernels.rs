@@ -1,11 +1,15 @@
 //! The kernel registry: every WGSL file embedded once, validated with naga, and its
-//! compute pipelines cached per specialisation (WGSL `override` constants).
+//! compute pipelines cached per specialisation ([`Specialisation`]: WGSL `override`
+//! constants, and template parameters that shape unrolled code, see [`super::template`]).
 //!
 //! Calling convention shared by every kernel: `@group(0) @binding(0)` is a uniform
-//! block of parameters (when the kernel has one), followed by storage buffers at
-//! bindings 1, 2, ... in the order the kernel's Rust wrapper passes them. On adapters where
-//! uniform blocks misbehave the parameters are bound as a read-only storage buffer instead
-//! (see [`ParamsBinding`]); the kernels' WGSL is the same either way.
+//! block of parameters (when the kernel has one), followed by the resources at bindings
+//! 1, 2, ... in the order the kernel's Rust wrapper passes them (mostly storage buffers).
+//! On adapters where uniform blocks misbehave the parameters are bound as a read-only
+//! storage buffer instead (see [`ParamsBinding`]); the kernels' WGSL is the same either
+//! way. A dispatch says how many invocations it needs ([`Grid`]); the workgroup counts
+//! follow from the kernel's own `@workgroup_size`. Each [`Dispatch`] knows the bytes it
+//! reads and writes (from the kernel's binding access), for roofline models.
 
 use std::collections::HashMap;
 use std::sync::{Arc, Mutex};
