@@ -686,6 +686,7 @@ impl KernelRegistry {
             uniform,
             bytes_read: 0,
             bytes_written: 0,
+            then: Vec::new(),
         })
     }
 }
@@ -707,15 +708,37 @@ pub struct Dispatch {
     pub bytes_read: u64,
     /// Bytes of the buffers it may write, each counted once.
     pub bytes_written: u64,
+    /// More dispatches recorded right after this one: the parts of one operation that
+    /// does not fit a single dispatch (a convolution whose weights span several buffers).
+    then: Vec<Dispatch>,
 }
 
 impl Dispatch {
+    /// This dispatch followed by `rest` as one operation (recorded together, traffic
+    /// summed).
+    pub fn chain(mut self, rest: impl IntoIterator<Item = Dispatch>) -> Self {
+        for d in rest {
+            self.bytes_read += d.bytes_read;
+            self.bytes_written += d.bytes_written;
+            self.then.push(d);
+        }
+        self
+    }
+
+    /// How many dispatches it records (1, or more for a chained operation).
+    pub fn parts(&self) -> usize {
+        1 + self.then.iter().map(Dispatch::parts).sum::<usize>()
+    }
+
     /// Rewrites the uniform parameters in place (same size as when bound), so a dispatch
     /// whose parameters change every frame is built once. Like `Queue::write_buffer`, it
     /// takes effect at the next submission: record the dispatch once per submission.
     pub fn write_params(&self, queue: &wgpu::Queue, params: &[u8]) {
         if let Some(u) = &self.uniform {
             queue.write_buffer(u, 0, params);
+        }
+        for d in &self.then {
+            d.write_params(queue, params);
         }
     }
 
@@ -724,6 +747,9 @@ impl Dispatch {
         pass.set_pipeline(&self.pipeline);
         pass.set_bind_group(0, &self.bind_group, &[]);
         pass.dispatch_workgroups(self.groups[0], self.groups[1], self.groups[2]);
+        for d in &self.then {
+            d.record(pass);
+        }
     }
 
     /// Records the dispatch in its own compute pass on `encoder`, labelled by the kernel.

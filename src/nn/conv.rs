@@ -156,7 +156,7 @@ pub struct Conv3x3 {
     kernel: ConvKernel,
     /// Uniform weight buffers of the blocked kernel, by output block `cob` (the packing's
     /// output stride depends on it).
-    blocked: Mutex<HashMap<u32, wgpu::Buffer>>,
+    blocked: Mutex<HashMap<u32, Vec<wgpu::Buffer>>>,
 }
 
 impl Conv3x3 {
@@ -280,8 +280,23 @@ impl Conv3x3 {
 
     /// Vec4s of packed weights the blocked kernel needs with output block `cob`.
     fn blocked_weights(&self, cob: u32) -> u32 {
+        9 * self.cin4_total() * cob * 4
+    }
+
+    /// The output ranges `(first vec4, vec4s)` the blocked kernel with output block `cob`
+    /// runs this layer in: as few dispatches as the uniform weight array allows (one for
+    /// every layer of the shipped network). Empty when one block's weights do not fit.
+    fn blocked_chunks(&self, cob: u32) -> Vec<(u32, u32)> {
         let cout4 = padded(self.cout) / 4;
-        9 * self.cin4_total() * cout4.div_ceil(cob) * cob * 4
+        let per_block = self.blocked_weights(cob);
+        let blocks = BLOCKED_MAX_WEIGHTS / per_block.max(1);
+        if blocks == 0 {
+            return Vec::new();
+        }
+        let step = blocks * cob;
+        (0..cout4.div_ceil(step))
+            .map(|i| (i * step, step.min(cout4 - i * step)))
+            .collect()
     }
 
     /// Why `kernel` cannot run this layer on `gpu`, or `None` when it can.
@@ -299,7 +314,7 @@ impl Conv3x3 {
         let need = self.blocked_weights(cob);
         if need > BLOCKED_MAX_WEIGHTS {
             return Some(format!(
-                "its packed weights are {need} vec4s, more than the uniform array's {BLOCKED_MAX_WEIGHTS}"
+                "one output block's packed weights are {need} vec4s, more than the uniform array's {BLOCKED_MAX_WEIGHTS}"
             ));
         }
         let have = gpu.device.limits().max_uniform_buffer_binding_size;
@@ -412,61 +427,79 @@ impl Conv3x3 {
                 )
             }
             ConvKernel::Blocked { px, cob } => {
-                let weights = self.blocked_buffer(gpu, cob)?;
-                let spec = Specialisation(vec![
-                    ("N_IN", inputs.len() as f64),
-                    ("CIN4_0", cin4[0] as f64),
-                    ("CIN4_1", cin4[1] as f64),
-                    ("CIN4_2", cin4[2] as f64),
-                    ("CIN4_3", cin4[3] as f64),
-                    ("COUT4", out.c4() as f64),
-                    ("PX", px as f64),
-                    ("COB", cob as f64),
-                    ("ACT", act as f64),
-                    ("SLOPE", slope as f64),
-                ]);
                 let params = BlockedParams {
                     width: w,
                     height: h,
                     _pad: [0; 2],
                 };
-                bufs.extend([&weights, &self.bias, &out.buffer]);
-                gpu.kernels.dispatch(
-                    "nn/conv3x3_blocked",
-                    &spec,
-                    bytemuck::bytes_of(&params),
-                    &bufs,
-                    Grid::Invocations([w.div_ceil(px), h, out.c4().div_ceil(cob)]),
-                )
+                let chunks = self.blocked_chunks(cob);
+                let weights = self.blocked_buffers(gpu, cob)?;
+                let mut parts = Vec::with_capacity(chunks.len());
+                for (&(base, count), weights) in chunks.iter().zip(&weights) {
+                    let spec = Specialisation(vec![
+                        ("N_IN", inputs.len() as f64),
+                        ("CIN4_0", cin4[0] as f64),
+                        ("CIN4_1", cin4[1] as f64),
+                        ("CIN4_2", cin4[2] as f64),
+                        ("CIN4_3", cin4[3] as f64),
+                        ("COUT4", out.c4() as f64),
+                        ("CO_BASE", base as f64),
+                        ("CO_COUNT", count as f64),
+                        ("PX", px as f64),
+                        ("COB", cob as f64),
+                        ("ACT", act as f64),
+                        ("SLOPE", slope as f64),
+                    ]);
+                    let mut b = bufs.clone();
+                    b.extend([weights, &self.bias, &out.buffer]);
+                    parts.push(gpu.kernels.dispatch(
+                        "nn/conv3x3_blocked",
+                        &spec,
+                        bytemuck::bytes_of(&params),
+                        &b,
+                        Grid::Invocations([w.div_ceil(px), h, count.div_ceil(cob)]),
+                    )?);
+                }
+                let mut parts = parts.into_iter();
+                let first = parts.next().expect("a supported layer has at least one chunk");
+                Ok(first.chain(parts))
             }
         }
     }
 
-    /// The blocked kernel's uniform weights for output block `cob` (a full 64 KiB array,
-    /// zero beyond the packed layer), uploaded on first use.
-    fn blocked_buffer(&self, gpu: &Gpu, cob: u32) -> Result<wgpu::Buffer> {
+    /// The blocked kernel's uniform weights for output block `cob`, one buffer per output
+    /// range of [`Conv3x3::blocked_chunks`] (a full 64 KiB array each, zero beyond the
+    /// packed weights), uploaded on first use.
+    fn blocked_buffers(&self, gpu: &Gpu, cob: u32) -> Result<Vec<wgpu::Buffer>> {
         let mut cache = self.blocked.lock().unwrap();
         if let Some(b) = cache.get(&cob) {
             return Ok(b.clone());
         }
-        let stride = (padded(self.cout) / 4).div_ceil(cob) * cob;
-        let (mut packed, _) = Self::pack_strided(
-            &self.name,
-            &self.weight,
-            &self.bias_host,
-            &self.input_channels,
-            self.cout,
-            stride,
-        )?;
-        packed.resize(BLOCKED_MAX_WEIGHTS as usize * 4, 0.0);
-        use wgpu::util::DeviceExt;
-        let b = gpu.device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
-            label: Some(&format!("subpixel.{}.weight.cob{cob}", self.name)),
-            contents: bytemuck::cast_slice(&packed),
-            usage: wgpu::BufferUsages::UNIFORM,
-        });
-        cache.insert(cob, b.clone());
-        Ok(b)
+        let cin: u32 = self.input_channels.iter().sum();
+        let per_out = (cin * 9) as usize;
+        let mut buffers = Vec::new();
+        for (base, count) in self.blocked_chunks(cob) {
+            // The chunk's output channels as a layer of their own.
+            let lo = base * 4;
+            let hi = ((base + count) * 4).min(self.cout);
+            let (mut packed, _) = Self::pack_strided(
+                &self.name,
+                &self.weight[lo as usize * per_out..hi as usize * per_out],
+                &self.bias_host[lo as usize..hi as usize],
+                &self.input_channels,
+                hi - lo,
+                count.div_ceil(cob) * cob,
+            )?;
+            packed.resize(BLOCKED_MAX_WEIGHTS as usize * 4, 0.0);
+            use wgpu::util::DeviceExt;
+            buffers.push(gpu.device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
+                label: Some(&format!("subpixel.{}.weight.cob{cob}.from{base}", self.name)),
+                contents: bytemuck::cast_slice(&packed),
+                usage: wgpu::BufferUsages::UNIFORM,
+            }));
+        }
+        cache.insert(cob, buffers.clone());
+        Ok(buffers)
     }
 }
 

@@ -10,10 +10,12 @@
 // - N_IN inputs are bound, their channel counts and the output's are override constants:
 //   no dynamic `switch` and no runtime loop bounds; only the image size is a parameter;
 // - weights live in a uniform buffer (broadcast loads), packed per layer as
-//   [tap(9)][ci4 over the concatenated inputs][co4 (COUT4 rounded up to COB)][4 columns];
+//   [tap(9)][ci4 over the concatenated inputs][co4 (CO_COUNT rounded up to COB)][4 columns];
 //   column k of block (ci4, co4) holds the weights of input channel 4*ci4+k for output
-//   channels 4*co4..4*co4+3. The Rust side (nn::conv) packs them and refuses layers that
-//   do not fit MAX_WEIGHTS (those run on nn/conv3x3, which reads weights from storage).
+//   channels 4*co4..4*co4+3. A layer whose weights exceed MAX_WEIGHTS runs as several
+//   dispatches, each over CO_COUNT output vec4s from CO_BASE with its own weight buffer
+//   (nn::conv packs them; a layer whose single output block does not fit runs on
+//   nn/conv3x3, which reads weights from storage).
 // The grid: x over groups of PX pixels, y over rows, z over blocks of COB output vec4s.
 //
 //#param N_IN 4
@@ -24,7 +26,9 @@ override CIN4_0: u32 = 1u;  // padded channels / 4 of each input (inputs N_IN.. 
 override CIN4_1: u32 = 1u;
 override CIN4_2: u32 = 1u;
 override CIN4_3: u32 = 1u;
-override COUT4: u32 = 1u;   // padded output channels / 4
+override COUT4: u32 = 1u;   // padded output channels / 4 (the output tensor's stride)
+override CO_BASE: u32 = 0u; // first output vec4 of this dispatch
+override CO_COUNT: u32 = 1u; // output vec4s of this dispatch (its weights)
 override ACT: u32 = 0u;     // 0 none, 1 relu, 2 leaky relu
 override SLOPE: f32 = 0.0;  // leaky relu slope
 
@@ -49,7 +53,7 @@ const ACT_MAX: f32 = 1.0e15;
 // Activation and finiteness (a non-finite sum becomes 0, finite ones are clamped to
 // +-ACT_MAX, as in nn/conv3x3), stored when the pixel and output block exist.
 fn store(x: u32, y: u32, co4: u32, acc: vec4<f32>) {
-    if (x >= p.width || co4 >= COUT4) {
+    if (x >= p.width || co4 >= min(COUT4, CO_BASE + CO_COUNT)) {
         return;
     }
     var r = acc;
@@ -66,11 +70,12 @@ fn store(x: u32, y: u32, co4: u32, acc: vec4<f32>) {
 fn main(@builtin(global_invocation_id) gid: vec3<u32>) {
     let x0 = gid.x * {PX}u;
     let y = gid.y;
-    let co0 = gid.z * {COB}u;
+    let local0 = gid.z * {COB}u;
+    let co0 = CO_BASE + local0;
     if (x0 >= p.width || y >= p.height) {
         return;
     }
-    let cout4_stride = ((COUT4 + {COB}u - 1u) / {COB}u) * {COB}u;
+    let cout4_stride = ((CO_COUNT + {COB}u - 1u) / {COB}u) * {COB}u;
     var cin4_total = 0u;
     //#repeat k N_IN
     cin4_total += CIN4_{k};
@@ -97,7 +102,7 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>) {
             let v{i} = select(vec4<f32>(0.0), in{k}[(row + u32(clamp(xx{i}, 0, w_last))) * CIN4_{k} + ci], xx{i} >= 0 && xx{i} <= w_last);
             //#end
             //#repeat tx 3
-            let wr{tx} = (((ty * 3u + {tx}u) * cin4_total + ci_base + ci) * cout4_stride + co0) * 4u;
+            let wr{tx} = (((ty * 3u + {tx}u) * cin4_total + ci_base + ci) * cout4_stride + local0) * 4u;
             //#repeat j COB
             let w{tx}_{j}_0 = weights[wr{tx} + {j}u * 4u];
             let w{tx}_{j}_1 = weights[wr{tx} + {j}u * 4u + 1u];
