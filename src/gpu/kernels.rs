@@ -21,7 +21,8 @@ use crate::error::{Error, Result};
 /// WGSL has no `#include`; a kernel that shares code (the path tracer's traversal, BSDF,
 /// sampling) lists library files under `wgsl/**/lib/`, which are concatenated in order in
 /// front of the entry file at compile time. Library files hold functions, structs and
-/// constants only; they may refer to bindings that every including entry file declares.
+/// constants only; they may refer to bindings that every including entry file declares
+/// (one exception declares bindings itself: `trace/lib/scene`, the tracer's scene arrays).
 #[derive(Debug, Clone, Copy)]
 pub struct KernelSource {
     /// Name: the path under `wgsl/` without extension, e.g. `nn/conv3x3`.
@@ -64,6 +65,7 @@ macro_rules! trace_kernel {
             $name,
             [
                 "trace/lib/common",
+                "trace/lib/scene",
                 "trace/lib/bvh",
                 "trace/lib/material",
                 "trace/lib/bsdf",
@@ -166,6 +168,11 @@ pub fn kernel_source(name: &str) -> Result<&'static KernelSource> {
 
 /// Parses and validates WGSL with naga (all capabilities the crate may request).
 pub fn validate_wgsl(name: &str, source: &str) -> Result<naga::Module> {
+    Ok(validate_wgsl_info(name, source)?.0)
+}
+
+/// [`validate_wgsl`], also returning naga's analysis of the module.
+fn validate_wgsl_info(name: &str, source: &str) -> Result<(naga::Module, naga::valid::ModuleInfo)> {
     let module = naga::front::wgsl::parse_str(source).map_err(|e| Error::Kernel {
         kernel: name.to_string(),
         message: format!("WGSL parse error:\n{}", e.emit_to_string(source)),
@@ -174,11 +181,28 @@ pub fn validate_wgsl(name: &str, source: &str) -> Result<naga::Module> {
         naga::valid::ValidationFlags::all(),
         naga::valid::Capabilities::all(),
     );
-    validator.validate(&module).map_err(|e| Error::Kernel {
+    let info = validator.validate(&module).map_err(|e| Error::Kernel {
         kernel: name.to_string(),
         message: format!("WGSL validation error:\n{}", e.emit_to_string(source)),
     })?;
-    Ok(module)
+    Ok((module, info))
+}
+
+/// The bindings of group 0 that entry point `main` uses (declared globals it never
+/// reaches, such as scene arrays a shared library declares, are left out of its layout).
+fn used_bindings(module: &naga::Module, info: &naga::valid::ModuleInfo) -> std::collections::HashSet<u32> {
+    let Some(ep) = module.entry_points.iter().position(|e| e.name == "main") else {
+        return Default::default();
+    };
+    let uses = info.get_entry_point(ep);
+    module
+        .global_variables
+        .iter()
+        .filter(|(h, _)| !uses[*h].is_empty())
+        .filter_map(|(_, v)| v.binding.as_ref())
+        .filter(|b| b.group == 0)
+        .map(|b| b.binding)
+        .collect()
 }
 
 /// What a kernel asks of the device, read from its WGSL with naga: its bindings by kind,
@@ -283,7 +307,8 @@ impl KernelNeeds {
 /// [`KernelNeeds`]).
 pub fn kernel_needs(name: &str, params: ParamsBinding) -> Result<KernelNeeds> {
     let k = kernel_source(name)?;
-    let module = validate_wgsl(k.name, &k.wgsl(params, &[])?)?;
+    let (module, info) = validate_wgsl_info(k.name, &k.wgsl(params, &[])?)?;
+    let used = used_bindings(&module, &info);
     let mut layouter = naga::proc::Layouter::default();
     layouter.update(module.to_ctx()).map_err(|e| Error::Kernel {
         kernel: k.name.to_string(),
@@ -295,7 +320,13 @@ pub fn kernel_needs(name: &str, params: ParamsBinding) -> Result<KernelNeeds> {
             n.workgroup_memory += layouter[var.ty].size;
             continue;
         }
-        let Some(b) = &var.binding else { continue };
+        let Some(b) = var
+            .binding
+            .as_ref()
+            .filter(|b| b.group != 0 || used.contains(&b.binding))
+        else {
+            continue;
+        };
         n.bind_groups = n.bind_groups.max(b.group + 1);
         n.bindings_per_group = n.bindings_per_group.max(b.binding + 1);
         match var.space {
@@ -394,11 +425,12 @@ type ModuleKey = (&'static str, Vec<(&'static str, u32)>);
 /// What the registry reads from a kernel's naga module once: per binding index of group 0
 /// whether the kernel may write it, and the workgroup size of `main`.
 #[derive(Debug)]
-struct ModuleInfo {
+struct KernelInfo {
     writable: HashMap<u32, bool>,
     workgroup: [u32; 3],
+    used: std::collections::HashSet<u32>,
 }
-type Writable = Arc<ModuleInfo>;
+type Writable = Arc<KernelInfo>;
 /// A compiled module and its bindings' access.
 type CompiledModule = (Arc<wgpu::ShaderModule>, Writable);
 /// A pipeline and its bindings' access.
@@ -488,16 +520,17 @@ impl KernelRegistry {
             return Ok(m.clone());
         }
         let source = k.wgsl(self.params_binding(k.name)?, template)?;
-        let naga_module = validate_wgsl(k.name, &source)?;
+        let (naga_module, naga_info) = validate_wgsl_info(k.name, &source)?;
         let workgroup = naga_module
             .entry_points
             .iter()
             .find(|e| e.name == "main")
             .map(|e| e.workgroup_size)
             .unwrap_or([1, 1, 1]);
-        let writable = Arc::new(ModuleInfo {
+        let writable = Arc::new(KernelInfo {
             writable: writable_bindings(&naga_module),
             workgroup,
+            used: used_bindings(&naga_module, &naga_info),
         });
         let scope = self.device.push_error_scope(wgpu::ErrorFilter::Validation);
         let module = self.device.create_shader_module(wgpu::ShaderModuleDescriptor {
@@ -602,7 +635,7 @@ impl KernelRegistry {
         let mut seen: Vec<&wgpu::Buffer> = Vec::new();
         d.bytes_read = params.len() as u64;
         for (i, b) in buffers.iter().enumerate() {
-            if seen.contains(b) {
+            if seen.contains(b) || !writable.used.contains(&(i as u32 + 1)) {
                 continue;
             }
             seen.push(b);
@@ -660,11 +693,14 @@ impl KernelRegistry {
                 resource: u.as_entire_binding(),
             });
         }
+        // Resources the kernel declares but never reaches are not in its layout.
         for (i, r) in resources.iter().enumerate() {
-            entries.push(wgpu::BindGroupEntry {
-                binding: i as u32 + 1,
-                resource: r.clone(),
-            });
+            if info.used.contains(&(i as u32 + 1)) {
+                entries.push(wgpu::BindGroupEntry {
+                    binding: i as u32 + 1,
+                    resource: r.clone(),
+                });
+            }
         }
         let scope = self.device.push_error_scope(wgpu::ErrorFilter::Validation);
         let bind_group = self.device.create_bind_group(&wgpu::BindGroupDescriptor {
@@ -833,10 +869,14 @@ mod tests {
                 "{}: entry file must come last",
                 k.name
             );
-            // Libraries declare no bindings: those belong to the entry file.
+            // Libraries declare no bindings: those belong to the entry file; except the
+            // tracer's scene, declared once for all tracer kernels.
             for lib in k.includes {
                 let text = std::fs::read_to_string(root.join(format!("{lib}.wgsl"))).unwrap();
-                assert!(!text.contains("@binding"), "library {lib} declares a binding");
+                assert!(
+                    !text.contains("@binding") || *lib == "trace/lib/scene",
+                    "library {lib} declares a binding"
+                );
                 assert!(
                     !text.contains("@compute"),
                     "library {lib} declares an entry point"

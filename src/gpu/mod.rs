@@ -11,6 +11,6 @@ pub use bound::Bound;
 pub use context::{AdapterKind, Gpu, GpuOptions};
 pub use kernels::{
     Dispatch, Grid, KERNELS, KernelNeeds, KernelRegistry, KernelSource, ParamsBinding, Specialisation,
-    check_limits, kernel_needs, kernel_source, libraries,
+    check_limits, kernel_needs, kernel_source, libraries, validate_wgsl,
 };
 pub use profiler::{Profiler, StageStats, Stats, time_dispatch};

@@ -3,19 +3,12 @@
 // fills; zeroed here), transparent tint, and motion vectors from the previous camera.
 
 @group(0) @binding(0) var<uniform> p: FrameParams;
-@group(0) @binding(1) var<storage, read> bvh_nodes: array<vec4<u32>>;
-@group(0) @binding(2) var<storage, read> tris: array<vec4<f32>>;
-@group(0) @binding(3) var<storage, read> verts: array<vec4<f32>>;
-@group(0) @binding(4) var<storage, read> materials: array<Material>;
-@group(0) @binding(5) var<storage, read> texels: array<u32>;
-@group(0) @binding(6) var<storage, read_write> albedo_depth: array<vec4<f32>>;
-@group(0) @binding(7) var<storage, read_write> normal_metallic: array<vec4<f32>>;
-@group(0) @binding(8) var<storage, read_write> shadow_roughness: array<vec4<f32>>;
-@group(0) @binding(9) var<storage, read_write> transparent: array<vec4<f32>>;
-@group(0) @binding(10) var<storage, read_write> motion: array<vec4<f32>>;
-// Declared for the shared libraries, unused by this kernel (left out of its layout).
-@group(0) @binding(30) var<storage, read> lights: array<vec4<f32>>;
-@group(0) @binding(31) var<storage, read> env: array<vec4<f32>>;
+// The scene at bindings 1-7 (trace/lib/scene.wgsl).
+@group(0) @binding(8) var<storage, read_write> albedo_depth: array<vec4<f32>>;
+@group(0) @binding(9) var<storage, read_write> normal_metallic: array<vec4<f32>>;
+@group(0) @binding(10) var<storage, read_write> shadow_roughness: array<vec4<f32>>;
+@group(0) @binding(11) var<storage, read_write> transparent: array<vec4<f32>>;
+@group(0) @binding(12) var<storage, read_write> motion: array<vec4<f32>>;
 
 @compute @workgroup_size(8, 8, 1)
 fn main(@builtin(global_invocation_id) gid: vec3<u32>) {

@@ -13,13 +13,7 @@
 // visibility (0 when occluded or when no light could be sampled).
 
 @group(0) @binding(0) var<uniform> p: FrameParams;
-@group(0) @binding(1) var<storage, read> bvh_nodes: array<vec4<u32>>;
-@group(0) @binding(2) var<storage, read> tris: array<vec4<f32>>;
-@group(0) @binding(3) var<storage, read> verts: array<vec4<f32>>;
-@group(0) @binding(4) var<storage, read> materials: array<Material>;
-@group(0) @binding(5) var<storage, read> texels: array<u32>;
-@group(0) @binding(6) var<storage, read> lights: array<vec4<f32>>;
-@group(0) @binding(7) var<storage, read> env: array<vec4<f32>>;
+// The scene at bindings 1-7 (trace/lib/scene.wgsl).
 @group(0) @binding(8) var<storage, read_write> color_mask: array<vec4<f32>>;
 @group(0) @binding(9) var<storage, read_write> shadow_roughness: array<vec4<f32>>;
 // counters[0]: rays traced (camera, bounce and shadow rays), summed over invocations.

@@ -1,6 +1,6 @@
 // Path tracer library: shared constants, scene data layouts, random numbers and helpers.
-// Library files declare no bindings. Every kernel that includes the tracer libraries
-// declares these storage buffers under exactly these names (see src/render/gpu_scene.rs):
+// The scene's storage buffers, declared once in trace/lib/scene.wgsl (bindings 1-7, the
+// only library with bindings) for every tracer kernel (see src/render/gpu_scene.rs):
 //   bvh_nodes: array<vec4<u32>>  CWBVH nodes, 5 x vec4<u32> each (obvhs CwBvhNode, 80 bytes)
 //   tris:      array<vec4<f32>>  4 x vec4 per triangle in BVH leaf order:
 //                                v0 (w unused), e1 = v0 - v1, e2 = v2 - v0, info (bitcast u32:
