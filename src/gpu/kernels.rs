@@ -814,6 +814,30 @@ mod tests {
         }
     }
 
+    /// Every expansion of a template kernel the crate can ask for validates with naga:
+    /// each conv tiling the autotuner may pick, for 1 to 4 inputs, in both parameter
+    /// bindings.
+    #[test]
+    fn every_template_expansion_validates_with_naga() {
+        let k = kernel_source("nn/conv3x3_blocked").unwrap();
+        let mut n = 0;
+        for kernel in crate::nn::conv::ConvKernel::blocked_tilings() {
+            let crate::nn::conv::ConvKernel::Blocked { px, cob } = kernel else {
+                unreachable!()
+            };
+            for inputs in 1..=4 {
+                for params in [ParamsBinding::Uniform, ParamsBinding::Storage] {
+                    let src = k
+                        .wgsl(params, &[("N_IN", inputs), ("PX", px), ("COB", cob)])
+                        .unwrap();
+                    validate_wgsl(k.name, &src).unwrap_or_else(|e| panic!("{kernel} x{inputs}: {e}"));
+                    n += 1;
+                }
+            }
+        }
+        assert!(n >= 100, "{n} expansions");
+    }
+
     /// Every `.wgsl` file under `wgsl/` is registered, so none escapes validation.
     #[test]
     fn every_wgsl_file_is_registered() {
