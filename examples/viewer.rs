@@ -144,6 +144,8 @@ struct Frame {
     reference_spp: u32,
     /// The reference trace, bound once per scene; its parameters change every frame.
     reference_trace: Bound<wgpu::Buffer, Dispatch>,
+    /// The TFA-accumulated colour view, bound once per A_acc tensor.
+    accumulated_view: [Bound<wgpu::Buffer, Dispatch>; 2],
 }
 
 struct App {
@@ -191,6 +193,7 @@ impl App {
             reference_shadow: Tensor::new(&self.gpu, "viewer.reference_shadow", rw, rh, 4)?,
             reference_spp: 0,
             reference_trace: Bound::new(),
+            accumulated_view: [Bound::new(), Bound::new()],
         })
     }
 
@@ -255,7 +258,12 @@ impl App {
             let net = frame.fl.denoiser.network();
             let a_acc = net.tensor("a_acc").expect("a_acc exists");
             let exposure = net.tensor("exposure").expect("exposure exists");
-            ops::remodulate(&self.gpu, a_acc, a_acc, 3, exposure, &frame.accumulated)?.encode(&mut enc);
+            // A_acc alternates between two tensors: one bound dispatch for each.
+            let slot = &mut frame.accumulated_view[(frame.fl.denoiser.frames() % 2) as usize];
+            let d = slot.get_or_build(a_acc.buffer.clone(), || {
+                ops::remodulate(&self.gpu, a_acc, a_acc, 3, exposure, &frame.accumulated)
+            })?;
+            d.encode(&mut enc);
         }
         let net = frame.fl.denoiser.network();
         let ssr = net.output();

@@ -430,11 +430,11 @@ struct KernelInfo {
     workgroup: [u32; 3],
     used: std::collections::HashSet<u32>,
 }
-type Writable = Arc<KernelInfo>;
+type Info = Arc<KernelInfo>;
 /// A compiled module and its bindings' access.
-type CompiledModule = (Arc<wgpu::ShaderModule>, Writable);
+type CompiledModule = (Arc<wgpu::ShaderModule>, Info);
 /// A pipeline and its bindings' access.
-type CompiledPipeline = (Arc<wgpu::ComputePipeline>, Writable);
+type CompiledPipeline = (Arc<wgpu::ComputePipeline>, Info);
 
 /// Per binding of group 0: whether the kernel may write it (`read_write` storage, storage
 /// textures that are not read-only); read from its naga module.
@@ -527,7 +527,7 @@ impl KernelRegistry {
             .find(|e| e.name == "main")
             .map(|e| e.workgroup_size)
             .unwrap_or([1, 1, 1]);
-        let writable = Arc::new(KernelInfo {
+        let info = Arc::new(KernelInfo {
             writable: writable_bindings(&naga_module),
             workgroup,
             used: used_bindings(&naga_module, &naga_info),
@@ -543,7 +543,7 @@ impl KernelRegistry {
                 message: format!("shader module creation failed: {e}"),
             });
         }
-        let compiled = (Arc::new(module), writable);
+        let compiled = (Arc::new(module), info);
         self.modules.lock().unwrap().insert(key, compiled.clone());
         Ok(compiled)
     }
@@ -578,7 +578,7 @@ impl KernelRegistry {
             }
         }
         template.sort_unstable();
-        let (module, writable) = self.module(k, &template)?;
+        let (module, info) = self.module(k, &template)?;
         let scope = self.device.push_error_scope(wgpu::ErrorFilter::Validation);
         let pipeline = self
             .device
@@ -599,7 +599,7 @@ impl KernelRegistry {
                 message: format!("pipeline creation failed (specialisation {:?}): {e}", spec.0),
             });
         }
-        let compiled = (Arc::new(pipeline), writable);
+        let compiled = (Arc::new(pipeline), info);
         self.pipelines.lock().unwrap().insert(key, compiled.clone());
         Ok(compiled)
     }
@@ -629,17 +629,16 @@ impl KernelRegistry {
         }
         let resources: Vec<wgpu::BindingResource<'_>> =
             buffers.iter().map(|b| b.as_entire_binding()).collect();
-        let mut d = self.dispatch_with(name, spec, params, &resources, grid)?;
+        let (mut d, info) = self.bind(name, spec, params, &resources, grid)?;
         // Compulsory traffic: each distinct buffer once, by whether the kernel writes it.
-        let (_, writable) = self.compiled(name, spec)?;
         let mut seen: Vec<&wgpu::Buffer> = Vec::new();
         d.bytes_read = params.len() as u64;
         for (i, b) in buffers.iter().enumerate() {
-            if seen.contains(b) || !writable.used.contains(&(i as u32 + 1)) {
+            if seen.contains(b) || !info.used.contains(&(i as u32 + 1)) {
                 continue;
             }
             seen.push(b);
-            if writable.writable.get(&(i as u32 + 1)).copied().unwrap_or(false) {
+            if info.writable.get(&(i as u32 + 1)).copied().unwrap_or(false) {
                 d.bytes_written += b.size();
             } else {
                 d.bytes_read += b.size();
@@ -658,6 +657,19 @@ impl KernelRegistry {
         resources: &[wgpu::BindingResource<'_>],
         grid: Grid,
     ) -> Result<Dispatch> {
+        Ok(self.bind(name, spec, params, resources, grid)?.0)
+    }
+
+    /// The dispatch of [`KernelRegistry::dispatch_with`] and what the registry knows of
+    /// its kernel.
+    fn bind(
+        &self,
+        name: &str,
+        spec: &Specialisation,
+        params: &[u8],
+        resources: &[wgpu::BindingResource<'_>],
+        grid: Grid,
+    ) -> Result<(Dispatch, Info)> {
         let (pipeline, info) = self.compiled(name, spec)?;
         let groups = grid.workgroups(info.workgroup);
         let limit = self.device.limits().max_compute_workgroups_per_dimension;
@@ -714,7 +726,7 @@ impl KernelRegistry {
                 message: format!("bind group does not match the kernel: {e}"),
             });
         }
-        Ok(Dispatch {
+        let d = Dispatch {
             kernel: kernel_source(name)?.name,
             pipeline,
             bind_group,
@@ -723,7 +735,8 @@ impl KernelRegistry {
             bytes_read: 0,
             bytes_written: 0,
             then: Vec::new(),
-        })
+        };
+        Ok((d, info))
     }
 }
 

@@ -117,6 +117,23 @@ pub fn expand(kernel: &str, source: &str, values: &[(&str, u32)]) -> Result<Stri
     Ok(out)
 }
 
+/// The line of the `//#end` that closes a block opened just before `start`.
+fn block_end(lines: &[&str], start: usize) -> Option<usize> {
+    let mut depth = 0usize;
+    for (i, l) in lines.iter().enumerate().skip(start) {
+        let t = l.trim();
+        if t.starts_with("//#repeat ") {
+            depth += 1;
+        } else if t == "//#end" {
+            if depth == 0 {
+                return Some(i);
+            }
+            depth -= 1;
+        }
+    }
+    None
+}
+
 /// Emits lines from `start` until an unmatched `//#end` or the end of the source, and
 /// returns where it stopped.
 fn emit(
@@ -142,13 +159,8 @@ fn emit(
             if vars.contains_key(var) {
                 return Err(err(kernel, i, format!("'{var}' is already bound")));
             }
-            // Find the block's end once (also when it repeats zero times).
-            let mut scratch = String::new();
-            vars.insert(var.to_string(), 0);
-            let close = emit(kernel, lines, i + 1, vars, &mut scratch)?;
-            if close >= lines.len() {
-                return Err(err(kernel, i, "'//#repeat' without '//#end'"));
-            }
+            let close =
+                block_end(lines, i + 1).ok_or_else(|| err(kernel, i, "'//#repeat' without '//#end'"))?;
             for v in 0..count {
                 vars.insert(var.to_string(), v);
                 emit(kernel, lines, i + 1, vars, out)?;

@@ -90,7 +90,7 @@ pub const PARAM_SIZES: &[(&str, usize)] = &[
     ("ssr/exposure_final", std::mem::size_of::<ExposureFinalParams>()),
     (
         "ssr/warp_history",
-        std::mem::size_of::<super::network::HistoryParams>(),
+        std::mem::size_of::<super::network::WarpHistoryParams>(),
     ),
 ];
 
@@ -116,7 +116,7 @@ pub struct Denoiser {
     output: wgpu::Texture,
     store: Dispatch,
     /// The input packing (and exposure) bound to the caller's six buffers.
-    pack: Bound<Vec<wgpu::Buffer>, ([Dispatch; 2], Option<ExposureDispatches>)>,
+    pack: Bound<[wgpu::Buffer; 6], ([Dispatch; 2], Option<ExposureDispatches>)>,
     /// The denoiser's own input buffers for [`Denoiser::denoise_host`], made on first use;
     /// never the caller's buffers of an earlier [`Denoiser::denoise`].
     host_inputs: Option<Vec<wgpu::Buffer>>,
@@ -341,7 +341,7 @@ impl Denoiser {
     }
 
     fn bind_inputs(&mut self, inputs: &FrameInputs<'_>) -> Result<()> {
-        let key = inputs.buffers().iter().map(|&b| b.clone()).collect();
+        let key = inputs.buffers().map(|b| b.clone());
         let mut pack = std::mem::take(&mut self.pack);
         let bound = pack
             .get_or_build(key, || self.pack_dispatches(inputs))

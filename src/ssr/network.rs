@@ -18,7 +18,7 @@ use crate::nn::{HostTensor, Tensor};
 
 #[repr(C)]
 #[derive(Clone, Copy, Pod, Zeroable)]
-pub(super) struct HistoryParams {
+pub(super) struct WarpHistoryParams {
     width: u32,
     height: u32,
     rescale: u32,
@@ -229,7 +229,7 @@ impl Network {
                         ),
                     ));
                 }
-                let params = HistoryParams {
+                let params = WarpHistoryParams {
                     width: self.width,
                     height: self.height,
                     rescale: rescale as u32,
