@@ -6,7 +6,7 @@ mod common;
 use common::*;
 use subpixel::gpu::Grid;
 use subpixel::nn::ops::{self, Activation, Conv3x3, ConvKernel, PoolMode, TfaBlend, UpsampleMode};
-use subpixel::nn::{HostTensor, Tensor, reference};
+use subpixel::nn::{DType, HostTensor, Tensor, reference};
 
 fn up(gpu: &subpixel::gpu::Gpu, name: &str, t: &HostTensor) -> Tensor {
     Tensor::from_host(gpu, name, t).unwrap()
@@ -133,6 +133,133 @@ fn conv3x3_every_autotuner_candidate_matches_reference() {
     }
     assert!(tried >= 40, "{tried} kernel/shape pairs");
     assert!(chunked >= 5, "{chunked} chunked dispatches");
+}
+
+/// A host tensor's values rounded to f16 (what an f16 tensor stores).
+fn to_f16(t: &HostTensor) -> HostTensor {
+    let mut r = t.clone();
+    for v in &mut r.data {
+        *v = half::f16::from_f32(*v).to_f32();
+    }
+    r
+}
+
+/// f16 storage (issue 14): the generic conv kernel and blocked tilings at the corners of
+/// the family (the storage code is shared by every tiling), with inputs stored as
+/// f16 and f32 mixed and the output in either, against the CPU reference computed in f32
+/// on the f16-rounded inputs, its result rounded to f16 for an f16 output. Stated
+/// tolerance: the f32 kernels' (sums in another order) plus 2^-10 relative for the
+/// output's rounding (at most one f16 ulp: both sides round a value that differs by the
+/// f32 tolerance). Pooling with f16 storage is exact (max) or within it (average).
+#[test]
+fn conv3x3_and_pooling_with_f16_storage_match_reference() {
+    let g = gpu();
+    if !g.has(wgpu::Features::SHADER_F16) {
+        eprintln!("skipped: {} has no SHADER_F16", g.describe());
+        return;
+    }
+    const F16_OUT: Tol = Tol {
+        abs: REDUCTION.abs,
+        rel: REDUCTION.rel + 1.0 / 1024.0,
+    };
+    let (split, cout, act, (w, h)) = ([15u32, 4, 8, 3], 20u32, Activation::LeakyRelu(0.1), (21u32, 9u32));
+    let dtypes = [DType::F16, DType::F32, DType::F16, DType::F32];
+    let inputs: Vec<HostTensor> = split
+        .iter()
+        .enumerate()
+        .map(|(k, &c)| random(900 + k as u64, w, h, c, -2.0, 2.0))
+        .collect();
+    let stored: Vec<HostTensor> = inputs
+        .iter()
+        .zip(dtypes)
+        .map(|(t, d)| if d == DType::F16 { to_f16(t) } else { t.clone() })
+        .collect();
+    let cin: u32 = split.iter().sum();
+    let weight = random_vec(77, (cout * cin * 9) as usize, -0.5, 0.5);
+    let bias = random_vec(78, cout as usize, -0.5, 0.5);
+    let conv = Conv3x3::new(&g, "f16", &weight, &bias, &split, cout, act).unwrap();
+    let gins: Vec<Tensor> = inputs
+        .iter()
+        .zip(dtypes)
+        .map(|(t, d)| Tensor::from_host_typed(&g, "in", t, d).unwrap())
+        .collect();
+    let refs: Vec<&Tensor> = gins.iter().collect();
+    let hin: Vec<&HostTensor> = stored.iter().collect();
+    let want = reference::conv3x3(&hin, &weight, &bias, cout, act);
+    let mut tried = 0;
+    let kernels: Vec<ConvKernel> = ["generic", "px1-cob1", "px16-cob1", "px4-cob4", "px8-cob2"]
+        .iter()
+        .map(|k| k.parse().unwrap())
+        .collect();
+    for &kernel in &kernels {
+        assert!(conv.unsupported(&g, kernel).is_none(), "{kernel}");
+        for out_dtype in [DType::F16, DType::F32] {
+            let out = Tensor::new_typed(&g, "out", w, h, cout, out_dtype).unwrap();
+            let d = conv.bind_with(&g, kernel, &refs, &out).unwrap();
+            // Traffic accounting follows the storage: an f16 output is half the bytes.
+            assert_eq!(d.bytes_written, d.parts() as u64 * out.bytes(), "{kernel}");
+            ops::run(&g, &[&d]).unwrap();
+            let (expect, tol) = match out_dtype {
+                DType::F16 => (to_f16(&want), F16_OUT),
+                DType::F32 => (want.clone(), REDUCTION),
+            };
+            assert_close(
+                &format!("conv3x3 {kernel} f16/f32 inputs -> {}", out_dtype.name()),
+                &out.read(&g).unwrap(),
+                &expect,
+                tol,
+            );
+            tried += 1;
+        }
+    }
+    assert_eq!(tried, 10);
+    // An f16 output saturates at f16's largest finite value instead of overflowing.
+    let big = Conv3x3::new(&g, "big", &vec![1.0e3; 9], &[0.0], &[1], 1, Activation::None).unwrap();
+    let x = Tensor::from_host(&g, "x", &HostTensor::from_fn(4, 4, 1, |_, _, _| 100.0)).unwrap();
+    let out = Tensor::new_typed(&g, "out", 4, 4, 1, DType::F16).unwrap();
+    for &kernel in &kernels[..2] {
+        ops::run(&g, &[&big.bind_with(&g, kernel, &[&x], &out).unwrap()]).unwrap();
+        let got = out.read(&g).unwrap();
+        assert!(
+            got.data.iter().all(|&v| v == 65504.0),
+            "{kernel}: {:?}",
+            &got.data[..4]
+        );
+    }
+    // Pooling, f16 to f16 and across storages.
+    let x = random(901, 13, 7, 12, -3.0, 3.0);
+    for (src, dst) in [
+        (DType::F16, DType::F16),
+        (DType::F32, DType::F16),
+        (DType::F16, DType::F32),
+    ] {
+        let t = Tensor::from_host_typed(&g, "x", &x, src).unwrap();
+        let stored = if src == DType::F16 { to_f16(&x) } else { x.clone() };
+        for mode in [PoolMode::Max, PoolMode::Average] {
+            let out = Tensor::new_typed(&g, "out", 7, 4, 12, dst).unwrap();
+            ops::run(&g, &[&ops::pool2x2(&g, mode, &t, &out).unwrap()]).unwrap();
+            let want = reference::pool2x2(&stored, mode);
+            let (want, tol) = match (dst, mode) {
+                (DType::F16, PoolMode::Max) => (to_f16(&want), EXACT),
+                (DType::F16, PoolMode::Average) => (to_f16(&want), F16_OUT),
+                (_, PoolMode::Max) => (want, EXACT),
+                (_, PoolMode::Average) => (want, ELEMENTWISE),
+            };
+            assert_close(
+                &format!("pool {mode:?} {} -> {}", src.name(), dst.name()),
+                &out.read(&g).unwrap(),
+                &want,
+                tol,
+            );
+        }
+    }
+    // Kernels without an f16 variant refuse f16 tensors with a named error.
+    let a = Tensor::new_typed(&g, "a", 8, 8, 4, DType::F16).unwrap();
+    let b = Tensor::new(&g, "b", 16, 16, 4).unwrap();
+    let e = ops::upsample2x(&g, UpsampleMode::Bilinear, &a, &b)
+        .unwrap_err()
+        .to_string();
+    assert!(e.contains("upsample2x") && e.contains("f16"), "{e}");
 }
 
 /// A layer whose single output block's weights exceed the blocked kernel's uniform array

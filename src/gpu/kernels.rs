@@ -79,9 +79,21 @@ macro_rules! trace_kernel {
 impl KernelSource {
     /// The WGSL compiled for this kernel when its parameters are bound as `params` and its
     /// template parameters (see [`super::template`]; defaults for those not given) take
-    /// `template`'s values.
+    /// `template`'s values. WGSL wants `enable` directives before any declaration, so
+    /// those of the entry file (an f16 variant's `enable f16;`) move in front of the
+    /// libraries composed before it.
     pub fn wgsl(&self, params: ParamsBinding, template: &[(&str, u32)]) -> Result<String> {
-        let source = super::template::expand(self.name, self.source, template)?;
+        let expanded = super::template::expand(self.name, self.source, template)?;
+        let is_enable = |l: &&str| l.trim_start().starts_with("enable ");
+        let mut source = String::with_capacity(expanded.len());
+        for l in expanded.lines().filter(is_enable) {
+            source.push_str(l.trim());
+            source.push('\n');
+        }
+        for l in expanded.lines().filter(|l| !is_enable(l)) {
+            source.push_str(l);
+            source.push('\n');
+        }
         Ok(match params {
             ParamsBinding::Uniform => source,
             ParamsBinding::Storage => source.replace(PARAMS_UNIFORM, PARAMS_STORAGE),
@@ -829,7 +841,7 @@ mod tests {
 
     /// Every expansion of a template kernel the crate can ask for validates with naga:
     /// each conv tiling the autotuner may pick, for 1 to 4 inputs, in both parameter
-    /// bindings.
+    /// bindings, with f32 and f16 storage; the f16 variants of the other kernels.
     #[test]
     fn every_template_expansion_validates_with_naga() {
         let k = kernel_source("nn/conv3x3_blocked").unwrap();
@@ -840,15 +852,43 @@ mod tests {
             };
             for inputs in 1..=4 {
                 for params in [ParamsBinding::Uniform, ParamsBinding::Storage] {
-                    let src = k
-                        .wgsl(params, &[("N_IN", inputs), ("PX", px), ("COB", cob)])
-                        .unwrap();
-                    validate_wgsl(k.name, &src).unwrap_or_else(|e| panic!("{kernel} x{inputs}: {e}"));
-                    n += 1;
+                    // f32 storage, and f16 for the first input and the output.
+                    for f16 in [0, 1] {
+                        let src = k
+                            .wgsl(
+                                params,
+                                &[
+                                    ("N_IN", inputs),
+                                    ("PX", px),
+                                    ("COB", cob),
+                                    ("F16_IN0", f16),
+                                    ("F16_OUT", f16),
+                                ],
+                            )
+                            .unwrap();
+                        validate_wgsl(k.name, &src)
+                            .unwrap_or_else(|e| panic!("{kernel} x{inputs} f16 {f16}: {e}"));
+                        n += 1;
+                    }
                 }
             }
         }
-        assert!(n >= 100, "{n} expansions");
+        assert!(n >= 200, "{n} expansions");
+        // The f16 storage variants of the other kernels that have them, every flag alone.
+        for (name, flags) in [
+            (
+                "nn/conv3x3",
+                &["F16_IN0", "F16_IN1", "F16_IN2", "F16_IN3", "F16_OUT"][..],
+            ),
+            ("nn/pool2x2", &["F16_SRC", "F16_DST"][..]),
+        ] {
+            let k = kernel_source(name).unwrap();
+            for flag in flags {
+                let src = k.wgsl(ParamsBinding::Storage, &[(flag, 1)]).unwrap();
+                assert!(src.starts_with("enable f16;"), "{name} {flag}");
+                validate_wgsl(name, &src).unwrap_or_else(|e| panic!("{name} {flag}: {e}"));
+            }
+        }
     }
 
     /// Every `.wgsl` file under `wgsl/` is registered, so none escapes validation.

@@ -12,6 +12,10 @@
 //!   naga validation and limit checks use unless told otherwise;
 //! - `//#repeat VAR COUNT` ... `//#end`: the lines between, repeated for `VAR` = 0 ..
 //!   COUNT-1, where COUNT is an expression (below); blocks nest;
+//! - `//#if EXPR` ... [`//#else` ...] `//#end`: the first lines when EXPR is not 0, else
+//!   those after `//#else` (e.g. a binding's element type, `f32` or `f16`);
+//! - in a directive's argument, `{EXPR}` is replaced first, so names can be built from
+//!   repeat variables (`//#if F16_IN{k}`);
 //! - `{EXPR}` anywhere in a line: the value of EXPR (no spaces), a `+`-separated sum of integers,
 //!   template parameters and enclosing `repeat` variables (`{q+tx}`, `{N_IN+1}`).
 
@@ -112,21 +116,30 @@ pub fn expand(kernel: &str, source: &str, values: &[(&str, u32)]) -> Result<Stri
     let mut out = String::with_capacity(source.len() * 2);
     let end = emit(kernel, &lines, 0, &mut vars, &mut out)?;
     if end != lines.len() {
-        return Err(err(kernel, end, "'//#end' without '//#repeat'"));
+        let what = if lines[end].trim() == "//#else" {
+            "'//#else' without '//#if'"
+        } else {
+            "'//#end' without '//#repeat' or '//#if'"
+        };
+        return Err(err(kernel, end, what));
     }
     Ok(out)
 }
 
-/// The line of the `//#end` that closes a block opened just before `start`.
-fn block_end(lines: &[&str], start: usize) -> Option<usize> {
+/// Where the block opened just before `start` ends: its `//#else` at the same depth, if
+/// any, and the line of its closing `//#end`.
+fn block_end(lines: &[&str], start: usize) -> Option<(Option<usize>, usize)> {
     let mut depth = 0usize;
+    let mut otherwise = None;
     for (i, l) in lines.iter().enumerate().skip(start) {
         let t = l.trim();
-        if t.starts_with("//#repeat ") {
+        if t.starts_with("//#repeat ") || t.starts_with("//#if ") {
             depth += 1;
+        } else if t == "//#else" && depth == 0 && otherwise.is_none() {
+            otherwise = Some(i);
         } else if t == "//#end" {
             if depth == 0 {
-                return Some(i);
+                return Some((otherwise, i));
             }
             depth -= 1;
         }
@@ -134,8 +147,8 @@ fn block_end(lines: &[&str], start: usize) -> Option<usize> {
     None
 }
 
-/// Emits lines from `start` until an unmatched `//#end` or the end of the source, and
-/// returns where it stopped.
+/// Emits lines from `start` until an unmatched `//#end` or `//#else`, or the end of the
+/// source, and returns where it stopped.
 fn emit(
     kernel: &str,
     lines: &[&str],
@@ -146,26 +159,52 @@ fn emit(
     let mut i = start;
     while i < lines.len() {
         let t = lines[i].trim();
-        if t == "//#end" {
-            // The caller's block ends here (at top level: an unmatched end, reported).
+        if t == "//#end" || t == "//#else" {
+            // The caller's block (or branch) ends here; at top level, reported.
             return Ok(i);
         }
-        if let Some(rest) = t.strip_prefix("//#repeat ") {
+        let arg = |prefix: &str| -> Result<Option<String>> {
+            match t.strip_prefix(prefix) {
+                None => Ok(None),
+                Some(rest) => substitute(rest.trim(), vars)
+                    .map(Some)
+                    .map_err(|m| err(kernel, i, m)),
+            }
+        };
+        if let Some(rest) = arg("//#repeat ")? {
             let (var, count) = rest
-                .trim()
                 .split_once(' ')
                 .ok_or_else(|| err(kernel, i, "expected '//#repeat VAR COUNT'"))?;
             let count = eval(count, vars).map_err(|m| err(kernel, i, m))?;
             if vars.contains_key(var) {
                 return Err(err(kernel, i, format!("'{var}' is already bound")));
             }
-            let close =
+            let (otherwise, close) =
                 block_end(lines, i + 1).ok_or_else(|| err(kernel, i, "'//#repeat' without '//#end'"))?;
+            if let Some(e) = otherwise {
+                return Err(err(
+                    kernel,
+                    e,
+                    "'//#else' inside '//#repeat' (only '//#if' has one)",
+                ));
+            }
             for v in 0..count {
                 vars.insert(var.to_string(), v);
                 emit(kernel, lines, i + 1, vars, out)?;
             }
             vars.remove(var);
+            i = close + 1;
+            continue;
+        }
+        if let Some(cond) = arg("//#if ")? {
+            let value = eval(&cond, vars).map_err(|m| err(kernel, i, m))?;
+            let (otherwise, close) =
+                block_end(lines, i + 1).ok_or_else(|| err(kernel, i, "'//#if' without '//#end'"))?;
+            if value != 0 {
+                emit(kernel, lines, i + 1, vars, out)?;
+            } else if let Some(e) = otherwise {
+                emit(kernel, lines, e + 1, vars, out)?;
+            }
             i = close + 1;
             continue;
         }
@@ -205,6 +244,17 @@ mod tests {
     }
 
     #[test]
+    fn conditionals_pick_a_branch_and_directives_substitute_names() {
+        let src = "//#param N 2\n//#param F_0 0\n//#param F_1 1\n//#repeat k N\n//#if F_{k}\nh{k}\n//#else\nf{k}\n//#if 1\ninner{k}\n//#end\n//#end\n//#end\n//#if F_0\nnever\n//#end\ntail\n";
+        let out = expand("t", src, &[]).unwrap();
+        let body: Vec<&str> = out.lines().filter(|l| !l.starts_with("//#param")).collect();
+        assert_eq!(body, ["f0", "inner0", "h1", "tail"]);
+        let out = expand("t", src, &[("F_0", 1)]).unwrap();
+        let body: Vec<&str> = out.lines().filter(|l| !l.starts_with("//#param")).collect();
+        assert_eq!(body, ["h0", "h1", "never", "tail"]);
+    }
+
+    #[test]
     fn mistakes_are_named_errors() {
         for (src, values, want) in [
             (SRC, vec![("Q", 1)], "'Q' is not one of"),
@@ -212,6 +262,13 @@ mod tests {
             ("//#param N 1\n//#repeat i N\nx\n", vec![], "without '//#end'"),
             ("//#param N 1\nx\n//#end\n", vec![], "without '//#repeat'"),
             ("//#param N 1\nx = {K};\n", vec![], "'K' is neither"),
+            ("//#param N 1\n//#if N\nx\n", vec![], "'//#if' without '//#end'"),
+            ("//#param N 1\nx\n//#else\n", vec![], "'//#else' without '//#if'"),
+            (
+                "//#param N 1\n//#repeat i N\nx\n//#else\ny\n//#end\n",
+                vec![],
+                "inside '//#repeat'",
+            ),
         ] {
             let e = expand("nn/t", src, &values).unwrap_err().to_string();
             assert!(e.contains("nn/t") && e.contains(want), "{e}");

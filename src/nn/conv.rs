@@ -137,7 +137,8 @@ impl ConvKernel {
 }
 
 /// A 3x3 convolution layer (stride 1, zero padding, bias, activation) over up to 4 input
-/// tensors read as if concatenated along channels.
+/// tensors read as if concatenated along channels. Each input and the output may be
+/// stored as f32 or f16 ([`super::DType`]); the sums are f32 either way.
 #[derive(Debug)]
 pub struct Conv3x3 {
     /// Layer name (for errors).
@@ -400,6 +401,15 @@ impl Conv3x3 {
             cin4[i] = t.c4();
         }
         let (act, slope) = self.act.code();
+        // Storage of each input slot (unused slots repeat the first input) and the output.
+        let f16 = |i: usize| inputs.get(i).unwrap_or(&inputs[0]).dtype.f16_flag() as f64;
+        let storage = [
+            ("F16_IN0", f16(0)),
+            ("F16_IN1", f16(1)),
+            ("F16_IN2", f16(2)),
+            ("F16_IN3", f16(3)),
+            ("F16_OUT", out.dtype.f16_flag() as f64),
+        ];
         match kernel {
             ConvKernel::Generic => {
                 let params = ConvParams {
@@ -420,7 +430,7 @@ impl Conv3x3 {
                 bufs.extend([&self.weights, &self.bias, &out.buffer]);
                 gpu.kernels.dispatch(
                     "nn/conv3x3",
-                    &Specialisation::none(),
+                    &Specialisation(storage.to_vec()),
                     bytemuck::bytes_of(&params),
                     &bufs,
                     Grid::Invocations([w, h, padded(self.cout).div_ceil(GENERIC_COUT_BLOCK)]),
@@ -436,7 +446,8 @@ impl Conv3x3 {
                 let weights = self.blocked_buffers(gpu, cob)?;
                 let mut parts = Vec::with_capacity(chunks.len());
                 for (&(base, count), weights) in chunks.iter().zip(&weights) {
-                    let spec = Specialisation(vec![
+                    let mut spec = Specialisation(storage.to_vec());
+                    spec.0.extend([
                         ("N_IN", inputs.len() as f64),
                         ("CIN4_0", cin4[0] as f64),
                         ("CIN4_1", cin4[1] as f64),

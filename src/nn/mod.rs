@@ -3,8 +3,8 @@
 //!
 //! Tensors are single images in NHWC layout with channels padded to a multiple of 4 and
 //! stored as `array<vec4<f32>>`; padding channels are zero. The storage type is a
-//! property of [`Tensor`] ([`DType`]) so an f16 path can be added behind `SHADER_F16`
-//! without changing callers.
+//! property of [`Tensor`] ([`DType`]): with `SHADER_F16`, the network can keep its
+//! interior activations in f16 (half the bytes, f32 arithmetic in the kernels).
 
 pub mod autotune;
 pub mod conv;

@@ -3,8 +3,8 @@
 
 use bytemuck::{Pod, Zeroable};
 
-use super::Tensor;
 pub use super::conv::{Conv3x3, ConvKernel};
+use super::{DType, Tensor};
 use crate::error::{Error, Result};
 use crate::gpu::{Dispatch, Gpu, Grid, Specialisation};
 
@@ -91,6 +91,22 @@ fn check_min_channels(op: &str, what: &str, t: &Tensor, c: u32) -> Result<()> {
     Ok(())
 }
 
+/// Errors unless every tensor is stored as f32 (kernels without an f16 variant).
+fn f32_only(op: &str, tensors: &[(&str, &Tensor)]) -> Result<()> {
+    for (what, t) in tensors {
+        if t.dtype != DType::F32 {
+            return Err(Error::shape(
+                op,
+                format!(
+                    "{what} is stored as {}; this kernel reads and writes f32 tensors only",
+                    t.dtype.name()
+                ),
+            ));
+        }
+    }
+    Ok(())
+}
+
 pub(super) fn distinct(op: &str, out: &Tensor, inputs: &[&Tensor]) -> Result<()> {
     if inputs.iter().any(|i| i.buffer == out.buffer) {
         return Err(Error::shape(
@@ -116,7 +132,8 @@ struct ResampleParams {
     _pad: [u32; 2],
 }
 
-/// 2x2 pooling of `input` into `out` (`ceil(w/2) x ceil(h/2)`, same channels).
+/// 2x2 pooling of `input` into `out` (`ceil(w/2) x ceil(h/2)`, same channels); either
+/// may be stored as f16.
 pub fn pool2x2(gpu: &Gpu, mode: PoolMode, input: &Tensor, out: &Tensor) -> Result<Dispatch> {
     let op = "pool2x2";
     check_size(
@@ -130,12 +147,23 @@ pub fn pool2x2(gpu: &Gpu, mode: PoolMode, input: &Tensor, out: &Tensor) -> Resul
         PoolMode::Max => 0,
         PoolMode::Average => 1,
     };
-    resample(gpu, op, mode, input, out)
+    let storage = Specialisation(vec![
+        ("F16_SRC", input.dtype.f16_flag() as f64),
+        ("F16_DST", out.dtype.f16_flag() as f64),
+    ]);
+    resample(gpu, op, mode, input, out, &storage)
 }
 
 /// The dispatch of resampling kernel `op` (`pool2x2`, `upsample2x`) once the sizes are
 /// checked: same channels, distinct buffers, one thread per output pixel.
-fn resample(gpu: &Gpu, op: &str, mode: u32, input: &Tensor, out: &Tensor) -> Result<Dispatch> {
+fn resample(
+    gpu: &Gpu,
+    op: &str,
+    mode: u32,
+    input: &Tensor,
+    out: &Tensor,
+    spec: &Specialisation,
+) -> Result<Dispatch> {
     check_channels(op, "output", out, input.channels)?;
     distinct(op, out, &[input])?;
     let params = ResampleParams {
@@ -149,7 +177,7 @@ fn resample(gpu: &Gpu, op: &str, mode: u32, input: &Tensor, out: &Tensor) -> Res
     };
     gpu.kernels.dispatch(
         &format!("nn/{op}"),
-        &Specialisation::none(),
+        spec,
         bytemuck::bytes_of(&params),
         &[&input.buffer, &out.buffer],
         Grid::pixels(out.width, out.height),
@@ -173,7 +201,8 @@ pub fn upsample2x(gpu: &Gpu, mode: UpsampleMode, input: &Tensor, out: &Tensor) -
         UpsampleMode::Nearest => 0,
         UpsampleMode::Bilinear => 1,
     };
-    resample(gpu, op, mode, input, out)
+    f32_only(op, &[("input", input), ("output", out)])?;
+    resample(gpu, op, mode, input, out, &Specialisation::none())
 }
 
 // ---------------------------------------------------------------------------------------
@@ -230,6 +259,19 @@ pub fn tfa_blend(gpu: &Gpu, t: TfaBlend<'_>) -> Result<Dispatch> {
     check_channels(op, "out", t.out, t.cur.channels)?;
     check_channels(op, "weights", t.weights, 4)?;
     check_min_channels(op, "valid", t.valid, 1)?;
+    f32_only(
+        op,
+        &[
+            ("R", t.r),
+            ("E_cur", t.e_cur),
+            ("E_prev", t.e_prev),
+            ("cur", t.cur),
+            ("prev", t.prev),
+            ("valid", t.valid),
+            ("out", t.out),
+            ("weights", t.weights),
+        ],
+    )?;
     let ins = [t.r, t.e_cur, t.e_prev, t.cur, t.prev, t.valid];
     distinct(op, t.out, &ins)?;
     distinct(op, t.weights, &ins)?;
@@ -287,6 +329,10 @@ pub fn warp(gpu: &Gpu, src: &Tensor, motion: &Tensor, out: &Tensor, valid: &Tens
     }
     distinct(op, out, &[src, motion])?;
     distinct(op, valid, &[src, motion, out])?;
+    f32_only(
+        op,
+        &[("src", src), ("motion", motion), ("out", out), ("valid", valid)],
+    )?;
     let params = WarpParams {
         width: w,
         height: h,
@@ -332,7 +378,9 @@ fn modulation(
     check_size(kernel, "out", out, w, h)?;
     check_channels(kernel, "out", out, 3)?;
     distinct(kernel, out, &[a, albedo])?;
+    f32_only(kernel, &[("input", a), ("albedo", albedo), ("out", out)])?;
     if let Some(s) = scale {
+        f32_only(kernel, &[("scale", s)])?;
         check_size(kernel, "scale", s, 1, 1)?;
         check_min_channels(kernel, "scale", s, 3)?;
         distinct(kernel, out, &[s])?;

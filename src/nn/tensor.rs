@@ -9,6 +9,9 @@ use crate::gpu::Gpu;
 pub enum DType {
     /// 32-bit float, `array<vec4<f32>>`.
     F32,
+    /// 16-bit float, `array<vec4<f16>>` (needs `SHADER_F16`): half the bytes; kernels
+    /// convert on load and store and compute in f32.
+    F16,
 }
 
 impl DType {
@@ -16,7 +19,21 @@ impl DType {
     pub fn size(self) -> u64 {
         match self {
             DType::F32 => 4,
+            DType::F16 => 2,
         }
+    }
+
+    /// Its name in kernels and messages (`f32`, `f16`).
+    pub fn name(self) -> &'static str {
+        match self {
+            DType::F32 => "f32",
+            DType::F16 => "f16",
+        }
+    }
+
+    /// 1 for f16, 0 for f32: the value of a kernel's storage template flag.
+    pub fn f16_flag(self) -> u32 {
+        u32::from(self == DType::F16)
     }
 }
 
@@ -41,15 +58,29 @@ pub fn padded(c: u32) -> u32 {
 }
 
 impl Tensor {
-    /// A zero-filled tensor.
+    /// A zero-filled f32 tensor.
     pub fn new(gpu: &Gpu, label: &str, width: u32, height: u32, channels: u32) -> Result<Self> {
+        Self::new_typed(gpu, label, width, height, channels, DType::F32)
+    }
+
+    /// A zero-filled tensor of `dtype`; f16 needs a device with `SHADER_F16`.
+    pub fn new_typed(
+        gpu: &Gpu,
+        label: &str,
+        width: u32,
+        height: u32,
+        channels: u32,
+        dtype: DType,
+    ) -> Result<Self> {
+        if dtype == DType::F16 {
+            gpu.require(wgpu::Features::SHADER_F16, &format!("f16 tensor '{label}'"))?;
+        }
         if width == 0 || height == 0 || channels == 0 {
             return Err(Error::shape(
                 label,
                 format!("tensor of size {width}x{height}x{channels}: every dimension must be > 0"),
             ));
         }
-        let dtype = DType::F32;
         let size = width as u64 * height as u64 * padded(channels) as u64 * dtype.size();
         let max = gpu.device.limits().max_buffer_size;
         if size > max {
@@ -85,9 +116,14 @@ impl Tensor {
         }
     }
 
-    /// Uploads a host tensor (padding its channels).
+    /// Uploads a host tensor (padding its channels) as f32.
     pub fn from_host(gpu: &Gpu, label: &str, host: &HostTensor) -> Result<Self> {
-        let t = Self::new(gpu, label, host.width, host.height, host.channels)?;
+        Self::from_host_typed(gpu, label, host, DType::F32)
+    }
+
+    /// Uploads a host tensor as `dtype` (f16 rounds each value to nearest).
+    pub fn from_host_typed(gpu: &Gpu, label: &str, host: &HostTensor, dtype: DType) -> Result<Self> {
+        let t = Self::new_typed(gpu, label, host.width, host.height, host.channels, dtype)?;
         t.write(gpu, host)?;
         Ok(t)
     }
@@ -103,20 +139,35 @@ impl Tensor {
                 ),
             ));
         }
-        gpu.queue
-            .write_buffer(&self.buffer, 0, bytemuck::cast_slice(&host.to_padded()));
+        let padded = host.to_padded();
+        match self.dtype {
+            DType::F32 => gpu
+                .queue
+                .write_buffer(&self.buffer, 0, bytemuck::cast_slice(&padded)),
+            DType::F16 => {
+                let half: Vec<half::f16> = padded.iter().map(|&v| half::f16::from_f32(v)).collect();
+                gpu.queue
+                    .write_buffer(&self.buffer, 0, bytemuck::cast_slice(&half));
+            }
+        }
         Ok(())
     }
 
     /// Downloads the tensor (logical channels only).
     pub fn read(&self, gpu: &Gpu) -> Result<HostTensor> {
         let bytes = gpu.read_buffer(&self.buffer, 0, self.buffer.size())?;
-        let data: &[f32] = bytemuck::cast_slice(&bytes);
+        let data: Vec<f32> = match self.dtype {
+            DType::F32 => bytemuck::cast_slice(&bytes).to_vec(),
+            DType::F16 => bytes
+                .chunks_exact(2)
+                .map(|c| half::f16::from_le_bytes([c[0], c[1]]).to_f32())
+                .collect(),
+        };
         Ok(HostTensor::from_padded(
             self.width,
             self.height,
             self.channels,
-            data,
+            &data,
         ))
     }
 

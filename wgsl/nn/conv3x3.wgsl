@@ -9,6 +9,18 @@
 // becomes 0 and finite ones are clamped to +-ACT_MAX, far beyond any real activation, so
 // that the layers after it (sums of 9 Cin products, dot products in the TFA) cannot
 // overflow either.
+// Each input and the output are stored as f32 or f16 (template flags F16_IN0..F16_IN3, F16_OUT,
+// with SHADER_F16): loads convert to f32, sums are f32, and an f16 output is clamped to
+// +-65504 (f16's largest finite value) instead of ACT_MAX.
+//
+//#param F16_IN0 0
+//#param F16_IN1 0
+//#param F16_IN2 0
+//#param F16_IN3 0
+//#param F16_OUT 0
+//#if F16_IN0+F16_IN1+F16_IN2+F16_IN3+F16_OUT
+enable f16;
+//#end
 
 struct Params {
     width: u32,
@@ -22,24 +34,38 @@ struct Params {
     _pad: u32,
 }
 
+//#repeat k 4
+//#if F16_IN{k}
+alias In{k} = vec4<f16>;
+//#else
+alias In{k} = vec4<f32>;
+//#end
+//#end
+//#if F16_OUT
+alias Out = vec4<f16>;
+const ACT_MAX: f32 = 65504.0;
+//#else
+alias Out = vec4<f32>;
+const ACT_MAX: f32 = 1.0e15;
+//#end
+
 @group(0) @binding(0) var<uniform> p: Params;
-@group(0) @binding(1) var<storage, read> in0: array<vec4<f32>>;
-@group(0) @binding(2) var<storage, read> in1: array<vec4<f32>>;
-@group(0) @binding(3) var<storage, read> in2: array<vec4<f32>>;
-@group(0) @binding(4) var<storage, read> in3: array<vec4<f32>>;
+@group(0) @binding(1) var<storage, read> in0: array<In0>;
+@group(0) @binding(2) var<storage, read> in1: array<In1>;
+@group(0) @binding(3) var<storage, read> in2: array<In2>;
+@group(0) @binding(4) var<storage, read> in3: array<In3>;
 @group(0) @binding(5) var<storage, read> weights: array<vec4<f32>>;
 @group(0) @binding(6) var<storage, read> bias: array<vec4<f32>>;
-@group(0) @binding(7) var<storage, read_write> out: array<vec4<f32>>;
+@group(0) @binding(7) var<storage, read_write> out: array<Out>;
 
 const COB: u32 = 4u;
-const ACT_MAX: f32 = 1.0e15;
 
 fn fetch(k: u32, i: u32) -> vec4<f32> {
     switch k {
-        case 0u: { return in0[i]; }
-        case 1u: { return in1[i]; }
-        case 2u: { return in2[i]; }
-        default: { return in3[i]; }
+        case 0u: { return vec4<f32>(in0[i]); }
+        case 1u: { return vec4<f32>(in1[i]); }
+        case 2u: { return vec4<f32>(in2[i]); }
+        default: { return vec4<f32>(in3[i]); }
     }
 }
 
@@ -87,6 +113,6 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>) {
             r = select(r * p.slope, r, r >= vec4<f32>(0.0));
         }
         let lim = vec4<f32>(ACT_MAX);
-        out[o + j] = select(vec4<f32>(0.0), clamp(r, -lim, lim), abs(r) <= vec4<f32>(3.40282347e38));
+        out[o + j] = Out(select(vec4<f32>(0.0), clamp(r, -lim, lim), abs(r) <= vec4<f32>(3.40282347e38)));
     }
 }
