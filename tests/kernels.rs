@@ -214,7 +214,7 @@ fn conv3x3_and_pooling_with_f16_storage_match_reference() {
     }
     assert_eq!(tried, 10);
     // An f16 output saturates at f16's largest finite value instead of overflowing.
-    let big = Conv3x3::new(&g, "big", &vec![1.0e3; 9], &[0.0], &[1], 1, Activation::None).unwrap();
+    let big = Conv3x3::new(&g, "big", &[1.0e3; 9], &[0.0], &[1], 1, Activation::None).unwrap();
     let x = Tensor::from_host(&g, "x", &HostTensor::from_fn(4, 4, 1, |_, _, _| 100.0)).unwrap();
     let out = Tensor::new_typed(&g, "out", 4, 4, 1, DType::F16).unwrap();
     for &kernel in &kernels[..2] {
