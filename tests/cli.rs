@@ -285,7 +285,8 @@ fn bench_kernels_prints_a_table() {
 }
 
 /// Issue 14: the roofline model alone (no timing) at a size the machine could not time
-/// quickly, and a fixed kernel through the environment; a bad value is a named error.
+/// quickly, a fixed kernel through the environment, f16 activations; bad values are named
+/// errors.
 #[test]
 fn bench_denoise_models_passes_and_takes_fixed_kernels() {
     prints_all(
@@ -319,10 +320,28 @@ fn bench_denoise_models_passes_and_takes_fixed_kernels() {
             "--height",
             "16",
             "--model-only",
-            "--model-storage",
+            "--precision",
             "f16",
         ]),
-        &["f16 (modelled only) activations", "modelled total"],
+        &["f16 activations", "modelled total"],
+    );
+    let o = bin()
+        .env("SUBPIXEL_PRECISION", "half")
+        .args([
+            "bench",
+            "denoise",
+            "--width",
+            "16",
+            "--height",
+            "16",
+            "--model-only",
+        ])
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(
+        !o.status.success() && err.contains("SUBPIXEL_PRECISION") && err.contains("half"),
+        "{err}"
     );
     let o = bin()
         .env("SUBPIXEL_CONV_KERNEL", "fastest")

@@ -9,7 +9,8 @@ mod common;
 
 use std::path::PathBuf;
 
-use subpixel::nn::HostTensor;
+use subpixel::nn::autotune::{EngineOptions, KernelChoice, Precision};
+use subpixel::nn::{DType, HostTensor};
 use subpixel::ssr::{Denoiser, HostFrame, INTERMEDIATES, Weights};
 
 fn data(name: &str) -> PathBuf {
@@ -52,17 +53,46 @@ fn range(t: &HostTensor) -> f32 {
     (hi - lo).max(1e-6)
 }
 
+/// Tolerance of f16 activations (issue 14), of the range as above, for the output and
+/// every intermediate: f16 keeps 11 significant bits (relative rounding up to 2^-11 ~
+/// 4.9e-4 per stored value) and a value passes through up to 7 stored activations
+/// between the inputs and the output. Measured on these frames (lavapipe): worst 7.5e-4
+/// (enc3), output 6.1e-4 (`SUBPIXEL_PRINT_ERRORS=1` prints them).
+const F16_TOL: f32 = 2e-3;
+
 #[test]
 fn denoiser_matches_pytorch_on_golden_frames() {
-    golden_parity("golden_", 2);
+    golden_parity("golden_", 2, Precision::F32);
 }
 
 #[test]
 fn version_1_weights_run_the_version_1_pipeline() {
-    golden_parity("golden_v1_", 1);
+    golden_parity("golden_v1_", 1, Precision::F32);
 }
 
-fn golden_parity(prefix: &str, version: u32) {
+/// The f16 activation path against the same golden frames, within the f16 tolerances.
+#[test]
+fn f16_activations_match_pytorch_within_f16_tolerance() {
+    let gpu = common::gpu();
+    if !gpu.has(wgpu::Features::SHADER_F16) {
+        eprintln!("skipped: {} has no SHADER_F16", gpu.describe());
+        return;
+    }
+    golden_parity("golden_", 2, Precision::F16);
+}
+
+/// Engine options of a golden run: `precision`, and for f16 one fixed tiling (every
+/// tiling's f16 storage is checked against the CPU reference in the kernel tests; this
+/// spares a fresh machine the tuning of f16 layer shapes).
+fn options(precision: Precision) -> EngineOptions {
+    let kernels = match precision {
+        Precision::F16 => KernelChoice::Fixed("px4-cob2".parse().unwrap()),
+        _ => KernelChoice::FromEnv,
+    };
+    EngineOptions { kernels, precision }
+}
+
+fn golden_parity(prefix: &str, version: u32, precision: Precision) {
     let gpu = common::gpu();
     let weights = Weights::load(data(&format!("{prefix}weights.safetensors"))).unwrap();
     assert!(
@@ -70,7 +100,14 @@ fn golden_parity(prefix: &str, version: u32) {
         "golden weights are random-initialised test weights"
     );
     assert_eq!(weights.config.version, version);
-    let mut den = Denoiser::with_gpu(&gpu, &weights, 40, 24).unwrap();
+    let mut den = Denoiser::with_options(&gpu, &weights, 40, 24, options(precision)).unwrap();
+    let f16 = precision == Precision::F16;
+    assert_eq!(den.network().activations() == DType::F16, f16);
+    let (output_tol, intermediate_tol) = if f16 {
+        (F16_TOL, F16_TOL)
+    } else {
+        (OUTPUT_TOL, INTERMEDIATE_TOL)
+    };
     for i in 0..3 {
         let g = load_frame(prefix, i);
         let frame = HostFrame {
@@ -97,10 +134,22 @@ fn golden_parity(prefix: &str, version: u32) {
             compared += 1;
             let got = den.network().tensor(golden).unwrap().read(&gpu).unwrap();
             let rel = if golden == "output" {
-                OUTPUT_TOL
+                output_tol
             } else {
-                INTERMEDIATE_TOL
+                intermediate_tol
             };
+            if std::env::var_os("SUBPIXEL_PRINT_ERRORS").is_some() {
+                let worst = got
+                    .data
+                    .iter()
+                    .zip(&want.data)
+                    .map(|(a, b)| (a - b).abs())
+                    .fold(0.0f32, f32::max);
+                eprintln!(
+                    "{precision:?} frame {i} {golden}: worst {:.2e} of range",
+                    worst / range(want)
+                );
+            }
             let tol = common::Tol {
                 abs: rel * range(want),
                 rel: 0.0,
@@ -114,7 +163,7 @@ fn golden_parity(prefix: &str, version: u32) {
             "{prefix}: intermediates compared"
         );
         let tol = common::Tol {
-            abs: OUTPUT_TOL * range(&g["output"]),
+            abs: output_tol * range(&g["output"]),
             rel: 0.0,
         };
         common::assert_close(

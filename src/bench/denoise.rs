@@ -1,9 +1,10 @@
 //! `subpixel bench denoise`: the SSR network timed per layer and per stage.
 
-use super::roofline::{self, GpuModel, ModelledPass, Storage};
+use super::roofline::{self, GpuModel, ModelledPass};
 use crate::error::Result;
 use crate::gpu::{Gpu, Profiler, Stats};
 use crate::nn::HostTensor;
+use crate::nn::autotune::{EngineOptions, Precision};
 use crate::ssr::{Denoiser, FrameInputs, Granularity, HostFrame, Weights};
 
 /// One timed step.
@@ -56,8 +57,8 @@ pub struct DenoiseBench {
     pub tensor_bytes: u64,
     /// The GPU the roofline model describes.
     pub model: GpuModel,
-    /// The activation storage the model assumes.
-    pub storage: Storage,
+    /// Storage of the network's interior activations (`f32`, `f16`).
+    pub activations: String,
     /// Every pass of a frame in the roofline model.
     pub modelled: Vec<ModelledPass>,
     /// Their sum, ms.
@@ -85,19 +86,23 @@ pub fn synthetic_frame(w: u32, h: u32, t: u32) -> HostFrame {
     }
 }
 
-/// Times the network on synthetic frames: `warmup` untimed frames, then `frames` timed,
+/// Times the network on synthetic frames: `(warmup, frames)`: untimed frames, then timed,
 /// once with a pass per layer and once with a pass per stage (with `frames == 0`: one
-/// untimed frame, for the roofline model alone), and models each pass on `model`.
+/// untimed frame, for the roofline model alone), and models each pass on `model`. The
+/// activations are stored as `precision` resolves.
 pub fn bench_denoise(
     gpu: &Gpu,
     weights: &Weights,
-    w: u32,
-    h: u32,
-    warmup: u32,
-    frames: u32,
-    (model, storage): (&GpuModel, Storage),
+    (w, h): (u32, u32),
+    (warmup, frames): (u32, u32),
+    model: &GpuModel,
+    precision: Precision,
 ) -> Result<DenoiseBench> {
-    let mut den = Denoiser::with_gpu(gpu, weights, w, h)?;
+    let options = EngineOptions {
+        precision,
+        ..Default::default()
+    };
+    let mut den = Denoiser::with_options(gpu, weights, w, h, options)?;
     let packed = synthetic_frame(w, h, 0).pack()?;
     let bufs: Vec<wgpu::Buffer> = packed
         .iter()
@@ -173,7 +178,7 @@ pub fn bench_denoise(
     };
     let peak = crate::bench::peak_fp32_gflops(&gpu.info.name);
     let costs = den.step_costs();
-    let modelled = roofline::model(model, &costs, storage);
+    let modelled = roofline::model(model, &costs);
     let modelled_ms = modelled.iter().map(|p| p.modelled_ms).sum();
     Ok(DenoiseBench {
         adapter: gpu.describe(),
@@ -197,7 +202,7 @@ pub fn bench_denoise(
         dispatches: costs.len(),
         tensor_bytes: den.network().memory_bytes(),
         model: model.clone(),
-        storage,
+        activations: den.network().activations().name().to_string(),
         modelled,
         modelled_ms,
     })
@@ -286,10 +291,7 @@ pub fn table(b: &DenoiseBench) -> String {
         b.width,
         b.height,
         b.dispatches,
-        match b.storage {
-            Storage::F32 => "f32",
-            Storage::F16 => "f16 (modelled only)",
-        }
+        b.activations
     );
     s += &format!(
         "{:<7} {:<20} {:>10} {:>10} {:>10} {:>8} {:>12}\n",

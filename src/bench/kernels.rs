@@ -189,7 +189,8 @@ pub fn bench_kernels(gpu: &Gpu, o: &KernelBenchOptions) -> Result<Vec<KernelTimi
 /// its size: `(choice, whether it came from the cache, the size it was tuned at)`.
 pub fn conv_choice(gpu: &Gpu, o: &KernelBenchOptions) -> Result<(ConvKernel, bool, (u32, u32))> {
     let conv = bench_conv(gpu, o.channels)?;
-    let (t, cached) = autotune::tune(gpu, &conv, o.width, o.height)?;
+    let storage = autotune::LayerStorage::f32(&conv);
+    let (t, cached) = autotune::tune(gpu, &conv, o.width, o.height, &storage)?;
     Ok((t.choice, cached, autotune::tune_size(o.width, o.height)))
 }
 

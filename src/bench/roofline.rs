@@ -76,47 +76,19 @@ pub struct ModelledPass {
     pub bound: &'static str,
 }
 
-/// How the network's activations are stored, in the model.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize, clap::ValueEnum)]
-pub enum Storage {
-    /// f32, as the engine runs today.
-    F32,
-    /// f16 activations (f32 arithmetic): half the bytes of every tensor the network
-    /// reads and writes; the caller's inputs and the output texture stay f32. A paper
-    /// estimate of issue 14's f16 path, which the engine does not have yet.
-    F16,
-}
-
-/// `c` with its bytes as they would be under `storage`.
-pub fn with_storage(c: &StepCost, storage: Storage) -> StepCost {
-    let mut c = c.clone();
-    if storage == Storage::F16 {
-        let half = |b: u64| b.div_ceil(2);
-        match c.stage {
-            "pack" => c.bytes_written = half(c.bytes_written),
-            "output" => c.bytes_read = half(c.bytes_read),
-            _ => {
-                c.bytes_read = half(c.bytes_read);
-                c.bytes_written = half(c.bytes_written);
-            }
-        }
-    }
-    c
-}
-
-/// The model of every pass, its activations stored as `storage`.
-pub fn model(gpu: &GpuModel, costs: &[StepCost], storage: Storage) -> Vec<ModelledPass> {
+/// The model of every pass (its bytes as the engine moves them: f16 activations, when the
+/// network runs with them, count half).
+pub fn model(gpu: &GpuModel, costs: &[StepCost]) -> Vec<ModelledPass> {
     costs
         .iter()
-        .map(|c| with_storage(c, storage))
         .map(|c| ModelledPass {
             stage: c.stage.to_string(),
             name: c.label.clone(),
             flops: c.flops,
             bytes_read: c.bytes_read,
             bytes_written: c.bytes_written,
-            modelled_ms: gpu.pass_ms(&c),
-            bound: if gpu.memory_bound(&c) { "memory" } else { "compute" },
+            modelled_ms: gpu.pass_ms(c),
+            bound: if gpu.memory_bound(c) { "memory" } else { "compute" },
         })
         .collect()
 }
@@ -145,8 +117,6 @@ mod tests {
         let t = h.pass_ms(&cost(0, 3_350_000_000));
         assert!((t - 1.002).abs() < 1e-9, "{t}");
         assert!(h.memory_bound(&cost(1, 1_000)) && !h.memory_bound(&cost(1_000_000, 1)));
-        let f16 = with_storage(&cost(10, 1001), Storage::F16);
-        assert_eq!((f16.flops, f16.bytes_read), (10, 501));
         let e = GpuModel::preset("a770").unwrap_err().to_string();
         assert!(e.contains("a770") && e.contains("h100"), "{e}");
     }

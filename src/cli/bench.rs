@@ -95,10 +95,11 @@ pub(super) struct DenoiseBenchArgs {
     /// GPU of the roofline model: h100 or rtx4070.
     #[arg(long, default_value = "h100")]
     model: String,
-    /// Activation storage in the roofline model: f32 (today's engine) or f16 (a paper
-    /// estimate of an f16 path).
-    #[arg(long, value_enum, default_value = "f32")]
-    model_storage: crate::bench::roofline::Storage,
+    /// Storage of the network's interior activations: f32, f16 (needs SHADER_F16) or auto
+    /// (f16 where the autotuner measures it faster); default: SUBPIXEL_PRECISION, else f32.
+    /// The roofline model counts the bytes the engine then moves.
+    #[arg(long)]
+    precision: Option<crate::nn::autotune::Precision>,
     /// Skip the timing (one untimed frame) and print the roofline model only, e.g. at
     /// 1920x1080 on a machine without that GPU.
     #[arg(long)]
@@ -221,11 +222,10 @@ pub(super) fn run(what: Option<BenchCommand>) -> Result<()> {
             let b = bench_denoise(
                 &gpu,
                 &weights,
-                a.width.unwrap_or(dw),
-                a.height.unwrap_or(dh),
-                a.run.warmup,
-                frames,
-                (&model, a.model_storage),
+                (a.width.unwrap_or(dw), a.height.unwrap_or(dh)),
+                (a.run.warmup, frames),
+                &model,
+                a.precision.unwrap_or_default(),
             )?;
             if a.run.json {
                 println!("{}", serde_json::to_string_pretty(&b)?);

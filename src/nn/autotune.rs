@@ -11,6 +11,11 @@
 //! For reproducibility the choice can be fixed: [`KernelChoice::Fixed`] through the API,
 //! or the environment variable `SUBPIXEL_CONV_KERNEL` (`auto`, `generic` or a tiling such
 //! as `px8-cob4`; a layer the tiling cannot run falls back to `generic`).
+//!
+//! The storage of the network's interior activations is chosen alike ([`Precision`],
+//! `SUBPIXEL_PRECISION`): f32 by default (the trained model to float tolerance), f16
+//! (half the bytes, f32 arithmetic; needs `SHADER_F16`), or `auto`: f16 when the adapter
+//! has it and the tuned layers are faster with it in total.
 
 use std::collections::BTreeMap;
 use std::hash::{Hash, Hasher};
@@ -18,12 +23,14 @@ use std::path::PathBuf;
 use std::sync::{Mutex, OnceLock};
 
 use super::conv::{Conv3x3, ConvKernel};
-use super::{HostTensor, Tensor};
+use super::{DType, HostTensor, Tensor};
 use crate::error::{Error, Result};
 use crate::gpu::{Gpu, time_dispatch};
 
 /// The environment variable that fixes the convolution kernel.
 pub const ENV_KERNEL: &str = "SUBPIXEL_CONV_KERNEL";
+/// The environment variable that chooses the activations' storage ([`Precision`]).
+pub const ENV_PRECISION: &str = "SUBPIXEL_PRECISION";
 /// The environment variable that moves the cache folder.
 pub const ENV_CACHE_DIR: &str = "SUBPIXEL_CACHE_DIR";
 /// Layers are tuned on at most this many pixels per side (the ranking, not the time, is
@@ -60,6 +67,91 @@ impl KernelChoice {
                 .map(KernelChoice::Fixed)
                 .map_err(|e| Error::Invalid(format!("{ENV_KERNEL}: {e} (or 'auto')"))),
         }
+    }
+}
+
+/// Storage of the network's interior activations (the tensors only convolutions and
+/// pooling touch; inputs, history and outputs stay f32).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub enum Precision {
+    /// `SUBPIXEL_PRECISION` (`f32`, `f16` or `auto`) if set, else [`Precision::F32`].
+    #[default]
+    FromEnv,
+    /// f32: the trained model to float tolerance.
+    F32,
+    /// f16 storage with f32 arithmetic (needs `SHADER_F16`; an error without it).
+    F16,
+    /// f16 when the adapter has `SHADER_F16` and the autotuner's times of the network's
+    /// layers are lower with it in total, else f32.
+    Auto,
+}
+
+impl std::str::FromStr for Precision {
+    type Err = Error;
+    fn from_str(s: &str) -> Result<Self> {
+        match s.trim() {
+            "f32" => Ok(Precision::F32),
+            "f16" => Ok(Precision::F16),
+            "auto" => Ok(Precision::Auto),
+            other => Err(Error::Invalid(format!(
+                "precision '{other}': expected f32, f16 or auto"
+            ))),
+        }
+    }
+}
+
+impl Precision {
+    /// Resolves [`Precision::FromEnv`] (an unparsable value is an error naming the
+    /// variable); the other choices come back as they are.
+    pub fn resolve(self) -> Result<Self> {
+        if self != Precision::FromEnv {
+            return Ok(self);
+        }
+        match std::env::var(ENV_PRECISION) {
+            Err(_) => Ok(Precision::F32),
+            Ok(v) if v.trim().is_empty() => Ok(Precision::F32),
+            Ok(v) => v
+                .parse()
+                .map_err(|e| Error::Invalid(format!("{ENV_PRECISION}: {e}"))),
+        }
+    }
+}
+
+/// How the engine runs the network on an adapter.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub struct EngineOptions {
+    /// Convolution kernels.
+    pub kernels: KernelChoice,
+    /// Storage of the interior activations.
+    pub precision: Precision,
+}
+
+/// The storage of one layer's tensors: its inputs' (in concatenation order) and its
+/// output's.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct LayerStorage {
+    /// Each input's element type.
+    pub inputs: Vec<DType>,
+    /// The output's.
+    pub output: DType,
+}
+
+impl LayerStorage {
+    /// Every tensor f32.
+    pub fn f32(conv: &Conv3x3) -> Self {
+        Self {
+            inputs: vec![DType::F32; conv.input_channels.len()],
+            output: DType::F32,
+        }
+    }
+
+    /// `f32` when all are, else e.g. `in f16,f32 out f16` (part of cache keys).
+    fn describe(&self) -> String {
+        if self.output == DType::F32 && self.inputs.iter().all(|&d| d == DType::F32) {
+            return "f32".into();
+        }
+        let ins: Vec<&str> = self.inputs.iter().map(|d| d.name()).collect();
+        format!("in {} out {}", ins.join(","), self.output.name())
     }
 }
 
@@ -160,11 +252,16 @@ fn kernels_hash() -> String {
     format!("kernels {:016x}", hasher.finish())
 }
 
-/// The cache key of `conv` tuned at `w x h` on `gpu`: adapter, driver, the kernels'
-/// sources (a change of either kernel invalidates old choices) and the layer's shape.
-pub fn key(gpu: &Gpu, conv: &Conv3x3, w: u32, h: u32) -> String {
+/// The cache key of `conv` tuned at `w x h` with `storage` on `gpu`: adapter, driver, the
+/// kernels' sources (a change of either kernel invalidates old choices), the layer's shape
+/// and its tensors' storage (all-f32 keys are those of earlier versions).
+pub fn key(gpu: &Gpu, conv: &Conv3x3, w: u32, h: u32, storage: &LayerStorage) -> String {
+    let storage = match storage.describe().as_str() {
+        "f32" => String::new(),
+        s => format!(" {s}"),
+    };
     format!(
-        "{} | {:?} | {} {} | {} | conv3x3 {:?}->{} {:?} at {w}x{h}",
+        "{} | {:?} | {} {} | {} | conv3x3 {:?}->{} {:?} at {w}x{h}{storage}",
         gpu.info.name,
         gpu.info.backend,
         gpu.info.driver,
@@ -186,10 +283,18 @@ pub fn tune_size(w: u32, h: u32) -> (u32, u32) {
     (side(w), side(h))
 }
 
-/// Times every candidate of `conv` at `w x h` on scratch tensors (deterministic
-/// pseudo-random inputs). A candidate that fails to build or run is recorded with its
-/// error and skipped (logged), never fatal; the generic kernel always runs.
-pub fn measure(gpu: &Gpu, conv: &Conv3x3, w: u32, h: u32, warmup: u32, iterations: u32) -> Result<Tuning> {
+/// Times every candidate of `conv` at `w x h` on scratch tensors stored as `storage` says
+/// (deterministic pseudo-random inputs). A candidate that fails to build or run is recorded
+/// with its error and skipped (logged), never fatal; the generic kernel always runs.
+pub fn measure(
+    gpu: &Gpu,
+    conv: &Conv3x3,
+    w: u32,
+    h: u32,
+    storage: &LayerStorage,
+    warmup: u32,
+    iterations: u32,
+) -> Result<Tuning> {
     let inputs: Vec<Tensor> = conv
         .input_channels
         .iter()
@@ -199,10 +304,11 @@ pub fn measure(gpu: &Gpu, conv: &Conv3x3, w: u32, h: u32, warmup: u32, iteration
                 let v = (x * 7 + y * 13 + ch * 5 + i as u32 * 3) % 17;
                 v as f32 / 8.0 - 1.0
             });
-            Tensor::from_host(gpu, "autotune.in", &host)
+            let dtype = storage.inputs.get(i).copied().unwrap_or(DType::F32);
+            Tensor::from_host_typed(gpu, "autotune.in", &host, dtype)
         })
         .collect::<Result<_>>()?;
-    let out = Tensor::new(gpu, "autotune.out", w, h, conv.cout)?;
+    let out = Tensor::new_typed(gpu, "autotune.out", w, h, conv.cout, storage.output)?;
     let refs: Vec<&Tensor> = inputs.iter().collect();
     let mut candidates = Vec::new();
     let mut gpu_timestamps = true;
@@ -245,12 +351,12 @@ pub fn measure(gpu: &Gpu, conv: &Conv3x3, w: u32, h: u32, warmup: u32, iteration
     })
 }
 
-/// The tuning of `conv` for a `w x h` layer: from the process's memory, else the disk
-/// cache, else measured now (at [`tune_size`]) and cached. Returns it and whether it
-/// came from a cache.
-pub fn tune(gpu: &Gpu, conv: &Conv3x3, w: u32, h: u32) -> Result<(Tuning, bool)> {
+/// The tuning of `conv` for a `w x h` layer with `storage`: from the process's memory,
+/// else the disk cache, else measured now (at [`tune_size`]) and cached. Returns it and
+/// whether it came from a cache.
+pub fn tune(gpu: &Gpu, conv: &Conv3x3, w: u32, h: u32, storage: &LayerStorage) -> Result<(Tuning, bool)> {
     let (tw, th) = tune_size(w, h);
-    let key = key(gpu, conv, tw, th);
+    let key = key(gpu, conv, tw, th, storage);
     if let Some(t) = memory().lock().unwrap().get(&key) {
         // A cached choice this build cannot run (an edited cache) is re-measured.
         if conv.unsupported(gpu, t.choice).is_none() {
@@ -258,11 +364,12 @@ pub fn tune(gpu: &Gpu, conv: &Conv3x3, w: u32, h: u32) -> Result<(Tuning, bool)>
         }
     }
     let started = std::time::Instant::now();
-    let t = measure(gpu, conv, tw, th, 1, TUNE_ITERATIONS)?;
+    let t = measure(gpu, conv, tw, th, storage, 1, TUNE_ITERATIONS)?;
     log::info!(
-        "autotuned conv3x3 {:?}->{} at {tw}x{th}: {} of {} kernels in {:.1} s (once per adapter; cached in {})",
+        "autotuned conv3x3 {:?}->{} ({}) at {tw}x{th}: {} of {} kernels in {:.1} s (once per adapter; cached in {})",
         conv.input_channels,
         conv.cout,
+        storage.describe(),
         t.choice,
         t.candidates.len(),
         started.elapsed().as_secs_f64(),
@@ -275,13 +382,33 @@ pub fn tune(gpu: &Gpu, conv: &Conv3x3, w: u32, h: u32) -> Result<(Tuning, bool)>
     Ok((t, false))
 }
 
-/// The kernel `conv` runs on for a `w x h` layer under `choice`.
-pub fn choose(gpu: &Gpu, conv: &Conv3x3, w: u32, h: u32, choice: KernelChoice) -> Result<ConvKernel> {
+/// The kernel `conv` runs on for a `w x h` layer with `storage` under `choice`.
+pub fn choose(
+    gpu: &Gpu,
+    conv: &Conv3x3,
+    w: u32,
+    h: u32,
+    storage: &LayerStorage,
+    choice: KernelChoice,
+) -> Result<ConvKernel> {
     match choice.resolve()? {
         KernelChoice::Fixed(k) if conv.unsupported(gpu, k).is_none() => Ok(k),
         KernelChoice::Fixed(_) => Ok(ConvKernel::Generic),
-        _ => Ok(tune(gpu, conv, w, h)?.0.choice),
+        _ => Ok(tune(gpu, conv, w, h, storage)?.0.choice),
     }
+}
+
+/// The tuned time of `conv`'s fastest kernel for a `w x h` layer with `storage`, in ms,
+/// scaled from the tuning size to the layer's pixels (what [`Precision::Auto`] compares).
+pub fn tuned_ms(gpu: &Gpu, conv: &Conv3x3, w: u32, h: u32, storage: &LayerStorage) -> Result<f64> {
+    let (t, _) = tune(gpu, conv, w, h, storage)?;
+    let best = t
+        .candidates
+        .iter()
+        .filter_map(|c| c.median_ms)
+        .fold(f64::INFINITY, f64::min);
+    let (tw, th) = tune_size(w, h);
+    Ok(best * (w as f64 * h as f64) / (tw as f64 * th as f64))
 }
 
 #[cfg(test)]
@@ -320,6 +447,15 @@ mod tests {
         assert_eq!(tune_size(16, 20), (32, 32));
         assert_eq!(tune_size(33, 64), (64, 64));
         assert_eq!(tune_size(100, 8), (128, 32));
+    }
+
+    #[test]
+    fn precisions_parse_and_bad_ones_are_named() {
+        assert_eq!("f16".parse::<Precision>().unwrap(), Precision::F16);
+        assert_eq!(" auto".parse::<Precision>().unwrap(), Precision::Auto);
+        let e = "half".parse::<Precision>().unwrap_err().to_string();
+        assert!(e.contains("half") && e.contains("f32, f16 or auto"), "{e}");
+        assert_eq!(Precision::F16.resolve().unwrap(), Precision::F16);
     }
 
     #[test]

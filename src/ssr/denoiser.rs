@@ -13,7 +13,7 @@ pub use crate::frame::FrameInputs;
 use crate::frame::HostFrame;
 use crate::gpu::{Bound, Dispatch, Gpu, Grid, Profiler, Specialisation};
 use crate::nn::HostTensor;
-use crate::nn::autotune::KernelChoice;
+use crate::nn::autotune::EngineOptions;
 
 /// Rounds up to a multiple of 4 (the U-Net depth): the engine pads internally.
 pub fn round_up4(n: u32) -> u32 {
@@ -123,7 +123,7 @@ pub struct Denoiser {
     sanitized: wgpu::Buffer,
     first: bool,
     frames: u64,
-    kernels: KernelChoice,
+    options: EngineOptions,
 }
 
 impl Denoiser {
@@ -143,19 +143,21 @@ impl Denoiser {
 
     /// A denoiser on a [`Gpu`] context. Each convolution runs on the kernel the
     /// autotuner picks for this adapter ([`crate::nn::autotune`]: measured once per layer
-    /// shape and cached on disk), or the one `SUBPIXEL_CONV_KERNEL` fixes.
+    /// shape and cached on disk), or the one `SUBPIXEL_CONV_KERNEL` fixes; activations are
+    /// f32 unless `SUBPIXEL_PRECISION` says `f16` or `auto`.
     pub fn with_gpu(gpu: &Gpu, weights: &Weights, width: u32, height: u32) -> Result<Self> {
-        Self::with_kernels(gpu, weights, width, height, KernelChoice::FromEnv)
+        Self::with_options(gpu, weights, width, height, EngineOptions::default())
     }
 
-    /// [`Denoiser::with_gpu`] with the convolution kernels chosen by `kernels` (e.g.
-    /// `KernelChoice::Fixed(..)` for reproducible timings).
-    pub fn with_kernels(
+    /// [`Denoiser::with_gpu`] with the engine's choices made by `options` (e.g.
+    /// `KernelChoice::Fixed(..)` for reproducible timings, `Precision::F16` for half the
+    /// activation bytes).
+    pub fn with_options(
         gpu: &Gpu,
         weights: &Weights,
         width: u32,
         height: u32,
-        kernels: KernelChoice,
+        options: EngineOptions,
     ) -> Result<Self> {
         if width == 0 || height == 0 {
             return Err(Error::shape(
@@ -164,7 +166,7 @@ impl Denoiser {
             ));
         }
         gpu.kernels.check_limits("the denoiser", KERNELS_USED)?;
-        let net = Network::new(gpu, weights, round_up4(width), round_up4(height), kernels)?;
+        let net = Network::new(gpu, weights, round_up4(width), round_up4(height), options)?;
         let output = Self::make_output(gpu, width, height);
         let store = Self::make_store(gpu, &net, &output, width, height)?;
         let sanitized = gpu.device.create_buffer(&wgpu::BufferDescriptor {
@@ -186,7 +188,7 @@ impl Denoiser {
             sanitized,
             first: true,
             frames: 0,
-            kernels,
+            options,
         })
     }
 
@@ -289,7 +291,7 @@ impl Denoiser {
         if (width, height) == (self.width, self.height) {
             return Ok(());
         }
-        *self = Self::with_kernels(&self.gpu, &self.weights, width, height, self.kernels)?;
+        *self = Self::with_options(&self.gpu, &self.weights, width, height, self.options)?;
         Ok(())
     }
 

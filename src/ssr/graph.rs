@@ -150,6 +150,31 @@ impl TensorId {
         )
     }
 
+    /// Whether it may be stored as f16 ([`crate::nn::autotune::Precision`]): the interior
+    /// activations, which only convolutions and pooling (the kernels with f16 variants)
+    /// produce and read; inputs, history, the TFA's features and weights, the decoder's
+    /// RGB outputs and the output stay f32.
+    pub fn may_store_f16(self) -> bool {
+        use TensorId::*;
+        matches!(
+            self,
+            RefHidden
+                | EmbHiddenCur
+                | EmbHiddenPrev
+                | Enc1Hidden
+                | Enc1
+                | Pool1
+                | Enc2Hidden
+                | Enc2
+                | Pool2
+                | Enc3Hidden
+                | Enc3
+                | Dec3Hidden
+                | Dec2Hidden
+                | Dec1Hidden
+        )
+    }
+
     /// Its extent and channel count under `config`.
     pub fn shape(self, config: &SsrConfig) -> (Extent, u32) {
         use Extent::*;
@@ -379,6 +404,30 @@ mod tests {
         }
         let convs = steps.iter().filter(|s| matches!(s.op, Op::Conv(_))).count() as u32;
         assert_eq!(convs, config.layers().iter().map(|l| l.runs).sum::<u32>());
+    }
+
+    /// Tensors that may be f16 are touched by convolutions and pooling only, and each
+    /// layer sees the same storage in every step that runs it (one kernel per layer).
+    #[test]
+    fn f16_tensors_meet_only_kernels_with_f16_variants() {
+        let steps = steps(&SsrConfig::default()).unwrap();
+        let mut seen = std::collections::HashMap::new();
+        for s in &steps {
+            let f16: Vec<bool> = s.tensors.iter().map(|t| t.may_store_f16()).collect();
+            if f16.contains(&true) {
+                assert!(
+                    matches!(s.op, Op::Conv(_) | Op::Pool(_)),
+                    "{}: {:?}",
+                    s.label,
+                    s.op
+                );
+            }
+            if let Op::Conv(layer) = s.op {
+                let before = seen.insert(layer, f16.clone());
+                assert!(before.is_none_or(|b| b == f16), "{layer}");
+            }
+        }
+        assert!(TensorId::ALL.iter().filter(|t| t.may_store_f16()).count() >= 14);
     }
 
     #[test]

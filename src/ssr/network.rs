@@ -11,10 +11,10 @@ use super::graph::{self, Extent, Op, StepSpec, TensorId};
 use super::weights::Weights;
 use crate::error::{Error, Result};
 use crate::gpu::{Dispatch, Gpu, Grid, Profiler, Specialisation};
-use crate::nn::autotune::{self, KernelChoice};
+use crate::nn::autotune::{self, EngineOptions, LayerStorage, Precision};
 use crate::nn::conv::ConvKernel;
 use crate::nn::ops::{self, Conv3x3, TfaBlend};
-use crate::nn::{HostTensor, Tensor};
+use crate::nn::{DType, HostTensor, Tensor};
 
 #[repr(C)]
 #[derive(Clone, Copy, Pod, Zeroable)]
@@ -57,6 +57,8 @@ pub struct Network {
     ones: Tensor,
     /// The steps of a frame, in execution order.
     specs: Vec<StepSpec>,
+    /// Storage of the interior activations ([`TensorId::may_store_f16`]).
+    activations: DType,
     /// `[parity][step]` -> its dispatch.
     dispatches: [Vec<Dispatch>; 2],
     parity: usize,
@@ -87,8 +89,16 @@ pub const INTERMEDIATES: &[&str] = &[
 
 impl Network {
     /// Uploads `weights` and allocates everything for a `width x height` padded image;
-    /// each convolution runs on the kernel `choice` picks for its shape and resolution.
-    pub fn new(gpu: &Gpu, weights: &Weights, width: u32, height: u32, choice: KernelChoice) -> Result<Self> {
+    /// the interior activations are stored as `options.precision` resolves and each
+    /// convolution runs on the kernel `options.kernels` picks for its shape, resolution
+    /// and storage.
+    pub fn new(
+        gpu: &Gpu,
+        weights: &Weights,
+        width: u32,
+        height: u32,
+        options: EngineOptions,
+    ) -> Result<Self> {
         if width == 0 || height == 0 || !width.is_multiple_of(4) || !height.is_multiple_of(4) {
             return Err(Error::shape(
                 "ssr network",
@@ -97,14 +107,65 @@ impl Network {
         }
         let config = weights.config.clone();
         config.validate()?;
+        let specs = graph::steps(&config)?;
+        let layers = config.layers();
         let mut convs = BTreeMap::new();
-        for l in config.layers() {
+        for l in &layers {
             let (w, b) = weights.layer(&l.name)?;
-            let mut conv = Conv3x3::new(gpu, &l.name, w, b, &l.inputs, l.cout, l.act)?;
-            let (lw, lh) = (width >> l.level, height >> l.level);
-            let kernel = autotune::choose(gpu, &conv, lw, lh, choice)?;
+            convs.insert(
+                l.name.clone(),
+                Conv3x3::new(gpu, &l.name, w, b, &l.inputs, l.cout, l.act)?,
+            );
+        }
+        // Each layer's size, and the storage of its tensors when the interior activations
+        // are `dtype` (the graph gives a layer the same storage in every step).
+        let size = |l: &crate::ssr::LayerSpec| (width >> l.level, height >> l.level);
+        let storage = |name: &str, dtype: DType| {
+            let s = specs
+                .iter()
+                .find(|s| matches!(s.op, Op::Conv(n) if n == name))
+                .expect("every layer runs in a step");
+            let of = |id: &TensorId| if id.may_store_f16() { dtype } else { DType::F32 };
+            let (out, ins) = s.tensors.split_last().expect("a convolution has an output");
+            LayerStorage {
+                inputs: ins.iter().map(of).collect(),
+                output: of(out),
+            }
+        };
+        let activations = match options.precision.resolve()? {
+            Precision::F16 => {
+                gpu.require(wgpu::Features::SHADER_F16, "f16 activations")?;
+                DType::F16
+            }
+            Precision::Auto if gpu.has(wgpu::Features::SHADER_F16) => {
+                // The tuned time of every layer run of a frame, each way.
+                let mut total = [0.0f64; 2];
+                for (i, dtype) in [DType::F32, DType::F16].into_iter().enumerate() {
+                    for l in &layers {
+                        let (lw, lh) = size(l);
+                        let ms = autotune::tuned_ms(gpu, &convs[&l.name], lw, lh, &storage(&l.name, dtype))?;
+                        total[i] += ms * l.runs as f64;
+                    }
+                }
+                log::info!(
+                    "activations: tuned layers {:.2} ms with f32, {:.2} ms with f16 storage",
+                    total[0],
+                    total[1]
+                );
+                if total[1] < total[0] {
+                    DType::F16
+                } else {
+                    DType::F32
+                }
+            }
+            _ => DType::F32,
+        };
+        for l in &layers {
+            let (lw, lh) = size(l);
+            let conv = convs.get_mut(&l.name).expect("inserted above");
+            let kernel =
+                autotune::choose(gpu, conv, lw, lh, &storage(&l.name, activations), options.kernels)?;
             conv.set_kernel(gpu, kernel)?;
-            convs.insert(l.name.clone(), conv);
         }
         let dims = |id: TensorId| {
             let (extent, c) = id.shape(&config);
@@ -113,13 +174,17 @@ impl Network {
                 Extent::Single => (1, 1),
                 Extent::ExposureGroups => (exposure_groups(width, height), 1),
             };
-            (w, h, c)
+            let dtype = if id.may_store_f16() {
+                activations
+            } else {
+                DType::F32
+            };
+            (w, h, c, dtype)
         };
         let alloc = |id: TensorId, label: &str| {
-            let (w, h, c) = dims(id);
-            Tensor::new(gpu, label, w, h, c)
+            let (w, h, c, dtype) = dims(id);
+            Tensor::new_typed(gpu, label, w, h, c, dtype)
         };
-        let specs = graph::steps(&config)?;
         // Lifetimes within a frame (first and last step using each tensor): a transient
         // tensor takes the memory of an earlier one of the same shape that is dead by then.
         let mut life: BTreeMap<TensorId, (usize, usize)> = BTreeMap::new();
@@ -179,6 +244,7 @@ impl Network {
             o,
             ones,
             specs,
+            activations,
             dispatches: [Vec::new(), Vec::new()],
             parity: 0,
         };
@@ -190,6 +256,12 @@ impl Network {
                 .collect::<Result<_>>()?;
         }
         Ok(net)
+    }
+
+    /// Storage of the interior activations (f32, or f16 under [`Precision::F16`] or a
+    /// [`Precision::Auto`] that measured it faster).
+    pub fn activations(&self) -> DType {
+        self.activations
     }
 
     /// Each convolution layer and the kernel it runs on.
