@@ -12,7 +12,7 @@
 //!   naga validation and limit checks use unless told otherwise;
 //! - `//#repeat VAR COUNT` ... `//#end`: the lines between, repeated for `VAR` = 0 ..
 //!   COUNT-1, where COUNT is an expression (below); blocks nest;
-//! - `//#if EXPR` ... [`//#else` ...] `//#end`: the first lines when EXPR is not 0, else
+//! - `//#if EXPR` ... (`//#else` ...) `//#end`: the first lines when EXPR is not 0, else
 //!   those after `//#else` (e.g. a binding's element type, `f32` or `f16`);
 //! - in a directive's argument, `{EXPR}` is replaced first, so names can be built from
 //!   repeat variables (`//#if F16_IN{k}`);
