@@ -139,9 +139,9 @@ impl ParamsBinding {
 
 /// Every WGSL kernel of the crate.
 pub const KERNELS: &[KernelSource] = &[
-    kernel!("nn/conv3x3"),
-    kernel!("nn/conv3x3_blocked"),
-    kernel!("nn/pool2x2", ["nn/lib/resample"]),
+    kernel!("nn/conv3x3", ["nn/lib/storage"]),
+    kernel!("nn/conv3x3_blocked", ["nn/lib/storage"]),
+    kernel!("nn/pool2x2", ["nn/lib/storage", "nn/lib/resample"]),
     kernel!("nn/upsample2x", ["nn/lib/resample"]),
     kernel!("nn/tfa_blend", ["nn/lib/grid"]),
     kernel!("nn/warp", ["nn/lib/grid"]),
@@ -246,67 +246,32 @@ impl KernelNeeds {
     /// Every limit of `limits` this kernel exceeds, as `(limit field, needed, allowed)`.
     pub fn exceeded(&self, limits: &wgpu::Limits) -> Vec<(&'static str, u64, u64)> {
         let [x, y, z] = self.workgroup_size;
+        // (the limit's field name, what the kernel needs, what `limits` allows)
+        macro_rules! limit {
+            ($field:ident, $need:expr) => {
+                (
+                    stringify!($field),
+                    u64::from($need),
+                    u64::from(limits.$field),
+                )
+            };
+        }
         let checks: [(&'static str, u64, u64); 12] = [
-            (
-                "max_storage_buffers_per_shader_stage",
-                self.storage_buffers.into(),
-                limits.max_storage_buffers_per_shader_stage.into(),
+            limit!(max_storage_buffers_per_shader_stage, self.storage_buffers),
+            limit!(max_uniform_buffers_per_shader_stage, self.uniform_buffers),
+            limit!(max_storage_textures_per_shader_stage, self.storage_textures),
+            limit!(max_sampled_textures_per_shader_stage, self.sampled_textures),
+            limit!(max_samplers_per_shader_stage, self.samplers),
+            limit!(max_bind_groups, self.bind_groups),
+            limit!(max_bindings_per_bind_group, self.bindings_per_group),
+            limit!(max_compute_workgroup_size_x, x),
+            limit!(max_compute_workgroup_size_y, y),
+            limit!(max_compute_workgroup_size_z, z),
+            limit!(
+                max_compute_invocations_per_workgroup,
+                u64::from(x) * u64::from(y) * u64::from(z)
             ),
-            (
-                "max_uniform_buffers_per_shader_stage",
-                self.uniform_buffers.into(),
-                limits.max_uniform_buffers_per_shader_stage.into(),
-            ),
-            (
-                "max_storage_textures_per_shader_stage",
-                self.storage_textures.into(),
-                limits.max_storage_textures_per_shader_stage.into(),
-            ),
-            (
-                "max_sampled_textures_per_shader_stage",
-                self.sampled_textures.into(),
-                limits.max_sampled_textures_per_shader_stage.into(),
-            ),
-            (
-                "max_samplers_per_shader_stage",
-                self.samplers.into(),
-                limits.max_samplers_per_shader_stage.into(),
-            ),
-            (
-                "max_bind_groups",
-                self.bind_groups.into(),
-                limits.max_bind_groups.into(),
-            ),
-            (
-                "max_bindings_per_bind_group",
-                self.bindings_per_group.into(),
-                limits.max_bindings_per_bind_group.into(),
-            ),
-            (
-                "max_compute_workgroup_size_x",
-                x.into(),
-                limits.max_compute_workgroup_size_x.into(),
-            ),
-            (
-                "max_compute_workgroup_size_y",
-                y.into(),
-                limits.max_compute_workgroup_size_y.into(),
-            ),
-            (
-                "max_compute_workgroup_size_z",
-                z.into(),
-                limits.max_compute_workgroup_size_z.into(),
-            ),
-            (
-                "max_compute_invocations_per_workgroup",
-                x as u64 * y as u64 * z as u64,
-                limits.max_compute_invocations_per_workgroup.into(),
-            ),
-            (
-                "max_compute_workgroup_storage_size",
-                self.workgroup_memory.into(),
-                limits.max_compute_workgroup_storage_size.into(),
-            ),
+            limit!(max_compute_workgroup_storage_size, self.workgroup_memory),
         ];
         checks
             .into_iter()
@@ -880,7 +845,7 @@ mod tests {
                 "nn/conv3x3",
                 &["F16_IN0", "F16_IN1", "F16_IN2", "F16_IN3", "F16_OUT"][..],
             ),
-            ("nn/pool2x2", &["F16_SRC", "F16_DST"][..]),
+            ("nn/pool2x2", &["F16_IN0", "F16_OUT"][..]),
         ] {
             let k = kernel_source(name).unwrap();
             for flag in flags {

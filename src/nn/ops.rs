@@ -148,8 +148,8 @@ pub fn pool2x2(gpu: &Gpu, mode: PoolMode, input: &Tensor, out: &Tensor) -> Resul
         PoolMode::Average => 1,
     };
     let storage = Specialisation(vec![
-        ("F16_SRC", input.dtype.f16_flag() as f64),
-        ("F16_DST", out.dtype.f16_flag() as f64),
+        ("F16_IN0", input.dtype.f16_flag() as f64),
+        ("F16_OUT", out.dtype.f16_flag() as f64),
     ]);
     resample(gpu, op, mode, input, out, &storage)
 }

@@ -33,6 +33,25 @@ pub struct GpuScene {
     pub packed: Arc<PackedScene>,
 }
 
+impl GpuScene {
+    /// The scene's buffers in the order of their bindings (1-7, `trace/lib/scene.wgsl`),
+    /// followed by `rest` (the kernel's own bindings, from 8): the buffer list of every
+    /// tracer dispatch.
+    pub fn bindings<'a>(&'a self, rest: &[&'a wgpu::Buffer]) -> Vec<&'a wgpu::Buffer> {
+        let mut b = vec![
+            &self.nodes,
+            &self.tris,
+            &self.verts,
+            &self.materials,
+            &self.texels,
+            &self.lights,
+            &self.env,
+        ];
+        b.extend_from_slice(rest);
+        b
+    }
+}
+
 impl std::ops::Deref for GpuScene {
     type Target = PackedScene;
     fn deref(&self) -> &PackedScene {

@@ -237,20 +237,13 @@ impl Tracer {
             "trace/gbuffer",
             &Specialisation::none(),
             bytemuck::bytes_of(&self.params(s, [0, 1])),
-            &[
-                &scene.nodes,
-                &scene.tris,
-                &scene.verts,
-                &scene.materials,
-                &scene.texels,
-                &scene.lights,
-                &scene.env,
+            &scene.bindings(&[
                 &b.albedo_depth.buffer,
                 &b.normal_metallic.buffer,
                 &b.shadow_roughness.buffer,
                 &b.transparent.buffer,
                 &b.motion.buffer,
-            ],
+            ]),
             Grid::pixels(self.width(), self.height()),
         )
     }
@@ -275,18 +268,7 @@ impl Tracer {
             "trace/pathtrace",
             &Specialisation::none(),
             bytemuck::bytes_of(&self.params(s, accum)),
-            &[
-                &scene.nodes,
-                &scene.tris,
-                &scene.verts,
-                &scene.materials,
-                &scene.texels,
-                &scene.lights,
-                &scene.env,
-                &color.buffer,
-                &shadow.buffer,
-                &self.counters,
-            ],
+            &scene.bindings(&[&color.buffer, &shadow.buffer, &self.counters]),
             g,
         )
     }
@@ -529,17 +511,7 @@ pub fn query_rays(
         "trace/query",
         &Specialisation::none(),
         bytemuck::bytes_of(&params),
-        &[
-            &scene.nodes,
-            &scene.tris,
-            &scene.verts,
-            &scene.materials,
-            &scene.texels,
-            &scene.lights,
-            &scene.env,
-            &ray_buf,
-            &hits,
-        ],
+        &scene.bindings(&[&ray_buf, &hits]),
         Grid::Invocations([n, 1, 1]),
     )?;
     let mut enc = gpu.device.create_command_encoder(&Default::default());

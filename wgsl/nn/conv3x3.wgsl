@@ -5,22 +5,11 @@
 // column k of block (ci4, co4) holds the weights of input channel 4*ci4+k for output
 // channels 4*co4..4*co4+3. Each invocation computes one pixel and up to 4 output vec4s
 // (16 channels); global_id.z selects the 16-channel block.
-// Outputs are kept finite (issue 12): a non-finite sum (from hostile weights or inputs)
-// becomes 0 and finite ones are clamped to +-ACT_MAX, far beyond any real activation, so
-// that the layers after it (sums of 9 Cin products, dot products in the TFA) cannot
-// overflow either.
-// Each input and the output are stored as f32 or f16 (template flags F16_IN0..F16_IN3, F16_OUT,
-// with SHADER_F16): loads convert to f32, sums are f32, and an f16 output is clamped to
-// +-65504 (f16's largest finite value) instead of ACT_MAX.
-//
-//#param F16_IN0 0
-//#param F16_IN1 0
-//#param F16_IN2 0
-//#param F16_IN3 0
-//#param F16_OUT 0
-//#if F16_IN0+F16_IN1+F16_IN2+F16_IN3+F16_OUT
-enable f16;
-//#end
+// Outputs are kept finite (issue 12; nn/lib/storage's to_out): a non-finite sum (from
+// hostile weights or inputs) becomes 0 and finite ones are clamped far beyond any real
+// activation, so that the layers after it (sums of 9 Cin products, dot products in the
+// TFA) cannot overflow either. Each input and the output are stored as f32 or f16
+// (nn/lib/storage); the sums are f32.
 
 struct Params {
     width: u32,
@@ -33,21 +22,6 @@ struct Params {
     slope: f32,
     _pad: u32,
 }
-
-//#repeat k 4
-//#if F16_IN{k}
-alias In{k} = vec4<f16>;
-//#else
-alias In{k} = vec4<f32>;
-//#end
-//#end
-//#if F16_OUT
-alias Out = vec4<f16>;
-const ACT_MAX: f32 = 65504.0;
-//#else
-alias Out = vec4<f32>;
-const ACT_MAX: f32 = 1.0e15;
-//#end
 
 @group(0) @binding(0) var<uniform> p: Params;
 @group(0) @binding(1) var<storage, read> in0: array<In0>;
@@ -112,7 +86,6 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>) {
         } else if (p.act == 2u) {
             r = select(r * p.slope, r, r >= vec4<f32>(0.0));
         }
-        let lim = vec4<f32>(ACT_MAX);
-        out[o + j] = Out(select(vec4<f32>(0.0), clamp(r, -lim, lim), abs(r) <= vec4<f32>(3.40282347e38)));
+        out[o + j] = to_out(r);
     }
 }

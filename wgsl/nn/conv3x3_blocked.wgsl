@@ -16,22 +16,13 @@
 //   dispatches, each over CO_COUNT output vec4s from CO_BASE with its own weight buffer
 //   (nn::conv packs them; a layer whose single output block does not fit runs on
 //   nn/conv3x3, which reads weights from storage).
-// - each input and the output are stored as f32 or f16 (template flags F16_IN0..F16_IN3,
-//   F16_OUT: `array<vec4<f16>>` with SHADER_F16); loads convert to f32 and the sums are
-//   f32; an f16 output is clamped to +-65504 (f16's largest finite value) instead.
+// - each input and the output are stored as f32 or f16 (nn/lib/storage: template flags,
+//   `array<vec4<f16>>` with SHADER_F16); the sums are f32.
 // The grid: x over groups of PX pixels, y over rows, z over blocks of COB output vec4s.
 //
 //#param N_IN 4
 //#param PX 1
 //#param COB 1
-//#param F16_IN0 0
-//#param F16_IN1 0
-//#param F16_IN2 0
-//#param F16_IN3 0
-//#param F16_OUT 0
-//#if F16_IN0+F16_IN1+F16_IN2+F16_IN3+F16_OUT
-enable f16;
-//#end
 
 override CIN4_0: u32 = 1u;  // padded channels / 4 of each input (inputs N_IN.. unused)
 override CIN4_1: u32 = 1u;
@@ -52,21 +43,6 @@ struct Params {
 
 const MAX_WEIGHTS: u32 = 4096u; // vec4s: 64 KiB, WebGPU's default uniform binding size
 
-//#repeat k N_IN
-//#if F16_IN{k}
-alias In{k} = vec4<f16>;
-//#else
-alias In{k} = vec4<f32>;
-//#end
-//#end
-//#if F16_OUT
-alias Out = vec4<f16>;
-const ACT_MAX: f32 = 65504.0;
-//#else
-alias Out = vec4<f32>;
-const ACT_MAX: f32 = 1.0e15;
-//#end
-
 @group(0) @binding(0) var<uniform> p: Params;
 //#repeat k N_IN
 @group(0) @binding({k+1}) var<storage, read> in{k}: array<In{k}>;
@@ -75,8 +51,8 @@ const ACT_MAX: f32 = 1.0e15;
 @group(0) @binding({N_IN+2}) var<storage, read> bias: array<vec4<f32>>;
 @group(0) @binding({N_IN+3}) var<storage, read_write> out: array<Out>;
 
-// Activation and finiteness (a non-finite sum becomes 0, finite ones are clamped to
-// +-ACT_MAX, as in nn/conv3x3), stored when the pixel and output block exist.
+// Activation and finiteness (nn/lib/storage's to_out, as in nn/conv3x3), stored when the
+// pixel and output block exist.
 fn store(x: u32, y: u32, co4: u32, acc: vec4<f32>) {
     if (x >= p.width || co4 >= min(COUT4, CO_BASE + CO_COUNT)) {
         return;
@@ -87,8 +63,7 @@ fn store(x: u32, y: u32, co4: u32, acc: vec4<f32>) {
     } else if (ACT == 2u) {
         r = select(r * SLOPE, r, r >= vec4<f32>(0.0));
     }
-    let lim = vec4<f32>(ACT_MAX);
-    out[(y * p.width + x) * COUT4 + co4] = Out(select(vec4<f32>(0.0), clamp(r, -lim, lim), abs(r) <= vec4<f32>(3.40282347e38)));
+    out[(y * p.width + x) * COUT4 + co4] = to_out(r);
 }
 
 @compute @workgroup_size(8, 8, 1)

@@ -1,37 +1,14 @@
 // 2x2 pooling (max or average), NHWC vec4 tensors.
 // Output is ceil(w/2) x ceil(h/2); windows are clipped to the input, and the average is
 // taken over the pixels inside it.
-// Input and output are stored as f32 or f16 (template flags F16_SRC, F16_DST, with
-// SHADER_F16); the arithmetic is f32, and an f16 output is clamped to +-65504.
-//
-//#param F16_SRC 0
-//#param F16_DST 0
-//#if F16_SRC+F16_DST
-enable f16;
-//#end
+// Input and output are stored as f32 or f16 (nn/lib/storage: In0, Out); the arithmetic is
+// f32.
 
 // Params: nn/lib/resample.wgsl (p.mode: 0 max, 1 average).
 
-//#if F16_SRC
-alias Src = vec4<f16>;
-//#else
-alias Src = vec4<f32>;
-//#end
-//#if F16_DST
-alias Dst = vec4<f16>;
-fn to_dst(v: vec4<f32>) -> Dst {
-    return Dst(clamp(v, vec4<f32>(-65504.0), vec4<f32>(65504.0)));
-}
-//#else
-alias Dst = vec4<f32>;
-fn to_dst(v: vec4<f32>) -> Dst {
-    return v;
-}
-//#end
-
 @group(0) @binding(0) var<uniform> p: Params;
-@group(0) @binding(1) var<storage, read> src: array<Src>;
-@group(0) @binding(2) var<storage, read_write> dst: array<Dst>;
+@group(0) @binding(1) var<storage, read> src: array<In0>;
+@group(0) @binding(2) var<storage, read_write> dst: array<Out>;
 
 @compute @workgroup_size(8, 8, 1)
 fn main(@builtin(global_invocation_id) gid: vec3<u32>) {
@@ -59,6 +36,6 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>) {
             if (x1 != 2u * x && y1 != 2u * y) { s += e; }
             r = s / n;
         }
-        dst[(y * p.out_w + x) * p.c4 + c] = to_dst(r);
+        dst[(y * p.out_w + x) * p.c4 + c] = to_out(r);
     }
 }
