@@ -74,7 +74,7 @@ import torch.nn.functional as F
 from torch import nn
 
 from .export import FORMAT as SSR_FORMAT
-from .export import WeightsError, load_weights, write_safetensors
+from .export import WeightsError, load_weights, read_state, write_safetensors
 from .model import ALBEDO_EPS, OPTION_VALUES, SSRConfig, SSRModel, _check_frame, _clean, demodulate, remodulate, warp
 
 BASELINE_VERSION = "1"
@@ -436,21 +436,8 @@ def load_model(path: str, device: str = "cpu") -> Tuple[nn.Module, dict]:
         raise WeightsError(f"{path}: bad metadata ({err})") from None
     cfg = _config_from_dict(CONFIGS[cls.NAME], cfg_dict, f"{path}: metadata `config`")
     model = cls(cfg)
-    expected = {k: tuple(v.shape) for k, v in model.state_dict().items()}
-    errors, state = [], {}
     with safe_open(path, framework="pt", device=device) as f:
-        present = set(f.keys())
-        for name in sorted(set(expected) - present):
-            errors.append(f"missing tensor `{name}` (expected shape {list(expected[name])})")
-        for name in sorted(present - set(expected)):
-            errors.append(f"unexpected tensor `{name}`")
-        for name in sorted(present & set(expected)):
-            t = f.get_tensor(name)
-            if tuple(t.shape) != expected[name]:
-                errors.append(f"tensor `{name}`: shape {list(t.shape)}, expected {list(expected[name])}")
-            state[name] = t
-    if errors:
-        raise WeightsError(f"{path}: " + "; ".join(errors))
+        state = read_state(f, model, path)
     model.load_state_dict(state, strict=True)
     model.eval()
     return model, {"format": fmt, "version": raw["version"], "config": cfg, "provenance": provenance, "metrics": metrics, "raw": dict(raw)}

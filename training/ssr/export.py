@@ -173,6 +173,27 @@ def _parse_json(meta: Dict[str, str], key: str, path: str) -> object:
         raise WeightsError(f"{path}: metadata `{key}` is not valid JSON ({err})") from None
 
 
+def read_state(f, model: torch.nn.Module, path) -> Dict[str, torch.Tensor]:
+    """The tensors of the open safetensors file `f` as a state dict for `model`: every
+    tensor the model has, float32, of its shape, and no other; else a `WeightsError` naming
+    `path` and every mismatch."""
+    expected = {k: tuple(v.shape) for k, v in model.state_dict().items()}
+    present = set(f.keys())
+    errors = [f"missing tensor `{n}` (expected shape {list(expected[n])})" for n in sorted(set(expected) - present)]
+    errors += [f"unexpected tensor `{n}`" for n in sorted(present - set(expected))]
+    state = {}
+    for name in sorted(present & set(expected)):
+        t = f.get_tensor(name)
+        if t.dtype != torch.float32:
+            errors.append(f"tensor `{name}`: dtype {t.dtype}, expected float32")
+        if tuple(t.shape) != expected[name]:
+            errors.append(f"tensor `{name}`: shape {list(t.shape)}, expected {list(expected[name])}")
+        state[name] = t
+    if errors:
+        raise WeightsError(f"{path}: " + "; ".join(errors))
+    return state
+
+
 def load_weights(path: str, device: str = "cpu") -> Tuple[SSRModel, dict]:
     """Loads a weights file, checking format, version and every tensor name and shape.
 
@@ -210,24 +231,7 @@ def load_weights(path: str, device: str = "cpu") -> Tuple[SSRModel, dict]:
         metrics = _parse_json(raw, "metrics", path)
 
         model = SSRModel(cfg)
-        expected = {k: tuple(v.shape) for k, v in model.state_dict().items()}
-        present = set(f.keys())
-        errors = []
-        for name in sorted(expected):
-            if name not in present:
-                errors.append(f"missing tensor `{name}` (expected shape {list(expected[name])})")
-        for name in sorted(present - set(expected)):
-            errors.append(f"unexpected tensor `{name}`")
-        state = {}
-        for name in sorted(present & set(expected)):
-            t = f.get_tensor(name)
-            if t.dtype != torch.float32:
-                errors.append(f"tensor `{name}`: dtype {t.dtype}, expected float32")
-            if tuple(t.shape) != expected[name]:
-                errors.append(f"tensor `{name}`: shape {list(t.shape)}, expected {list(expected[name])}")
-            state[name] = t
-        if errors:
-            raise WeightsError(f"{path}: " + "; ".join(errors))
+        state = read_state(f, model, path)
     model.load_state_dict(state, strict=True)
     model.eval()
     meta = {
