@@ -230,14 +230,8 @@ fn gpu_stage_timing(
         let mut secs = 0.0;
         for i in 0..args.warmup + frames {
             let s = FrameSettings {
-                frame: i,
-                camera: path.camera(i),
-                prev_camera: path.camera(i.saturating_sub(1)),
-                mode,
-                spp: 1,
                 max_depth: args.max_depth,
-                seed: 7,
-                far,
+                ..FrameSettings::along(&path, i, mode, 7, far)
             };
             let mut enc = gpu.device.create_command_encoder(&Default::default());
             tracer.encode_frame(&mut enc, &gs, &s, Some(&mut prof))?;

@@ -199,15 +199,11 @@ pub fn render_command(args: &RenderArgs) -> Result<()> {
             bar.inc(1);
             continue;
         }
+        let seed = args.seed as u32 ^ (args.seed >> 32) as u32;
         let settings = FrameSettings {
-            frame: f,
-            camera: path.camera(f),
-            prev_camera: path.camera(f.saturating_sub(1)),
-            mode: args.mode,
             spp: args.spp,
             max_depth: args.max_depth,
-            seed: args.seed as u32 ^ (args.seed >> 32) as u32,
-            far,
+            ..FrameSettings::along(&path, f, args.mode, seed, far)
         };
         let t = Instant::now();
         let (frame, stats) = renderer.frame(&settings)?;
