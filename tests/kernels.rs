@@ -8,6 +8,11 @@ use subpixel::gpu::Grid;
 use subpixel::nn::ops::{self, Activation, Conv3x3, ConvKernel, PoolMode, TfaBlend, UpsampleMode};
 use subpixel::nn::{DType, HostTensor, Tensor, reference};
 
+/// Asserts GPU tensor `t` matches `want` within `tol` (see [`assert_close`]).
+fn assert_tensor(case: &str, t: &Tensor, want: &HostTensor, tol: Tol) {
+    assert_close(case, &t.read(&gpu()).unwrap(), want, tol);
+}
+
 fn up(gpu: &subpixel::gpu::Gpu, name: &str, t: &HostTensor) -> Tensor {
     Tensor::from_host(gpu, name, t).unwrap()
 }
@@ -203,9 +208,9 @@ fn conv3x3_and_pooling_with_f16_storage_match_reference() {
                 DType::F16 => (to_f16(&want), F16_OUT),
                 DType::F32 => (want.clone(), REDUCTION),
             };
-            assert_close(
+            assert_tensor(
                 &format!("conv3x3 {kernel} f16/f32 inputs -> {}", out_dtype.name()),
-                &out.read(&g).unwrap(),
+                &out,
                 &expect,
                 tol,
             );
@@ -245,9 +250,9 @@ fn conv3x3_and_pooling_with_f16_storage_match_reference() {
                 (_, PoolMode::Max) => (want, EXACT),
                 (_, PoolMode::Average) => (want, ELEMENTWISE),
             };
-            assert_close(
+            assert_tensor(
                 &format!("pool {mode:?} {} -> {}", src.name(), dst.name()),
-                &out.read(&g).unwrap(),
+                &out,
                 &want,
                 tol,
             );
@@ -314,7 +319,7 @@ fn conv3x3_identity_copies_input() {
         let t = up(&g, "x", &x);
         let out = Tensor::new(&g, "out", 33, 17, c).unwrap();
         ops::run(&g, &[&conv.bind(&g, &[&t], &out).unwrap()]).unwrap();
-        assert_close(&format!("identity conv c={c}"), &out.read(&g).unwrap(), &x, EXACT);
+        assert_tensor(&format!("identity conv c={c}"), &out, &x, EXACT);
     }
 }
 
@@ -355,21 +360,16 @@ fn pooling_matches_reference_and_keeps_constants() {
                 let out = Tensor::new(&g, "out", w.div_ceil(2), h.div_ceil(2), c).unwrap();
                 ops::run(&g, &[&ops::pool2x2(&g, mode, &t, &out).unwrap()]).unwrap();
                 let tol = if mode == PoolMode::Max { EXACT } else { ELEMENTWISE };
-                assert_close(
+                assert_tensor(
                     &format!("pool {mode:?} {w}x{h}x{c}"),
-                    &out.read(&g).unwrap(),
+                    &out,
                     &reference::pool2x2(&x, mode),
                     tol,
                 );
                 let k = up(&g, "k", &HostTensor::from_fn(w, h, c, |_, _, _| 0.375));
                 ops::run(&g, &[&ops::pool2x2(&g, mode, &k, &out).unwrap()]).unwrap();
                 let konst = HostTensor::from_fn(w.div_ceil(2), h.div_ceil(2), c, |_, _, _| 0.375);
-                assert_close(
-                    &format!("pool constant {mode:?} {w}x{h}"),
-                    &out.read(&g).unwrap(),
-                    &konst,
-                    EXACT,
-                );
+                assert_tensor(&format!("pool constant {mode:?} {w}x{h}"), &out, &konst, EXACT);
             }
         }
     }
@@ -391,9 +391,9 @@ fn upsampling_matches_reference_and_keeps_constants() {
                     } else {
                         ELEMENTWISE
                     };
-                    assert_close(
+                    assert_tensor(
                         &format!("upsample {mode:?} {w}x{h}x{c} -> {ow}x{oh}"),
-                        &out.read(&g).unwrap(),
+                        &out,
                         &reference::upsample2x(&x, mode, ow, oh),
                         tol,
                     );
@@ -402,12 +402,7 @@ fn upsampling_matches_reference_and_keeps_constants() {
                 let out = Tensor::new(&g, "out", 2 * w, 2 * h, c).unwrap();
                 ops::run(&g, &[&ops::upsample2x(&g, mode, &k, &out).unwrap()]).unwrap();
                 let konst = HostTensor::from_fn(2 * w, 2 * h, c, |_, _, _| -1.25);
-                assert_close(
-                    &format!("upsample constant {mode:?}"),
-                    &out.read(&g).unwrap(),
-                    &konst,
-                    EXACT,
-                );
+                assert_tensor(&format!("upsample constant {mode:?}"), &out, &konst, EXACT);
             }
         }
     }
@@ -449,18 +444,8 @@ fn warp_matches_reference() {
             let valid = Tensor::new(&g, "valid", w, h, 1).unwrap();
             ops::run(&g, &[&ops::warp(&g, &tx, &tm, &out, &valid).unwrap()]).unwrap();
             let (ro, rv) = reference::warp(&x, &mv);
-            assert_close(
-                &format!("warp valid {w}x{h}"),
-                &valid.read(&g).unwrap(),
-                &rv,
-                EXACT,
-            );
-            assert_close(
-                &format!("warp {w}x{h}x{c}"),
-                &out.read(&g).unwrap(),
-                &ro,
-                ELEMENTWISE,
-            );
+            assert_tensor(&format!("warp valid {w}x{h}"), &valid, &rv, EXACT);
+            assert_tensor(&format!("warp {w}x{h}x{c}"), &out, &ro, ELEMENTWISE);
         }
     }
 }
@@ -475,7 +460,7 @@ fn warp_zero_motion_is_identity_and_off_screen_is_invalid() {
     let valid = Tensor::new(&g, "valid", w, h, 1).unwrap();
     let zero = up(&g, "motion", &HostTensor::zeros(w, h, 2));
     ops::run(&g, &[&ops::warp(&g, &tx, &zero, &out, &valid).unwrap()]).unwrap();
-    assert_close("zero-motion warp", &out.read(&g).unwrap(), &x, EXACT);
+    assert_tensor("zero-motion warp", &out, &x, EXACT);
     assert!(valid.read(&g).unwrap().data.iter().all(|&v| v == 1.0));
     // Everything moves one full screen to the left: all invalid, all zero.
     let off = up(
@@ -539,12 +524,7 @@ fn tfa_blend_matches_reference_and_weights_sum_to_one() {
             let (ro, rw) = reference::tfa_blend(&hr, &hec, &hep, &hcur, &hprev, &hvalid);
             let gw = wts.read(&g).unwrap();
             assert_close(&format!("tfa weights {w}x{h}"), &gw, &rw, ELEMENTWISE);
-            assert_close(
-                &format!("tfa blend {w}x{h}x{c}"),
-                &out.read(&g).unwrap(),
-                &ro,
-                ELEMENTWISE,
-            );
+            assert_tensor(&format!("tfa blend {w}x{h}x{c}"), &out, &ro, ELEMENTWISE);
             for y in 0..h {
                 for x in 0..w {
                     let (beta, alpha) = (gw.at(x, y, 0), gw.at(x, y, 1));
