@@ -1,5 +1,5 @@
 //! The SSR network declared once (DESIGN §4), typed: every tensor ([`TensorId`], with its
-//! name, resolution level and channels) and every step of a frame ([`StepSpec`]: its
+//! name, traits, resolution level and channels) and every step of a frame ([`StepSpec`]: its
 //! operation and the tensors it takes, in the operation's argument order). The network
 //! allocates, binds, counts FLOPs and traffic from this table alone; the layer list of
 //! [`SsrConfig::layers`] (shared with the PyTorch mirror through the weight names) is
@@ -9,9 +9,23 @@ use super::config::{A_CHANNELS, ExposureMode, HistoryTest, MT_CHANNELS, RGB, Rem
 use crate::error::Result;
 use crate::nn::ops::PoolMode;
 
-/// Declares [`TensorId`]: each variant with its doc and its name, in allocation order.
+/// What a tensor is besides its shape ([`TensorId::traits`]).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Trait {
+    /// Only the steps of a frame use it (hidden layers, pooled, upsampled and downsampled
+    /// copies): the network lets such tensors share memory when their lifetimes within
+    /// the frame do not overlap, and does not expose them after it.
+    Transient,
+    /// It may be stored as f16 ([`crate::nn::autotune::Precision`]): an interior
+    /// activation that only convolutions and pooling (the kernels with f16 variants)
+    /// produce and read (checked by a test).
+    F16,
+}
+
+/// Declares [`TensorId`]: each variant with its doc, its name and its traits, in
+/// allocation order.
 macro_rules! tensor_ids {
-    ($($(#[$doc:meta])* $id:ident = $name:literal,)*) => {
+    ($($(#[$doc:meta])* $id:ident = $name:literal $(: $($t:ident)+)?,)*) => {
         /// Every tensor of the network. The names ([`TensorId::name`]) are those of the
         /// PyTorch mirror's golden intermediates where it has them.
         #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, PartialOrd, Ord)]
@@ -28,6 +42,13 @@ macro_rules! tensor_ids {
             pub fn name(self) -> &'static str {
                 match self {
                     $(TensorId::$id => $name,)*
+                }
+            }
+
+            /// Its traits.
+            pub fn traits(self) -> &'static [Trait] {
+                match self {
+                    $(TensorId::$id => &[$($(Trait::$t,)+)?],)*
                 }
             }
         }
@@ -52,15 +73,15 @@ tensor_ids! {
     /// Its validity.
     WarpValid = "warp_valid",
     /// TFA reference net, hidden layer.
-    RefHidden = "ref_hidden",
+    RefHidden = "ref_hidden": Transient F16,
     /// TFA reference features R.
     RefFeat = "ref_feat",
     /// TFA embedding of the current features, hidden layer.
-    EmbHiddenCur = "emb_hidden_cur",
+    EmbHiddenCur = "emb_hidden_cur": Transient F16,
     /// TFA embedding of the current features.
     EmbCur = "emb_cur",
     /// TFA embedding of the warped history, hidden layer.
-    EmbHiddenPrev = "emb_hidden_prev",
+    EmbHiddenPrev = "emb_hidden_prev": Transient F16,
     /// TFA embedding of the warped history.
     EmbPrev = "emb_prev",
     /// Per-pixel TFA weights (beta, alpha, s_cur, s_prev).
@@ -72,39 +93,39 @@ tensor_ids! {
     /// Warped log-space output of the last frame, W(o).
     WarpOut = "warp_out",
     /// W(o) at half resolution.
-    Wo2 = "wo2",
+    Wo2 = "wo2": Transient,
     /// W(o) at quarter resolution.
-    Wo4 = "wo4",
+    Wo4 = "wo4": Transient,
     /// U-Net encoder level 1, hidden layer.
-    Enc1Hidden = "enc1_hidden",
+    Enc1Hidden = "enc1_hidden": Transient F16,
     /// U-Net encoder level 1.
-    Enc1 = "enc1",
+    Enc1 = "enc1": F16,
     /// Its pooling.
-    Pool1 = "pool1",
+    Pool1 = "pool1": Transient F16,
     /// Encoder level 2, hidden layer.
-    Enc2Hidden = "enc2_hidden",
+    Enc2Hidden = "enc2_hidden": Transient F16,
     /// Encoder level 2.
-    Enc2 = "enc2",
+    Enc2 = "enc2": F16,
     /// Its pooling.
-    Pool2 = "pool2",
+    Pool2 = "pool2": Transient F16,
     /// Encoder level 3, hidden layer.
-    Enc3Hidden = "enc3_hidden",
+    Enc3Hidden = "enc3_hidden": Transient F16,
     /// Encoder level 3.
-    Enc3 = "enc3",
+    Enc3 = "enc3": F16,
     /// Decoder level 3, hidden layer.
-    Dec3Hidden = "dec3_hidden",
+    Dec3Hidden = "dec3_hidden": Transient F16,
     /// Decoder level 3 output I3.
     I3 = "i3",
     /// I3 upsampled.
-    Up3 = "up3",
+    Up3 = "up3": Transient,
     /// Decoder level 2, hidden layer.
-    Dec2Hidden = "dec2_hidden",
+    Dec2Hidden = "dec2_hidden": Transient F16,
     /// Decoder level 2 output I2.
     I2 = "i2",
     /// I2 upsampled.
-    Up2 = "up2",
+    Up2 = "up2": Transient,
     /// Decoder level 1, hidden layer.
-    Dec1Hidden = "dec1_hidden",
+    Dec1Hidden = "dec1_hidden": Transient F16,
     /// The log-space output o of this frame (ping-pong by frame parity).
     O = "o",
     /// The log-space output of the last frame.
@@ -125,54 +146,14 @@ pub enum Extent {
 }
 
 impl TensorId {
-    /// Whether only the steps of a frame use it (hidden layers, pooled, upsampled and
-    /// downsampled copies): the network lets such tensors share memory when their
-    /// lifetimes within the frame do not overlap, and does not expose them after it.
+    /// Whether it has trait [`Trait::Transient`].
     pub fn is_transient(self) -> bool {
-        use TensorId::*;
-        matches!(
-            self,
-            RefHidden
-                | EmbHiddenCur
-                | EmbHiddenPrev
-                | Enc1Hidden
-                | Enc2Hidden
-                | Enc3Hidden
-                | Dec3Hidden
-                | Dec2Hidden
-                | Dec1Hidden
-                | Pool1
-                | Pool2
-                | Up3
-                | Up2
-                | Wo2
-                | Wo4
-        )
+        self.traits().contains(&Trait::Transient)
     }
 
-    /// Whether it may be stored as f16 ([`crate::nn::autotune::Precision`]): the interior
-    /// activations, which only convolutions and pooling (the kernels with f16 variants)
-    /// produce and read; inputs, history, the TFA's features and weights, the decoder's
-    /// RGB outputs and the output stay f32.
+    /// Whether it has trait [`Trait::F16`].
     pub fn may_store_f16(self) -> bool {
-        use TensorId::*;
-        matches!(
-            self,
-            RefHidden
-                | EmbHiddenCur
-                | EmbHiddenPrev
-                | Enc1Hidden
-                | Enc1
-                | Pool1
-                | Enc2Hidden
-                | Enc2
-                | Pool2
-                | Enc3Hidden
-                | Enc3
-                | Dec3Hidden
-                | Dec2Hidden
-                | Dec1Hidden
-        )
+        self.traits().contains(&Trait::F16)
     }
 
     /// Its extent and channel count under `config`.
