@@ -6,7 +6,7 @@ use std::collections::BTreeMap;
 
 use bytemuck::{Pod, Zeroable};
 
-use super::config::{RGB, SsrConfig};
+use super::config::{LayerSpec, RGB, SsrConfig};
 use super::graph::{self, Extent, Op, StepSpec, TensorId};
 use super::weights::Weights;
 use crate::error::{Error, Result};
@@ -87,6 +87,61 @@ pub const INTERMEDIATES: &[&str] = &[
     "output",
 ];
 
+/// The storage of layer `name`'s tensors when the interior activations are `dtype` (the
+/// graph gives a layer the same storage in every step that runs it).
+fn layer_storage(specs: &[StepSpec], name: &str, dtype: DType) -> LayerStorage {
+    let s = specs
+        .iter()
+        .find(|s| matches!(s.op, Op::Conv(n) if n == name))
+        .expect("every layer runs in a step");
+    let of = |id: &TensorId| if id.may_store_f16() { dtype } else { DType::F32 };
+    let (out, ins) = s.tensors.split_last().expect("a convolution has an output");
+    LayerStorage {
+        inputs: ins.iter().map(of).collect(),
+        output: of(out),
+    }
+}
+
+/// The interior activations' storage under `precision`: for [`Precision::Auto`], f16 when
+/// the device has SHADER_F16 and the tuned times of a frame's layer runs (each layer at
+/// its `size`) are lower with it.
+fn activation_storage(
+    gpu: &Gpu,
+    specs: &[StepSpec],
+    layers: &[LayerSpec],
+    convs: &BTreeMap<String, Conv3x3>,
+    precision: Precision,
+    size: impl Fn(&LayerSpec) -> (u32, u32),
+) -> Result<DType> {
+    Ok(match precision.resolve()? {
+        Precision::F16 => {
+            gpu.require(wgpu::Features::SHADER_F16, "f16 activations")?;
+            DType::F16
+        }
+        Precision::Auto if gpu.has(wgpu::Features::SHADER_F16) => {
+            let mut total = [0.0f64; 2];
+            for (i, dtype) in [DType::F32, DType::F16].into_iter().enumerate() {
+                for l in layers {
+                    let (lw, lh) = size(l);
+                    let storage = layer_storage(specs, &l.name, dtype);
+                    total[i] += autotune::tuned_ms(gpu, &convs[&l.name], lw, lh, &storage)? * l.runs as f64;
+                }
+            }
+            log::info!(
+                "activations: tuned layers {:.2} ms with f32, {:.2} ms with f16 storage",
+                total[0],
+                total[1]
+            );
+            if total[1] < total[0] {
+                DType::F16
+            } else {
+                DType::F32
+            }
+        }
+        _ => DType::F32,
+    })
+}
+
 impl Network {
     /// Uploads `weights` and allocates everything for a `width x height` padded image;
     /// the interior activations are stored as `options.precision` resolves and each
@@ -117,55 +172,16 @@ impl Network {
                 Conv3x3::new(gpu, &l.name, w, b, &l.inputs, l.cout, l.act)?,
             );
         }
-        // Each layer's size, and the storage of its tensors when the interior activations
-        // are `dtype` (the graph gives a layer the same storage in every step).
-        let size = |l: &crate::ssr::LayerSpec| (width >> l.level, height >> l.level);
-        let storage = |name: &str, dtype: DType| {
-            let s = specs
-                .iter()
-                .find(|s| matches!(s.op, Op::Conv(n) if n == name))
-                .expect("every layer runs in a step");
-            let of = |id: &TensorId| if id.may_store_f16() { dtype } else { DType::F32 };
-            let (out, ins) = s.tensors.split_last().expect("a convolution has an output");
-            LayerStorage {
-                inputs: ins.iter().map(of).collect(),
-                output: of(out),
-            }
-        };
-        let activations = match options.precision.resolve()? {
-            Precision::F16 => {
-                gpu.require(wgpu::Features::SHADER_F16, "f16 activations")?;
-                DType::F16
-            }
-            Precision::Auto if gpu.has(wgpu::Features::SHADER_F16) => {
-                // The tuned time of every layer run of a frame, each way.
-                let mut total = [0.0f64; 2];
-                for (i, dtype) in [DType::F32, DType::F16].into_iter().enumerate() {
-                    for l in &layers {
-                        let (lw, lh) = size(l);
-                        let ms = autotune::tuned_ms(gpu, &convs[&l.name], lw, lh, &storage(&l.name, dtype))?;
-                        total[i] += ms * l.runs as f64;
-                    }
-                }
-                log::info!(
-                    "activations: tuned layers {:.2} ms with f32, {:.2} ms with f16 storage",
-                    total[0],
-                    total[1]
-                );
-                if total[1] < total[0] {
-                    DType::F16
-                } else {
-                    DType::F32
-                }
-            }
-            _ => DType::F32,
-        };
+        let size = |l: &LayerSpec| (width >> l.level, height >> l.level);
+        let activations = activation_storage(gpu, &specs, &layers, &convs, options.precision, size)?;
         for l in &layers {
             let (lw, lh) = size(l);
             let conv = convs.get_mut(&l.name).expect("inserted above");
-            let kernel =
-                autotune::choose(gpu, conv, lw, lh, &storage(&l.name, activations), options.kernels)?;
-            conv.set_kernel(gpu, kernel)?;
+            let storage = layer_storage(&specs, &l.name, activations);
+            conv.set_kernel(
+                gpu,
+                autotune::choose(gpu, conv, lw, lh, &storage, options.kernels)?,
+            )?;
         }
         let dims = |id: TensorId| {
             let (extent, c) = id.shape(&config);
