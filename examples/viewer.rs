@@ -261,7 +261,7 @@ impl App {
             // A_acc alternates between two tensors: one bound dispatch for each.
             let slot = &mut frame.accumulated_view[(frame.fl.denoiser.frames() % 2) as usize];
             let d = slot.get_or_build(a_acc.buffer.clone(), || {
-                ops::remodulate(&self.gpu, a_acc, a_acc, 3, exposure, &frame.accumulated)
+                ops::remodulate(&self.gpu, a_acc, a_acc, 3, exposure, None, &frame.accumulated)
             })?;
             d.encode(&mut enc);
         }

@@ -563,7 +563,7 @@ fn demodulate_and_remodulate_match_reference_and_invert() {
                 &g,
                 &[
                     &ops::demodulate(&g, &tc, &ta, off, &e).unwrap(),
-                    &ops::remodulate(&g, &e, &ta, off, &scale, &back).unwrap(),
+                    &ops::remodulate(&g, &e, &ta, off, &scale, None, &back).unwrap(),
                 ],
             )
             .unwrap();
@@ -591,6 +591,65 @@ fn demodulate_and_remodulate_match_reference_and_invert() {
             );
         }
     }
+}
+
+/// The SSR output ceiling in nn/remodulate: o capped at ln(1 + g M / s_c) (M = channel 6 of
+/// the scale tensor), written back into o, and the output remodulated from the capped o;
+/// against the CPU reference, on values on both sides of the cap.
+#[test]
+fn remodulate_with_a_ceiling_caps_o_in_place() {
+    let g = gpu();
+    for &(w, h) in SIZES {
+        let o0 = random(w as u64 + 11, w, h, 4, -1.0, 9.0);
+        let albedo = random(w as u64 + 13, w, h, 3, 0.0, 1.0);
+        let sc = [0.5f32, 2.0, 3.0];
+        let (gain, m) = (1.5f32, [400.0f32, 300.0, 800.0]); // caps ln(1 + g m_c / s_c): 7.1, 5.4, 6.0
+        let mut s = vec![sc[0], sc[1], sc[2], 9.0, 9.0, 9.0];
+        s.extend(m);
+        let scale_host = HostTensor::from_vec(1, 1, 9, s);
+        let (to, ta) = (up(&g, "o", &o0), up(&g, "albedo", &albedo));
+        let scale = up(&g, "scale", &scale_host);
+        let out = Tensor::new(&g, "out", w, h, 3).unwrap();
+        let d = ops::remodulate(&g, &to, &ta, 0, &scale, Some(gain), &out).unwrap();
+        ops::run(&g, &[&d]).unwrap();
+        let capped = reference::ceiling(&o0, gain, m, sc);
+        let got = to.read(&g).unwrap();
+        let got3 = HostTensor::from_fn(w, h, 3, |x, y, c| got.at(x, y, c));
+        assert_close(&format!("ceiling {w}x{h}"), &got3, &capped, ELEMENTWISE);
+        let clamped = (0..w * h * 3)
+            .filter(|&i| capped.data[i as usize] < o0.at(i / 3 % w, i / 3 / w, i % 3))
+            .count();
+        if w * h > 30 {
+            assert!(
+                clamped > 0 && clamped < (w * h * 3) as usize,
+                "{clamped} capped: both sides tested"
+            );
+        }
+        for y in 0..h {
+            for x in 0..w {
+                assert_eq!(got.at(x, y, 3), o0.at(x, y, 3), "channel 3 of o is kept");
+            }
+        }
+        assert_close(
+            &format!("remodulate with ceiling {w}x{h}"),
+            &out.read(&g).unwrap(),
+            &reference::remodulate(&capped, &albedo, 0, sc),
+            ELEMENTWISE,
+        );
+    }
+    // a scale without M, a bad gain: errors naming them
+    let o = up(&g, "o", &random(1, 4, 4, 3, 0.0, 1.0));
+    let out = Tensor::new(&g, "out", 4, 4, 3).unwrap();
+    let s3 = up(&g, "scale", &HostTensor::from_vec(1, 1, 3, vec![1.0; 3]));
+    let e = ops::remodulate(&g, &o, &o, 0, &s3, Some(1.0), &out)
+        .unwrap_err()
+        .to_string();
+    assert!(e.contains("scale"), "{e}");
+    let s9 = up(&g, "scale", &HostTensor::from_vec(1, 1, 9, vec![1.0; 9]));
+    let e = ops::remodulate(&g, &o, &o, 0, &s9, Some(f32::NAN), &out)
+        .unwrap_err()
+        .to_string();
+    assert!(e.contains("ceiling gain"), "{e}");
 }
 
 #[test]

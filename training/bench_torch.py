@@ -46,10 +46,11 @@ from ssr.export import load_weights  # noqa: E402
 from ssr.train import device_name  # noqa: E402
 from ssr.model import (  # noqa: E402
     A_CHANNELS,
-    EXPOSURE_CHANNELS,
     RGB,
+    STATE_EXPOSURE_CHANNELS,
     TILE_OFFSETS,
     SSRModel,
+    ceiling,
     conv_layers,
     remodulate,
 )
@@ -105,6 +106,8 @@ def make_stages(model: SSRModel) -> Tuple[Callable, Callable]:
 
     def unet_stage(a_t, mt, a_acc, wo, s):
         o = model.unet(a_t, mt, a_acc, wo)["o"]
+        if model.cfg.ceiling == "max":  # the output ceiling, as in SSRModel.forward
+            o = torch.minimum(o, ceiling(s).to(o.dtype))
         albedo = model.remodulation_albedo(a_t, a_acc)
         return remodulate(o.float(), albedo.float()) * s[:, :RGB], o
 
@@ -140,7 +143,7 @@ def bench_mode(
         unet_stage = torch.compile(unet_stage, **kw)
     a_acc = torch.zeros(1, A_CHANNELS, hp, wp, device=device)
     o = torch.zeros(1, RGB, hp, wp, device=device)
-    s = torch.ones(1, EXPOSURE_CHANNELS, 1, 1, device=device)
+    s = torch.ones(1, STATE_EXPOSURE_CHANNELS, 1, 1, device=device)
     if channels_last:
         a_acc = a_acc.contiguous(memory_format=torch.channels_last)
         o = o.contiguous(memory_format=torch.channels_last)

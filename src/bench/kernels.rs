@@ -156,7 +156,7 @@ pub fn bench_kernels(gpu: &Gpu, o: &KernelBenchOptions) -> Result<Vec<KernelTimi
     });
     cases.push(Case {
         name: "remodulate".into(),
-        dispatch: ops::remodulate(gpu, &rgb, &albedo, 0, &ones, &rgb_out)?,
+        dispatch: ops::remodulate(gpu, &rgb, &albedo, 0, &ones, None, &rgb_out)?,
         bytes: 3 * b(&rgb),
         flops: 0,
     });

@@ -359,7 +359,8 @@ struct ModParams {
     a_c4: u32,
     b_c4: u32,
     b_offset: u32,
-    _pad: [u32; 3],
+    ceiling: f32,
+    _pad: [u32; 2],
 }
 
 fn modulation(
@@ -368,10 +369,11 @@ fn modulation(
     a: &Tensor,
     albedo: &Tensor,
     albedo_channel: u32,
-    scale: Option<&Tensor>,
+    scale: Option<(&Tensor, Option<f32>)>,
     out: &Tensor,
 ) -> Result<Dispatch> {
     let (w, h) = (a.width, a.height);
+    let ceiling = scale.and_then(|(_, c)| c);
     check_min_channels(kernel, "input", a, 3)?;
     check_min_channels(kernel, "albedo", albedo, albedo_channel + 3)?;
     check_size(kernel, "albedo", albedo, w, h)?;
@@ -379,11 +381,18 @@ fn modulation(
     check_channels(kernel, "out", out, 3)?;
     distinct(kernel, out, &[a, albedo])?;
     f32_only(kernel, &[("input", a), ("albedo", albedo), ("out", out)])?;
-    if let Some(s) = scale {
+    if let Some((s, _)) = scale {
         f32_only(kernel, &[("scale", s)])?;
         check_size(kernel, "scale", s, 1, 1)?;
-        check_min_channels(kernel, "scale", s, 3)?;
+        check_min_channels(kernel, "scale", s, if ceiling.is_some() { 9 } else { 3 })?;
         distinct(kernel, out, &[s])?;
+    }
+    if let Some(g) = ceiling
+        && (g.is_nan() || g <= 0.0 || g.is_infinite())
+    {
+        return Err(Error::Invalid(format!(
+            "{kernel}: ceiling gain {g}, expected a finite value > 0"
+        )));
     }
     let params = ModParams {
         width: w,
@@ -391,15 +400,21 @@ fn modulation(
         a_c4: a.c4(),
         b_c4: albedo.c4(),
         b_offset: albedo_channel,
-        _pad: [0; 3],
+        ceiling: ceiling.unwrap_or(0.0),
+        _pad: [0; 2],
     };
     let mut buffers = vec![&a.buffer, &albedo.buffer, &out.buffer];
-    if let Some(s) = scale {
+    if let Some((s, _)) = scale {
         buffers.push(&s.buffer);
     }
+    // Only nn/remodulate has the flag (nn/demodulate has no scale).
+    let spec = match ceiling {
+        Some(_) => Specialisation(vec![("CEILING", 1.0)]),
+        None => Specialisation::none(),
+    };
     gpu.kernels.dispatch(
         kernel,
-        &Specialisation::none(),
+        &spec,
         bytemuck::bytes_of(&params),
         &buffers,
         Grid::pixels(w, h),
@@ -421,15 +436,22 @@ pub fn demodulate(
 /// `out = max(exp(o) - 1, 0) * (albedo + 0.00316) * scale` over the first 3 channels of `o`
 /// and channels `albedo_channel..albedo_channel + 3` of `albedo`; `scale` is a 1x1 tensor
 /// whose first 3 channels scale (SSR: the frame's colour exposure).
+///
+/// With `ceiling = Some(g)` (SSR config `ceiling`), o is first capped at
+/// `ln(1 + g M_c / scale_c)`, M = channels 6..8 of `scale` (SSR: the running max of the
+/// demodulated samples), and the capped values are written back into `o`
+/// ([`reference::ceiling`](crate::nn::reference::ceiling)).
 pub fn remodulate(
     gpu: &Gpu,
     o: &Tensor,
     albedo: &Tensor,
     albedo_channel: u32,
     scale: &Tensor,
+    ceiling: Option<f32>,
     out: &Tensor,
 ) -> Result<Dispatch> {
-    modulation(gpu, "nn/remodulate", o, albedo, albedo_channel, Some(scale), out)
+    let scale = Some((scale, ceiling));
+    modulation(gpu, "nn/remodulate", o, albedo, albedo_channel, scale, out)
 }
 
 /// Encodes `dispatches` (each in its own pass) and submits them; returns when done.

@@ -287,6 +287,15 @@ pub fn demodulate(color: &HostTensor, albedo: &HostTensor, albedo_channel: u32) 
     })
 }
 
+/// `o` capped at `ln(1 + gain m_c / scale_c)` on its first 3 channels (the SSR output
+/// ceiling; `m` the running max of the demodulated samples, `scale` the colour exposure).
+pub fn ceiling(o: &HostTensor, gain: f32, m: [f32; 3], scale: [f32; 3]) -> HostTensor {
+    HostTensor::from_fn(o.width, o.height, 3, |x, y, c| {
+        let c = c as usize;
+        o.at(x, y, c as u32).min((1.0 + gain * m[c] / scale[c]).ln())
+    })
+}
+
 /// `max(exp(o) - 1, 0) * (albedo + eps) * scale` on the first 3 channels of `o` and channels
 /// `albedo_channel..+3` of `albedo`.
 pub fn remodulate(o: &HostTensor, albedo: &HostTensor, albedo_channel: u32, scale: [f32; 3]) -> HostTensor {

@@ -44,6 +44,25 @@ pub enum HistoryTest {
     Geometry,
 }
 
+/// Whether the output is capped (config `ceiling`, version 2; absent: `none`).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum CeilingMode {
+    /// The network's output as it is (version 1 and files written before the option).
+    None,
+    /// The log output o is clamped to ln(1 + [`CEILING_GAIN`] M_c / s_c), M_c the running max
+    /// of the demodulated traced samples of colour channel c ([`CEILING_DECAY`]; per channel,
+    /// so the pipeline stays equivariant to per-channel scaling), before remodulation and
+    /// before it becomes the history: the output never exceeds the brightest recent sample,
+    /// however the network extrapolates. Needs exposure `channel` (M lives in its state).
+    Max,
+}
+
+/// Config `ceiling = "max"`: the demodulated output is at most this times M.
+pub const CEILING_GAIN: f32 = 1.0;
+/// M_t = max(m_t, CEILING_DECAY M_{t-1}) per colour channel, m_t the frame's max over its
+/// traced pixels of clean(color) / (clean(albedo) + 0.00316); M_0 = m_0.
+pub const CEILING_DECAY: f32 = 0.9;
+
 /// Widths and options of the SSR network.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct SsrConfig {
@@ -72,6 +91,9 @@ pub struct SsrConfig {
     /// Version 2: `"screen"` or `"geometry"` ([`HistoryTest`]).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub history: Option<String>,
+    /// Version 2, optional (absent: `"none"`): `"none"` or `"max"` ([`CeilingMode`]).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub ceiling: Option<String>,
 }
 
 impl Default for SsrConfig {
@@ -87,6 +109,7 @@ impl Default for SsrConfig {
             exposure: Some("channel".into()),
             remodulation: Some("current".into()),
             history: Some("geometry".into()),
+            ceiling: Some("max".into()),
         }
     }
 }
@@ -126,7 +149,8 @@ impl SsrConfig {
         }
         match self.version {
             1 => {
-                for (key, v) in self.options() {
+                let late = [("ceiling", &self.ceiling)];
+                for (key, v) in self.options().into_iter().chain(late) {
                     if v.is_some() {
                         return bad(format!(
                             "version 1 has no '{key}' option (it came with version 2)"
@@ -152,6 +176,12 @@ impl SsrConfig {
         self.exposure_mode()?;
         self.remodulation_albedo()?;
         self.history_test()?;
+        if self.ceiling_mode()? == CeilingMode::Max && self.exposure_mode()? != ExposureMode::Channel {
+            return bad(
+                "ceiling \"max\" needs exposure \"channel\" (the running max lives in the exposure state)"
+                    .into(),
+            );
+        }
         Ok(())
     }
 
@@ -170,7 +200,19 @@ impl SsrConfig {
             exposure: None,
             remodulation: None,
             history: None,
+            ceiling: None,
             ..self.clone()
+        }
+    }
+
+    /// The output ceiling (version 1 and files without the option: none).
+    pub fn ceiling_mode(&self) -> Result<CeilingMode> {
+        match self.ceiling.as_deref() {
+            None | Some("none") => Ok(CeilingMode::None),
+            Some("max") => Ok(CeilingMode::Max),
+            Some(o) => Err(Error::Invalid(format!(
+                "SSR config: ceiling '{o}', expected \"none\" or \"max\""
+            ))),
         }
     }
 
@@ -362,10 +404,30 @@ mod tests {
         assert_eq!(d.remodulation_albedo().unwrap(), RemodulationAlbedo::Current);
         assert_eq!(d.history_test().unwrap(), HistoryTest::Geometry);
         // the engine's JSON is the trainer's (ssr/model.py SSRConfig.to_json, keys sorted)
+        assert_eq!(d.ceiling_mode().unwrap(), CeilingMode::Max);
         let back: SsrConfig = serde_json::from_str(
-            r#"{"enc":[16,32,28],"exposure":"channel","feature_pool":"max","history":"geometry","input_channels":37,"k":8,"remodulation":"current","tfa_hidden":8,"upsample":"bilinear","version":2}"#,
+            r#"{"ceiling":"max","enc":[16,32,28],"exposure":"channel","feature_pool":"max","history":"geometry","input_channels":37,"k":8,"remodulation":"current","tfa_hidden":8,"upsample":"bilinear","version":2}"#,
         )
         .unwrap();
         assert_eq!(back, d);
+        // a version-2 file written before the ceiling: none
+        let before: SsrConfig = serde_json::from_str(
+            r#"{"enc":[16,32,28],"exposure":"channel","feature_pool":"max","history":"geometry","input_channels":37,"k":8,"remodulation":"current","tfa_hidden":8,"upsample":"bilinear","version":2}"#,
+        )
+        .unwrap();
+        before.validate().unwrap();
+        assert_eq!(before.ceiling_mode().unwrap(), CeilingMode::None);
+        let bad = SsrConfig {
+            exposure: Some("none".into()),
+            ..d.clone()
+        };
+        let e = bad.validate().unwrap_err().to_string();
+        assert!(e.contains("ceiling \"max\" needs exposure \"channel\""), "{e}");
+        let bad = SsrConfig {
+            ceiling: Some("max".into()),
+            ..d.legacy()
+        };
+        let e = bad.validate().unwrap_err().to_string();
+        assert!(e.contains("version 1 has no 'ceiling' option"), "{e}");
     }
 }

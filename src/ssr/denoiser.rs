@@ -3,7 +3,7 @@
 
 use bytemuck::{Pod, Zeroable};
 
-use super::config::ExposureMode;
+use super::config::{CEILING_DECAY, ExposureMode};
 pub use super::network::Granularity;
 use super::network::StepCost;
 use super::network::{Network, exposure_groups};
@@ -45,7 +45,8 @@ struct ExposurePartialParams {
 struct ExposureFinalParams {
     groups: u32,
     first: u32,
-    _pad: [u32; 2],
+    decay: f32,
+    _pad: u32,
 }
 
 /// The exposure pass: the reduction over the caller's buffers, then the update of the
@@ -445,7 +446,8 @@ impl Denoiser {
                     let params = ExposureFinalParams {
                         groups,
                         first: first as u32,
-                        _pad: [0; 2],
+                        decay: CEILING_DECAY,
+                        _pad: 0,
                     };
                     self.gpu.kernels.dispatch(
                         "ssr/exposure_final",

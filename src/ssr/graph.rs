@@ -56,11 +56,12 @@ macro_rules! tensor_ids {
 }
 
 tensor_ids! {
-    /// Exposure of the colour (rgb) and of the shadow (rgb), 1x1.
+    /// Exposure of the colour (rgb) and of the shadow (rgb), then the output ceiling's
+    /// running max M (rgb) of the demodulated samples, 1x1.
     Exposure = "exposure",
     /// Its ratio to the last frame's, 1x1.
     ExposureRatio = "exposure_ratio",
-    /// The exposure reduction's partial sums (4 vec4 per workgroup).
+    /// The exposure reduction's partial sums and max (4 vec4 per workgroup).
     ExposurePartials = "exposure_partials",
     /// A_t, the packed per-frame features (the mirror's `a_cur`).
     ACur = "a_cur",
@@ -163,7 +164,8 @@ impl TensorId {
         let [c1, c2, c3] = config.enc;
         let (h, k) = (config.tfa_hidden, config.k);
         match self {
-            Exposure | ExposureRatio => (Single, 2 * RGB),
+            Exposure => (Single, 3 * RGB),
+            ExposureRatio => (Single, 2 * RGB),
             ExposurePartials => (ExposureGroups, 16),
             ACur | WarpAcc | AAcc | AAccPrev => (Level(0), A_CHANNELS),
             Mt => (Level(0), MT_CHANNELS),

@@ -6,7 +6,7 @@ use std::collections::BTreeMap;
 
 use bytemuck::{Pod, Zeroable};
 
-use super::config::{LayerSpec, RGB, SsrConfig};
+use super::config::{CEILING_GAIN, CeilingMode, LayerSpec, SsrConfig};
 use super::graph::{self, Extent, Op, StepSpec, TensorId};
 use super::weights::Weights;
 use crate::error::{Error, Result};
@@ -247,9 +247,10 @@ impl Network {
         let o = [alloc(TensorId::O, "o.0")?, alloc(TensorId::O, "o.1")?];
         let ones = Tensor::from_host(gpu, "ones", &HostTensor::from_fn(width, height, 1, |_, _, _| 1.0))?;
         // Without exposure normalisation (version-1 weights) the exposure is 1 for good.
-        let unit = HostTensor::from_vec(1, 1, 2 * RGB, vec![1.0; 2 * RGB as usize]);
-        tensors[&TensorId::Exposure].write(gpu, &unit)?;
-        tensors[&TensorId::ExposureRatio].write(gpu, &unit)?;
+        for id in [TensorId::Exposure, TensorId::ExposureRatio] {
+            let c = tensors[&id].channels;
+            tensors[&id].write(gpu, &HostTensor::from_vec(1, 1, c, vec![1.0; c as usize]))?;
+        }
         let mut net = Self {
             config,
             width,
@@ -347,7 +348,13 @@ impl Network {
             ),
             Op::Pool(mode) => ops::pool2x2(gpu, mode, t[0], t[1]),
             Op::Upsample => ops::upsample2x(gpu, self.config.upsample_mode()?, t[0], t[1]),
-            Op::Remodulate => ops::remodulate(gpu, t[0], t[1], 3, t[2], t[3]),
+            Op::Remodulate => {
+                let ceiling = match self.config.ceiling_mode()? {
+                    CeilingMode::None => None,
+                    CeilingMode::Max => Some(CEILING_GAIN),
+                };
+                ops::remodulate(gpu, t[0], t[1], 3, t[2], ceiling, t[3])
+            }
         }
     }
 

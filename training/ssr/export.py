@@ -18,6 +18,9 @@ order, contiguous data) so the same model gives the same bytes; the `safetensors
 is used to read them.
 
 CLI:  python -m ssr.export --random --seed 0 --out FILE
+      python -m ssr.export --from FILE --option ceiling=max [--val-data ROOT] --out FILE
+            (a trained file with config options changed that do not touch its tensors,
+            provenance noting the change, val metrics recomputed under the new config)
 """
 
 from __future__ import annotations
@@ -28,12 +31,12 @@ import math
 import os
 import struct
 import sys
-from typing import Dict, Optional, Tuple
+from typing import Dict, List, Optional, Tuple
 
 import torch
 from torch import nn
 
-from .model import SSRConfig, SSRModel, flops_per_pixel
+from .model import OPTION_VALUES, SSRConfig, SSRModel, flops_per_pixel
 
 FORMAT = "subpixel-ssr"
 FORMAT_VERSION = "2"
@@ -248,15 +251,64 @@ def load_weights(path: str, device: str = "cpu") -> Tuple[SSRModel, dict]:
 # ----------------------------------------------------------------------------- CLI
 
 
+def set_options(src: str, options: List[str], out: str, val_data: Optional[str] = None, frames: int = 8) -> dict:
+    """Rewrites weights file `src` as `out` with config `options` (KEY=VALUE) changed: the
+    tensors are kept; provenance gains an `options_set` entry (what changed, from what, when);
+    with `val_data` the val metrics are recomputed under the new config (train.validate),
+    otherwise they are dropped (they described the old one). Returns the new metrics."""
+    import datetime
+
+    model, meta = load_weights(src)
+    if not isinstance(meta["provenance"], dict):
+        raise WeightsError(f"{src}: only trained weights (provenance a JSON object) take --option")
+    cfg = meta["config"].to_dict()
+    changes = []
+    for spec in options:
+        key, sep, value = spec.partition("=")
+        if not sep or key not in OPTION_VALUES:
+            raise WeightsError(f"--option {spec!r}: expected KEY=VALUE with KEY one of {sorted(OPTION_VALUES)}")
+        changes.append({"option": key, "from": cfg.get(key), "to": value})
+        cfg[key] = value
+    try:
+        new_cfg = SSRConfig.from_dict(cfg)
+    except ValueError as err:
+        raise WeightsError(f"--option: {err}") from None
+    changed = SSRModel(new_cfg)
+    changed.load_state_dict(model.state_dict(), strict=True)
+    changed.eval()
+    metrics: dict = {}
+    if val_data:
+        from .data import SequenceDataset
+        from .train import validate
+
+        ds = SequenceDataset(val_data, "val", window=1, crop=None, flips=False)
+        with torch.no_grad():
+            metrics = validate(changed, ds, torch.device("cpu"), frames)
+    provenance = dict(meta["provenance"])
+    when = datetime.datetime.now(datetime.timezone.utc).strftime("%Y-%m-%d")
+    provenance["options_set"] = list(provenance.get("options_set", [])) + [{**c, "date": when} for c in changes]
+    export_weights(changed, out, provenance, metrics)
+    return metrics
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(prog="python -m ssr.export", description="Write an SSR weights file.")
     ap.add_argument("--random", action="store_true", help="random-initialised model (for tests only)")
     ap.add_argument("--seed", type=int, default=0, help="seed of the random initialisation")
     ap.add_argument("--config", default=None, help="config JSON (default: the default config)")
+    ap.add_argument("--from", dest="src", default=None, help="a trained weights file to rewrite with --option")
+    ap.add_argument("--option", action="append", default=[], help="KEY=VALUE config option (with --from), e.g. ceiling=max")
+    ap.add_argument("--val-data", default=None, help="dataset root: recompute the val metrics (with --from)")
     ap.add_argument("--out", required=True, help="output .safetensors path")
     args = ap.parse_args(argv)
+    if args.src:
+        if args.random or not args.option:
+            ap.error("--from takes one or more --option and no --random")
+        metrics = set_options(args.src, args.option, args.out, args.val_data)
+        print(f"wrote {args.out}: options {args.option}; val {json.dumps({k: metrics[k] for k in ('psnr', 'ssim', 'rmse') if k in metrics})}")
+        return 0
     if not args.random:
-        ap.error("only --random is supported here; trained weights are exported by the trainer (export_weights)")
+        ap.error("--random or --from: trained weights are exported by the trainer (export_weights)")
     cfg = SSRConfig.from_json(args.config) if args.config else SSRConfig()
     model, size = export_random(args.out, args.seed, cfg)
     n_params = sum(p.numel() for p in model.parameters())

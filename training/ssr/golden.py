@@ -4,7 +4,8 @@
 
 writes
     golden_weights.safetensors   random-initialised weights (seed 6), see ssr.export, of the
-                                 default config (version 2)
+                                 default config (version 2), red output bias pushed up
+                                 (CEILING_PUSH) so the output ceiling clamps
     golden_frame{0,1,2}.safetensors
                                  three consecutive 40x24 frames: inputs, every intermediate
                                  and the output, run as one sequence (frame 0 has no history)
@@ -32,7 +33,7 @@ from typing import Dict, List
 import torch
 import torch.nn.functional as F
 
-from .export import export_random, safetensors_bytes, write_bytes
+from .export import RANDOM_INIT_SCHEME, RANDOM_PROVENANCE, export_random, export_weights, safetensors_bytes, write_bytes
 from .model import FRAME_CHANNELS, LEGACY_OPTIONS, TILE_OFFSETS, SSRConfig, SSRModel, quarter_mask
 
 WIDTH, HEIGHT, FRAMES = 40, 24, 3
@@ -40,6 +41,11 @@ WIDTH, HEIGHT, FRAMES = 40, 24, 3
 # remodulation clamp would go untested (the init draws every conv from one stream, so the
 # seed's luck changes with the widths). Seed 6 clamps 12-24 % of the output per frame.
 WEIGHTS_SEED = 6
+CEILING_PUSH = 3.9
+"""Added to the red output bias (`unet.dec1.2.bias[0]`) of the version-2 weights: random weights
+keep o far below the output ceiling (config `ceiling`), so the clamp would go untested; pushed,
+red is clamped on 2-67 % of the pixels per frame while green and blue keep the remodulation's
+clamp at 0."""
 INPUT_SEED = 1
 WEIGHTS_FILE = "golden_weights.safetensors"
 MAX_FILE_BYTES = 1 << 20
@@ -64,7 +70,7 @@ GOLDEN_INTERMEDIATES = [
 ]
 GOLDEN_EXTRAS = ["enc1", "enc2", "enc3"]
 GOLDEN_V2 = ["exposure"]
-"""Version 2 only: the frame's exposure s (colour rgb, shadow rgb), [1, 1, 6]."""
+"""Version 2 only: the frame's exposure state: s (colour rgb, shadow rgb) and the ceiling's running max M (rgb), [1, 1, 9]."""
 
 
 def _smooth(g: torch.Generator, c: int, h: int, w: int) -> torch.Tensor:
@@ -236,6 +242,11 @@ def _generate_set(
     os.makedirs(out_dir, exist_ok=True)
     weights_path = os.path.join(out_dir, f"{prefix}weights.safetensors")
     model, _ = export_random(weights_path, weights_seed, cfg)
+    if cfg.ceiling == "max":
+        with torch.no_grad():
+            model.unet.dec1[2].bias[0] += CEILING_PUSH
+        init = {"scheme": RANDOM_INIT_SCHEME, "seed": int(weights_seed), "red_output_bias_push": CEILING_PUSH}
+        export_weights(model, weights_path, RANDOM_PROVENANCE, {}, {"init": json.dumps(init, sort_keys=True, separators=(",", ":"))})
     frames = make_frames(input_seed, HEIGHT, WIDTH, FRAMES, geometry)
     paths = [weights_path]
     for t, tensors in enumerate(golden_tensors(model, frames)):

@@ -28,6 +28,12 @@ Config version 2 (the default) adds three things that version-1 weights did not 
   frame's), not the accumulated one.
 * `history = "geometry"`: warped history whose depth or normal disagrees with the current
   frame is invalid like an off-screen sample (alpha = 0, W(o) = 0).
+* `ceiling = "max"` (a later version-2 option; files without it read "none"): the network's
+  log output o is clamped to ln(1 + M_c / s_c), M_c the running max of the demodulated traced
+  samples of colour channel c (`update_exposure`, `CEILING_DECAY`), before remodulation and before it
+  becomes the history. A network extrapolating far beyond its training range (a held-out
+  scene's tiny directly visible emitter came out 24x too bright and tripled the frame's
+  mean) cannot make a pixel brighter than anything sampled lately.
 """
 
 from __future__ import annotations
@@ -79,15 +85,28 @@ TILE_OFFSETS: Tuple[Tuple[int, int], ...] = ((0, 0), (1, 1), (1, 0), (0, 1))
 CONFIG_VERSION = 2
 """Config (and weights file) version this code writes; version 1 is read as LEGACY_OPTIONS."""
 
-LEGACY_OPTIONS: Dict[str, str] = {"exposure": "none", "remodulation": "accumulated", "history": "screen"}
+LEGACY_OPTIONS: Dict[str, str] = {"exposure": "none", "remodulation": "accumulated", "history": "screen", "ceiling": "none"}
 """What version-1 weights were trained with: absolute radiance in, output remodulated with the
-accumulated albedo, history rejected only off screen."""
+accumulated albedo, history rejected only off screen, no output ceiling."""
 
 OPTION_VALUES: Dict[str, Tuple[str, ...]] = {
     "exposure": ("none", "channel"),
     "remodulation": ("accumulated", "current"),
     "history": ("screen", "geometry"),
+    "ceiling": ("none", "max"),
 }
+
+LATE_OPTIONS: Dict[str, str] = {"ceiling": "none"}
+"""Version-2 options added after the first version-2 weights: absent, they take this value."""
+
+CEILING_GAIN = 1.0
+"""Config `ceiling = "max"`: the demodulated output of channel c never exceeds CEILING_GAIN * M_c,
+M the running max of the demodulated traced samples (below)."""
+
+CEILING_DECAY = 0.9
+"""M_t = max(m_t, CEILING_DECAY * M_{t-1}) per colour channel, m_t this frame's max over the traced
+pixels of clean(color) / (clean(albedo) + 0.00316) (M_0 = m_0). Per channel, so the pipeline stays
+equivariant to per-channel radiance scaling."""
 
 EXPOSURE_RATE = 0.1
 """Per-frame rate of the exposure's exponential moving average in log space."""
@@ -126,6 +145,7 @@ class SSRConfig:
     exposure: str = "channel"  # "none" | "channel": per-channel exposure normalisation
     remodulation: str = "current"  # "accumulated" | "current": albedo of the remodulation
     history: str = "geometry"  # "screen" | "geometry": which warped history is invalid
+    ceiling: str = "max"  # "none" | "max": clamp the output to the brightest recent sample
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "enc", tuple(int(c) for c in self.enc))
@@ -157,6 +177,8 @@ class SSRConfig:
                 raise ValueError(f"config: `{key}` must be one of {list(values)}, got {v!r}")
             if self.version == 1 and v != LEGACY_OPTIONS[key]:
                 raise ValueError(f"config: version 1 has no `{key}` option (it means {LEGACY_OPTIONS[key]!r}), got {v!r}")
+        if self.ceiling == "max" and self.exposure != "channel":
+            raise ValueError('config: `ceiling` "max" needs `exposure` "channel" (the running max lives in the exposure state)')
 
     def to_dict(self) -> dict:
         d = {
@@ -188,11 +210,11 @@ class SSRConfig:
                 raise ValueError(f"config: version 1 has no option(s) {present} (they came with version 2)")
         else:
             known |= set(OPTION_VALUES)
-            options = {k: d.get(k) for k in OPTION_VALUES}
+            options = {k: d.get(k, LATE_OPTIONS.get(k)) for k in OPTION_VALUES}
         unknown = sorted(set(d) - known)
         if unknown:
             raise ValueError(f"config: unknown key(s) {unknown}")
-        missing = sorted(known - set(d))
+        missing = sorted(known - set(d) - set(LATE_OPTIONS))
         if missing:
             raise ValueError(f"config: missing key(s) {missing}")
         enc = d["enc"]
@@ -268,18 +290,34 @@ def _check_frame(frame: Dict[str, torch.Tensor]) -> Tuple[int, int, int]:
 EXPOSURE_CHANNELS = 6
 """The exposure s: [colour r, g, b, shadow r, g, b]."""
 
+STATE_EXPOSURE_CHANNELS = EXPOSURE_CHANNELS + RGB
+"""The exposure state carried between frames: s (EXPOSURE_CHANNELS), then the ceiling's running
+max M (rgb) of the demodulated traced samples (CEILING_DECAY)."""
+
+
+def _demodulated_samples(frame: Dict[str, torch.Tensor]) -> Tuple[torch.Tensor, torch.Tensor]:
+    """(d = [clean(color) / (clean(albedo) + eps), clean(shadow)] [N, 6, H, W], traced [N, 1, H, W])."""
+    d = torch.cat([_clean(frame["color"]) / (_clean(frame["albedo"]) + ALBEDO_EPS), _clean(frame["shadow"])], dim=1)
+    return d, _clean(frame["mask"]) > 0.5
+
 
 def _log_exposure(frame: Dict[str, torch.Tensor]) -> Tuple[torch.Tensor, torch.Tensor]:
     """(mean ln d_c over the traced pixels with d_c > 0, whether there is one), [N, 6, 1, 1] each,
     d = [clean(color) / (clean(albedo) + eps), clean(shadow)] (wgsl/ssr/exposure_*.wgsl)."""
-    d = torch.cat([_clean(frame["color"]) / (_clean(frame["albedo"]) + ALBEDO_EPS), _clean(frame["shadow"])], dim=1)
-    traced = _clean(frame["mask"]) > 0.5
+    d, traced = _demodulated_samples(frame)
     pos = traced & (d > 0)
     ln = torch.where(pos, torch.log(torch.where(pos, d, torch.ones_like(d))), torch.zeros_like(d))
     total = ln.sum(dim=(2, 3), keepdim=True)
     count = pos.to(d.dtype).sum(dim=(2, 3), keepdim=True)
     have = count > 0
     return torch.where(have, total / torch.clamp(count, min=1.0), torch.zeros_like(total)), have
+
+
+def frame_sample_max(frame: Dict[str, torch.Tensor]) -> torch.Tensor:
+    """m [N, 3, 1, 1]: per colour channel, the max over the traced pixels of the demodulated
+    colour clean(color) / (clean(albedo) + eps); 0 where nothing is traced."""
+    d, traced = _demodulated_samples(frame)
+    return torch.where(traced, d[:, :RGB], torch.zeros_like(d[:, :RGB])).amax(dim=(2, 3), keepdim=True)
 
 
 def frame_exposure(frame: Dict[str, torch.Tensor]) -> torch.Tensor:
@@ -290,16 +328,28 @@ def frame_exposure(frame: Dict[str, torch.Tensor]) -> torch.Tensor:
 
 
 def update_exposure(frame: Dict[str, torch.Tensor], prev: Optional[torch.Tensor]) -> torch.Tensor:
-    """This frame's exposure s [N, 6, 1, 1]: g on the first frame (prev None), then
-    exp(ln s_prev + EXPOSURE_RATE (ln g - ln s_prev)), or g where |ln g - ln s_prev| >
-    EXPOSURE_JUMP; a channel without a positive traced sample keeps s_prev (1 on a first frame)."""
+    """This frame's exposure state [N, 9, 1, 1] (STATE_EXPOSURE_CHANNELS).
+
+    Exposure s (channels 0..5): g on the first frame (prev None), then exp(ln s_prev +
+    EXPOSURE_RATE (ln g - ln s_prev)), or g where |ln g - ln s_prev| > EXPOSURE_JUMP; a channel
+    without a positive traced sample keeps s_prev (1 on a first frame).
+    Running max M (channels 6..8): m (`frame_sample_max`) on the first frame, then
+    max(m, CEILING_DECAY M_prev)."""
     lg, have = _log_exposure(frame)
+    m = frame_sample_max(frame)
     if prev is None:
-        return torch.exp(lg)
-    lp = torch.log(prev)
+        return torch.cat([torch.exp(lg), m], dim=1)
+    lp = torch.log(prev[:, :EXPOSURE_CHANNELS])
     d = lg - lp
     ls = torch.where(d.abs() > EXPOSURE_JUMP, lg, lp + EXPOSURE_RATE * d)
-    return torch.exp(torch.where(have, ls, lp))
+    running = torch.maximum(m, CEILING_DECAY * prev[:, EXPOSURE_CHANNELS:])
+    return torch.cat([torch.exp(torch.where(have, ls, lp)), running], dim=1)
+
+
+def ceiling(exposure: torch.Tensor) -> torch.Tensor:
+    """[N, 3, 1, 1]: the largest o the output may take (config `ceiling = "max"`),
+    ln(1 + CEILING_GAIN M_c / s_c) for the colour exposure s and running max M of the state."""
+    return torch.log1p(CEILING_GAIN * exposure[:, EXPOSURE_CHANNELS:] / exposure[:, :RGB])
 
 
 def rescale_log(v: torch.Tensor, ratio: torch.Tensor) -> torch.Tensor:
@@ -324,13 +374,13 @@ def prepare_inputs(frame: Dict[str, torch.Tensor], exposure: Optional[torch.Tens
 
     A_t = [e(3), albedo(3), normal(3), log1p(clamp(shadow, min=0))(3), depth, metallic, roughness]
     MT  = [mask(1), transparent(3)]
-    With `exposure` s ([N, 6, 1, 1]), colour is divided by s[:, :3] and shadow by s[:, 3:] first.
+    With `exposure` s ([N, 6 or 9, 1, 1]), colour is divided by s[:, :3] and shadow by s[:, 3:6] first.
     """
     _check_frame(frame)
     color, shadow = frame["color"], frame["shadow"]
     if exposure is not None:
         color = _clean(color) / exposure[:, :RGB]
-        shadow = _clean(shadow) / exposure[:, RGB:]
+        shadow = _clean(shadow) / exposure[:, RGB:EXPOSURE_CHANNELS]
     e = demodulate(color, frame["albedo"])
     shadow = torch.log1p(torch.clamp(shadow, min=0.0))
     a_t = torch.cat(
@@ -494,7 +544,7 @@ class UNet(nn.Module):
 
 State = Tuple[torch.Tensor, torch.Tensor, torch.Tensor]
 """Recurrent state carried between frames: (A_acc_t [N, 15, H, W], o_t [N, 3, H, W],
-exposure s_t [N, 6, 1, 1])."""
+exposure state [N, 9, 1, 1]: s_t and the ceiling's running max M_t, update_exposure)."""
 
 
 class SSRModel(nn.Module):
@@ -515,12 +565,17 @@ class SSRModel(nn.Module):
 
         Returns a dict with `output` (radiance, [N, 3, H, W]), `state` (the next frame's state)
         and every intermediate: exposure, a_cur, mt, warp_acc, warp_valid, ref_feat, emb_cur,
-        emb_prev, tfa_weights, a_acc, warp_out, enc1, enc2, enc3, i3, i2, o, albedo_mod.
+        emb_prev, tfa_weights, a_acc, warp_out, enc1, enc2, enc3, i3, i2, o, albedo_mod. With config
+        `ceiling = "max"`, o is the decoder's output clamped to `ceiling(exposure)`: the output
+        (and the history) never exceeds the brightest demodulated sample of recent frames, so a
+        tiny bright emitter cannot be extrapolated into a blown-up one.
         """
         h = self.history(frame, state)
         tfa = self.tfa(h["a_cur"], h["mt"], h["warp_acc"], h["warp_valid"])
         a_acc = tfa["a_acc"]
         net = self.unet(h["a_cur"], h["mt"], a_acc, h["warp_out"])
+        if self.cfg.ceiling == "max":
+            net["o"] = torch.minimum(net["o"], ceiling(h["exposure"]))
         albedo_mod = self.remodulation_albedo(h["a_cur"], a_acc)
         output = remodulate(net["o"], albedo_mod) * h["exposure"][:, :RGB]
         out: Dict[str, object] = {
@@ -550,7 +605,7 @@ class SSRModel(nn.Module):
             exposure = update_exposure(frame, prev)
         else:
             c = frame["color"]
-            exposure = torch.ones(c.shape[0], EXPOSURE_CHANNELS, 1, 1, dtype=c.dtype, device=c.device)
+            exposure = torch.ones(c.shape[0], STATE_EXPOSURE_CHANNELS, 1, 1, dtype=c.dtype, device=c.device)
         a_t, mt = prepare_inputs(frame, exposure if self.cfg.exposure == "channel" else None)
         if state is None:
             warp_acc = a_t
@@ -566,7 +621,7 @@ class SSRModel(nn.Module):
             warped, warp_valid = warp(torch.cat([a_acc_prev, o_prev], dim=1), frame["motion"])
             warp_acc, wo = warped[:, :A_CHANNELS], warped[:, A_CHANNELS:]
             if self.cfg.exposure == "channel":
-                ratio = prev / exposure
+                ratio = prev[:, :EXPOSURE_CHANNELS] / exposure[:, :EXPOSURE_CHANNELS]
                 warp_acc = torch.cat(
                     [
                         rescale_log(warp_acc[:, E_SLICE], ratio[:, :RGB]),

@@ -171,7 +171,7 @@ def test_build_model_configs():
     # --model-config '{"version": 1}': the version-1 pipeline (e.g. to resume a version-1 run)
     v1 = build_model("ssr", {"version": 1}).cfg
     assert (v1.version, v1.exposure, v1.remodulation, v1.history) == (1, "none", "accumulated", "screen")
-    ablation = build_model("ssr", {"exposure": "none"}).cfg
+    ablation = build_model("ssr", {"exposure": "none", "ceiling": "none"}).cfg
     assert (ablation.version, ablation.exposure, ablation.history) == (2, "none", "geometry")
     with pytest.raises(ValueError, match="unknown model"):
         build_model("unet")

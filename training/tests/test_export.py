@@ -241,3 +241,28 @@ def test_shipped_weights_load():
         model, meta = load_weights(path)
         assert meta["version"] in ("1", "2"), path
         assert model.cfg.version == int(meta["version"]), path
+
+
+def test_set_options_rewrites_config_and_keeps_tensors(tmp_path):
+    """`python -m ssr.export --from F --option ceiling=max`: same tensors, new config, the change
+    in the provenance, old metrics dropped; bad options are named."""
+    from ssr.export import set_options
+
+    cfg = SSRConfig(ceiling="none")
+    model = random_model(3, cfg)
+    src = str(tmp_path / "old.safetensors")
+    export_weights(model, src, {"iterations": 5}, {"psnr": 20.0})
+    out = str(tmp_path / "new.safetensors")
+    assert set_options(src, ["ceiling=max"], out) == {}
+    new, meta = load_weights(out)
+    assert meta["config"].ceiling == "max" and meta["config"].enc == cfg.enc
+    assert meta["metrics"] == {}
+    assert meta["provenance"]["iterations"] == 5
+    (change,) = meta["provenance"]["options_set"]
+    assert (change["option"], change["from"], change["to"]) == ("ceiling", "none", "max")
+    for k, v in model.state_dict().items():
+        assert torch.equal(new.state_dict()[k], v), k
+    with pytest.raises(WeightsError, match="KEY=VALUE"):
+        set_options(src, ["widths=3"], out)
+    with pytest.raises(WeightsError, match="ceiling"):
+        set_options(out, ["exposure=none"], str(tmp_path / "bad.safetensors"))  # the ceiling needs the exposure

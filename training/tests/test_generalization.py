@@ -25,6 +25,8 @@ from ssr.export import random_model
 from ssr.golden import make_frames
 from ssr.model import (
     ALBEDO_EPS,
+    CEILING_DECAY,
+    EXPOSURE_CHANNELS,
     HISTORY_DEPTH_TOL,
     HISTORY_NORMAL_TOL,
     SSRConfig,
@@ -134,6 +136,7 @@ def test_exposure_follows_light_changes_and_rescales_history():
         s0 = [x["exposure"] for x in model.run_sequence(frames)]
         s1 = [x["exposure"] for x in model.run_sequence(frames[:2] + _scaled(frames[2:], torch.full((3,), 1.5)))]
         s10 = [x["exposure"] for x in model.run_sequence(frames[:2] + _scaled(frames[2:], torch.full((3,), 10.0)))]
+    s0, s1, s10 = ([x[:, :EXPOSURE_CHANNELS] for x in s] for s in (s0, s1, s10))  # s without the running max
     assert torch.allclose(s0[1], s0[0], rtol=0.3)
     eased = s1[2] / s0[2]
     assert (eased > 1.02).all() and (eased < 1.1).all()  # 1.5^0.1 = 1.04: eased
@@ -150,20 +153,72 @@ def test_exposure_follows_light_changes_and_rescales_history():
 # ----------------------------------------------------------------------------- remodulation
 
 
-def test_identity_unet_gives_back_the_input_radiance():
+@pytest.mark.parametrize("ceiling", ["none", "max"])
+def test_identity_unet_gives_back_the_input_radiance(ceiling):
     """o = e at every pixel must remodulate to the input colour: demodulation and remodulation
     use the same (current) albedo, on textured, near-black, emitter (albedo 0) and sky pixels,
-    with camera motion and history (frames 1.., where the accumulated albedo differs)."""
-    model = _identity_unet_(random_model(0))
+    with camera motion and history (frames 1.., where the accumulated albedo differs). The
+    ceiling lets every sample through (it may round the brightest one's o by an ulp)."""
+    model = _identity_unet_(SSRModel(SSRConfig(ceiling=ceiling)))
     frames = _textured_frames()
     with torch.no_grad():
         res = model.run_sequence(frames)
     for t, (f, r) in enumerate(zip(frames, res)):
-        torch.testing.assert_close(r["o"], r["a_cur"][:, :3], rtol=0, atol=0)
+        if ceiling == "none":
+            torch.testing.assert_close(r["o"], r["a_cur"][:, :3], rtol=0, atol=0)
         c = f["color"]
         torch.testing.assert_close(r["output"], c, rtol=1e-4, atol=1e-5 * float(c.max()), msg=f"frame {t}")
         # and so the mean over a frame is the input's
         torch.testing.assert_close(r["output"].mean((2, 3)), c.mean((2, 3)), rtol=1e-4, atol=0)
+
+
+# ----------------------------------------------------------------------------- ceiling
+
+
+def _brightest_demodulated(frame) -> torch.Tensor:
+    """[3]: per channel, the max over traced pixels of color / (albedo + eps), computed directly."""
+    d = frame["color"] / (frame["albedo"] + ALBEDO_EPS)
+    return torch.stack([d[0, c][frame["mask"][0, 0] > 0.5].max() for c in range(3)])
+
+
+def test_ceiling_stops_an_extrapolating_network_from_blowing_up_a_bright_pixel():
+    """A held-out scene's tiny emitter once came out 24x brighter than any sample of it, tripling
+    the frame's mean. With `ceiling = "max"` the output, demodulated, never exceeds the running max
+    M of the demodulated samples, M_t = max(m_t, CEILING_DECAY M_{t-1}), whatever the network
+    does; where the network stays below it nothing changes."""
+    frames = _textured_frames()
+    frames[1]["color"][:, :, 3, 5] = 5000.0  # a bright sample, traced or not
+    frames[1]["mask"][:, :, 3, 5] = 1.0
+    frames[1]["albedo"][:, :, 3, 5] = 0.8
+    wild = _identity_unet_(random_model(0))
+    with torch.no_grad():
+        wild.unet.dec1[2].bias.fill_(3.0)  # o = e + 3: every pixel e^3 = 20x too bright
+        res = wild.run_sequence(frames)
+        free = SSRModel(SSRConfig(ceiling="none"))
+        free.load_state_dict(wild.state_dict())
+        res_free = free.run_sequence(frames)
+    m = None
+    for t, (f, r, rf) in enumerate(zip(frames, res, res_free)):
+        m = _brightest_demodulated(f) if m is None else torch.maximum(_brightest_demodulated(f), CEILING_DECAY * m)
+        torch.testing.assert_close(r["exposure"][0, EXPOSURE_CHANNELS:, 0, 0], m, rtol=1e-6, atol=0)
+        mc = m.view(1, 3, 1, 1)
+        demod = r["output"] / (f["albedo"] + ALBEDO_EPS)
+        assert (demod <= mc * (1 + 1e-5)).all(), f"frame {t}"
+        demod_free = rf["output"] / (f["albedo"] + ALBEDO_EPS)
+        assert (demod_free.amax(dim=(2, 3)) > 5 * m).all()  # without the ceiling, the blow-up
+        below = demod_free < mc * 0.999
+        torch.testing.assert_close(r["output"][below], rf["output"][below], rtol=1e-5, atol=1e-6)
+        # the history carries the clamped o
+        torch.testing.assert_close(r["state"][1], r["o"], rtol=0, atol=0)
+
+
+def test_ceiling_needs_exposure_and_old_files_read_none():
+    with pytest.raises(ValueError, match="ceiling"):
+        SSRConfig(exposure="none")
+    d = SSRConfig().to_dict()
+    assert d["ceiling"] == "max"
+    del d["ceiling"]  # a version-2 file written before the option
+    assert SSRConfig.from_dict(d).ceiling == "none"
 
 
 # ----------------------------------------------------------------------------- history

@@ -42,7 +42,7 @@ SHAPES = {
     "enc2": (H // 2, W // 2, 32),
     "enc3": (H // 4, W // 4, 28),
 }
-SHAPES_V2 = {**SHAPES, "exposure": (1, 1, 6)}
+SHAPES_V2 = {**SHAPES, "exposure": (1, 1, 9)}
 SETS = {"golden_": SHAPES_V2, "golden_v1_": SHAPES}
 """File prefix -> the tensors of its frames (version 2: the default config; version 1: legacy)."""
 FILES = [f"{p}{n}.safetensors" for p in SETS for n in ["weights"] + [f"frame{t}" for t in range(3)]]
@@ -134,8 +134,15 @@ def test_inputs_follow_the_contract(generated, prefix):
 def test_v2_exercises_exposure_and_history_test(generated):
     """The version-2 set moves the exposure (history re-exposed) and rejects history by geometry."""
     a, _ = generated
-    s = [_read(os.path.join(a, f"golden_frame{t}.safetensors"))[0]["exposure"] for t in range(3)]
+    s = [_read(os.path.join(a, f"golden_frame{t}.safetensors"))[0]["exposure"][..., :6] for t in range(3)]  # s
     assert ((s[1] / s[0]) > 1.02).all() and ((s[2] / s[1]) > 1.02).all()
+    # the output ceiling clamps red (pushed, golden.CEILING_PUSH) on some pixels of every frame
+    for t in range(3):
+        d, _ = _read(os.path.join(a, f"golden_frame{t}.safetensors"))
+        e = d["exposure"][0, 0]
+        ceil_red = torch.log1p(e[6] / e[0])  # M_r / s_r
+        assert 0.01 < float((d["o"][..., 0] >= ceil_red - 1e-6).float().mean()) < 0.8
+        assert float(d["o"][..., 0].max()) <= float(ceil_red) + 1e-6
     d, _ = _read(os.path.join(a, "golden_frame1.safetensors"))
     block = d["warp_valid"][2:10, 18:26]  # the disoccluded block of frame 1 (make_frames)
     assert (block == 0).float().mean() > 0.9

@@ -7,6 +7,7 @@ import torch.nn.functional as F
 from ssr.export import random_model
 from ssr.model import (
     ALBEDO_EPS,
+    LEGACY_OPTIONS,
     SSRConfig,
     SSRModel,
     conv_layers,
@@ -61,7 +62,7 @@ def test_intermediate_shapes(frames):
             assert torch.isfinite(r[name]).all(), name
         a_acc, o, exposure = r["state"]
         assert a_acc is r["a_acc"] and o is r["o"] and exposure is r["exposure"]
-        assert exposure.shape == (1, 6, 1, 1)
+        assert exposure.shape == (1, 9, 1, 1)  # s (6) and the ceiling's running max M (rgb)
 
 
 def test_named_parameters_and_shapes():
@@ -154,6 +155,7 @@ def test_config_json_round_trip():
         "exposure": "channel",
         "remodulation": "current",
         "history": "geometry",
+        "ceiling": "max",
     }
     with pytest.raises(ValueError, match="feature_pool"):
         SSRConfig(feature_pool="median")
@@ -168,10 +170,10 @@ def test_config_json_round_trip():
     with pytest.raises(ValueError, match="unsupported `version` 3"):
         SSRConfig.from_dict({**d, "version": 3})
     # version 1 (the shipped weights'): no option keys, the legacy pipeline
-    v1 = {k: v for k, v in d.items() if k not in ("exposure", "remodulation", "history")}
+    v1 = {k: v for k, v in d.items() if k not in ("exposure", "remodulation", "history", "ceiling")}
     v1["version"] = 1
     c1 = SSRConfig.from_dict(v1)
-    assert (c1.exposure, c1.remodulation, c1.history) == ("none", "accumulated", "screen")
+    assert (c1.exposure, c1.remodulation, c1.history, c1.ceiling) == ("none", "accumulated", "screen", "none")
     assert c1.to_dict() == v1 and SSRConfig.from_json(c1.to_json()) == c1
     with pytest.raises(ValueError, match="version 1 has no `exposure` option"):
         SSRConfig(version=1, exposure="channel", remodulation="accumulated", history="screen")
@@ -430,7 +432,7 @@ def test_tfa_first_frame_and_invalid_history(frames):
     # (e and shadow channels, o) and rejected where depth or normal disagree
     wa, wv = warp(r0["a_acc"], frames[1]["motion"])
     wo, _ = warp(r0["o"], frames[1]["motion"])
-    ratio = r0["exposure"] / r1["exposure"]
+    ratio = r0["exposure"][:, :6] / r1["exposure"][:, :6]  # s_prev / s (channels 6..8: the running max)
     wa = torch.cat([rescale_log(wa[:, 0:3], ratio[:, :3]), wa[:, 3:9], rescale_log(wa[:, 9:12], ratio[:, 3:]), wa[:, 12:]], 1)
     wo = rescale_log(wo, ratio[:, :3])
     ok = (wv > 0.5) & history_consistent(wa, r1["a_cur"])
@@ -438,7 +440,7 @@ def test_tfa_first_frame_and_invalid_history(frames):
     assert torch.equal(r1["warp_acc"], torch.where(ok, wa, torch.zeros_like(wa)))
     assert torch.equal(r1["warp_out"], torch.where(ok, wo, torch.zeros_like(wo)))
     # version 1: the plain warp
-    legacy = random_model(0, SSRConfig(version=1, exposure="none", remodulation="accumulated", history="screen"))
+    legacy = random_model(0, SSRConfig(version=1, **LEGACY_OPTIONS))
     with torch.no_grad():
         q0, q1 = legacy.run_sequence(frames[:2])
     wa, wv = warp(q0["a_acc"], frames[1]["motion"])

@@ -6,16 +6,19 @@
 //   later:        lp = ln(s_prev), d = lg - lp,
 //                 s = exp(have ? (|d| > JUMP ? lg : lp + RATE d) : lp)   (JUMP = ln 2)
 //   ratio = s_prev / s (1 on a first frame): history.wgsl re-exposes the history with it.
+// and, per colour channel, the output ceiling's running max M of the demodulated colour
+// samples (the max of the partials' m): first frame M = m, later M = max(m, p.decay M_prev).
 // ln s is clamped to [-LN_S_MAX, LN_S_MAX] (a guard against hostile input, issue 12: far
 // beyond any real frame's exposure, it keeps s, 1/s and the ratio finite and non-zero).
-// `exposure` holds s_prev on entry and s on exit and `ratio` the ratio: 6 channels packed
-// in 2 vec4 as a 1x1x6 tensor, (colour.rgb, shadow.r), (shadow.gb, 0, 0).
+// `exposure` holds (s_prev, M_prev) on entry and (s, M) on exit, a 1x1x9 tensor packed in 3
+// vec4: (colour.rgb, shadow.r), (shadow.gb, M.rg), (M.b, 0, 0, 0); `ratio` the ratio, 1x1x6
+// in 2 vec4 likewise.
 
 struct Params {
     groups: u32,
     first: u32,
+    decay: f32, // of the running max: src/ssr/config.rs CEILING_DECAY
     _pad0: u32,
-    _pad1: u32,
 }
 
 @group(0) @binding(0) var<uniform> p: Params;
@@ -28,24 +31,31 @@ const JUMP: f32 = 0.6931471805599453;
 const WG: u32 = 64u;
 const LN_S_MAX: f32 = 30.0;
 
-// [colour sum, colour count, shadow sum, shadow count] per thread, then tree-reduced.
+// [colour sum, colour count, shadow sum, shadow count] per thread (w of the first three: the
+// colour's max per channel), then tree-reduced.
 var<workgroup> acc: array<array<vec4<f32>, 4>, 64>;
+
+// Sums and counts add up, the maxes (w of the first three) combine by max.
+fn sum_max(a: vec4<f32>, b: vec4<f32>) -> vec4<f32> {
+    return vec4<f32>(a.xyz + b.xyz, max(a.w, b.w));
+}
+
+fn combine(a: array<vec4<f32>, 4>, b: array<vec4<f32>, 4>) -> array<vec4<f32>, 4> {
+    return array<vec4<f32>, 4>(sum_max(a[0], b[0]), sum_max(a[1], b[1]), sum_max(a[2], b[2]), a[3] + b[3]);
+}
 
 @compute @workgroup_size(64, 1, 1)
 fn main(@builtin(local_invocation_id) lid: vec3<u32>) {
     var a = array<vec4<f32>, 4>(vec4<f32>(0.0), vec4<f32>(0.0), vec4<f32>(0.0), vec4<f32>(0.0));
     for (var g = lid.x; g < p.groups; g += WG) {
-        for (var j = 0u; j < 4u; j++) {
-            a[j] += partials[4u * g + j];
-        }
+        let i = 4u * g;
+        a = combine(a, array<vec4<f32>, 4>(partials[i], partials[i + 1u], partials[i + 2u], partials[i + 3u]));
     }
     acc[lid.x] = a;
     workgroupBarrier();
     for (var stride = WG / 2u; stride > 0u; stride /= 2u) {
         if (lid.x < stride) {
-            for (var j = 0u; j < 4u; j++) {
-                acc[lid.x][j] += acc[lid.x + stride][j];
-            }
+            acc[lid.x] = combine(acc[lid.x], acc[lid.x + stride]);
         }
         workgroupBarrier();
     }
@@ -54,8 +64,12 @@ fn main(@builtin(local_invocation_id) lid: vec3<u32>) {
         let e1 = exposure[1];
         let c = update(acc[0][0].xyz, acc[0][1].xyz, e0.xyz);
         let s = update(acc[0][2].xyz, acc[0][3].xyz, vec3<f32>(e0.w, e1.xy));
+        let m = vec3<f32>(acc[0][0].w, acc[0][1].w, acc[0][2].w);
+        let m_prev = vec3<f32>(e1.zw, exposure[2].x);
+        let running = select(max(m, p.decay * m_prev), m, p.first != 0u);
         exposure[0] = vec4<f32>(c[0], s[0].x);
-        exposure[1] = vec4<f32>(s[0].yz, 0.0, 0.0);
+        exposure[1] = vec4<f32>(s[0].yz, running.xy);
+        exposure[2] = vec4<f32>(running.z, 0.0, 0.0, 0.0);
         ratio[0] = vec4<f32>(c[1], s[1].x);
         ratio[1] = vec4<f32>(s[1].yz, 0.0, 0.0);
     }

@@ -1,10 +1,13 @@
 // Exposure statistic, pass 1 of 2 (issue 11; training/ssr/model.py `_log_exposure`):
 // per channel c, the sum of ln d_c and the count over the traced pixels (mask > 0.5) with
 // d_c > 0, for d = color / (albedo + 0.00316) and for d = shadow (the inputs sanitised as
-// pack_inputs does, ssr/lib/sanitize, without counting). The pixels are those of the padded Wp x Hp frame
-// the network sees (beyond W x H the edge is replicated, as pack_inputs does). Each
-// workgroup strides over the pixels and writes one partial of 4 vec4: (sum ln d).rgb and
-// count.rgb of the colour, then of the shadow. exposure_final.wgsl adds the partials up.
+// pack_inputs does, ssr/lib/sanitize, without counting); and per channel the max over the
+// traced pixels of the colour's d (the output ceiling's m_t; 0 with nothing traced). The
+// pixels are those of the padded Wp x Hp frame the network sees (beyond W x H the edge is
+// replicated, as pack_inputs does). Each workgroup strides over the pixels and writes one
+// partial of 4 vec4: (sum ln d).rgb and count.rgb of the colour, then of the shadow; the w
+// of the first three hold the max of the colour's d.r, d.g, d.b. exposure_final.wgsl
+// combines the partials.
 
 struct Params {
     width: u32,
@@ -40,6 +43,11 @@ fn ln_where(d: vec3<f32>, traced: bool) -> array<vec3<f32>, 2> {
     );
 }
 
+// Sums and counts add up, the maxes (w) combine by max.
+fn sum_max(a: vec4<f32>, b: vec4<f32>) -> vec4<f32> {
+    return vec4<f32>(a.xyz + b.xyz, max(a.w, b.w));
+}
+
 @compute @workgroup_size(256, 1, 1)
 fn main(@builtin(local_invocation_id) lid: vec3<u32>, @builtin(workgroup_id) wid: vec3<u32>) {
     let n = p.padded_width * p.padded_height;
@@ -47,6 +55,7 @@ fn main(@builtin(local_invocation_id) lid: vec3<u32>, @builtin(workgroup_id) wid
     var ck = vec3<f32>(0.0);
     var ss = vec3<f32>(0.0);
     var sk = vec3<f32>(0.0);
+    var mx = vec3<f32>(0.0);
     for (var i = wid.x * WG + lid.x; i < n; i += p.groups * WG) {
         let x = i % p.padded_width;
         let y = i / p.padded_width;
@@ -56,23 +65,25 @@ fn main(@builtin(local_invocation_id) lid: vec3<u32>, @builtin(workgroup_id) wid
         let traced = sanitize_mask(cm.w, &ignored) > 0.5;
         let a = sanitize_unit(albedo_depth[src].xyz, &ignored);
         let color = sanitize_radiance(cm.xyz, &ignored);
-        let c = ln_where(color / (a + vec3<f32>(EPS)), traced);
+        let d = color / (a + vec3<f32>(EPS));
+        let c = ln_where(d, traced);
+        mx = select(mx, max(mx, d), traced);
         let s = ln_where(sanitize_radiance(shadow_roughness[src].xyz, &ignored), traced);
         cs += c[0];
         ck += c[1];
         ss += s[0];
         sk += s[1];
     }
-    color_sums[lid.x] = vec4<f32>(cs, 0.0);
-    color_counts[lid.x] = vec4<f32>(ck, 0.0);
-    shadow_sums[lid.x] = vec4<f32>(ss, 0.0);
+    color_sums[lid.x] = vec4<f32>(cs, mx.x);
+    color_counts[lid.x] = vec4<f32>(ck, mx.y);
+    shadow_sums[lid.x] = vec4<f32>(ss, mx.z);
     shadow_counts[lid.x] = vec4<f32>(sk, 0.0);
     workgroupBarrier();
     for (var stride = WG / 2u; stride > 0u; stride /= 2u) {
         if (lid.x < stride) {
-            color_sums[lid.x] += color_sums[lid.x + stride];
-            color_counts[lid.x] += color_counts[lid.x + stride];
-            shadow_sums[lid.x] += shadow_sums[lid.x + stride];
+            color_sums[lid.x] = sum_max(color_sums[lid.x], color_sums[lid.x + stride]);
+            color_counts[lid.x] = sum_max(color_counts[lid.x], color_counts[lid.x + stride]);
+            shadow_sums[lid.x] = sum_max(shadow_sums[lid.x], shadow_sums[lid.x + stride]);
             shadow_counts[lid.x] += shadow_counts[lid.x + stride];
         }
         workgroupBarrier();

@@ -8,7 +8,8 @@ struct Params {
     src_c4: u32,        // vec4s per pixel of the first input (color or o)
     albedo_c4: u32,
     albedo_offset: u32, // first albedo channel
-    _pad0: u32,
+    ceiling: f32,       // remodulate with CEILING: the output ceiling's gain
+
     _pad1: u32,
     _pad2: u32,
 }
