@@ -12,6 +12,21 @@ fn bin() -> Command {
     Command::new(env!("CARGO_BIN_EXE_subpixel"))
 }
 
+/// `subpixel bench denoise` of the network alone at 16x16.
+fn bench16() -> Command {
+    let mut c = bin();
+    c.args([
+        "bench",
+        "denoise",
+        "--width",
+        "16",
+        "--height",
+        "16",
+        "--model-only",
+    ]);
+    c
+}
+
 fn tmp(name: &str) -> PathBuf {
     let d = std::env::temp_dir().join(format!("subpixel-cli-{name}-{}", std::process::id()));
     let _ = std::fs::remove_dir_all(&d);
@@ -26,7 +41,9 @@ fn data(name: &str) -> PathBuf {
 }
 
 /// The golden frames as a frame folder, with the PyTorch output as the "reference".
+/// Writes the three golden frames into `dir` (created if missing).
 fn golden_folder(dir: &Path) {
+    std::fs::create_dir_all(dir).unwrap();
     for i in 0..3 {
         let bytes = std::fs::read(data(&format!("golden_frame{i}.safetensors"))).unwrap();
         let st = safetensors::SafeTensors::deserialize(&bytes).unwrap();
@@ -312,32 +329,10 @@ fn bench_denoise_models_passes_and_takes_fixed_kernels() {
         ],
     );
     prints_all(
-        bin().args([
-            "bench",
-            "denoise",
-            "--width",
-            "16",
-            "--height",
-            "16",
-            "--model-only",
-            "--precision",
-            "f16",
-        ]),
+        bench16().args(["--precision", "f16"]),
         &["f16 activations", "modelled total"],
     );
-    let o = bin()
-        .env("SUBPIXEL_PRECISION", "half")
-        .args([
-            "bench",
-            "denoise",
-            "--width",
-            "16",
-            "--height",
-            "16",
-            "--model-only",
-        ])
-        .output()
-        .unwrap();
+    let o = bench16().env("SUBPIXEL_PRECISION", "half").output().unwrap();
     let err = String::from_utf8_lossy(&o.stderr);
     assert!(
         !o.status.success() && err.contains("SUBPIXEL_PRECISION") && err.contains("half"),
@@ -647,7 +642,6 @@ fn snapshot(dir: &Path) -> Vec<(String, Vec<u8>)> {
 fn denoise_never_destroys_its_input() {
     let root = tmp("overlap");
     let input = root.join("in");
-    std::fs::create_dir_all(&input).unwrap();
     golden_folder(&input);
     let before = snapshot(&input);
     let denoise = |input: &Path, out: &Path| {
@@ -757,7 +751,6 @@ fn denoise_never_destroys_its_input() {
 fn eval_refuses_non_finite_predictions() {
     let root = tmp("eval-nan");
     let input = root.join("ref");
-    std::fs::create_dir_all(&input).unwrap();
     golden_folder(&input);
     let pred = root.join("pred");
     std::fs::create_dir_all(&pred).unwrap();
@@ -864,7 +857,6 @@ fn eval_refuses_non_finite_predictions() {
 fn default_weights_follow_the_binary_and_the_environment() {
     let root = tmp("relocated");
     let frames = root.join("frames");
-    std::fs::create_dir_all(&frames).unwrap();
     golden_folder(&frames);
     let weights = data("golden_weights.safetensors");
     // A copy of the binary in bin/, the weights in ../weights relative to it.
