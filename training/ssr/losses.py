@@ -153,7 +153,7 @@ def warped_temporal_loss(preds: Frames, refs: Frames, motion: Frames) -> torch.T
 
 def albedo_loss(o: torch.Tensor, ref: torch.Tensor, albedo_mod: torch.Tensor, exposure: Optional[torch.Tensor] = None) -> torch.Tensor:
     """l_a = mean |o - log(1 + (ref / s) / (albedo_mod + 0.00316))| (last frame, log-demodulated
-    space; s = the colour exposure, channels 0..2 of `exposure` [N, 6, 1, 1], 1 when None)."""
+    space; s = the colour exposure, channels 0..2 of `exposure` [N, 9, 1, 1], 1 when None)."""
     if exposure is not None:
         ref = ref / exposure[:, :3]  # the colour exposure (channels 3..5 are the shadow's)
     return (o - demodulate(ref, albedo_mod)).abs().mean()
@@ -172,7 +172,7 @@ def total_loss(
         motion      [N, T, 2, H, W] (or list): each frame's motion
         o           [N, 3, H, W]: the last frame's log-demodulated prediction
         albedo_mod  [N, 3, H, W]: the albedo the last frame was remodulated with
-        exposure    (optional) [N, 6, 1, 1]: the last frame's exposure (output = remodulate(o) * s[:, :3])
+        exposure    (optional) [N, 9, 1, 1]: the last frame's exposure state (output = remodulate(o) * s[:, :3])
     """
     lam = dict(LAMBDAS if lambdas is None else lambdas)
     p, r = _stack(preds, "preds"), _stack(refs, "refs")

@@ -3,7 +3,7 @@
 // (pixels beyond W x H replicate the edge):
 //   A_t (15 ch, 4 vec4) = [e(3), albedo(3), normal(3), log1p(shadow)(3), depth, metallic, roughness]
 // with e = ln(1 + (color / s) / (albedo + 0.00316)) and log1p(shadow / s_shadow), s and
-// s_shadow = the frame's exposure of colour and shadow (per channel; a 1x1x6 tensor,
+// s_shadow = the frame's exposure of colour and shadow (per channel; channels 0..5 of a 1x1x9 tensor,
 // exposure_final.wgsl; 1 for version-1 weights). ssr/pack_mt builds the rest (mask,
 // transparent, motion): the split keeps each kernel within WebGPU's default 8 storage
 // buffers per stage.
