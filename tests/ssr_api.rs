@@ -696,3 +696,71 @@ fn precision_auto_and_f16_need_and_follow_the_device() {
     let den = Denoiser::with_options(&bare, &weights, w, h, options).unwrap();
     assert_eq!(den.network().activations(), DType::F32);
 }
+
+/// Issue 11 (sixth session): with config `ceiling = "max"` no output pixel exceeds
+/// `M_c (albedo_c + 0.00316)`, M the running max over the traced pixels of the demodulated
+/// colour (`M_t = max(m_t, CEILING_DECAY M_{t-1})`), whatever the network does. The bound is
+/// computed here from the inputs alone; the golden weights (red output bias pushed up) reach
+/// it, the shipped ones must respect it too. Odd size: the padding must not change M.
+#[test]
+fn output_never_exceeds_the_brightest_recent_sample() {
+    use subpixel::ssr::{CEILING_DECAY, CEILING_GAIN, CeilingMode};
+    let gpu = common::gpu();
+    let shipped = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("weights/ssr.safetensors");
+    let (w, h) = (15u32, 11u32);
+    for (path, must_reach) in [(golden_weights_path(), true), (shipped, false)] {
+        let weights = Weights::load(&path).unwrap();
+        assert_eq!(
+            weights.config.ceiling_mode().unwrap(),
+            CeilingMode::Max,
+            "{path:?}"
+        );
+        let mut den = Denoiser::with_gpu(&gpu, &weights, w, h).unwrap();
+        let mut m = [0f32; 3];
+        let mut reached = 0;
+        for t in 0..4u64 {
+            let mut f = random_frame(w, h, 70 + t);
+            if t == 1 {
+                // a tiny bright emitter on a traced pixel
+                for c in 0..3 {
+                    f.color.data[(2 * w as usize + 2) * 3 + c] = 5000.0;
+                }
+            }
+            let mut frame_max = [0f32; 3];
+            for y in 0..h {
+                for x in 0..w {
+                    if f.mask.at(x, y, 0) > 0.5 {
+                        for c in 0..3 {
+                            let d = f.color.at(x, y, c) / (f.albedo.at(x, y, c) + 0.00316);
+                            frame_max[c as usize] = frame_max[c as usize].max(d);
+                        }
+                    }
+                }
+            }
+            for c in 0..3 {
+                m[c] = if t == 0 {
+                    frame_max[c]
+                } else {
+                    frame_max[c].max(CEILING_DECAY * m[c])
+                };
+            }
+            let out = den.denoise_host(&f).unwrap();
+            for y in 0..h {
+                for x in 0..w {
+                    for c in 0..3 {
+                        let bound = CEILING_GAIN * m[c as usize] * (f.albedo.at(x, y, c) + 0.00316);
+                        let v = out.at(x, y, c);
+                        assert!(
+                            v.is_finite() && v <= bound * 1.0001,
+                            "{path:?} frame {t} ({x}, {y}, {c}): {v} > {bound}"
+                        );
+                        reached += (v >= bound * 0.999) as u32;
+                    }
+                }
+            }
+        }
+        if must_reach {
+            assert!(reached > 0, "the golden weights reach the ceiling");
+        }
+    }
+}

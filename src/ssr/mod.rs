@@ -8,7 +8,10 @@ mod network;
 mod weights;
 
 pub use crate::frame::HostFrame;
-pub use config::{CONFIG_VERSION, ExposureMode, HistoryTest, LayerSpec, RemodulationAlbedo, SsrConfig};
+pub use config::{
+    CEILING_DECAY, CEILING_GAIN, CONFIG_VERSION, CeilingMode, ExposureMode, HistoryTest, LayerSpec,
+    RemodulationAlbedo, SsrConfig,
+};
 pub use denoiser::{Denoiser, FrameInputs, Granularity, KERNELS_USED, PARAM_SIZES, round_up4};
 pub use network::{INTERMEDIATES, Network, StepCost};
 pub use weights::{WEIGHTS_FORMAT, WEIGHTS_VERSION, Weights};
