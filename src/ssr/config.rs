@@ -403,8 +403,8 @@ mod tests {
         assert_eq!(d.exposure_mode().unwrap(), ExposureMode::Channel);
         assert_eq!(d.remodulation_albedo().unwrap(), RemodulationAlbedo::Current);
         assert_eq!(d.history_test().unwrap(), HistoryTest::Geometry);
-        // the engine's JSON is the trainer's (ssr/model.py SSRConfig.to_json, keys sorted)
         assert_eq!(d.ceiling_mode().unwrap(), CeilingMode::Max);
+        // the engine's JSON is the trainer's (ssr/model.py SSRConfig.to_json, keys sorted)
         let back: SsrConfig = serde_json::from_str(
             r#"{"ceiling":"max","enc":[16,32,28],"exposure":"channel","feature_pool":"max","history":"geometry","input_channels":37,"k":8,"remodulation":"current","tfa_hidden":8,"upsample":"bilinear","version":2}"#,
         )

@@ -35,14 +35,7 @@ const LN_S_MAX: f32 = 30.0;
 // colour's max per channel), then tree-reduced.
 var<workgroup> acc: array<array<vec4<f32>, 4>, 64>;
 
-// Sums and counts add up, the maxes (w of the first three) combine by max.
-fn sum_max(a: vec4<f32>, b: vec4<f32>) -> vec4<f32> {
-    return vec4<f32>(a.xyz + b.xyz, max(a.w, b.w));
-}
-
-fn combine(a: array<vec4<f32>, 4>, b: array<vec4<f32>, 4>) -> array<vec4<f32>, 4> {
-    return array<vec4<f32>, 4>(sum_max(a[0], b[0]), sum_max(a[1], b[1]), sum_max(a[2], b[2]), a[3] + b[3]);
-}
+// combine: ssr/lib/exposure.wgsl.
 
 @compute @workgroup_size(64, 1, 1)
 fn main(@builtin(local_invocation_id) lid: vec3<u32>) {

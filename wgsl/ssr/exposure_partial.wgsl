@@ -43,10 +43,7 @@ fn ln_where(d: vec3<f32>, traced: bool) -> array<vec3<f32>, 2> {
     );
 }
 
-// Sums and counts add up, the maxes (w) combine by max.
-fn sum_max(a: vec4<f32>, b: vec4<f32>) -> vec4<f32> {
-    return vec4<f32>(a.xyz + b.xyz, max(a.w, b.w));
-}
+// sum_max: ssr/lib/exposure.wgsl.
 
 @compute @workgroup_size(256, 1, 1)
 fn main(@builtin(local_invocation_id) lid: vec3<u32>, @builtin(workgroup_id) wid: vec3<u32>) {

@@ -9,7 +9,6 @@ struct Params {
     albedo_c4: u32,
     albedo_offset: u32, // first albedo channel
     ceiling: f32,       // remodulate with CEILING: the output ceiling's gain
-
     _pad1: u32,
     _pad2: u32,
 }
