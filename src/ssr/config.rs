@@ -131,6 +131,26 @@ pub struct LayerSpec {
     pub runs: u32,
 }
 
+/// The value named `value` of option `key` among `choices`; an absent option (a version-1
+/// config, or a later option a file predates) takes the first. Any other name is an error
+/// naming the key, the value and the choices.
+fn choose<T: Copy>(key: &str, value: Option<&str>, choices: &[(&str, T)]) -> Result<T> {
+    let v = value.unwrap_or(choices[0].0);
+    if let Some(&(_, t)) = choices.iter().find(|(name, _)| *name == v) {
+        return Ok(t);
+    }
+    let names: Vec<String> = choices.iter().map(|(name, _)| format!("\"{name}\"")).collect();
+    let (last, rest) = names.split_last().expect("options have choices");
+    let expected = if rest.is_empty() {
+        last.clone()
+    } else {
+        format!("{} or {last}", rest.join(", "))
+    };
+    Err(Error::Invalid(format!(
+        "SSR config: {key} '{v}', expected {expected}"
+    )))
+}
+
 impl SsrConfig {
     /// Checks the options; errors name the field.
     pub fn validate(&self) -> Result<()> {
@@ -207,68 +227,51 @@ impl SsrConfig {
 
     /// The output ceiling (version 1 and files without the option: none).
     pub fn ceiling_mode(&self) -> Result<CeilingMode> {
-        match self.ceiling.as_deref() {
-            None | Some("none") => Ok(CeilingMode::None),
-            Some("max") => Ok(CeilingMode::Max),
-            Some(o) => Err(Error::Invalid(format!(
-                "SSR config: ceiling '{o}', expected \"none\" or \"max\""
-            ))),
-        }
+        let choices = [("none", CeilingMode::None), ("max", CeilingMode::Max)];
+        choose("ceiling", self.ceiling.as_deref(), &choices)
     }
 
     /// Input normalisation (version 1: none).
     pub fn exposure_mode(&self) -> Result<ExposureMode> {
-        match self.exposure.as_deref() {
-            None | Some("none") => Ok(ExposureMode::None),
-            Some("channel") => Ok(ExposureMode::Channel),
-            Some(o) => Err(Error::Invalid(format!(
-                "SSR config: exposure '{o}', expected \"none\" or \"channel\""
-            ))),
-        }
+        let choices = [("none", ExposureMode::None), ("channel", ExposureMode::Channel)];
+        choose("exposure", self.exposure.as_deref(), &choices)
     }
 
     /// The albedo of the remodulation (version 1: accumulated).
     pub fn remodulation_albedo(&self) -> Result<RemodulationAlbedo> {
-        match self.remodulation.as_deref() {
-            None | Some("accumulated") => Ok(RemodulationAlbedo::Accumulated),
-            Some("current") => Ok(RemodulationAlbedo::Current),
-            Some(o) => Err(Error::Invalid(format!(
-                "SSR config: remodulation '{o}', expected \"accumulated\" or \"current\""
-            ))),
-        }
+        let choices = [
+            ("accumulated", RemodulationAlbedo::Accumulated),
+            ("current", RemodulationAlbedo::Current),
+        ];
+        choose("remodulation", self.remodulation.as_deref(), &choices)
     }
 
     /// The history test (version 1: screen).
     pub fn history_test(&self) -> Result<HistoryTest> {
-        match self.history.as_deref() {
-            None | Some("screen") => Ok(HistoryTest::Screen),
-            Some("geometry") => Ok(HistoryTest::Geometry),
-            Some(o) => Err(Error::Invalid(format!(
-                "SSR config: history '{o}', expected \"screen\" or \"geometry\""
-            ))),
-        }
+        let choices = [
+            ("screen", HistoryTest::Screen),
+            ("geometry", HistoryTest::Geometry),
+        ];
+        choose("history", self.history.as_deref(), &choices)
     }
 
     /// Feature pooling mode.
     pub fn pool_mode(&self) -> Result<PoolMode> {
-        match self.feature_pool.as_str() {
-            "max" => Ok(PoolMode::Max),
-            "avg" | "average" => Ok(PoolMode::Average),
-            o => Err(Error::Invalid(format!(
-                "SSR config: feature_pool '{o}', expected \"max\" or \"avg\""
-            ))),
-        }
+        let choices = [
+            ("max", PoolMode::Max),
+            ("avg", PoolMode::Average),
+            ("average", PoolMode::Average),
+        ];
+        choose("feature_pool", Some(&self.feature_pool), &choices)
     }
 
     /// Upsampling mode.
     pub fn upsample_mode(&self) -> Result<UpsampleMode> {
-        match self.upsample.as_str() {
-            "bilinear" => Ok(UpsampleMode::Bilinear),
-            "nearest" => Ok(UpsampleMode::Nearest),
-            o => Err(Error::Invalid(format!(
-                "SSR config: upsample '{o}', expected \"bilinear\" or \"nearest\""
-            ))),
-        }
+        let choices = [
+            ("bilinear", UpsampleMode::Bilinear),
+            ("nearest", UpsampleMode::Nearest),
+        ];
+        choose("upsample", Some(&self.upsample), &choices)
     }
 
     /// Every conv layer in execution order.
