@@ -503,6 +503,7 @@ class SequenceDataset(torch.utils.data.Dataset):
         cache_mb: float = 4096.0,
         cache_dir: Optional[str] = None,
         thin: float = 0.0,
+        thin_keep_min: float = THIN_KEEP_MIN,
     ):
         self.root = root
         self.split = split
@@ -511,6 +512,9 @@ class SequenceDataset(torch.utils.data.Dataset):
         if not (0.0 <= thin <= 1.0):
             raise ValueError(f"thin must be a probability in [0, 1], got {thin}")
         self.thin = float(thin)
+        if not (0.0 < thin_keep_min <= 1.0):
+            raise ValueError(f"thin_keep_min must be in (0, 1], got {thin_keep_min}")
+        self.thin_keep_min = float(thin_keep_min)
         self.sequences = list_sequences(root, split, scenes)
         if not self.sequences:
             raise DatasetError(f"{os.path.join(root, split)}: no sequences")
@@ -551,7 +555,7 @@ class SequenceDataset(torch.utils.data.Dataset):
         if self.thin > 0.0:
             u, v = torch.rand(2, generator=g, dtype=torch.float64).tolist()
             if u < self.thin:
-                keep = float(THIN_KEEP_MIN ** (1.0 - v))  # log-uniform in [THIN_KEEP_MIN, 1]
+                keep = float(self.thin_keep_min ** (1.0 - v))  # log-uniform in [thin_keep_min, 1]
                 thin_seed = int(torch.randint(1 << 62, (1,), generator=g))
         return WindowKey(si, start, y0, x0, hf, vf, keep, thin_seed)
 

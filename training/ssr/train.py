@@ -81,6 +81,10 @@ def parse_args(argv=None) -> argparse.Namespace:
         "--thin", type=float, default=0.0,
         help="probability of sample thinning per window (ssr/data.py: Russian roulette on the input samples; 0: off)",
     )
+    ap.add_argument(
+        "--thin-keep-min", type=float, default=THIN_KEEP_MIN,
+        help=f"lowest keep probability of sample thinning (log-uniform in [this, 1]; default {THIN_KEEP_MIN})",
+    )
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--resume", action="store_true", help="continue from RUN_DIR/checkpoint.pt")
     ap.add_argument("--ckpt-every", type=int, default=1000)
@@ -167,6 +171,7 @@ def run_config(args: argparse.Namespace) -> dict:
         **({"init": init_identity(args.init)} if args.init is not None else {}),
         # Only present when sample thinning is on (older checkpoints have no such key).
         **({"thin": args.thin} if args.thin > 0 else {}),
+        **({"thin_keep_min": args.thin_keep_min} if args.thin > 0 and args.thin_keep_min != THIN_KEEP_MIN else {}),
     }
 
 
@@ -459,6 +464,7 @@ def _train(args, config: dict, dd: Dist) -> dict:
     train_ds = SequenceDataset(
         args.data, "train", window=args.window, crop=args.crop, flips=not args.no_flips, scenes=args.scenes,
         cache=args.cache, cache_mb=args.cache_mb, cache_dir=args.cache_dir, thin=args.thin,
+        thin_keep_min=args.thin_keep_min,
     )
     if tuple(train_ds.crop_hw) != (args.crop, args.crop):
         say(f"note: frames smaller than --crop {args.crop}: crops are {train_ds.crop_hw[1]}x{train_ds.crop_hw[0]}")
@@ -632,7 +638,7 @@ def _train(args, config: dict, dd: Dist) -> dict:
             "batch": args.batch,
             "crop": list(train_ds.crop_hw),
             "window": args.window,
-            "augmentation": {"flips": not args.no_flips, "thin": args.thin, "thin_keep_min": THIN_KEEP_MIN},
+            "augmentation": {"flips": not args.no_flips, "thin": args.thin, "thin_keep_min": args.thin_keep_min},
             "lr": args.lr,
             "lr_schedule": "Adam; halved at 1/3 and 2/3 of the iterations",
             "losses": {"frame_weights": list(weights), "lambdas": dict(args.lambdas)},

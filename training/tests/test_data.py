@@ -294,6 +294,13 @@ def test_thinning_is_deterministic_and_off_by_default(dataset):
     g = torch.Generator().manual_seed(5)
     keys = [thin.random_key(g) for _ in range(20)]
     assert all(THIN_KEEP_MIN <= k.keep < 1.0 for k in keys)
+    # a lower floor reaches below the default's (keep log-uniform in [0.01, 1])
+    low = SequenceDataset(dataset, "train", crop=16, thin=1.0, thin_keep_min=0.01)
+    gl = torch.Generator().manual_seed(5)
+    lows = [low.random_key(gl).keep for _ in range(200)]
+    assert all(0.01 <= k < 1.0 for k in lows) and min(lows) < THIN_KEEP_MIN
+    with pytest.raises(ValueError, match="thin_keep_min"):
+        SequenceDataset(dataset, "train", crop=16, thin=1.0, thin_keep_min=0.0)
     # the choices before thinning are those of the plain dataset
     assert [k[:6] for k in keys[:1]] == [k[:6] for k in k_plain[:1]]
     a, b = thin[keys[0]], thin[keys[0]]
