@@ -221,6 +221,35 @@ fn denoise_then_eval_a_frame_folder() {
     let o = table(&["--scenes", "procedural,golden"]);
     let md = String::from_utf8_lossy(&o.stdout);
     assert!(md.contains("| method | procedural | golden | mean |"), "{md}");
+    // A method without predictions for some sequences: its cell says how many it covers,
+    // the row's mean how many scenes, and a warning names the method.
+    std::fs::remove_dir_all(pred.join("input/test/procedural_9_test_000")).unwrap();
+    let o = table(&[]);
+    let (md, err) = (
+        String::from_utf8_lossy(&o.stdout),
+        String::from_utf8_lossy(&o.stderr),
+    );
+    let input_row = md
+        .lines()
+        .find(|l| l.starts_with("| input |"))
+        .unwrap_or_default();
+    let ssr_row = md.lines().find(|l| l.starts_with("| ssr |")).unwrap_or_default();
+    assert!(input_row.contains("(1 of 2 sequences)"), "{md}");
+    assert!(!ssr_row.contains(" of "), "{md}");
+    assert!(
+        err.contains("warning: input has predictions for 1 of the 2 test sequences of procedural"),
+        "{err}"
+    );
+    std::fs::remove_dir_all(pred.join("input/test/golden_test_000")).unwrap();
+    let md = String::from_utf8_lossy(&table(&[]).stdout).to_string();
+    let input_row = md
+        .lines()
+        .find(|l| l.starts_with("| input |"))
+        .unwrap_or_default();
+    assert!(
+        input_row.contains("| - |") && input_row.ends_with("(1 of 2 scenes) |"),
+        "{md}"
+    );
     let o = table(&["--scenes", "nope"]);
     let err = String::from_utf8_lossy(&o.stderr);
     assert!(

@@ -229,12 +229,26 @@ fn column_of(scene: &str) -> String {
 /// scene -> cell).
 type TableRows = Vec<(String, std::collections::BTreeMap<String, Cell>)>;
 
-fn table(
-    pred: &std::path::Path,
-    root: &std::path::Path,
-    split: &str,
-    only: &[String],
-) -> Result<(Vec<String>, TableRows)> {
+/// The table: its scene columns, its rows, and each column's number of sequences in the split
+/// (a cell over fewer, because a method lacks predictions for some, is marked).
+struct Table {
+    scenes: Vec<String>,
+    rows: TableRows,
+    expected: std::collections::BTreeMap<String, usize>,
+}
+
+impl Table {
+    /// `cell` with `(N of M sequences)` appended when the cell covers fewer than the split
+    /// has, so that a partial row never passes for a complete one.
+    fn covered(&self, scene: &str, c: &Cell, text: String) -> String {
+        match self.expected.get(scene) {
+            Some(&m) if c.sequences < m => format!("{text} ({} of {m} sequences)", c.sequences),
+            _ => text,
+        }
+    }
+}
+
+fn table(pred: &std::path::Path, root: &std::path::Path, split: &str, only: &[String]) -> Result<Table> {
     let seq_root = root.join(split);
     let mut seqs: Vec<PathBuf> = std::fs::read_dir(&seq_root)
         .map_err(|e| anyhow::anyhow!("{}: {e}", seq_root.display()))?
@@ -273,30 +287,53 @@ fn table(
         (ORDER.iter().position(|o| *o == n).unwrap_or(ORDER.len()), n)
     };
     methods.sort_by_key(rank);
+    // Each sequence's column, and how many sequences each column has.
+    let mut columns = Vec::with_capacity(seqs.len());
+    let mut expected = std::collections::BTreeMap::new();
+    for s in &seqs {
+        let file = s.join("sequence.json");
+        let json: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(&file)?)
+            .map_err(|e| anyhow::anyhow!("{}: {e}", file.display()))?;
+        let scene = column_of(json["scene"].as_str().unwrap_or("?"));
+        if only.is_empty() || only.contains(&scene) {
+            *expected.entry(scene.clone()).or_insert(0usize) += 1;
+        }
+        columns.push(scene);
+    }
     let mut scenes = std::collections::BTreeSet::new();
     let mut rows = Vec::new();
     for m in &methods {
         let mut per: std::collections::BTreeMap<String, Cell> = Default::default();
-        for s in &seqs {
+        for (s, scene) in seqs.iter().zip(&columns) {
             let p = m.join(split).join(s.file_name().expect("a folder"));
-            if !p.is_dir() {
+            if !p.is_dir() || !expected.contains_key(scene) {
                 continue;
             }
-            let json: serde_json::Value =
-                serde_json::from_str(&std::fs::read_to_string(s.join("sequence.json"))?)?;
-            let scene = column_of(json["scene"].as_str().unwrap_or("?"));
-            if !only.is_empty() && !only.contains(&scene) {
-                continue;
-            }
+            let scene = scene.clone();
             let sc = score(&p, s)?;
             per.entry(scene.clone()).or_default().add((&sc).into());
             scenes.insert(scene);
         }
         let name = m.file_name().expect("a folder").to_string_lossy().to_string();
+        for (scene, c) in &per {
+            if c.sequences < expected[scene] {
+                eprintln!(
+                    "warning: {name} has predictions for {} of the {} {split} sequences of {scene} \
+                     (in {}): its cell covers those only",
+                    c.sequences,
+                    expected[scene],
+                    m.display()
+                );
+            }
+        }
         rows.push((name, per));
     }
     if only.is_empty() {
-        return Ok((scenes.into_iter().collect(), rows));
+        return Ok(Table {
+            scenes: scenes.into_iter().collect(),
+            rows,
+            expected,
+        });
     }
     if let Some(missing) = only.iter().find(|s| !scenes.contains(*s)) {
         bail!(
@@ -305,12 +342,17 @@ fn table(
             scenes.iter().cloned().collect::<Vec<_>>().join(", ")
         );
     }
-    Ok((only.to_vec(), rows))
+    Ok(Table {
+        scenes: only.to_vec(),
+        rows,
+        expected,
+    })
 }
 
 pub(super) fn run(a: &EvalArgs) -> Result<()> {
     if a.table {
-        let (scenes, rows) = table(&a.pred, &a.reference, &a.split, &a.scenes)?;
+        let t = table(&a.pred, &a.reference, &a.split, &a.scenes)?;
+        let (scenes, rows) = (&t.scenes, &t.rows);
         if a.json {
             let v: Vec<_> = rows
                 .iter()
@@ -319,7 +361,7 @@ pub(super) fn run(a: &EvalArgs) -> Result<()> {
                         .iter()
                         .map(|(s, c)| {
                             let m = c.mean();
-                            let v = serde_json::json!({"psnr": m.psnr, "ssim": m.ssim, "temporal": m.temporal, "brightness": m.brightness, "sequences": c.sequences});
+                            let v = serde_json::json!({"psnr": m.psnr, "ssim": m.ssim, "temporal": m.temporal, "brightness": m.brightness, "sequences": c.sequences, "of": t.expected.get(s)});
                             (s.clone(), v)
                         })
                         .collect();
@@ -331,22 +373,29 @@ pub(super) fn run(a: &EvalArgs) -> Result<()> {
         }
         println!("| method | {} | mean |", scenes.join(" | "));
         println!("|---|{}---|", "---|".repeat(scenes.len()));
-        for (m, per) in &rows {
+        for (m, per) in rows {
             let mut cells = Vec::new();
             // Means over the scenes: every scene for PSNR and SSIM, those with a temporal
             // error for it.
             let mut mean = Cell::default();
-            for sc in &scenes {
+            for sc in scenes {
                 match per.get(sc) {
                     Some(c) => {
-                        cells.push(cell_text(c.mean()));
+                        cells.push(t.covered(sc, c, cell_text(c.mean())));
                         mean.add(c.mean());
                     }
                     None => cells.push("-".into()),
                 }
             }
-            let mean = if mean.sequences > 0 {
+            let mean = if mean.sequences == scenes.len() {
                 cell_text(mean.mean())
+            } else if mean.sequences > 0 {
+                format!(
+                    "{} ({} of {} scenes)",
+                    cell_text(mean.mean()),
+                    mean.sequences,
+                    scenes.len()
+                )
             } else {
                 "-".into()
             };

@@ -13,7 +13,9 @@
   --batch is the global batch; each of the WORLD_SIZE processes takes batch / WORLD_SIZE.
 * Checkpoints: RUN_DIR/checkpoint.pt (model, optimizer, iteration, config, every rank's RNG
   states, wall time, validation history), written atomically every --ckpt-every iterations
-  and at the end. --resume continues from it; a checkpoint whose config differs (model,
+  and at the end, and when SIGTERM or SIGINT arrives (`kill PID`, Ctrl-C: the run finishes
+  the iteration in progress, checkpoints it and returns; a second signal stops at once).
+  --resume continues from it; a checkpoint whose config differs (model,
   widths, batch, crop, lr, iters, window, scenes, flips, seed) is an error naming the file
   and the keys. Without --resume an existing checkpoint is an error (no silent overwrite).
 * Progress: a line every --log-every iterations (loss and its parts, lr, it/s, ETA) and the
@@ -35,8 +37,10 @@ import math
 import os
 import platform
 import random
+import signal
 import subprocess
 import sys
+import threading
 import time
 from typing import Dict, List, Optional, Sequence, Tuple
 
@@ -232,6 +236,39 @@ def lr_at(base: float, iteration: int, iters: int) -> float:
     """base, halved at round(iters / 3) and again at round(2 iters / 3)."""
     m1, m2 = round(iters / 3), round(2 * iters / 3)
     return base * 0.5 ** ((iteration >= m1) + (iteration >= m2))
+
+
+class StopOnSignal:
+    """SIGTERM or SIGINT asks the run to stop after the iteration in progress: the loop
+    then writes a checkpoint at that iteration and returns, so `kill` (or Ctrl-C) loses no
+    work and --resume continues exactly. A second signal stops at once (default action).
+    Installed for the run only, and only in the main thread (elsewhere it is inert)."""
+
+    SIGNALS = (signal.SIGTERM, signal.SIGINT)
+
+    def __init__(self) -> None:
+        self.received: Optional[int] = None
+        self._old: dict = {}
+
+    def _handle(self, signum, _frame) -> None:
+        self.received = signum
+        signal.signal(signum, self._old.get(signum, signal.SIG_DFL))
+
+    def __enter__(self) -> "StopOnSignal":
+        if threading.current_thread() is threading.main_thread():
+            for sig in self.SIGNALS:
+                self._old[sig] = signal.signal(sig, self._handle)
+        return self
+
+    def __exit__(self, *exc) -> None:
+        for sig, old in self._old.items():
+            signal.signal(sig, old)
+
+    def requested(self, dd: "Dist") -> bool:
+        """Whether any process of the run got a signal (every rank agrees)."""
+        if not dd.enabled:
+            return self.received is not None
+        return any(dd.gather(self.received is not None))
 
 
 # ----------------------------------------------------------------------------- distributed
@@ -566,54 +603,68 @@ def _train(args, config: dict, dd: Dist) -> dict:
     acc: Dict[str, float] = {}
     n_acc, skipped = 0, 0
     it = start
-    for batch in loader:
-        lr = lr_at(args.lr, it, args.iters)
-        for g in opt.param_groups:
-            g["lr"] = lr
-        frames = [{k: v.to(device, non_blocking=True) for k, v in f.items()} for f in batch]
-        results = runner(frames)
-        loss, parts = compute_loss(model, results, frames, weights, args.lambdas)
-        opt.zero_grad(set_to_none=True)
-        loss.backward()
-        gnorm = torch.nn.utils.clip_grad_norm_(model.parameters(), args.clip if args.clip > 0 else float("inf"))
-        if torch.isfinite(gnorm):  # identical on every rank (gradients are already averaged)
-            opt.step()
-        else:
-            skipped += 1
-            say(f"warning: non-finite gradient at iteration {it}: step skipped ({skipped} so far)")
-            if skipped >= 100:
-                raise SystemExit("error: 100 non-finite gradients: giving up (lower --lr or check the data)")
-        it += 1
-        acc["loss"] = acc.get("loss", 0.0) + float(loss.detach())
-        for k, v in parts.items():
-            acc[k] = acc.get(k, 0.0) + float(v.detach())
-        n_acc += 1
-        if dd.main and (it % args.log_every == 0 or it == stop):
-            now = time.time()
-            rate = (it - it_log) / max(now - t_log, 1e-9)
-            avg = {k: v / n_acc for k, v in acc.items()}
-            eta = (stop - it) / max(rate, 1e-9)
-            say(
-                f"it {it}/{args.iters} ({100.0 * it / args.iters:.1f}%) loss {avg['loss']:.4f} "
-                "[" + " ".join(f"{k[2:]} {v:.4f}" for k, v in avg.items() if k.startswith("l_")) + "] "
-                f"lr {lr:.2e} {rate:.2f} it/s eta {fmt_time(eta)}"
-            )
-            _log(args.out, {"event": "train", "iteration": it, "lr": lr, "it_per_s": rate, **avg})
-            t_log, it_log, acc, n_acc = now, it, {}, 0
-        if args.val_every and it % args.val_every == 0 and it < args.iters:
-            run_val(it)
-        if it % args.ckpt_every == 0 and it < stop:
-            checkpoint(it, wall + time.time() - t0)
-        if args.snapshot_every and it % args.snapshot_every == 0 and dd.main:
-            snap = os.path.join(args.out, "snapshots", f"it_{it:07d}.safetensors")
-            os.makedirs(os.path.dirname(snap), exist_ok=True)
-            export_model(model, snap + ".tmp", {"model": args.model, "iterations": it, "snapshot_of": args.out}, {})
-            os.replace(snap + ".tmp", snap)
+    with StopOnSignal() as stopper:
+        batches = iter(loader)
+        while True:
+            try:
+                batch = next(batches)
+            except StopIteration:
+                break
+            except RuntimeError:
+                # A signal sent to the whole process group also ends the loader's workers.
+                if stopper.received is None:
+                    raise
+                break
+            lr = lr_at(args.lr, it, args.iters)
+            for g in opt.param_groups:
+                g["lr"] = lr
+            frames = [{k: v.to(device, non_blocking=True) for k, v in f.items()} for f in batch]
+            results = runner(frames)
+            loss, parts = compute_loss(model, results, frames, weights, args.lambdas)
+            opt.zero_grad(set_to_none=True)
+            loss.backward()
+            gnorm = torch.nn.utils.clip_grad_norm_(model.parameters(), args.clip if args.clip > 0 else float("inf"))
+            if torch.isfinite(gnorm):  # identical on every rank (gradients are already averaged)
+                opt.step()
+            else:
+                skipped += 1
+                say(f"warning: non-finite gradient at iteration {it}: step skipped ({skipped} so far)")
+                if skipped >= 100:
+                    raise SystemExit("error: 100 non-finite gradients: giving up (lower --lr or check the data)")
+            it += 1
+            acc["loss"] = acc.get("loss", 0.0) + float(loss.detach())
+            for k, v in parts.items():
+                acc[k] = acc.get(k, 0.0) + float(v.detach())
+            n_acc += 1
+            if dd.main and (it % args.log_every == 0 or it == stop):
+                now = time.time()
+                rate = (it - it_log) / max(now - t_log, 1e-9)
+                avg = {k: v / n_acc for k, v in acc.items()}
+                eta = (stop - it) / max(rate, 1e-9)
+                say(
+                    f"it {it}/{args.iters} ({100.0 * it / args.iters:.1f}%) loss {avg['loss']:.4f} "
+                    "[" + " ".join(f"{k[2:]} {v:.4f}" for k, v in avg.items() if k.startswith("l_")) + "] "
+                    f"lr {lr:.2e} {rate:.2f} it/s eta {fmt_time(eta)}"
+                )
+                _log(args.out, {"event": "train", "iteration": it, "lr": lr, "it_per_s": rate, **avg})
+                t_log, it_log, acc, n_acc = now, it, {}, 0
+            if args.val_every and it % args.val_every == 0 and it < args.iters:
+                run_val(it)
+            if it % args.ckpt_every == 0 and it < stop:
+                checkpoint(it, wall + time.time() - t0)
+            if args.snapshot_every and it % args.snapshot_every == 0 and dd.main:
+                snap = os.path.join(args.out, "snapshots", f"it_{it:07d}.safetensors")
+                os.makedirs(os.path.dirname(snap), exist_ok=True)
+                export_model(model, snap + ".tmp", {"model": args.model, "iterations": it, "snapshot_of": args.out}, {})
+                os.replace(snap + ".tmp", snap)
+            if stopper.requested(dd):
+                break
     wall += time.time() - t0
 
-    if it < args.iters:  # --stop-at
+    if it < args.iters:  # --stop-at, or a signal
         checkpoint(it, wall)
-        say(f"stopped at iteration {it}/{args.iters} (--stop-at); continue with --resume")
+        why = "--stop-at" if stopper.received is None else signal.Signals(stopper.received).name
+        say(f"stopped at iteration {it}/{args.iters} ({why}); checkpoint written, continue with --resume")
         return {"iteration": it, "checkpoint": ckpt_path, "weights": None, "metrics": None}
 
     t1 = time.time()

@@ -87,6 +87,37 @@ def test_train_checkpoint_resume_export(dataset, tmp_path, capsys):
     assert "differing keys: lr" in capsys.readouterr().err
 
 
+def test_a_signal_stops_after_the_iteration_with_a_checkpoint(dataset, tmp_path, capsys, monkeypatch):
+    """kill (SIGTERM) during iteration 2 of 3: the run writes a checkpoint at 2 (not at the
+    last --ckpt-every, 0) and returns; --resume ends with the weights of a straight run."""
+    import signal
+
+    a = str(tmp_path / "a")
+    straight, _ = load_weights(T.train(args(dataset, a, "--ckpt-every", "100"))["weights"])
+
+    calls = {"n": 0}
+    real_loss = T.compute_loss
+
+    def loss_then_kill(*a_, **k_):
+        calls["n"] += 1
+        if calls["n"] == 2:
+            os.kill(os.getpid(), signal.SIGTERM)
+        return real_loss(*a_, **k_)
+
+    monkeypatch.setattr(T, "compute_loss", loss_then_kill)
+    b = str(tmp_path / "b")
+    res = T.train(args(dataset, b, "--ckpt-every", "100"))
+    monkeypatch.setattr(T, "compute_loss", real_loss)
+    assert res["iteration"] == 2 and res["weights"] is None
+    assert "stopped at iteration 2/3 (SIGTERM)" in capsys.readouterr().out
+    assert torch.load(os.path.join(b, "checkpoint.pt"), weights_only=False)["iteration"] == 2
+    # the handler is gone after the run: the default action is back
+    assert signal.getsignal(signal.SIGTERM) == signal.SIG_DFL
+    resumed, _ = load_weights(T.train(args(dataset, b, "--resume", "--ckpt-every", "100"))["weights"])
+    for k, v in straight.state_dict().items():
+        assert torch.equal(resumed.state_dict()[k], v), k
+
+
 def test_init_from_weights_and_snapshots(dataset, tmp_path, capsys):
     # a run of 2 iterations with snapshots every iteration
     a = str(tmp_path / "a")
