@@ -11,8 +11,9 @@ validation PSNR (the val split, what the trainer sees), and its `snapshots/` (wr
 (every sequence from frame 0 with an empty history, whole frames padded like the engine,
 PSNR on tonemapped 8-bit images). Several run folders are one campaign in order (a run
 started with `--init` from the previous one's weights continues its iteration count).
-Scores are cached per snapshot in `RUN_DIR/curve_cache.json` (keyed by split, frames and the
-snapshot's size and modification time), so re-plotting is cheap. A run started with
+Scores are cached per snapshot in `RUN_DIR/curve_cache.json` (keyed by split, frames, the
+split's sequences and the snapshot's size and modification time: a split that gains
+sequences is scored again), so re-plotting is cheap. A run started with
 `--init` from an earlier session's weights continues its iteration count (the trainer logs
 where it starts), and `--previous` draws that session's curve JSON in front.
 
@@ -23,6 +24,7 @@ which weights are kept (held-out scenes never enter model selection).
 from __future__ import annotations
 
 import argparse
+import hashlib
 import json
 import os
 import sys
@@ -81,6 +83,8 @@ def group_of(scene: str) -> str:
 
 def curve(runs: List[str], data: str, split: str, scenes: Optional[List[str]], frames: int, say=print) -> dict:
     ds = SequenceDataset(data, split, window=1, crop=None, flips=False, scenes=scenes, cache="none")
+    # the scored sequences belong to the cache key: a split that has grown is scored afresh
+    seq_key = hashlib.sha256("\n".join(sorted(s.id for s in ds.sequences)).encode()).hexdigest()[:16]
     offset = 0
     train, val, monitored = [], [], []
     for run in runs:
@@ -102,7 +106,7 @@ def curve(runs: List[str], data: str, split: str, scenes: Optional[List[str]], f
         last = max([r["iteration"] for r in log if "iteration" in r] or [0])
         for snap in snapshots(run):
             st = os.stat(snap)
-            key = f"{split}|{frames}|{','.join(scenes or [])}|{os.path.basename(snap)}|{st.st_size}|{int(st.st_mtime)}"
+            key = f"{split}|{frames}|{seq_key}|{os.path.basename(snap)}|{st.st_size}|{int(st.st_mtime)}"
             if key not in cache:
                 say(f"scoring {snap} on {split} ({len(ds.sequences)} sequences)")
                 cache[key] = score_snapshot(snap, ds, frames)

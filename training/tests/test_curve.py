@@ -1,5 +1,6 @@
 import json
 import os
+import shutil
 
 from ssr import curve as C
 from ssr import train as T
@@ -27,6 +28,12 @@ def test_curve_scores_snapshots_and_plots(dataset, tmp_path, capsys):
     # cached: a second call scores nothing again
     assert C.main(argv) == 0
     assert "scoring" not in capsys.readouterr().out
+    # a split that has gained a sequence is scored again (never old scores for a new split)
+    grown = str(tmp_path / "grown")
+    shutil.copytree(dataset, grown)
+    shutil.copytree(os.path.join(grown, "val", "synthetic_000"), os.path.join(grown, "val", "synthetic_001"))
+    assert C.main([*argv[:3], grown, *argv[4:]]) == 0
+    assert "on val (2 sequences)" in capsys.readouterr().out
     # a missing log is a clear error naming the folder
     assert C.main(["--run", str(tmp_path), "--data", dataset, "--out", png]) == 1
     assert "no training log" in capsys.readouterr().err
