@@ -11,7 +11,7 @@
 #            `touch WORK/ds/STOP`, which ends it before the next sequence.
 #   heldout  the held-out test split (dataset_recipe.sh phase heldout) with SPP (default 1024)
 #            references: HELDOUT_SEQUENCES (default 1) sequences of living-room,
-#            flight-helmet and barn-lamp and TEST_SEEDS (default 10) procedural test seeds.
+#            flight-helmet and barn-lamp and TEST_SEEDS (default 20) procedural test seeds.
 #   train    SSR (the default version-2 config) on WORK/ds into WORK/runs/RUN (default
 #            ssr): ITERS (default 7000) iterations, batch 8, 64x64 crops, lr 5e-4,
 #            snapshots every 500 iterations. When weights/ssr.safetensors is already a
@@ -51,7 +51,7 @@ for phase in "$@"; do
         "$here/dataset_recipe.sh" "$ds" val train
       ;;
     heldout)
-      SPP="${SPP:-1024}" HELDOUT_SEQUENCES="${HELDOUT_SEQUENCES:-1}" TEST_SEEDS="${TEST_SEEDS:-10}" \
+      SPP="${SPP:-1024}" HELDOUT_SEQUENCES="${HELDOUT_SEQUENCES:-1}" TEST_SEEDS="${TEST_SEEDS:-20}" \
         "$here/dataset_recipe.sh" "$ds" heldout
       ;;
     train)

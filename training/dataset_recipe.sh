@@ -11,7 +11,8 @@
 #            the sparse-light validation seeds (VAL_SPARSE_SEEDS)
 #   train    training split, round-robin (one more sequence of every scene per round):
 #            6 fixed scenes x 5 sequences + 60 procedural seeds x 2 sequences = 150
-#            sequences of 8 frames = 1,200 frames over 66 scenes
+#            sequences of 8 frames = 1,200 frames over 66 scenes, then the sparse-light
+#            training seeds (TRAIN_SPARSE_SEEDS, 1 sequence each: 16 more sequences)
 #   test     test split of the 6 training scenes (1 sequence each)
 #
 # Held-out scenes never enter train or val, neither as scenes nor as props. Procedural
@@ -27,7 +28,10 @@
 # windows, the kind of light that trips the generic model on living-room; chosen by scene
 # properties alone, before any model saw them: the first four seeds from 600000 whose
 # scene, with the props below, is a room enclosure without emitters where at most 50 % of
-# the preview camera's hits are directly lit, per `subpixel scene`; "" for none),
+# the preview camera's hits are directly lit, per `subpixel scene`; "" for none;
+# `training/sparse_light_seeds.sh 600000 4` prints them), TRAIN_SPARSE_SEEDS (default: the
+# first 16 such seeds from 300000, `training/sparse_light_seeds.sh 300000 16`; one sequence
+# each, rendered after the rest of the train phase; "" for none),
 # FRAMES (default 8), SHARD=K/N (this machine renders the sequences whose hash is K mod N;
 # run the same command with 0/N .. N-1/N on N machines and merge the OUT folders), PROCEDURAL=0 (skip procedural
 # scenes, e.g. before they exist). Finished frames are skipped, so re-running continues;
@@ -55,6 +59,7 @@ test_seeds="${TEST_SEEDS:-20}"
 train_seeds="${TRAIN_SEEDS:-60}"
 val_seeds="${VAL_SEEDS:-10}"
 val_sparse_seeds="${VAL_SPARSE_SEEDS-600320 600788 601084 601268}"
+train_sparse_seeds="${TRAIN_SPARSE_SEEDS-300656 301436 301556 301680 302052 302752 302792 303224 303724 303764 303776 304304 304328 305064 305240 305480}"
 size="${SIZE:-128}"
 frames="${FRAMES:-8}"
 shard="${SHARD:-0/1}"
@@ -123,6 +128,11 @@ for phase in "${phases[@]}"; do
           done
         fi
       done
+      if [ "$procedural" = 1 ]; then
+        for seed in $train_sparse_seeds; do
+          render "$train_spp" "$(proc "$seed")" train 0 "${props[@]}"
+        done
+      fi
       ;;
     test)
       for s in "${fixed[@]}"; do render "$spp" "$s" test 0; done
