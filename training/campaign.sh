@@ -25,6 +25,8 @@
 #   table    the held-out table: training/table1.sh over WORK/ds with the held-out columns
 #            (SCENES, default living-room,flight-helmet,barn-lamp,procedural), the engine
 #            scoring every SSR weights file as in table1.sh.
+# DS (default WORK/ds) names another dataset root for every phase, e.g. a folder whose
+# train split links a subset of WORK/ds/train (an A/B arm without some sequences).
 # THREADS (default: all) limits the CPU threads of the renderer (RAYON_NUM_THREADS) and of
 # PyTorch, e.g. THREADS=1 for `heldout` and `train` side by side on 2 cores:
 #   THREADS=1 nohup training/campaign.sh ~/work-data heldout > ~/work-data/heldout.log 2>&1 &
@@ -42,7 +44,7 @@ run="${RUN:-ssr}"
 threads="${THREADS:-0}"
 if [ "$threads" != 0 ]; then export RAYON_NUM_THREADS="$threads" OMP_NUM_THREADS="$threads"; fi
 mkdir -p "$work"
-ds="$work/ds"
+ds="$(realpath -m "${DS:-$work/ds}")"
 
 for phase in "$@"; do
   case "$phase" in
