@@ -70,10 +70,8 @@ procedural="${PROCEDURAL:-1}"
 
 fixed=(builtin:cornell builtin:room "$scenes/cbox" "$scenes/cornell-box" "$scenes/dining-room" "$scenes/staircase2")
 held_out=("$scenes/living-room" "$scenes/flight-helmet" "$scenes/barn-lamp")
-# Props for procedural scenes: glTF files of training scenes and the environment map of a
-# training scene (dining-room's); nothing of a held-out scene.
-props=(--props "$scenes/cornell-box" --props "$scenes/cbox" --props "$scenes/staircase2"
-  --props "$scenes/dining-room/env.hdr")
+# Props for procedural scenes (recipe_props.sh): nothing of a held-out scene.
+source "$here/recipe_props.sh"
 
 # render SPP SCENE SPLIT K [EXTRA...]: sequence K of SCENE's SPLIT with SPP-sample
 # references, when it is this shard's (a stable hash of scene, split and K picks the shard).

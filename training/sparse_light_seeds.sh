@@ -16,12 +16,12 @@ count="${2:?usage: sparse_light_seeds.sh START COUNT}"
 bin="${SUBPIXEL:-$root/target/release/subpixel}"
 scenes="${SCENES:-$root/../shared/scenes}"
 max_lit="${MAX_LIT:-50}"
+source "$here/recipe_props.sh"
 [ -x "$bin" ] || { echo "sparse_light_seeds.sh: no binary at $bin (cargo build --release)" >&2; exit 1; }
 found=0
 seed="$start"
 while [ "$found" -lt "$count" ]; do
-  summary="$("$bin" scene --scene "builtin:procedural:$seed" --props "$scenes/cornell-box" \
-    --props "$scenes/cbox" --props "$scenes/staircase2" --props "$scenes/dining-room/env.hdr" 2>&1)"
+  summary="$("$bin" scene --scene "builtin:procedural:$seed" "${props[@]}" 2>&1)"
   lit="$(sed -n 's/.*geometry, [0-9]*% objects, \([0-9]*\)% of hits directly lit.*/\1/p' <<<"$summary")"
   if grep -q "enclosure: room;" <<<"$summary" && grep -q "lights: 0 emissive" <<<"$summary" &&
     [ -n "$lit" ] && [ "$lit" -le "$max_lit" ]; then
