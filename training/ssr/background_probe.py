@@ -1,0 +1,91 @@
+"""What a full-resolution background would be worth: each method's scores, and the same with
+its pixels where the primary ray escapes to the environment (depth 1, no transmissive tint)
+replaced by the dataset's 1-spp frame there (`full`, a jittered lookup of the environment per
+pixel: a stand-in for a background buffer the G-buffer pass could write at no tracing cost).
+
+    python -m ssr.background_probe --data ROOT --pred PRED [--methods ssr oidn-a]
+        [--scenes barn-lamp flight-helmet living-room] [--frames 8] [--split test]
+
+Prints, per scene, the fraction of background pixels and PSNR / SSIM (tonemapped 8-bit, as
+everywhere) of each method as it is and with that background. A probe for deciding the data
+contract's next step (training/README.md, "Generalisation" 9); it changes nothing.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import sys
+from typing import Dict, List, Optional
+
+import numpy as np
+
+from .data import DatasetError, frame_name, list_sequences, read_exr
+from .metrics import psnr, ssim
+
+RGB = ("R", "G", "B")
+
+
+def background_mask(depth: np.ndarray, transparent: np.ndarray) -> np.ndarray:
+    """[H, W] bool: the primary ray escapes (depth 1) without crossing a transmissive surface."""
+    return (depth[..., 0] >= 0.999) & (np.abs(transparent).sum(axis=-1) == 0)
+
+
+def scores(pred: np.ndarray, ref: np.ndarray) -> tuple:
+    """(PSNR, SSIM) of [H, W, 3] images (the metrics take channels first)."""
+    p, r = np.ascontiguousarray(pred.transpose(2, 0, 1)), np.ascontiguousarray(ref.transpose(2, 0, 1))
+    return psnr(p, r), ssim(p, r)
+
+
+def probe(data: str, pred: str, methods: List[str], scenes: Optional[List[str]], frames: int, split: str) -> Dict[str, dict]:
+    """{scene: {"background": fraction, method: (psnr, ssim), method + "+bg": (psnr, ssim)}}, means
+    over the scene's sequences and frames."""
+    rows: Dict[str, Dict[str, list]] = {}
+    for seq in list_sequences(data, split, scenes):
+        for t in range(min(frames, seq.frames)):
+            f = seq.frame_path(t)
+            ref = read_exr(f, [f"reference.{c}" for c in RGB])
+            full = read_exr(f, [f"full.{c}" for c in RGB])
+            bg = background_mask(read_exr(f, ["depth.Y"]), read_exr(f, [f"transparent.{c}" for c in RGB]))
+            r = rows.setdefault(seq.scene, {"background": []})
+            r["background"].append(float(bg.mean()))
+            for m in methods:
+                p = read_exr(os.path.join(pred, m, split, seq.name, frame_name(t)), [f"pred.{c}" for c in RGB])
+                mixed = np.where(bg[..., None], full, p)
+                r.setdefault(m, []).append(scores(p, ref))
+                r.setdefault(m + "+bg", []).append(scores(mixed, ref))
+    return {
+        s: {k: (float(np.mean(v)) if k == "background" else tuple(np.mean(np.array(v), axis=0).tolist())) for k, v in r.items()}
+        for s, r in sorted(rows.items())
+    }
+
+
+def main(argv: Optional[List[str]] = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--data", required=True, help="dataset root (its frames need the `full` channels)")
+    ap.add_argument("--pred", required=True, help="predictions root: PRED/METHOD/SPLIT/SEQUENCE/frame_NNNN.exr")
+    ap.add_argument("--methods", nargs="+", default=["ssr", "oidn-a"])
+    ap.add_argument("--scenes", nargs="*", default=None)
+    ap.add_argument("--frames", type=int, default=8)
+    ap.add_argument("--split", default="test")
+    a = ap.parse_args(argv)
+    try:
+        res = probe(a.data, a.pred, a.methods, a.scenes, a.frames, a.split)
+    except DatasetError as err:
+        print(f"error: {err}", file=sys.stderr)
+        return 1
+    if not res:
+        print(f"error: no {a.split} sequences in {a.data}" + (f" of {a.scenes}" if a.scenes else ""), file=sys.stderr)
+        return 1
+    cols = [m for m in a.methods for m in (m, m + "+bg")]
+    print("| scene | background | " + " | ".join(cols) + " |")
+    print("|---|---|" + "---|" * len(cols))
+    for s, r in res.items():
+        cells = [f"{r[c][0]:.2f} / {r[c][1]:.4f}" for c in cols]
+        print(f"| {s} | {100 * r['background']:.0f}% | " + " | ".join(cells) + " |")
+    print("\nPSNR (dB) / SSIM on tonemapped 8-bit images; +bg: background pixels from the 1-spp frame.")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,52 @@
+import os
+
+import numpy as np
+
+from ssr import background_probe as B
+from ssr.data import BUFFERS, SUFFIXES, frame_name, read_exr, write_exr
+from ssr.evaluate import PRED_SUFFIXES
+from ssr.metrics import psnr, ssim
+from ssr.synth import write_dataset
+
+RGB = ["R", "G", "B"]
+
+
+def test_background_mask_needs_depth_one_and_no_tint():
+    depth = np.array([[[1.0], [1.0], [0.5]]])  # [1, 3, 1]
+    tint = np.zeros((1, 3, 3))
+    tint[0, 1] = [0.2, 0.0, 0.0]  # sky seen through glass: not background
+    assert B.background_mask(depth, tint).tolist() == [[True, False, False]]
+
+
+def test_probe_replaces_background_pixels_with_the_1spp_frame(tmp_path, capsys):
+    root = write_dataset(str(tmp_path / "d"), {"test": 1}, 2, 8, 8, seed=1, full=True)
+    seq = os.path.join(root, "test", "synthetic_000")
+    pred = str(tmp_path / "pred")
+    expected = []
+    for t in range(2):
+        f = os.path.join(seq, frame_name(t))
+        names = {b: SUFFIXES[b] for b in BUFFERS}
+        names.update(reference=("R", "G", "B"), full=("R", "G", "B"))
+        bufs = {b: read_exr(f, [f"{b}.{s}" for s in sfx]).transpose(2, 0, 1) for b, sfx in names.items()}
+        bufs["depth"][:, :, :4] = 1.0  # the left half escapes to the environment...
+        bufs["transparent"][:, 0, 0] = 0.5  # ...but for one pixel behind glass
+        write_exr(f, bufs, {"full": ("R", "G", "B"), "reference": ("R", "G", "B")})
+        zeros = np.zeros((3, 8, 8), np.float32)
+        write_exr(os.path.join(pred, "black", "test", "synthetic_000", frame_name(t)), {"pred": zeros}, PRED_SUFFIXES)
+        mixed = zeros.copy()
+        mixed[:, :, :4] = bufs["full"][:, :, :4]
+        mixed[:, 0, 0] = 0.0
+        ref = bufs["reference"]
+        expected.append((psnr(mixed, ref), ssim(mixed, ref), psnr(zeros, ref)))
+    res = B.probe(root, pred, ["black"], None, 8, "test")
+    r = res["synthetic"]
+    assert abs(r["background"] - 31 / 64) < 1e-9
+    e = np.mean(np.array(expected), axis=0)
+    assert abs(r["black+bg"][0] - e[0]) < 1e-9 and abs(r["black+bg"][1] - e[1]) < 1e-9
+    assert abs(r["black"][0] - e[2]) < 1e-9 and r["black+bg"][0] > r["black"][0]
+    assert B.main(["--data", root, "--pred", pred, "--methods", "black"]) == 0
+    assert "| synthetic | 48% |" in capsys.readouterr().out
+    # a method without predictions: an error naming the missing frame
+    assert B.main(["--data", root, "--pred", pred, "--methods", "nope"]) == 1
+    err = capsys.readouterr().err
+    assert "nope" in err and "missing frame" in err, err
