@@ -99,6 +99,29 @@ for _b in BUFFERS:
 NUM_CHANNELS = _o
 del _o, _b
 
+EXTRA_SUFFIXES: Dict[str, Tuple[str, ...]] = {
+    "full": ("R", "G", "B"),
+    "reference_half": ("R", "G", "B"),
+}
+"""Buffers some datasets also hold, loaded on request (`SequenceDataset(extra=...)`): `full`
+(the 1-spp frame of the recipe) and `reference_half` (the mean of the reference's first
+half of samples)."""
+
+
+def layout(extra: Sequence[str] = ()) -> Tuple[Tuple[str, ...], Dict[str, Tuple[int, int]]]:
+    """(EXR channels, buffer -> channel range) of frames with BUFFERS and then `extra`
+    (names of EXTRA_SUFFIXES; a ValueError names an unknown one)."""
+    unknown = [b for b in extra if b not in EXTRA_SUFFIXES]
+    if unknown:
+        raise ValueError(f"extra buffers must be among {sorted(EXTRA_SUFFIXES)}, got {unknown}")
+    channels, offsets, o = list(EXR_CHANNELS), dict(CHANNEL_OFFSETS), NUM_CHANNELS
+    for b in extra:
+        sfx = EXTRA_SUFFIXES[b]
+        channels += [f"{b}.{c}" for c in sfx]
+        offsets[b] = (o, o + len(sfx))
+        o += len(sfx)
+    return tuple(channels), offsets
+
 assert all(len(SUFFIXES[k]) == c for k, c in FRAME_CHANNELS.items())
 
 SEQUENCE_KEYS = ("scene", "split", "sequence", "frames", "width", "height", "spp", "seed", "camera_path")
@@ -306,9 +329,13 @@ def list_sequences(root: str, split: str, scenes: Optional[Sequence[str]] = None
 class FrameStore:
     """Reads frames as HWC float32 arrays (EXR_CHANNELS), with the optional caches."""
 
-    def __init__(self, root: str, cache: str = "none", cache_mb: float = 4096.0, cache_dir: Optional[str] = None):
+    def __init__(
+        self, root: str, cache: str = "none", cache_mb: float = 4096.0, cache_dir: Optional[str] = None, extra: Sequence[str] = ()
+    ):
         if cache not in ("none", "memory", "disk"):
             raise ValueError(f"cache must be none|memory|disk, got {cache!r}")
+        self.extra = tuple(extra)
+        self.channels, self.offsets = layout(self.extra)
         self.root = root
         self.cache = cache
         self.cache_bytes = int(cache_mb * (1 << 20))
@@ -318,7 +345,7 @@ class FrameStore:
 
     def _decode(self, seq: SequenceInfo, i: int) -> np.ndarray:
         path = seq.frame_path(i)
-        arr = read_exr(path)
+        arr = read_exr(path, self.channels)
         h, w = arr.shape[:2]
         if (w, h) != (seq.width, seq.height):
             raise DatasetError(
@@ -327,10 +354,11 @@ class FrameStore:
         return sanitize_(arr)
 
     def _disk_path(self, seq: SequenceInfo, i: int) -> str:
-        return os.path.join(self.cache_dir, seq.split, seq.name, f"frame_{i:04d}.npy")
+        tag = "".join(f"+{b}" for b in self.extra)
+        return os.path.join(self.cache_dir, seq.split, seq.name, f"frame_{i:04d}{tag}.npy")
 
     def read(self, seq: SequenceInfo, i: int, rows: Optional[Tuple[int, int]] = None) -> np.ndarray:
-        """Frame i as [H, W, 24] (or only rows[0]:rows[1] of it)."""
+        """Frame i as [H, W, 24 + extra channels] (or only rows[0]:rows[1] of it)."""
         if self.cache == "memory":
             key = seq.frame_path(i)
             arr = self._lru.get(key)
@@ -359,7 +387,7 @@ class FrameStore:
         if fresh:
             try:
                 arr = np.load(dst, mmap_mode="r")
-                if arr.shape == (seq.height, seq.width, NUM_CHANNELS) and arr.dtype == np.float32:
+                if arr.shape == (seq.height, seq.width, len(self.channels)) and arr.dtype == np.float32:
                     return arr
             except (OSError, ValueError):
                 pass
@@ -374,10 +402,11 @@ class FrameStore:
 # ----------------------------------------------------------------------------- frames as tensors
 
 
-def to_frame(arr: np.ndarray) -> Dict[str, torch.Tensor]:
-    """HWC [h, w, 24] -> dict of CHW float32 tensors (every buffer of BUFFERS)."""
+def to_frame(arr: np.ndarray, offsets: Optional[Dict[str, Tuple[int, int]]] = None) -> Dict[str, torch.Tensor]:
+    """HWC [h, w, 24 (+ extra)] -> dict of CHW float32 tensors (every buffer of BUFFERS, and
+    the extra buffers of `offsets`, from `layout`)."""
     t = torch.from_numpy(np.ascontiguousarray(np.asarray(arr, dtype=np.float32).transpose(2, 0, 1)))
-    return {b: t[lo:hi] for b, (lo, hi) in CHANNEL_OFFSETS.items()}
+    return {b: t[lo:hi] for b, (lo, hi) in (offsets or CHANNEL_OFFSETS).items()}
 
 
 def flip_frame(frame: Dict[str, torch.Tensor], hflip: bool, vflip: bool) -> Dict[str, torch.Tensor]:
@@ -488,7 +517,8 @@ class SequenceDataset(torch.utils.data.Dataset):
 
     Index with a WindowKey (see WindowSampler) or an int (deterministic: window i of the
     list of every window, top-left crop, no flips). Items are lists of per-frame dicts of
-    CHW float32 tensors (FRAME_CHANNELS + `reference`).
+    CHW float32 tensors (FRAME_CHANNELS + `reference`, + the `extra` buffers asked for:
+    names of EXTRA_SUFFIXES; a frame without them is a DatasetError naming it).
     """
 
     def __init__(
@@ -504,6 +534,7 @@ class SequenceDataset(torch.utils.data.Dataset):
         cache_dir: Optional[str] = None,
         thin: float = 0.0,
         thin_keep_min: float = THIN_KEEP_MIN,
+        extra: Sequence[str] = (),
     ):
         self.root = root
         self.split = split
@@ -525,7 +556,7 @@ class SequenceDataset(torch.utils.data.Dataset):
             )
         check_uniform(self.sequences, whole_frames=crop is None)
         self.crop_hw = effective_crop(self.sequences, crop)
-        self.store = FrameStore(root, cache, cache_mb, cache_dir)
+        self.store = FrameStore(root, cache, cache_mb, cache_dir, extra)
         # (seq index, start) of every window, for int indexing and sampling proportional to length
         self.windows: List[Tuple[int, int]] = [
             (si, t) for si, s in enumerate(self.sequences) for t in range(s.frames - self.window + 1)
@@ -570,7 +601,7 @@ class SequenceDataset(torch.utils.data.Dataset):
         g = torch.Generator().manual_seed(key.thin_seed) if key.keep < 1.0 else None
         for t in range(key.start, key.start + self.window):
             arr = self.store.read(s, t, rows=(key.y0, key.y0 + ch))[:, key.x0 : key.x0 + cw]
-            frame = to_frame(arr)
+            frame = to_frame(arr, self.store.offsets)
             if g is not None:
                 frame = thin_frame(frame, key.keep, g)
             frames.append(flip_frame(frame, key.hflip, key.vflip))
@@ -586,7 +617,7 @@ class SequenceDataset(torch.utils.data.Dataset):
 
     def full_frame(self, seq: int, t: int) -> Dict[str, torch.Tensor]:
         """Frame t of sequence `seq`, whole (uncropped, unflipped), CHW tensors."""
-        return to_frame(self.store.read(self.sequences[seq], t))
+        return to_frame(self.store.read(self.sequences[seq], t), self.store.offsets)
 
 
 def window_seed(seed: int, rank: int, iteration: int) -> int:

@@ -309,3 +309,36 @@ def test_thinning_is_deterministic_and_off_by_default(dataset):
             assert torch.equal(fa[k], fb[k])
     with pytest.raises(ValueError, match="thin"):
         SequenceDataset(dataset, "train", crop=16, thin=1.5)
+
+
+
+def test_extra_buffers_load_beside_the_frame(tmp_path):
+    """`extra=("full",)` adds the 1-spp frame, cropped and flipped with the rest, through
+    every cache; a dataset without it is an error naming the frame and the channels."""
+    from ssr.data import frame_name, layout, read_exr
+    from ssr.synth import write_dataset
+
+    root = write_dataset(str(tmp_path / "d"), {"train": 1}, 5, 16, 16, seed=4, full=True)
+    seq = os.path.join(root, "train", "synthetic_000")
+    full0 = read_exr(os.path.join(seq, frame_name(0)), ["full.R", "full.G", "full.B"])
+    channels, offsets = layout(("full",))
+    assert channels[-3:] == ("full.R", "full.G", "full.B") and offsets["full"] == (24, 27)
+    plain = SequenceDataset(root, "train", crop=8, flips=True)
+    key = WindowSampler(plain, 1, 0, 1, seed=5).keys(0)[0]._replace(hflip=True, vflip=False)
+    for cache in ("none", "memory", "disk"):
+        ds = SequenceDataset(root, "train", crop=8, flips=True, extra=("full",), cache=cache, cache_dir=str(tmp_path / "c"))
+        whole = ds.full_frame(0, 0)
+        torch.testing.assert_close(whole["full"], torch.from_numpy(full0.transpose(2, 0, 1).copy()), rtol=0, atol=0)
+        for _ in range(2):
+            got, ref = ds[key], plain[key]
+            for t in range(5):
+                for k in ref[t]:  # the usual buffers are untouched
+                    torch.testing.assert_close(got[t][k], ref[t][k], rtol=0, atol=0)
+            f = read_exr(os.path.join(seq, frame_name(key.start)), ["full.R", "full.G", "full.B"]).transpose(2, 0, 1)
+            crop = f[:, key.y0 : key.y0 + 8, key.x0 : key.x0 + 8][:, :, ::-1]  # hflip
+            torch.testing.assert_close(got[0]["full"], torch.from_numpy(crop.copy()), rtol=0, atol=0)
+    with pytest.raises(ValueError, match="extra buffers must be among"):
+        SequenceDataset(root, "train", crop=8, extra=("nope",))
+    bare = write_dataset(str(tmp_path / "b"), {"train": 1}, 5, 16, 16, seed=4)
+    with pytest.raises(DatasetError, match=r"frame_0000\.exr: missing channel\(s\) \['full\.R'"):
+        SequenceDataset(bare, "train", crop=8, extra=("full",)).full_frame(0, 0)
