@@ -63,8 +63,11 @@ pub const CEILING_GAIN: f32 = 1.0;
 /// traced pixels of clean(color) / (clean(albedo) + 0.00316); M_0 = m_0.
 pub const CEILING_DECAY: f32 = 0.9;
 
-/// Widths and options of the SSR network.
+/// Widths and options of the SSR network. A key this engine does not know (an option of a
+/// later trainer) is an error, never silently ignored: the engine would run another pipeline
+/// than the one the weights were trained with.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
 pub struct SsrConfig {
     /// Hidden width of the TFA reference and embedding nets.
     pub tfa_hidden: u32,
@@ -420,6 +423,13 @@ mod tests {
         .unwrap();
         before.validate().unwrap();
         assert_eq!(before.ceiling_mode().unwrap(), CeilingMode::None);
+        // an option this engine does not know (a later trainer's) is an error naming it
+        let e = serde_json::from_str::<SsrConfig>(
+            r#"{"enc":[16,32,28],"exposure":"channel","feature_pool":"max","history":"geometry","input_channels":37,"k":8,"remodulation":"current","sky":"background","tfa_hidden":8,"upsample":"bilinear","version":2}"#,
+        )
+        .unwrap_err()
+        .to_string();
+        assert!(e.contains("unknown field `sky`"), "{e}");
         let bad = SsrConfig {
             exposure: Some("none".into()),
             ..d.clone()
