@@ -165,3 +165,45 @@ fn reference_halves_measure_noise() {
     let gpsnr = subpixel::metrics::psnr(&g.first, &r.first);
     assert!(gpsnr > 30.0, "GPU and CPU first halves: {gpsnr:.2} dB");
 }
+
+/// The background (the directly seen environment over each pixel's footprint) against the
+/// path tracer: where a pixel is wholly sky its reference radiance is the environment along
+/// its escaping rays, so the two estimate the same integral (stratified lookups against
+/// jittered path samples); where it is wholly geometry the background is 0; coverage is the
+/// escaping fraction, in [0, 1], and 0 and 1 both occur on an open-ground scene.
+#[test]
+fn background_matches_the_reference_on_wholly_sky_pixels() {
+    let scene = load_scene("builtin:procedural:1").unwrap();
+    let p = packed(&scene);
+    let (w, h) = (32, 32);
+    let s = settings(&scene, Mode::Reference, 256, 3);
+    let tracer = CpuTracer::new(w, h).unwrap();
+    let (bg, cov) = tracer.background(&p, &s, 8).unwrap();
+    let reference = tracer.render_reference(&p, &s, 256).unwrap().mean(256);
+    let g = cpu_frame(&p, w, h, &s);
+    let (mut sky, mut ground, mut rel_sum) = (0, 0, 0.0f64);
+    for i in 0..(w * h) as usize {
+        let c = cov.data[i];
+        assert!((0.0..=1.0).contains(&c), "coverage {c} at {i}");
+        let b = &bg.data[3 * i..3 * i + 3];
+        if c == 1.0 {
+            sky += 1;
+            // the G-buffer ray through the pixel centre escapes too: sky albedo 1, depth 1
+            assert_eq!(g.depth.data[i], 1.0, "pixel {i}");
+            for k in 0..3 {
+                let r = reference.data[3 * i + k] as f64;
+                rel_sum += (b[k] as f64 - r).abs() / r.max(1e-3);
+            }
+        } else if c == 0.0 {
+            ground += 1;
+            assert_eq!(b, [0.0; 3], "pixel {i}");
+        }
+    }
+    assert!(sky > 50 && ground > 50, "sky {sky}, ground {ground} pixels");
+    let mean_rel = rel_sum / (3 * sky) as f64;
+    assert!(
+        mean_rel < 0.01,
+        "background vs reference on sky pixels: mean relative difference {mean_rel}"
+    );
+    assert!(tracer.background(&p, &s, 0).is_err());
+}

@@ -213,6 +213,40 @@ pub(crate) fn primary_dir(p: &Params, x: u32, y: u32) -> Vec3 {
     camera_dir(&p.cam, Vec2::new(x as f32 + 0.5, y as f32 + 0.5), size)
 }
 
+/// The directly seen environment of pixel (x, y): the mean over `n x n` stratified positions
+/// in the pixel of the environment radiance along the camera rays that escape (0 for those
+/// that hit anything, transmissive surfaces included), and the fraction that escape.
+pub(crate) fn background_pixel(
+    sc: &PackedScene,
+    ei: &EnvInfo,
+    p: &Params,
+    x: u32,
+    y: u32,
+    n: u32,
+    rays: &mut u64,
+) -> (Vec3, f32) {
+    let size = Vec2::new(p.width as f32, p.height as f32);
+    let o = v3(p.cam.pos);
+    let (mut sum, mut escaped) = (Vec3::ZERO, 0u32);
+    for j in 0..n {
+        for i in 0..n {
+            let px = Vec2::new(
+                x as f32 + (i as f32 + 0.5) / n as f32,
+                y as f32 + (j as f32 + 0.5) / n as f32,
+            );
+            let d = camera_dir(&p.cam, px, size);
+            if traverse(sc, o, d, BIG, false, NO_HIT, rays).prim == NO_HIT {
+                escaped += 1;
+                if ei.present {
+                    sum += env_radiance(sc, ei, d);
+                }
+            }
+        }
+    }
+    let count = (n * n) as f32;
+    (sum / count, escaped as f32 / count)
+}
+
 /// The G-buffer values of pixel (x, y) whose primary ray (direction `d`) has hit `hit`.
 pub(crate) fn gbuffer_of_hit(
     sc: &PackedScene,
