@@ -190,9 +190,9 @@ fn background_matches_the_reference_on_wholly_sky_pixels() {
             sky += 1;
             // the G-buffer ray through the pixel centre escapes too: sky albedo 1, depth 1
             assert_eq!(g.depth.data[i], 1.0, "pixel {i}");
-            for k in 0..3 {
-                let r = reference.data[3 * i + k] as f64;
-                rel_sum += (b[k] as f64 - r).abs() / r.max(1e-3);
+            for (&bk, &r) in b.iter().zip(&reference.data[3 * i..3 * i + 3]) {
+                let r = r as f64;
+                rel_sum += (bk as f64 - r).abs() / r.max(1e-3);
             }
         } else if c == 0.0 {
             ground += 1;
