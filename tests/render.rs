@@ -538,6 +538,7 @@ fn render_command_writes_exr_frames() {
             resume: false,
             backend,
             full_spp: true,
+            background: None,
             props: Vec::new(),
             fallback_path: None,
             sequence_json: None,
@@ -581,6 +582,29 @@ fn render_command_writes_exr_frames() {
         );
         args.width = Some(9);
         render_command(&args).unwrap();
+        // Resuming with --background adds the background to the frames already there and
+        // changes nothing else in them.
+        let read = |f: u32| subpixel::io::exr::read_frame(&out.join(format!("frame_{f:04}.exr"))).unwrap();
+        let before = read(1);
+        assert!(before.background.is_none() && before.coverage.is_none());
+        args.background = Some(2);
+        render_command(&args).unwrap();
+        let after = read(1);
+        assert_eq!(
+            (&after.frame, &after.reference, &after.reference_half, &after.full),
+            (
+                &before.frame,
+                &before.reference,
+                &before.reference_half,
+                &before.full
+            )
+        );
+        let (bg, cov) = (after.background.unwrap(), after.coverage.unwrap());
+        assert_eq!((bg.width, bg.height, bg.channels, cov.channels), (9, 7, 3, 1));
+        assert!(cov.data.iter().all(|c| (0.0..=1.0).contains(c)));
+        let seq: serde_json::Value =
+            serde_json::from_str(&std::fs::read_to_string(out.join("sequence.json")).unwrap()).unwrap();
+        assert_eq!(seq["background_lookups"], 4, "{seq}");
         std::fs::remove_dir_all(&out).ok();
     }
 }

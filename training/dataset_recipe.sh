@@ -32,7 +32,9 @@
 # `training/sparse_light_seeds.sh 600000 4` prints them), TRAIN_SPARSE_SEEDS (default: the
 # first 16 such seeds from 300000, `training/sparse_light_seeds.sh 300000 16`; one sequence
 # each, rendered after the rest of the train phase; "" for none),
-# FRAMES (default 8), SHARD=K/N (this machine renders the sequences whose hash is K mod N;
+# BACKGROUND=N (also store each frame's directly seen environment from N x N lookups per
+# pixel, `subpixel dataset --background`; re-running the recipe with it adds the channels to
+# the frames already rendered), FRAMES (default 8), SHARD=K/N (this machine renders the sequences whose hash is K mod N;
 # run the same command with 0/N .. N-1/N on N machines and merge the OUT folders), PROCEDURAL=0 (skip procedural
 # scenes, e.g. before they exist). Finished frames are skipped, so re-running continues;
 # each frame is written atomically. A build for the machine's own CPU renders about 10 %
@@ -90,7 +92,7 @@ render() {
   echo "== $(date -u +%FT%TZ) $split $scene sequence $k"
   "$bin" dataset --scene "$scene" --split "$split" --first-sequence "$k" --sequences "$((k + 1))" \
     --frames "$frames" --width "$size" --height "$size" --reference-spp "$rspp" --backend cpu \
-    --out "$out" "$@"
+    ${BACKGROUND:+--background "$BACKGROUND"} --out "$out" "$@"
 }
 proc() { echo "builtin:procedural:$1"; }
 

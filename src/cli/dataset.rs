@@ -40,6 +40,10 @@ pub(super) struct DatasetArgs {
     /// Samples per pixel of the reference.
     #[arg(long, default_value_t = 1024)]
     reference_spp: u32,
+    /// Also store each frame's directly seen environment (`background`, `coverage`) from
+    /// N x N lookups per pixel; frames already rendered without it get it added.
+    #[arg(long, value_name = "N")]
+    background: Option<u32>,
     /// Largest number of path segments.
     #[arg(long, default_value_t = DEFAULT_MAX_DEPTH)]
     max_depth: u32,
@@ -169,6 +173,7 @@ pub(super) fn run(a: &DatasetArgs) -> Result<()> {
             // A 1-spp frame of the same camera: the four-times-the-samples input of
             // baselines (OIDN on 1 spp); cheap next to the reference.
             full_spp: true,
+            background: a.background,
             props: a.props.clone(),
             // The keys of the training loader (training/ssr/data.py).
             sequence_json: Some(

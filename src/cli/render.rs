@@ -15,6 +15,7 @@ use crate::render::backend::{Backend, FrameRenderer};
 use crate::render::camera::CameraPathSpec;
 use crate::render::scene::Scene;
 use crate::render::tracer::{DEFAULT_MAX_DEPTH, FrameSettings, Mode};
+use crate::render::{CpuTracer, PackedScene};
 
 /// `subpixel render`: path trace a scene into one multi-channel EXR per frame.
 #[derive(Debug, Clone, clap::Args)]
@@ -68,6 +69,12 @@ pub struct RenderArgs {
     /// times the samples of a quarter frame, for baselines such as OIDN).
     #[arg(long)]
     pub full_spp: bool,
+    /// Also store the directly seen environment averaged over each pixel's footprint
+    /// (`background` channels) and the fraction of the footprint that escapes (`coverage`),
+    /// from N x N stratified lookups per pixel (the CPU twin's, whatever the backend; no
+    /// path tracing). With `--resume`, frames written before without them get them added.
+    #[arg(long, value_name = "N")]
+    pub background: Option<u32>,
     /// Camera path when neither `--path` nor the scene gives one (set by `subpixel
     /// dataset`: a fly-through whatever the shard's frame count).
     #[arg(skip)]
@@ -113,7 +120,13 @@ fn spec_name(s: &CameraPathSpec) -> &'static str {
 
 /// Keys of `sequence.json` that describe how frames were made without changing what they
 /// hold: a resumed render may differ in them.
-const SEQUENCE_INFO_KEYS: &[&str] = &["first_frame", "backend", "reference_noise"];
+const SEQUENCE_INFO_KEYS: &[&str] = &[
+    "first_frame",
+    "backend",
+    "reference_noise",
+    // a resume with `--background` adds it to the frames already there
+    "background_lookups",
+];
 
 /// Frames over which the depth normalisation is computed, whatever the shard.
 const FAR_HORIZON: u32 = 1024;
@@ -194,17 +207,20 @@ pub fn render_command(args: &RenderArgs) -> Result<()> {
     for k in 0..args.frames {
         let f = args.first_frame + k;
         let file = args.out.join(format!("frame_{f:04}.exr"));
-        if args.resume && file.is_file() {
-            skipped += 1;
-            bar.inc(1);
-            continue;
-        }
         let seed = args.seed as u32 ^ (args.seed >> 32) as u32;
         let settings = FrameSettings {
             spp: args.spp,
             max_depth: args.max_depth,
             ..FrameSettings::along(&path, f, args.mode, seed, far)
         };
+        if args.resume && file.is_file() {
+            if let Some(n) = args.background {
+                add_background(&file, renderer.packed(), &settings, w, h, n)?;
+            }
+            skipped += 1;
+            bar.inc(1);
+            continue;
+        }
         let t = Instant::now();
         let (frame, stats) = renderer.frame(&settings)?;
         rays += stats.rays;
@@ -228,6 +244,11 @@ pub fn render_command(args: &RenderArgs) -> Result<()> {
             rays += stats.rays;
             samples += stats.samples;
             host.full = Some(full.color);
+        }
+        if let Some(n) = args.background {
+            let (bg, cov) = CpuTracer::new(w, h)?.background(renderer.packed(), &settings, n)?;
+            host.background = Some(bg);
+            host.coverage = Some(cov);
         }
         render_secs += t.elapsed().as_secs_f64();
         // Written under a temporary name first, so an interrupted render leaves no
@@ -300,6 +321,30 @@ pub fn open_gpu(backend: Backend) -> Result<Option<Gpu>> {
             }
         },
     }
+}
+
+/// Adds the `background` and `coverage` channels to the frame file `file` when it lacks
+/// them (a frame rendered before `--background` existed), rewriting it atomically.
+fn add_background(
+    file: &Path,
+    packed: &PackedScene,
+    settings: &FrameSettings,
+    w: u32,
+    h: u32,
+    n: u32,
+) -> Result<()> {
+    let mut ff = crate::io::exr::read_frame(file)?;
+    if ff.background.is_some() && ff.coverage.is_some() {
+        return Ok(());
+    }
+    let (bg, cov) = CpuTracer::new(w, h)?.background(packed, settings, n)?;
+    ff.background = Some(bg);
+    ff.coverage = Some(cov);
+    let tmp = file.with_extension("partial.exr");
+    crate::io::exr::write_frame(&tmp, &ff)?;
+    std::fs::rename(&tmp, file)
+        .with_context(|| format!("cannot rename {} to {}", tmp.display(), file.display()))?;
+    Ok(())
 }
 
 /// PSNR (tonemapped, DESIGN §7) between the two halves of each reference in `dir`, from
@@ -382,6 +427,7 @@ fn write_sequence_json(
         "far": far,
         "backend": args.backend.name(),
         "full_spp": args.full_spp,
+        "background_lookups": args.background.map(|n| n * n),
         "props": args.props.iter().map(|p| p.display().to_string()).collect::<Vec<_>>(),
     });
     if let (Some(extra), Some(o)) = (&args.sequence_json, json.as_object_mut()) {

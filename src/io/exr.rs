@@ -2,7 +2,9 @@
 //! `color.R color.G color.B mask.Y albedo.R.. normal.X normal.Y normal.Z shadow.R..
 //! transparent.R.. depth.Y metallic.Y roughness.Y motion.X motion.Y`, plus optional
 //! `reference.R..` (the N-spp reference), `reference_half.R..` (the mean of its first half of
-//! samples, for its noise), `full.R..` (a 1-spp frame) and `pred.R..` (a denoised prediction).
+//! samples, for its noise), `full.R..` (a 1-spp frame), `background.R.. coverage.Y` (the
+//! directly seen environment over each pixel's footprint and the fraction that escapes) and
+//! `pred.R..` (a denoised prediction).
 
 use std::collections::HashMap;
 use std::path::Path;
@@ -39,6 +41,11 @@ pub struct FrameFile {
     pub reference_half: Option<HostTensor>,
     /// A 1-spp full-resolution colour of the same camera (`full.*`), for baselines.
     pub full: Option<HostTensor>,
+    /// The directly seen environment averaged over each pixel's footprint (`background.*`,
+    /// `CpuTracer::background`).
+    pub background: Option<HostTensor>,
+    /// The fraction of each pixel's footprint that escapes to the environment (`coverage.Y`).
+    pub coverage: Option<HostTensor>,
 }
 
 /// Writes named HWC tensors of one size as f32 channels `name.SUFFIX`.
@@ -270,6 +277,12 @@ pub fn write_frame(path: &Path, f: &FrameFile) -> Result<()> {
     if let Some(t) = &f.full {
         tensors.push(("full", t));
     }
+    if let Some(t) = &f.background {
+        tensors.push(("background", t));
+    }
+    if let Some(t) = &f.coverage {
+        tensors.push(("coverage", t));
+    }
     write_tensors(path, &tensors)
 }
 
@@ -282,6 +295,8 @@ pub fn read_frame(path: &Path) -> Result<FrameFile> {
     let pred = get("pred", 3)?;
     let reference_half = get("reference_half", 3)?;
     let full = get("full", 3)?;
+    let background = get("background", 3)?;
+    let coverage = get("coverage", 1)?;
     let names = [
         "color",
         "mask",
@@ -330,6 +345,8 @@ pub fn read_frame(path: &Path) -> Result<FrameFile> {
         pred,
         reference_half,
         full,
+        background,
+        coverage,
     })
 }
 
@@ -366,6 +383,8 @@ mod tests {
                 x as f32 - y as f32 * 0.5 + c as f32
             })),
             full: Some(HostTensor::from_fn(7, 5, 3, |x, y, c| (x + y * c) as f32 * 0.25)),
+            background: Some(HostTensor::from_fn(7, 5, 3, |x, y, c| (x * c + y) as f32 * 0.5)),
+            coverage: Some(HostTensor::from_fn(7, 5, 1, |x, _, _| x as f32 / 6.0)),
             pred: None,
         };
         write_frame(&path, &f).unwrap();
