@@ -1,10 +1,13 @@
 """What a full-resolution background would be worth: each method's scores, and the same with
-its pixels where the primary ray escapes to the environment (depth 1, no transmissive tint)
-replaced by the dataset's 1-spp frame there (`full`, a jittered lookup of the environment per
-pixel: a stand-in for a background buffer the G-buffer pass could write at no tracing cost).
+its background pixels replaced by the environment seen there. Two sources:
+`--source full` (default): pixels whose primary ray escapes (depth 1, no transmissive
+tint) take the dataset's 1-spp frame (`full`, one jittered lookup of the environment per
+pixel); `--source background`: pixels wholly sky (`coverage` 1) take the `background`
+channels (the environment over the pixel's footprint, `subpixel dataset --background N`).
 
     python -m ssr.background_probe --data ROOT --pred PRED [--methods ssr oidn-a]
         [--scenes barn-lamp flight-helmet living-room] [--frames 8] [--split test]
+        [--source full|background]
 
 Prints, per scene, the fraction of background pixels and PSNR / SSIM (tonemapped 8-bit, as
 everywhere) of each method as it is and with that background. A probe for deciding the data
@@ -37,7 +40,9 @@ def scores(pred: np.ndarray, ref: np.ndarray) -> tuple:
     return psnr(p, r), ssim(p, r)
 
 
-def probe(data: str, pred: str, methods: List[str], scenes: Optional[List[str]], frames: int, split: str) -> Dict[str, dict]:
+def probe(
+    data: str, pred: str, methods: List[str], scenes: Optional[List[str]], frames: int, split: str, source: str = "full"
+) -> Dict[str, dict]:
     """{scene: {"background": fraction, method: (psnr, ssim), method + "+bg": (psnr, ssim)}}, means
     over the scene's sequences and frames."""
     rows: Dict[str, Dict[str, list]] = {}
@@ -45,8 +50,14 @@ def probe(data: str, pred: str, methods: List[str], scenes: Optional[List[str]],
         for t in range(min(frames, seq.frames)):
             f = seq.frame_path(t)
             ref = read_exr(f, [f"reference.{c}" for c in RGB])
-            full = read_exr(f, [f"full.{c}" for c in RGB])
-            bg = background_mask(read_exr(f, ["depth.Y"]), read_exr(f, [f"transparent.{c}" for c in RGB]))
+            if source == "full":
+                full = read_exr(f, [f"full.{c}" for c in RGB])
+                bg = background_mask(read_exr(f, ["depth.Y"]), read_exr(f, [f"transparent.{c}" for c in RGB]))
+            elif source == "background":
+                full = read_exr(f, [f"background.{c}" for c in RGB])
+                bg = read_exr(f, ["coverage.Y"])[..., 0] >= 1.0
+            else:
+                raise ValueError(f"source must be full or background, got {source!r}")
             r = rows.setdefault(seq.scene, {"background": []})
             r["background"].append(float(bg.mean()))
             for m in methods:
@@ -68,9 +79,11 @@ def main(argv: Optional[List[str]] = None) -> int:
     ap.add_argument("--scenes", nargs="*", default=None)
     ap.add_argument("--frames", type=int, default=8)
     ap.add_argument("--split", default="test")
+    ap.add_argument("--source", choices=["full", "background"], default="full",
+                    help="where the background comes from (see the module doc)")
     a = ap.parse_args(argv)
     try:
-        res = probe(a.data, a.pred, a.methods, a.scenes, a.frames, a.split)
+        res = probe(a.data, a.pred, a.methods, a.scenes, a.frames, a.split, a.source)
     except DatasetError as err:
         print(f"error: {err}", file=sys.stderr)
         return 1
@@ -83,7 +96,8 @@ def main(argv: Optional[List[str]] = None) -> int:
     for s, r in res.items():
         cells = [f"{r[c][0]:.2f} / {r[c][1]:.4f}" for c in cols]
         print(f"| {s} | {100 * r['background']:.0f}% | " + " | ".join(cells) + " |")
-    print("\nPSNR (dB) / SSIM on tonemapped 8-bit images; +bg: background pixels from the 1-spp frame.")
+    what = "the 1-spp frame" if a.source == "full" else "the background channels (coverage 1)"
+    print(f"\nPSNR (dB) / SSIM on tonemapped 8-bit images; +bg: background pixels from {what}.")
     return 0
 
 

@@ -102,10 +102,13 @@ del _o, _b
 EXTRA_SUFFIXES: Dict[str, Tuple[str, ...]] = {
     "full": ("R", "G", "B"),
     "reference_half": ("R", "G", "B"),
+    "background": ("R", "G", "B"),
+    "coverage": ("Y",),
 }
 """Buffers some datasets also hold, loaded on request (`SequenceDataset(extra=...)`): `full`
-(the 1-spp frame of the recipe) and `reference_half` (the mean of the reference's first
-half of samples)."""
+(the 1-spp frame of the recipe), `reference_half` (the mean of the reference's first half
+of samples), `background` and `coverage` (the directly seen environment over each pixel's
+footprint and the fraction that escapes: `subpixel dataset --background N`)."""
 
 
 def layout(extra: Sequence[str] = ()) -> Tuple[Tuple[str, ...], Dict[str, Tuple[int, int]]]:

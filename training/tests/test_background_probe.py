@@ -30,20 +30,31 @@ def test_probe_replaces_background_pixels_with_the_1spp_frame(tmp_path, capsys):
         bufs = {b: read_exr(f, [f"{b}.{s}" for s in sfx]).transpose(2, 0, 1) for b, sfx in names.items()}
         bufs["depth"][:, :, :4] = 1.0  # the left half escapes to the environment...
         bufs["transparent"][:, 0, 0] = 0.5  # ...but for one pixel behind glass
-        write_exr(f, bufs, {"full": ("R", "G", "B"), "reference": ("R", "G", "B")})
+        # the background channels: wholly sky in the top half's left quarter, one pixel partly
+        bufs["background"] = np.full((3, 8, 8), 0.25 + t, np.float32)
+        bufs["coverage"] = np.zeros((1, 8, 8), np.float32)
+        bufs["coverage"][:, :4, :2] = 1.0
+        bufs["coverage"][:, 0, 0] = 0.5
+        sfx = {"full": ("R", "G", "B"), "reference": ("R", "G", "B"), "background": ("R", "G", "B"), "coverage": ("Y",)}
+        write_exr(f, bufs, sfx)
         zeros = np.zeros((3, 8, 8), np.float32)
         write_exr(os.path.join(pred, "black", "test", "synthetic_000", frame_name(t)), {"pred": zeros}, PRED_SUFFIXES)
         mixed = zeros.copy()
         mixed[:, :, :4] = bufs["full"][:, :, :4]
         mixed[:, 0, 0] = 0.0
         ref = bufs["reference"]
-        expected.append((psnr(mixed, ref), ssim(mixed, ref), psnr(zeros, ref)))
+        from_bg = zeros.copy()
+        from_bg[:, :4, :2] = 0.25 + t
+        from_bg[:, 0, 0] = 0.0
+        expected.append((psnr(mixed, ref), ssim(mixed, ref), psnr(zeros, ref), psnr(from_bg, ref)))
     res = B.probe(root, pred, ["black"], None, 8, "test")
     r = res["synthetic"]
     assert abs(r["background"] - 31 / 64) < 1e-9
     e = np.mean(np.array(expected), axis=0)
     assert abs(r["black+bg"][0] - e[0]) < 1e-9 and abs(r["black+bg"][1] - e[1]) < 1e-9
     assert abs(r["black"][0] - e[2]) < 1e-9 and r["black+bg"][0] > r["black"][0]
+    r2 = B.probe(root, pred, ["black"], None, 8, "test", source="background")["synthetic"]
+    assert abs(r2["background"] - 7 / 64) < 1e-9 and abs(r2["black+bg"][0] - e[3]) < 1e-9
     assert B.main(["--data", root, "--pred", pred, "--methods", "black"]) == 0
     assert "| synthetic | 48% |" in capsys.readouterr().out
     # a method without predictions: an error naming the missing frame
