@@ -215,7 +215,7 @@ pub fn render_command(args: &RenderArgs) -> Result<()> {
         };
         if args.resume && file.is_file() {
             if let Some(n) = args.background {
-                add_background(&file, renderer.packed(), &settings, w, h, n)?;
+                add_background(&file, renderer.packed(), &settings, n)?;
             }
             skipped += 1;
             bar.inc(1);
@@ -246,17 +246,10 @@ pub fn render_command(args: &RenderArgs) -> Result<()> {
             host.full = Some(full.color);
         }
         if let Some(n) = args.background {
-            let (bg, cov) = CpuTracer::new(w, h)?.background(renderer.packed(), &settings, n)?;
-            host.background = Some(bg);
-            host.coverage = Some(cov);
+            set_background(&mut host, renderer.packed(), &settings, n)?;
         }
         render_secs += t.elapsed().as_secs_f64();
-        // Written under a temporary name first, so an interrupted render leaves no
-        // truncated frame for --resume to skip.
-        let tmp = args.out.join(format!("frame_{f:04}.partial.exr"));
-        crate::io::exr::write_frame(&tmp, &host)?;
-        std::fs::rename(&tmp, &file)
-            .with_context(|| format!("cannot rename {} to {}", tmp.display(), file.display()))?;
+        write_frame_atomically(&file, &host)?;
         if args.png {
             write_png(&args.out.join(format!("frame_{f:04}.png")), &host)?;
         }
@@ -323,28 +316,39 @@ pub fn open_gpu(backend: Backend) -> Result<Option<Gpu>> {
     }
 }
 
+/// Writes frame file `file` under a temporary name first (`frame_NNNN.partial.exr`), so
+/// that an interrupted write leaves no truncated frame for `--resume` to skip.
+fn write_frame_atomically(file: &Path, ff: &FrameFile) -> Result<()> {
+    let tmp = file.with_extension("partial.exr");
+    crate::io::exr::write_frame(&tmp, ff)?;
+    std::fs::rename(&tmp, file)
+        .with_context(|| format!("cannot rename {} to {}", tmp.display(), file.display()))?;
+    Ok(())
+}
+
+/// Sets the `background` and `coverage` channels of `ff` (`CpuTracer::background`, `n x n`
+/// lookups per pixel) for frame `settings` at the size of `ff`'s frame.
+fn set_background(ff: &mut FrameFile, packed: &PackedScene, settings: &FrameSettings, n: u32) -> Result<()> {
+    let (w, h) = ff
+        .frame
+        .as_ref()
+        .context("a frame file without the renderer's buffers")?
+        .size()?;
+    let (bg, cov) = CpuTracer::new(w, h)?.background(packed, settings, n)?;
+    ff.background = Some(bg);
+    ff.coverage = Some(cov);
+    Ok(())
+}
+
 /// Adds the `background` and `coverage` channels to the frame file `file` when it lacks
 /// them (a frame rendered before `--background` existed), rewriting it atomically.
-fn add_background(
-    file: &Path,
-    packed: &PackedScene,
-    settings: &FrameSettings,
-    w: u32,
-    h: u32,
-    n: u32,
-) -> Result<()> {
+fn add_background(file: &Path, packed: &PackedScene, settings: &FrameSettings, n: u32) -> Result<()> {
     let mut ff = crate::io::exr::read_frame(file)?;
     if ff.background.is_some() && ff.coverage.is_some() {
         return Ok(());
     }
-    let (bg, cov) = CpuTracer::new(w, h)?.background(packed, settings, n)?;
-    ff.background = Some(bg);
-    ff.coverage = Some(cov);
-    let tmp = file.with_extension("partial.exr");
-    crate::io::exr::write_frame(&tmp, &ff)?;
-    std::fs::rename(&tmp, file)
-        .with_context(|| format!("cannot rename {} to {}", tmp.display(), file.display()))?;
-    Ok(())
+    set_background(&mut ff, packed, settings, n)?;
+    write_frame_atomically(file, &ff)
 }
 
 /// PSNR (tonemapped, DESIGN §7) between the two halves of each reference in `dir`, from
