@@ -45,19 +45,20 @@ def probe(
 ) -> Dict[str, dict]:
     """{scene: {"background": fraction, method: (psnr, ssim), method + "+bg": (psnr, ssim)}}, means
     over the scene's sequences and frames."""
+    # One read per frame: reference, the environment's source, and what decides the mask.
+    if source == "full":
+        mask_channels = ["depth.Y"] + [f"transparent.{c}" for c in RGB]
+    elif source == "background":
+        mask_channels = ["coverage.Y"]
+    else:
+        raise ValueError(f"source must be full or background, got {source!r}")
+    channels = [f"reference.{c}" for c in RGB] + [f"{source}.{c}" for c in RGB] + mask_channels
     rows: Dict[str, Dict[str, list]] = {}
     for seq in list_sequences(data, split, scenes):
         for t in range(min(frames, seq.frames)):
-            f = seq.frame_path(t)
-            ref = read_exr(f, [f"reference.{c}" for c in RGB])
-            if source == "full":
-                full = read_exr(f, [f"full.{c}" for c in RGB])
-                bg = background_mask(read_exr(f, ["depth.Y"]), read_exr(f, [f"transparent.{c}" for c in RGB]))
-            elif source == "background":
-                full = read_exr(f, [f"background.{c}" for c in RGB])
-                bg = read_exr(f, ["coverage.Y"])[..., 0] >= 1.0
-            else:
-                raise ValueError(f"source must be full or background, got {source!r}")
+            a = read_exr(seq.frame_path(t), channels)
+            ref, full = a[..., 0:3], a[..., 3:6]
+            bg = background_mask(a[..., 6:7], a[..., 7:10]) if source == "full" else a[..., 6] >= 1.0
             r = rows.setdefault(seq.scene, {"background": []})
             r["background"].append(float(bg.mean()))
             for m in methods:
