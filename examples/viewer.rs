@@ -225,6 +225,9 @@ impl App {
             max_depth: subpixel::render::DEFAULT_MAX_DEPTH,
             seed: 1,
             far: self.far,
+            // No background pass: the views show the network's own output buffer, not the
+            // denoiser's output texture where the background is composited.
+            background: 0,
         };
         let mut enc = self.gpu.device.create_command_encoder(&Default::default());
         frame
@@ -293,8 +296,7 @@ impl App {
             frame.fl.tracer.height(),
             self.gpu.info.name
         )];
-        let stages = ["gbuffer", "trace", "pack", "tfa", "unet", "output"];
-        let ms: Vec<String> = stages
+        let ms: Vec<String> = subpixel::frame_loop::STAGES
             .iter()
             .filter_map(|s| self.profiler.stat(s).map(|st| format!("{s} {:.2}", st.median_ms)))
             .collect();

@@ -18,7 +18,10 @@
 //! let mut frames = FrameLoop::new(&gpu, &Weights::load("weights/ssr.safetensors")?, 128, 128)?;
 //! let mut profiler = Profiler::new(&gpu, 16);
 //! for f in 0..8 {
-//!     let s = FrameSettings::along(&path, f, Mode::Quarter, 1, far);
+//!     let s = FrameSettings {
+//!         background: scene.default_background(), // 0 here: the box has no sky
+//!         ..FrameSettings::along(&path, f, Mode::Quarter, 1, far)
+//!     };
 //!     let mut encoder = gpu.device.create_command_encoder(&Default::default());
 //!     frames.encode(&mut encoder, &gs, &s, Some(&mut profiler))?;
 //!     profiler.submit(&gpu, encoder, None)?;
@@ -31,6 +34,10 @@ use crate::error::Result;
 use crate::gpu::{Gpu, Profiler};
 use crate::render::{FrameSettings, GpuScene, Tracer};
 use crate::ssr::{Denoiser, Granularity, Weights};
+
+/// The timed passes of a frame, in order: the tracer's (`background` only in frames with
+/// a background), then the denoiser's.
+pub const STAGES: [&str; 7] = ["gbuffer", "trace", "background", "pack", "tfa", "unet", "output"];
 
 /// The path tracer and the denoiser of one render size.
 pub struct FrameLoop {
@@ -49,9 +56,10 @@ impl FrameLoop {
         })
     }
 
-    /// Records frame `s` of `scene` into `encoder`: the tracer's `gbuffer` and `trace`
-    /// passes, then the denoiser's `pack`, `tfa`, `unet` and `output` passes, each timed by
-    /// `profiler` when given. Submit the encoder (e.g. [`Profiler::submit`]) to run it.
+    /// Records frame `s` of `scene` into `encoder`: the tracer's `gbuffer`, `trace` (and
+    /// with `s.background` > 0, `background`) passes, then the denoiser's `pack`, `tfa`,
+    /// `unet` and `output` passes, each timed by `profiler` when given; the denoiser
+    /// outputs the background where it covers a whole pixel. Submit the encoder (e.g. [`Profiler::submit`]) to run it.
     pub fn encode(
         &mut self,
         encoder: &mut wgpu::CommandEncoder,

@@ -68,6 +68,7 @@ fn golden_folder(dir: &Path) {
             metallic: t("metallic"),
             roughness: t("roughness"),
             motion: t("motion"),
+            background: None,
         };
         let f = FrameFile {
             frame: Some(frame),

@@ -221,6 +221,7 @@ fn mutants_load_or_give_clean_errors() {
         metallic: HostTensor::zeros(8, 6, 1),
         roughness: HostTensor::from_fn(8, 6, 1, |_, _, _| 0.5),
         motion: HostTensor::from_fn(8, 6, 2, |x, _, _| x as f32 * 0.25),
+        background: None,
     };
     let exr = dir.join("frame_0000.exr");
     write_frame(

@@ -115,6 +115,7 @@ fn random_frame(w: u32, h: u32, seed: u64) -> HostFrame {
         metallic: r(7, 1, 0.0, 1.0),
         roughness: r(8, 1, 0.0, 1.0),
         motion: r(9, 2, -1.5, 1.5),
+        background: None,
     }
 }
 
@@ -763,4 +764,70 @@ fn output_never_exceeds_the_brightest_recent_sample() {
             assert!(reached > 0, "the golden weights reach the ceiling");
         }
     }
+}
+
+/// The optional background of the frame contract (DESIGN §3): where its coverage is 1 the
+/// output is the background (sanitised as colour is: non-finite or negative values become
+/// 0 and are counted), everywhere else exactly the network's reconstruction without it; a
+/// non-finite coverage is not 1. The history stays the network's own, so a later frame
+/// without a background comes out exactly as if none had ever been given.
+#[test]
+fn background_replaces_wholly_sky_pixels_only() {
+    use subpixel::frame::Background;
+    let gpu = common::gpu();
+    let weights = Weights::load(golden_weights_path()).unwrap();
+    let (w, h) = (16, 12);
+    let mut plain = Denoiser::with_gpu(&gpu, &weights, w, h).unwrap();
+    let mut with = Denoiser::with_gpu(&gpu, &weights, w, h).unwrap();
+    let mut coverage = HostTensor::from_fn(w, h, 1, |x, y, _| {
+        [1.0, 0.75, 0.0, 1.0][((x + 3 * y) % 4) as usize]
+    });
+    coverage.set(1, 0, 0, f32::NAN);
+    coverage.set(2, 0, 0, f32::INFINITY);
+    let mut radiance = HostTensor::from_fn(w, h, 3, |x, y, c| 0.1 * (x + y + c) as f32 + 0.05);
+    radiance.set(0, 0, 0, f32::NAN); // coverage 1: output 0, counted
+    radiance.set(3, 0, 2, -2.0); // coverage 1: output 0, counted
+    radiance.set(1, 0, 1, f32::NAN); // coverage NaN: not used, not counted
+    let f0 = random_frame(w, h, 50);
+    let want = plain.denoise_host(&f0).unwrap();
+    let bg = HostFrame {
+        background: Some(Background {
+            radiance: radiance.clone(),
+            coverage: coverage.clone(),
+        }),
+        ..f0.clone()
+    };
+    let got = with.denoise_host(&bg).unwrap();
+    let mut sky = 0;
+    for y in 0..h {
+        for x in 0..w {
+            let wholly_sky = coverage.at(x, y, 0) == 1.0;
+            sky += wholly_sky as u32;
+            for c in 0..3 {
+                let r = radiance.at(x, y, c);
+                let expect = if wholly_sky {
+                    if r.is_finite() { r.max(0.0) } else { 0.0 }
+                } else {
+                    want.at(x, y, c)
+                };
+                assert_eq!(got.at(x, y, c), expect, "pixel ({x}, {y}) channel {c}");
+            }
+        }
+    }
+    assert!(sky > 40, "{sky} wholly sky pixels");
+    let counted = with.sanitized_count().unwrap() - plain.sanitized_count().unwrap();
+    assert_eq!(counted, 2, "background values sanitised");
+    // The next frame, without a background: the same on both.
+    let f1 = random_frame(w, h, 51);
+    assert_eq!(with.denoise_host(&f1).unwrap(), plain.denoise_host(&f1).unwrap());
+    // A background of the wrong size is refused, naming it.
+    let small = HostFrame {
+        background: Some(Background {
+            radiance: HostTensor::zeros(w - 1, h, 3),
+            coverage: HostTensor::zeros(w - 1, h, 1),
+        }),
+        ..f1
+    };
+    let e = with.denoise_host(&small).unwrap_err().to_string();
+    assert!(e.contains("background"), "{e}");
 }

@@ -121,6 +121,7 @@ fn golden_parity(prefix: &str, version: u32, precision: Precision) {
             metallic: g["metallic"].clone(),
             roughness: g["roughness"].clone(),
             motion: g["motion"].clone(),
+            background: None,
         };
         let out = den.denoise_host(&frame).unwrap();
         // Every engine intermediate the golden file holds (the same names: checked by

@@ -83,6 +83,7 @@ pub fn synthetic_frame(w: u32, h: u32, t: u32) -> HostFrame {
         metallic: f(1, |_, _, _| 0.0),
         roughness: f(1, |_, _, _| 0.5),
         motion: f(2, |_, _, c| if c == 0 { 0.25 } else { 0.0 }),
+        background: None,
     }
 }
 

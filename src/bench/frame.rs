@@ -6,8 +6,7 @@ use crate::gpu::{Gpu, Profiler, Stats};
 use crate::render::{FrameSettings, GpuScene, Mode, Scene};
 use crate::ssr::Weights;
 
-/// Stages of a frame, in order.
-pub const STAGES: [&str; 6] = ["gbuffer", "trace", "pack", "tfa", "unet", "output"];
+pub use crate::frame_loop::STAGES;
 
 /// One (size, mode) measurement.
 #[derive(Debug, Clone, serde::Serialize)]
@@ -50,7 +49,10 @@ pub fn bench_frame(
     let mut prof = Profiler::new(gpu, 16);
     let mut walls = Vec::new();
     for f in 0..n {
-        let s = FrameSettings::along(&path, f, mode, 1, far);
+        let s = FrameSettings {
+            background: scene.default_background(),
+            ..FrameSettings::along(&path, f, mode, 1, far)
+        };
         let mut enc = gpu.device.create_command_encoder(&Default::default());
         fl.encode(&mut enc, gs, &s, Some(&mut prof))?;
         let wall = prof.submit(gpu, enc, None)?;

@@ -42,7 +42,7 @@ pub(super) struct DatasetArgs {
     reference_spp: u32,
     /// Also store each frame's directly seen environment (`background`, `coverage`) from
     /// N x N lookups per pixel; frames already rendered without it get it added.
-    #[arg(long, value_name = "N")]
+    #[arg(long, value_name = "N", value_parser = clap::value_parser!(u32).range(1..))]
     background: Option<u32>,
     /// Largest number of path segments.
     #[arg(long, default_value_t = DEFAULT_MAX_DEPTH)]

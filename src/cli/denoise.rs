@@ -26,6 +26,11 @@ pub(super) struct DenoiseArgs {
     /// Also write PNG previews: input | SSR (| reference when the frames hold one).
     #[arg(long)]
     png: bool,
+    /// Ignore the frames' background channels (`background`, `coverage`): reconstruct
+    /// every pixel, the wholly sky ones included. By default a frame that has them outputs
+    /// its background where the coverage is 1.
+    #[arg(long)]
+    no_background: bool,
 }
 
 pub(super) fn run(a: &DenoiseArgs) -> Result<()> {
@@ -50,12 +55,15 @@ pub(super) fn run(a: &DenoiseArgs) -> Result<()> {
     // (no mix of new and stale frames).
     let mut staged: Vec<(PathBuf, PathBuf)> = Vec::new();
     let result = denoise_all(a, &frames, &mut den, &mut staged, &pb);
-    if let Err(e) = result {
-        for (tmp, _) in &staged {
-            let _ = std::fs::remove_file(tmp);
+    let with_background = match result {
+        Ok(n) => n,
+        Err(e) => {
+            for (tmp, _) in &staged {
+                let _ = std::fs::remove_file(tmp);
+            }
+            return Err(e);
         }
-        return Err(e);
-    }
+    };
     for (tmp, dst) in &staged {
         std::fs::rename(tmp, dst)
             .with_context(|| format!("cannot rename {} to {}", tmp.display(), dst.display()))?;
@@ -63,11 +71,13 @@ pub(super) fn run(a: &DenoiseArgs) -> Result<()> {
     pb.finish();
     let secs = t0.elapsed().as_secs_f64();
     println!(
-        "denoised {} frames into {} ({:.1} ms per frame including I/O, on {})",
+        "denoised {} frames into {} ({:.1} ms per frame including I/O, on {}; background in {} of them{})",
         frames.len(),
         a.out.display(),
         1e3 * secs / frames.len() as f64,
-        gpu.info.name
+        gpu.info.name,
+        with_background,
+        if a.no_background { ", --no-background" } else { "" }
     );
     let n = den.sanitized_count()?;
     if n > 0 {
@@ -119,9 +129,15 @@ fn denoise_all(
     den: &mut Denoiser,
     staged: &mut Vec<(PathBuf, PathBuf)>,
     pb: &indicatif::ProgressBar,
-) -> Result<()> {
+) -> Result<usize> {
+    let mut with_background = 0;
     for path in frames {
-        let file = read_frame(path)?;
+        let mut file = read_frame(path)?;
+        if a.no_background {
+            if let Some(f) = &mut file.frame {
+                f.background = None;
+            }
+        }
         let Some(frame) = &file.frame else {
             bail!(
                 "{}: holds no renderer buffers (color.R, mask.Y, ...)",
@@ -137,6 +153,7 @@ fn denoise_all(
                 den.height()
             );
         }
+        with_background += frame.background.is_some() as usize;
         let pred = den.denoise_host(frame)?;
         let name = path.file_name().expect("a frame file");
         let dst = a.out.join(name);
@@ -161,5 +178,5 @@ fn denoise_all(
         }
         pb.inc(1);
     }
-    Ok(())
+    Ok(with_background)
 }

@@ -8,6 +8,7 @@ use std::time::Instant;
 
 use anyhow::{Context, Result, bail};
 
+use crate::frame::Background;
 use crate::gpu::Gpu;
 use crate::io::exr::FrameFile;
 use crate::nn::HostTensor;
@@ -71,9 +72,10 @@ pub struct RenderArgs {
     pub full_spp: bool,
     /// Also store the directly seen environment averaged over each pixel's footprint
     /// (`background` channels) and the fraction of the footprint that escapes (`coverage`),
-    /// from N x N stratified lookups per pixel (the CPU twin's, whatever the backend; no
-    /// path tracing). With `--resume`, frames written before without them get them added.
-    #[arg(long, value_name = "N")]
+    /// from N x N stratified lookups per pixel (no path tracing; the denoiser outputs it
+    /// where the coverage is 1). With `--resume`, frames written before without them get
+    /// them added (by the CPU twin).
+    #[arg(long, value_name = "N", value_parser = clap::value_parser!(u32).range(1..))]
     pub background: Option<u32>,
     /// Camera path when neither `--path` nor the scene gives one (set by `subpixel
     /// dataset`: a fly-through whatever the shard's frame count).
@@ -211,11 +213,12 @@ pub fn render_command(args: &RenderArgs) -> Result<()> {
         let settings = FrameSettings {
             spp: args.spp,
             max_depth: args.max_depth,
+            background: args.background.unwrap_or(0),
             ..FrameSettings::along(&path, f, args.mode, seed, far)
         };
         if args.resume && file.is_file() {
-            if let Some(n) = args.background {
-                add_background(&file, renderer.packed(), &settings, n)?;
+            if settings.background > 0 {
+                add_background(&file, renderer.packed(), &settings)?;
             }
             skipped += 1;
             bar.inc(1);
@@ -239,14 +242,12 @@ pub fn render_command(args: &RenderArgs) -> Result<()> {
         if args.full_spp {
             let (full, stats) = renderer.frame(&FrameSettings {
                 mode: Mode::Full,
+                background: 0,
                 ..settings
             })?;
             rays += stats.rays;
             samples += stats.samples;
             host.full = Some(full.color);
-        }
-        if let Some(n) = args.background {
-            set_background(&mut host, renderer.packed(), &settings, n)?;
         }
         render_secs += t.elapsed().as_secs_f64();
         write_frame_atomically(&file, &host)?;
@@ -326,28 +327,21 @@ fn write_frame_atomically(file: &Path, ff: &FrameFile) -> Result<()> {
     Ok(())
 }
 
-/// Sets the `background` and `coverage` channels of `ff` (`CpuTracer::background`, `n x n`
-/// lookups per pixel) for frame `settings` at the size of `ff`'s frame.
-fn set_background(ff: &mut FrameFile, packed: &PackedScene, settings: &FrameSettings, n: u32) -> Result<()> {
-    let (w, h) = ff
-        .frame
-        .as_ref()
-        .context("a frame file without the renderer's buffers")?
-        .size()?;
-    let (bg, cov) = CpuTracer::new(w, h)?.background(packed, settings, n)?;
-    ff.background = Some(bg);
-    ff.coverage = Some(cov);
-    Ok(())
-}
-
-/// Adds the `background` and `coverage` channels to the frame file `file` when it lacks
-/// them (a frame rendered before `--background` existed), rewriting it atomically.
-fn add_background(file: &Path, packed: &PackedScene, settings: &FrameSettings, n: u32) -> Result<()> {
+/// Adds the background (`background` and `coverage` channels, `CpuTracer::background`
+/// with `settings.background` lookups per pixel axis) to the frame file `file` when it
+/// lacks one (a frame rendered before `--background` existed), rewriting it atomically.
+fn add_background(file: &Path, packed: &PackedScene, settings: &FrameSettings) -> Result<()> {
     let mut ff = crate::io::exr::read_frame(file)?;
-    if ff.background.is_some() && ff.coverage.is_some() {
+    let frame = ff
+        .frame
+        .as_mut()
+        .with_context(|| format!("{}: a frame file without the renderer's buffers", file.display()))?;
+    if frame.background.is_some() {
         return Ok(());
     }
-    set_background(&mut ff, packed, settings, n)?;
+    let (w, h) = frame.size()?;
+    let (radiance, coverage) = CpuTracer::new(w, h)?.background(packed, settings, settings.background)?;
+    frame.background = Some(Background { radiance, coverage });
     write_frame_atomically(file, &ff)
 }
 

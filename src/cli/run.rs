@@ -5,7 +5,7 @@ use std::path::PathBuf;
 
 use anyhow::{Context, Result, bail};
 
-use crate::frame_loop::FrameLoop;
+use crate::frame_loop::{FrameLoop, STAGES};
 use crate::gpu::{AdapterKind, Gpu, Profiler};
 use crate::io::png::{scale_for_height, write_png_row_scaled};
 use crate::metrics;
@@ -47,6 +47,11 @@ pub(super) struct RunArgs {
     /// an embedding.
     #[arg(long, value_enum, default_value_t = Backend::Auto)]
     backend: Backend,
+    /// Background lookups per pixel axis (N x N camera rays per pixel; the denoiser outputs
+    /// the environment where it covers a whole pixel); 0: none. Default: 4 for a scene
+    /// with an environment, 0 without.
+    #[arg(long, value_name = "N")]
+    background: Option<u32>,
 }
 
 impl RunArgs {
@@ -95,6 +100,12 @@ pub(super) fn run(a: &RunArgs) -> Result<()> {
     let mut frames = FrameLoop::new(&gpu, &weights, w, h)?;
     let mut reference = FrameRenderer::new(&scene, a.backend, Some(&gpu), w, h)?;
     println!("references: {} backend", reference.backend().name());
+    let background = a.background.unwrap_or(scene.default_background());
+    if background > 0 {
+        println!(
+            "background: {background}x{background} environment lookups per pixel, output where the sky covers a whole pixel"
+        );
+    }
     std::fs::create_dir_all(&a.out).with_context(|| format!("cannot create {}", a.out.display()))?;
     let mut prof = Profiler::new(&gpu, 16);
     let mut rows = Vec::new();
@@ -104,7 +115,10 @@ pub(super) fn run(a: &RunArgs) -> Result<()> {
     // upscaled by an integer factor, pixel for pixel).
     let preview_scale = scale_for_height(h, PREVIEW_MIN_HEIGHT);
     for f in 0..a.frames {
-        let settings = FrameSettings::along(&path, f, Mode::Quarter, a.seed as u32, far);
+        let settings = FrameSettings {
+            background,
+            ..FrameSettings::along(&path, f, Mode::Quarter, a.seed as u32, far)
+        };
         let t0 = std::time::Instant::now();
         let mut enc = gpu.device.create_command_encoder(&Default::default());
         frames.encode(&mut enc, &gs, &settings, Some(&mut prof))?;
@@ -147,11 +161,11 @@ pub(super) fn run(a: &RunArgs) -> Result<()> {
         mean(2),
         mean(3)
     );
-    let stages: Vec<String> = ["gbuffer", "trace", "pack", "tfa", "unet", "output"]
+    let stages: Vec<String> = STAGES
         .iter()
         .filter_map(|s| prof.stat(s).map(|st| format!("{s} {:.2}", st.median_ms)))
         .collect();
-    let total: f64 = ["gbuffer", "trace", "pack", "tfa", "unet", "output"]
+    let total: f64 = STAGES
         .iter()
         .filter_map(|s| prof.stat(s).map(|st| st.median_ms))
         .sum();

@@ -26,6 +26,21 @@ pub struct HostFrame {
     pub roughness: HostTensor,
     /// Motion in pixels (2).
     pub motion: HostTensor,
+    /// The directly seen environment, optional (DESIGN §3, `background`).
+    pub background: Option<Background>,
+}
+
+/// The optional `background` buffer of the contract: per pixel, the environment seen
+/// directly through the pixel's footprint, averaged over the footprint (rays that hit
+/// anything count 0), and the fraction of the footprint that escapes to the environment.
+/// Where the coverage is 1 the pixel shows nothing but the environment, and the denoiser
+/// outputs the background there instead of reconstructing it from sparse samples.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Background {
+    /// Environment radiance averaged over the footprint (3).
+    pub radiance: HostTensor,
+    /// Fraction of the footprint that escapes, in [0, 1] (1).
+    pub coverage: HostTensor,
 }
 
 impl HostFrame {
@@ -61,10 +76,15 @@ impl HostFrame {
         ]
     }
 
-    /// Width and height, after checking every buffer has them and the right channels.
+    /// Width and height, after checking every buffer (the background's included) has
+    /// them and the right channels.
     pub fn size(&self) -> Result<(u32, u32)> {
         let (w, h) = (self.color.width, self.color.height);
-        for (name, t, c) in self.fields() {
+        let background = self
+            .background
+            .iter()
+            .flat_map(|b| [("background", &b.radiance, 3), ("coverage", &b.coverage, 1)]);
+        for (name, t, c) in self.fields().into_iter().chain(background) {
             if (t.width, t.height, t.channels) != (w, h, c) {
                 return Err(Error::shape(
                     "frame",
@@ -103,5 +123,19 @@ impl HostFrame {
         put(&mut out[4], &self.transparent, 0);
         put(&mut out[5], &self.motion, 0);
         Ok(out)
+    }
+
+    /// The background packed as [`FrameInputs::background`](super::FrameInputs) wants it
+    /// (radiance rgb, coverage), when the frame has one.
+    pub fn pack_background(&self) -> Result<Option<Vec<[f32; 4]>>> {
+        self.size()?;
+        Ok(self.background.as_ref().map(|b| {
+            b.radiance
+                .data
+                .chunks_exact(3)
+                .zip(&b.coverage.data)
+                .map(|(r, c)| [r[0], r[1], r[2], *c])
+                .collect()
+        }))
     }
 }

@@ -14,6 +14,11 @@ use crate::error::{Error, Result};
 /// | `shadow_roughness` | NEE light x visibility at traced pixels | perceptual roughness |
 /// | `transparent` | first transmissive tint (0 where none) | unused |
 /// | `motion` | x, y: motion in pixels, `prev = pos + motion` | unused |
+/// | `background` (optional) | directly seen environment over the pixel's footprint | coverage: fraction of the footprint that escapes |
+///
+/// With a `background`, pixels whose coverage is 1 (nothing but environment in the
+/// footprint) output the background instead of the network's reconstruction
+/// ([`crate::frame::Background`]); without one, every pixel is reconstructed.
 #[derive(Debug, Clone, Copy)]
 pub struct FrameInputs<'a> {
     /// Radiance rgb + mask.
@@ -28,25 +33,33 @@ pub struct FrameInputs<'a> {
     pub transparent: &'a wgpu::Buffer,
     /// Motion xy.
     pub motion: &'a wgpu::Buffer,
+    /// Background rgb + coverage, optional.
+    pub background: Option<&'a wgpu::Buffer>,
 }
 
 impl<'a> FrameInputs<'a> {
-    /// The six buffers in the order of the table above (e.g. a `Vec` of them); an error
-    /// naming the count for any other number.
+    /// The six buffers in the order of the table above (e.g. a `Vec` of them), or seven
+    /// with the background last; an error naming the count for any other number.
     pub fn from_slice(buffers: &'a [wgpu::Buffer]) -> Result<Self> {
-        let [
-            color_mask,
-            albedo_depth,
-            normal_metallic,
-            shadow_roughness,
-            transparent,
-            motion,
-        ] = buffers
+        let (
+            [
+                color_mask,
+                albedo_depth,
+                normal_metallic,
+                shadow_roughness,
+                transparent,
+                motion,
+            ],
+            background,
+        ) = (match buffers {
+            [six @ .., bg] if buffers.len() == 7 => (six, Some(bg)),
+            six => (six, None),
+        })
         else {
             return Err(Error::shape(
                 "denoiser input",
                 format!(
-                    "{} buffers, expected 6 ({})",
+                    "{} buffers, expected 6 ({}) or 7 (and background)",
                     buffers.len(),
                     Self::NAMES.join(", ")
                 ),
@@ -59,6 +72,7 @@ impl<'a> FrameInputs<'a> {
             shadow_roughness,
             transparent,
             motion,
+            background,
         })
     }
 

@@ -265,6 +265,55 @@ impl Gpu {
 
     /// Copies `size` bytes of `buffer` (which needs `COPY_SRC`) back to the CPU.
     pub fn read_buffer(&self, buffer: &wgpu::Buffer, offset: u64, size: u64) -> Result<Vec<u8>> {
+        self.read_back(size, |enc, staging| {
+            enc.copy_buffer_to_buffer(buffer, offset, staging, 0, size)
+        })
+    }
+
+    /// Copies a 2D texture (made with `COPY_SRC`, a format with a fixed texel size) to the
+    /// host and blocks until done: its rows, top to bottom, without padding.
+    pub fn read_texture(&self, texture: &wgpu::Texture) -> Result<Vec<u8>> {
+        let (w, h) = (texture.width(), texture.height());
+        let texel = texture.format().block_copy_size(None).ok_or_else(|| {
+            Error::Readback(format!(
+                "texture format {:?} has no fixed texel size",
+                texture.format()
+            ))
+        })?;
+        let row = w * texel;
+        let padded = row.div_ceil(wgpu::COPY_BYTES_PER_ROW_ALIGNMENT) * wgpu::COPY_BYTES_PER_ROW_ALIGNMENT;
+        let bytes = self.read_back(padded as u64 * h as u64, |enc, staging| {
+            enc.copy_texture_to_buffer(
+                texture.as_image_copy(),
+                wgpu::TexelCopyBufferInfo {
+                    buffer: staging,
+                    layout: wgpu::TexelCopyBufferLayout {
+                        offset: 0,
+                        bytes_per_row: Some(padded),
+                        rows_per_image: None,
+                    },
+                },
+                wgpu::Extent3d {
+                    width: w,
+                    height: h,
+                    depth_or_array_layers: 1,
+                },
+            )
+        })?;
+        Ok(bytes
+            .chunks_exact(padded as usize)
+            .flat_map(|r| &r[..row as usize])
+            .copied()
+            .collect())
+    }
+
+    /// Runs `copy` (into a mappable staging buffer of `size` bytes), waits and returns
+    /// the staging buffer's bytes.
+    fn read_back(
+        &self,
+        size: u64,
+        copy: impl FnOnce(&mut wgpu::CommandEncoder, &wgpu::Buffer),
+    ) -> Result<Vec<u8>> {
         let staging = self.device.create_buffer(&wgpu::BufferDescriptor {
             label: Some("subpixel.readback"),
             size,
@@ -276,7 +325,7 @@ impl Gpu {
             .create_command_encoder(&wgpu::CommandEncoderDescriptor {
                 label: Some("subpixel.readback"),
             });
-        enc.copy_buffer_to_buffer(buffer, offset, &staging, 0, size);
+        copy(&mut enc, &staging);
         self.queue.submit([enc.finish()]);
         let slice = staging.slice(..);
         let (tx, rx) = std::sync::mpsc::channel();

@@ -149,7 +149,7 @@ pub const KERNELS: &[KernelSource] = &[
     kernel!("nn/remodulate", ["nn/lib/grid", "nn/lib/modulation"]),
     kernel!("ssr/pack_inputs", ["ssr/lib/pack", "ssr/lib/sanitize"]),
     kernel!("ssr/pack_mt", ["ssr/lib/pack", "ssr/lib/sanitize"]),
-    kernel!("ssr/store_output"),
+    kernel!("ssr/store_output", ["ssr/lib/sanitize"]),
     kernel!("ssr/exposure_partial", ["ssr/lib/sanitize", "ssr/lib/exposure"]),
     kernel!("ssr/exposure_final", ["ssr/lib/exposure"]),
     kernel!("ssr/warp_history", ["nn/lib/grid"]),
@@ -157,6 +157,7 @@ pub const KERNELS: &[KernelSource] = &[
     trace_kernel!("trace/query"),
     trace_kernel!("trace/gbuffer"),
     trace_kernel!("trace/pathtrace"),
+    trace_kernel!("trace/background"),
 ];
 
 /// Every library file under `wgsl/` that kernels include (not kernels themselves).

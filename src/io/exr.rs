@@ -12,7 +12,7 @@ use std::path::Path;
 use exr::prelude::*;
 
 use crate::error::{Error, Result};
-use crate::frame::HostFrame;
+use crate::frame::{Background, HostFrame};
 use crate::nn::HostTensor;
 
 /// Channel suffixes of a buffer with `c` channels named `name`.
@@ -41,11 +41,6 @@ pub struct FrameFile {
     pub reference_half: Option<HostTensor>,
     /// A 1-spp full-resolution colour of the same camera (`full.*`), for baselines.
     pub full: Option<HostTensor>,
-    /// The directly seen environment averaged over each pixel's footprint (`background.*`,
-    /// `CpuTracer::background`).
-    pub background: Option<HostTensor>,
-    /// The fraction of each pixel's footprint that escapes to the environment (`coverage.Y`).
-    pub coverage: Option<HostTensor>,
 }
 
 /// Writes named HWC tensors of one size as f32 channels `name.SUFFIX`.
@@ -264,6 +259,10 @@ pub fn write_frame(path: &Path, f: &FrameFile) -> Result<()> {
     if let Some(frame) = &f.frame {
         frame.size()?;
         tensors.extend(frame.fields().iter().map(|(n, t, _)| (*n, *t)));
+        if let Some(b) = &frame.background {
+            tensors.push(("background", &b.radiance));
+            tensors.push(("coverage", &b.coverage));
+        }
     }
     if let Some(r) = &f.reference {
         tensors.push(("reference", r));
@@ -277,17 +276,12 @@ pub fn write_frame(path: &Path, f: &FrameFile) -> Result<()> {
     if let Some(t) = &f.full {
         tensors.push(("full", t));
     }
-    if let Some(t) = &f.background {
-        tensors.push(("background", t));
-    }
-    if let Some(t) = &f.coverage {
-        tensors.push(("coverage", t));
-    }
     write_tensors(path, &tensors)
 }
 
 /// Reads a frame file. The renderer's buffers are all-or-nothing: a file with some of
-/// them is an error naming the first missing channel.
+/// them is an error naming the first missing channel; so are the optional background's
+/// two (`background`, `coverage`), which belong to the renderer's buffers.
 pub fn read_frame(path: &Path) -> Result<FrameFile> {
     let (w, h, chans) = read_channels(path)?;
     let get = |name: &str, c: u32| gather(path, w, h, &chans, name, c);
@@ -295,8 +289,20 @@ pub fn read_frame(path: &Path) -> Result<FrameFile> {
     let pred = get("pred", 3)?;
     let reference_half = get("reference_half", 3)?;
     let full = get("full", 3)?;
-    let background = get("background", 3)?;
-    let coverage = get("coverage", 1)?;
+    let background = match (get("background", 3)?, get("coverage", 1)?) {
+        (Some(radiance), Some(coverage)) => Some(Background { radiance, coverage }),
+        (None, None) => None,
+        (r, _) => {
+            let missing = if r.is_none() { "background.R" } else { "coverage.Y" };
+            return Err(Error::File {
+                path: path.to_path_buf(),
+                message: format!(
+                    "channel '{missing}' is missing: the background needs both background.RGB and coverage.Y (found {})",
+                    sorted_names(&chans)
+                ),
+            });
+        }
+    };
     let names = [
         "color",
         "mask",
@@ -315,6 +321,12 @@ pub fn read_frame(path: &Path) -> Result<FrameFile> {
         parts.push(get(n, c)?);
     }
     let frame = if parts.iter().all(|p| p.is_none()) {
+        if background.is_some() {
+            return Err(Error::File {
+                path: path.to_path_buf(),
+                message: "background channels without the renderer's buffers (color, mask, ...)".into(),
+            });
+        }
         None
     } else {
         if let Some(i) = parts.iter().position(|p| p.is_none()) {
@@ -337,6 +349,7 @@ pub fn read_frame(path: &Path) -> Result<FrameFile> {
             metallic: next(),
             roughness: next(),
             motion: next(),
+            background,
         })
     };
     Ok(FrameFile {
@@ -345,8 +358,6 @@ pub fn read_frame(path: &Path) -> Result<FrameFile> {
         pred,
         reference_half,
         full,
-        background,
-        coverage,
     })
 }
 
@@ -368,6 +379,7 @@ mod tests {
             metallic: t(1, 0.5),
             roughness: t(1, 0.25),
             motion: t(2, -0.123_456_7),
+            background: None,
         }
     }
 
@@ -377,14 +389,18 @@ mod tests {
         std::fs::create_dir_all(&dir).unwrap();
         let path = dir.join("frame_0000.exr");
         let f = FrameFile {
-            frame: Some(frame(7, 5)),
+            frame: Some(HostFrame {
+                background: Some(Background {
+                    radiance: HostTensor::from_fn(7, 5, 3, |x, y, c| (x * c + y) as f32 * 0.5),
+                    coverage: HostTensor::from_fn(7, 5, 1, |x, _, _| x as f32 / 6.0),
+                }),
+                ..frame(7, 5)
+            }),
             reference: Some(HostTensor::from_fn(7, 5, 3, |x, _, c| x as f32 * 1e3 + c as f32)),
             reference_half: Some(HostTensor::from_fn(7, 5, 3, |x, y, c| {
                 x as f32 - y as f32 * 0.5 + c as f32
             })),
             full: Some(HostTensor::from_fn(7, 5, 3, |x, y, c| (x + y * c) as f32 * 0.25)),
-            background: Some(HostTensor::from_fn(7, 5, 3, |x, y, c| (x * c + y) as f32 * 0.5)),
-            coverage: Some(HostTensor::from_fn(7, 5, 1, |x, _, _| x as f32 / 6.0)),
             pred: None,
         };
         write_frame(&path, &f).unwrap();

@@ -37,6 +37,7 @@ pub use load::{load_scene, load_scene_with};
 pub use loader::SceneOptions;
 pub use packed::PackedScene;
 pub use scene::{Material, Scene};
+pub use settings::DEFAULT_BACKGROUND;
 pub use settings::ReferenceHalves;
 pub use tracer::{
     DEFAULT_MAX_DEPTH, FrameBuffers, FrameSettings, FrameStats, Mode, PARAM_SIZES, REFERENCE_SEED_XOR,

@@ -517,6 +517,17 @@ impl Scene {
         self.geometry.bounds()
     }
 
+    /// Background lookups per pixel axis for this scene's frames by default
+    /// ([`super::settings::DEFAULT_BACKGROUND`] with an environment, none without: a
+    /// closed scene shows no sky).
+    pub fn default_background(&self) -> u32 {
+        if self.environment.is_some() {
+            super::settings::DEFAULT_BACKGROUND
+        } else {
+            0
+        }
+    }
+
     /// Distance used to normalise view depth for camera positions `eyes`: the farthest
     /// distance from any of them to the scene's bounding sphere's far side.
     pub fn far_distance<'a>(&self, eyes: impl IntoIterator<Item = &'a Vec3>) -> f32 {

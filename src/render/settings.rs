@@ -43,6 +43,12 @@ pub const REFERENCE_SEED_XOR: u32 = 0x9e37_79b9;
 /// 2 = direct lighting, 3 = one indirect bounce, ...).
 pub const DEFAULT_MAX_DEPTH: u32 = 8;
 
+/// Environment lookups per pixel axis of the background buffer the product's frame loop
+/// renders for a scene with an environment ([`FrameSettings::background`]): 16 camera rays
+/// per pixel, enough to tell wholly sky pixels from silhouettes and to average the
+/// environment's texels over the footprint at the usual render sizes.
+pub const DEFAULT_BACKGROUND: u32 = 4;
+
 /// What one frame is rendered with.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct FrameSettings {
@@ -62,6 +68,10 @@ pub struct FrameSettings {
     pub seed: u32,
     /// Distance that normalises view depth to [0, 1] (see [`super::Scene::far_distance`]).
     pub far: f32,
+    /// Environment lookups per pixel axis of the optional background buffer
+    /// ([`crate::frame::Background`]: `background x background` camera rays per pixel);
+    /// 0: the frame has no background.
+    pub background: u32,
 }
 
 impl FrameSettings {
@@ -76,6 +86,7 @@ impl FrameSettings {
             max_depth: DEFAULT_MAX_DEPTH,
             seed: 0,
             far,
+            background: 0,
         }
     }
 

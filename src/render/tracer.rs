@@ -11,7 +11,7 @@ pub use super::settings::{
     DEFAULT_MAX_DEPTH, FrameSettings, FrameStats, Mode, REFERENCE_SEED_XOR, TILE_OFFSETS, tile_offset,
 };
 use crate::error::{Error, Result};
-use crate::frame::HostFrame;
+use crate::frame::{Background, HostFrame};
 use crate::gpu::{Bound, Dispatch, Gpu, Grid, Profiler, Specialisation};
 use crate::nn::{HostTensor, Tensor};
 
@@ -27,7 +27,7 @@ pub struct FrameParams {
     pub size: [u32; 4],
     /// Mode, tile dx, tile dy, max depth.
     pub mode: [u32; 4],
-    /// Samples accumulated so far, samples in this pass.
+    /// Samples accumulated so far, samples in this pass, background lookups per axis.
     pub accum: [u32; 4],
     /// Far distance for depth normalisation.
     pub misc: [f32; 4],
@@ -50,6 +50,7 @@ pub const PARAM_SIZES: &[(&str, usize)] = &[
     ("trace/query", std::mem::size_of::<QueryParams>()),
     ("trace/gbuffer", std::mem::size_of::<FrameParams>()),
     ("trace/pathtrace", std::mem::size_of::<FrameParams>()),
+    ("trace/background", std::mem::size_of::<FrameParams>()),
 ];
 
 /// The per-frame GPU buffers of the denoiser contract: W x H `vec4<f32>` each.
@@ -69,6 +70,9 @@ pub struct FrameBuffers {
     pub transparent: Tensor,
     /// (screen-space motion in pixels, prev_pos = pos + motion with pos the pixel centre; 0, 0).
     pub motion: Tensor,
+    /// (directly seen environment averaged over the pixel's footprint; coverage), present
+    /// after a frame rendered with [`FrameSettings::background`] > 0.
+    pub background: Option<Tensor>,
 }
 
 impl FrameBuffers {
@@ -81,6 +85,7 @@ impl FrameBuffers {
             shadow_roughness: &self.shadow_roughness.buffer,
             transparent: &self.transparent.buffer,
             motion: &self.motion.buffer,
+            background: self.background.as_ref().map(|t| &t.buffer),
         }
     }
 
@@ -94,6 +99,7 @@ impl FrameBuffers {
             shadow_roughness: t("frame.shadow_roughness")?,
             transparent: t("frame.transparent")?,
             motion: t("frame.motion")?,
+            background: None,
         })
     }
 
@@ -115,6 +121,16 @@ impl FrameBuffers {
         let sr = self.shadow_roughness.read(gpu)?;
         let tr = self.transparent.read(gpu)?;
         let mv = self.motion.read(gpu)?;
+        let background = match &self.background {
+            Some(b) => {
+                let bc = b.read(gpu)?;
+                Some(Background {
+                    radiance: channels(&bc, &[0, 1, 2]),
+                    coverage: channels(&bc, &[3]),
+                })
+            }
+            None => None,
+        };
         Ok(HostFrame {
             color: channels(&cm, &[0, 1, 2]),
             mask: channels(&cm, &[3]),
@@ -126,6 +142,7 @@ impl FrameBuffers {
             roughness: channels(&sr, &[3]),
             transparent: channels(&tr, &[0, 1, 2]),
             motion: channels(&mv, &[0, 1]),
+            background,
         })
     }
 }
@@ -144,8 +161,9 @@ pub struct Tracer {
     pub buffers: FrameBuffers,
     counters: wgpu::Buffer,
     scratch: Option<(Tensor, Tensor)>,
-    /// G-buffer and trace dispatches of `encode_frame`, for (scene BVH buffer, mode).
-    frame_dispatches: Bound<(wgpu::Buffer, Mode), (Dispatch, Dispatch)>,
+    /// G-buffer, trace and background dispatches of `encode_frame`, for (scene BVH
+    /// buffer, mode, with a background).
+    frame_dispatches: Bound<(wgpu::Buffer, Mode, bool), FrameDispatches>,
     /// Most paths one reference dispatch traces (more samples are split into passes): keeps
     /// each dispatch short for the driver.
     pub paths_per_pass: u64,
@@ -159,6 +177,9 @@ impl std::fmt::Debug for Tracer {
             .finish()
     }
 }
+
+/// The G-buffer, trace and (optional) background dispatches of one frame.
+type FrameDispatches = (Dispatch, Dispatch, Option<Dispatch>);
 
 /// Default bound on the paths of one reference dispatch (see [`Tracer::paths_per_pass`]).
 pub const PATHS_PER_PASS: u64 = 1 << 18;
@@ -181,7 +202,12 @@ impl Tracer {
     pub fn new(gpu: &Gpu, width: u32, height: u32) -> Result<Self> {
         gpu.kernels.check_limits(
             &format!("the path tracer (adapter '{}')", gpu.info.name),
-            &["trace/query", "trace/gbuffer", "trace/pathtrace"],
+            &[
+                "trace/query",
+                "trace/gbuffer",
+                "trace/pathtrace",
+                "trace/background",
+            ],
         )?;
         let counters = gpu.device.create_buffer(&wgpu::BufferDescriptor {
             label: Some("subpixel.trace.counters"),
@@ -201,7 +227,7 @@ impl Tracer {
 
     /// Compiles the image kernels now (otherwise the first frame does).
     pub fn compile(&self) -> Result<()> {
-        for k in ["trace/gbuffer", "trace/pathtrace"] {
+        for k in ["trace/gbuffer", "trace/pathtrace", "trace/background"] {
             self.gpu.kernels.pipeline(k, &Specialisation::none())?;
         }
         Ok(())
@@ -225,7 +251,7 @@ impl Tracer {
             prev: s.prev_camera.gpu(w, h),
             size: [w, h, s.frame, s.seed],
             mode: [s.mode.code(), dx, dy, s.max_depth.max(1)],
-            accum: [accum[0], accum[1], 0, 0],
+            accum: [accum[0], accum[1], s.background, 0],
             misc: [s.far.max(1e-6), 0.0, 0.0, 0.0],
         }
     }
@@ -245,6 +271,36 @@ impl Tracer {
                 &b.motion.buffer,
             ]),
             Grid::pixels(self.width(), self.height()),
+        )
+    }
+
+    /// Makes [`FrameBuffers::background`] when frame `s` has a background
+    /// (`s.background` > 0), drops it when not, so the denoiser never reads a stale one.
+    fn prepare_background(&mut self, s: &FrameSettings) -> Result<()> {
+        if s.background == 0 {
+            self.buffers.background = None;
+        } else if self.buffers.background.is_none() {
+            let (w, h) = (self.width(), self.height());
+            self.buffers.background = Some(Tensor::new(&self.gpu, "frame.background", w, h, 4)?);
+        }
+        Ok(())
+    }
+
+    /// The background dispatch of frame `s` (`s.background` lookups per pixel axis),
+    /// writing [`FrameBuffers::background`] (made by a frame with a background first).
+    pub fn background_dispatch(&self, scene: &GpuScene, s: &FrameSettings) -> Result<Dispatch> {
+        let (w, h) = (self.width(), self.height());
+        let b = self.buffers.background.as_ref().ok_or_else(|| {
+            Error::Invalid(
+                "background_dispatch: the frame buffers have no background (settings.background is 0)".into(),
+            )
+        })?;
+        self.gpu.kernels.dispatch(
+            "trace/background",
+            &Specialisation::none(),
+            bytemuck::bytes_of(&self.params(s, [0, 1])),
+            &scene.bindings(&[&b.buffer]),
+            Grid::pixels(w, h),
         )
     }
 
@@ -286,7 +342,9 @@ impl Tracer {
     }
 
     /// Records one quarter or full frame (G-buffer pass labelled `gbuffer`, trace pass
-    /// labelled `trace`) into `encoder`, timing both with `profiler` when given.
+    /// labelled `trace`, and with `s.background` > 0 a background pass labelled
+    /// `background`) into `encoder`, timing them with `profiler` when given. A frame without
+    /// a background drops the buffer, so the denoiser never reads a stale one.
     pub fn encode_frame(
         &mut self,
         encoder: &mut wgpu::CommandEncoder,
@@ -302,22 +360,33 @@ impl Tracer {
         // The two dispatches are built once per scene and mode; every frame only rewrites
         // their (shared) parameters. One encode_frame per submission, as write_params says.
         let mut dispatches = std::mem::take(&mut self.frame_dispatches);
-        let built = dispatches.get_or_build((scene.nodes.clone(), s.mode), || {
+        self.prepare_background(s)?;
+        let with_background = s.background > 0;
+        let built = dispatches.get_or_build((scene.nodes.clone(), s.mode, with_background), || {
             let gb = self.gbuffer_dispatch(scene, s)?;
             let b = &self.buffers;
             let tr = self.trace_dispatch(scene, s, [0, 1], &b.color_mask, &b.shadow_roughness)?;
-            Ok::<_, Error>((gb, tr))
+            let bg = if with_background {
+                Some(self.background_dispatch(scene, s)?)
+            } else {
+                None
+            };
+            Ok::<_, Error>((gb, tr, bg))
         });
         let built = built.map(|_| ());
         // (Taken out so the build can borrow the tracer; put back before any return.)
         self.frame_dispatches = dispatches;
         built?;
-        let (gb, tr) = self.frame_dispatches.get().expect("built above");
+        let (gb, tr, bg) = self.frame_dispatches.get().expect("built above");
         self.write_params(gb, s, [0, 1]);
         self.write_params(tr, s, [0, 1]);
         encoder.clear_buffer(&self.counters, 0, None);
         Self::pass(encoder, gb, profiler.as_deref_mut(), "gbuffer");
-        Self::pass(encoder, tr, profiler, "trace");
+        Self::pass(encoder, tr, profiler.as_deref_mut(), "trace");
+        if let Some(bg) = bg {
+            self.write_params(bg, s, [0, 1]);
+            Self::pass(encoder, bg, profiler, "background");
+        }
         Ok(())
     }
 
@@ -339,8 +408,12 @@ impl Tracer {
                 samples,
             });
         }
+        self.prepare_background(s)?;
         let gb = self.gbuffer_dispatch(scene, s)?;
         Self::pass(&mut enc, &gb, None, "gbuffer");
+        if s.background > 0 {
+            Self::pass(&mut enc, &self.background_dispatch(scene, s)?, None, "background");
+        }
         self.gpu.queue.submit([enc.finish()]);
         let b = &self.buffers;
         let rays = self.accumulate(scene, s, 0, s.spp, &b.color_mask, &b.shadow_roughness)?;

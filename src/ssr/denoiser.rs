@@ -53,6 +53,16 @@ struct ExposureFinalParams {
 /// exposure, as on a first frame (`[1]`) or a later one (`[2]`).
 type ExposureDispatches = [Dispatch; 3];
 
+/// The dispatches bound to the caller's buffers: exposure, input packing, and the output
+/// store (which reads the optional background).
+struct InputPasses {
+    exposure: Option<ExposureDispatches>,
+    pack: [Dispatch; 2],
+    store: Dispatch,
+    /// Whether `store` composites a background.
+    background: bool,
+}
+
 #[repr(C)]
 #[derive(Clone, Copy, Pod, Zeroable)]
 struct StoreParams {
@@ -115,11 +125,11 @@ pub struct Denoiser {
     width: u32,
     height: u32,
     output: wgpu::Texture,
-    store: Dispatch,
-    /// The input packing (and exposure) bound to the caller's six buffers.
-    pack: Bound<[wgpu::Buffer; 6], ([Dispatch; 2], Option<ExposureDispatches>)>,
-    /// The denoiser's own input buffers for [`Denoiser::denoise_host`], made on first use;
-    /// never the caller's buffers of an earlier [`Denoiser::denoise`].
+    /// The passes bound to the caller's buffers (six, and the background when given).
+    inputs: Bound<Vec<wgpu::Buffer>, InputPasses>,
+    /// The denoiser's own input buffers for [`Denoiser::denoise_host`] (the six and a
+    /// background), made on first use; never the caller's buffers of an earlier
+    /// [`Denoiser::denoise`].
     host_inputs: Option<Vec<wgpu::Buffer>>,
     sanitized: wgpu::Buffer,
     first: bool,
@@ -169,7 +179,6 @@ impl Denoiser {
         gpu.kernels.check_limits("the denoiser", KERNELS_USED)?;
         let net = Network::new(gpu, weights, round_up4(width), round_up4(height), options)?;
         let output = Self::make_output(gpu, width, height);
-        let store = Self::make_store(gpu, &net, &output, width, height)?;
         let sanitized = gpu.device.create_buffer(&wgpu::BufferDescriptor {
             label: Some("subpixel.ssr.sanitized"),
             size: 16,
@@ -183,8 +192,7 @@ impl Denoiser {
             width,
             height,
             output,
-            store,
-            pack: Bound::new(),
+            inputs: Bound::new(),
             host_inputs: None,
             sanitized,
             first: true,
@@ -202,39 +210,44 @@ impl Denoiser {
         )
     }
 
-    fn make_store(
-        gpu: &Gpu,
-        net: &Network,
-        output: &wgpu::Texture,
-        width: u32,
-        height: u32,
-    ) -> Result<Dispatch> {
+    /// The output store: the network's output, cropped, into the output texture, with
+    /// the background composited where its coverage is 1 when the caller gives one.
+    fn store_dispatch(&self, background: Option<&wgpu::Buffer>) -> Result<Dispatch> {
         let params = StoreParams {
-            width,
-            height,
-            padded_width: net.width,
-            c4: net.output().c4(),
+            width: self.width,
+            height: self.height,
+            padded_width: self.net.width,
+            c4: self.net.output().c4(),
         };
-        let view = output.create_view(&Default::default());
-        gpu.kernels.dispatch_with(
+        let view = self.output.create_view(&Default::default());
+        let mut resources = vec![
+            self.net.output().buffer.as_entire_binding(),
+            wgpu::BindingResource::TextureView(&view),
+        ];
+        if let Some(b) = background {
+            resources.push(b.as_entire_binding());
+            resources.push(self.sanitized.as_entire_binding());
+        }
+        self.gpu.kernels.dispatch_with(
             "ssr/store_output",
-            &Specialisation::none(),
+            &Specialisation(vec![("BACKGROUND", background.is_some() as u32 as f64)]),
             bytemuck::bytes_of(&params),
-            &[
-                net.output().buffer.as_entire_binding(),
-                wgpu::BindingResource::TextureView(&view),
-            ],
-            Grid::pixels(width, height),
+            &resources,
+            Grid::pixels(self.width, self.height),
         )
     }
 
     /// What each pass of a frame costs, in execution order: `pack` (exposure and input
     /// packing; empty until the first frame bound the caller's buffers), the network's
-    /// steps, `output` (the copy into the output texture).
+    /// steps, `output` (the copy into the output texture, with the background when one is
+    /// bound).
     pub fn step_costs(&self) -> Vec<StepCost> {
         let mut out = Vec::new();
-        if let Some((pack, exposure)) = self.pack.get() {
-            for d in exposure.iter().flatten().chain(pack.iter()) {
+        let px = self.width as u64 * self.height as u64 * 16;
+        let mut background = false;
+        if let Some(passes) = self.inputs.get() {
+            background = passes.background;
+            for d in passes.exposure.iter().flatten().chain(passes.pack.iter()) {
                 out.push(StepCost {
                     stage: "pack",
                     label: d.kernel.trim_start_matches("ssr/").to_string(),
@@ -249,8 +262,8 @@ impl Denoiser {
             stage: "output",
             label: "store output".into(),
             flops: 0,
-            bytes_read: self.net.output().bytes(),
-            bytes_written: self.width as u64 * self.height as u64 * 16,
+            bytes_read: self.net.output().bytes() + if background { px } else { 0 },
+            bytes_written: px,
         });
         out
     }
@@ -321,14 +334,14 @@ impl Denoiser {
         granularity: Granularity,
     ) -> Result<&wgpu::Texture> {
         self.bind_inputs(inputs)?;
+        let passes = self.inputs.get().expect("bound above");
         {
             let mut pass = Profiler::pass(encoder, "pack", profiler.as_deref_mut());
-            let (pack, exposure) = self.pack.get().expect("bound above");
-            if let Some(e) = exposure {
+            if let Some(e) = &passes.exposure {
                 e[0].record(&mut pass);
                 e[if self.first { 1 } else { 2 }].record(&mut pass);
             }
-            for d in pack {
+            for d in &passes.pack {
                 d.record(&mut pass);
             }
         }
@@ -336,7 +349,7 @@ impl Denoiser {
             .record(encoder, self.first, profiler.as_deref_mut(), granularity);
         {
             let mut pass = Profiler::pass(encoder, "output", profiler);
-            self.store.record(&mut pass);
+            passes.store.record(&mut pass);
         }
         self.first = false;
         self.frames += 1;
@@ -344,24 +357,29 @@ impl Denoiser {
     }
 
     fn bind_inputs(&mut self, inputs: &FrameInputs<'_>) -> Result<()> {
-        let key = inputs.buffers().map(|b| b.clone());
-        let mut pack = std::mem::take(&mut self.pack);
-        let bound = pack
-            .get_or_build(key, || self.pack_dispatches(inputs))
-            .map(|_| ());
+        let key: Vec<wgpu::Buffer> = inputs
+            .buffers()
+            .into_iter()
+            .chain(inputs.background)
+            .cloned()
+            .collect();
+        let mut bound = std::mem::take(&mut self.inputs);
+        let built = bound.get_or_build(key, || self.input_passes(inputs)).map(|_| ());
         // (Taken out so the build can borrow the denoiser; put back before any return.)
-        self.pack = pack;
-        bound
+        self.inputs = bound;
+        built
     }
 
-    /// The exposure and packing dispatches reading the caller's buffers, after checking them.
-    fn pack_dispatches(
-        &self,
-        inputs: &FrameInputs<'_>,
-    ) -> Result<([Dispatch; 2], Option<ExposureDispatches>)> {
-        let bufs = inputs.buffers();
+    /// The passes reading the caller's buffers (exposure, packing, output store), after
+    /// checking them.
+    fn input_passes(&self, inputs: &FrameInputs<'_>) -> Result<InputPasses> {
         let need = self.width as u64 * self.height as u64 * 16;
-        for (b, name) in bufs.iter().zip(FrameInputs::NAMES) {
+        let named = inputs
+            .buffers()
+            .into_iter()
+            .zip(FrameInputs::NAMES)
+            .chain(inputs.background.map(|b| (b, "background")));
+        for (b, name) in named {
             if b.size() < need {
                 return Err(Error::shape(
                     "denoiser input",
@@ -460,13 +478,19 @@ impl Denoiser {
                 Some([reduce, update(true)?, update(false)?])
             }
         };
-        Ok(([pack_a, pack_mt], e))
+        Ok(InputPasses {
+            exposure: e,
+            pack: [pack_a, pack_mt],
+            store: self.store_dispatch(inputs.background)?,
+            background: inputs.background.is_some(),
+        })
     }
 
     /// Number of input values changed by the sanitising since creation (blocks on a
     /// readback): non-finite values (replaced by 0) and values outside their channel's range
     /// (clamped to it: mask 0 or 1, albedo, transparent, depth, metallic and roughness in
-    /// [0, 1], colour and shadow in [0, 1e12], normals of unit length or 0).
+    /// [0, 1], colour, shadow and the background where it is used in [0, 1e12], normals of
+    /// unit length or 0).
     pub fn sanitized_count(&self) -> Result<u64> {
         let b = self.gpu.read_buffer(&self.sanitized, 0, 4)?;
         Ok(u32::from_le_bytes([b[0], b[1], b[2], b[3]]) as u64)
@@ -486,19 +510,22 @@ impl Denoiser {
             ));
         }
         let packed = frame.pack()?;
+        let background = frame.pack_background()?;
         let bufs = self.host_buffers();
-        for (b, data) in bufs.iter().zip(&packed) {
+        for (b, data) in bufs.iter().zip(packed.iter().chain(&background)) {
             self.gpu.queue.write_buffer(b, 0, bytemuck::cast_slice(data));
         }
+        let used = if background.is_some() { 7 } else { 6 };
         let mut enc = self.gpu.device.create_command_encoder(&Default::default());
-        let inputs = FrameInputs::from_slice(&bufs)?;
+        let inputs = FrameInputs::from_slice(&bufs[..used])?;
         self.denoise(&mut enc, &inputs)?;
         self.gpu.queue.submit([enc.finish()]);
         self.gpu.wait()?;
         self.read_output()
     }
 
-    /// Input buffers owned by the denoiser for [`Denoiser::denoise_host`] (made once).
+    /// Input buffers owned by the denoiser for [`Denoiser::denoise_host`] (made once): the
+    /// six of [`FrameInputs::NAMES`], then the background.
     fn host_buffers(&mut self) -> Vec<wgpu::Buffer> {
         let size = self.width as u64 * self.height as u64 * 16;
         let gpu = &self.gpu;
@@ -506,6 +533,7 @@ impl Denoiser {
             .get_or_insert_with(|| {
                 FrameInputs::NAMES
                     .iter()
+                    .chain(&["background"])
                     .map(|n| {
                         gpu.device.create_buffer(&wgpu::BufferDescriptor {
                             label: Some(&format!("subpixel.ssr.host.{n}")),
@@ -519,11 +547,12 @@ impl Denoiser {
             .clone()
     }
 
-    /// Reads the output (cropped to `width x height`, 3 channels) back to the host.
+    /// Reads the output texture (`width x height`, 3 channels) back to the host.
     pub fn read_output(&self) -> Result<HostTensor> {
-        let out = self.net.output().read(&self.gpu)?;
+        let bytes = self.gpu.read_texture(&self.output)?;
+        let rgba: Vec<f32> = bytemuck::pod_collect_to_vec(&bytes);
         Ok(HostTensor::from_fn(self.width, self.height, 3, |x, y, c| {
-            out.at(x, y, c)
+            rgba[((y * self.width + x) * 4 + c) as usize]
         }))
     }
 }

@@ -233,40 +233,9 @@ impl Display {
 
     /// Reads the display back as an RGBA image (for screenshots).
     pub fn read_rgba(&self) -> Result<image::RgbaImage> {
-        let bpr = (self.width * 4).div_ceil(256) * 256;
-        let buf = self.gpu.device.create_buffer(&wgpu::BufferDescriptor {
-            label: Some("subpixel.view.readback"),
-            size: (bpr * self.height) as u64,
-            usage: wgpu::BufferUsages::COPY_DST | wgpu::BufferUsages::COPY_SRC,
-            mapped_at_creation: false,
-        });
-        let mut enc = self.gpu.device.create_command_encoder(&Default::default());
-        enc.copy_texture_to_buffer(
-            self.target.as_image_copy(),
-            wgpu::TexelCopyBufferInfo {
-                buffer: &buf,
-                layout: wgpu::TexelCopyBufferLayout {
-                    offset: 0,
-                    bytes_per_row: Some(bpr),
-                    rows_per_image: None,
-                },
-            },
-            wgpu::Extent3d {
-                width: self.width,
-                height: self.height,
-                depth_or_array_layers: 1,
-            },
-        );
-        self.gpu.queue.submit([enc.finish()]);
-        let bytes = self.gpu.read_buffer(&buf, 0, buf.size())?;
-        let mut img = image::RgbaImage::new(self.width, self.height);
-        for y in 0..self.height {
-            let row = &bytes[(y * bpr) as usize..(y * bpr + self.width * 4) as usize];
-            for x in 0..self.width {
-                let i = (x * 4) as usize;
-                img.put_pixel(x, y, image::Rgba([row[i], row[i + 1], row[i + 2], row[i + 3]]));
-            }
-        }
+        let bytes = self.gpu.read_texture(&self.target)?;
+        let img = image::RgbaImage::from_raw(self.width, self.height, bytes)
+            .ok_or_else(|| crate::error::Error::Readback("display readback has the wrong size".into()))?;
         Ok(img)
     }
 }

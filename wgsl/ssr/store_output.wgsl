@@ -1,5 +1,13 @@
 // Writes the first 3 channels of a padded Wp x Hp tensor into the W x H output texture
 // (rgba32float, alpha = 1), cropping the padding.
+// With template flag BACKGROUND (the caller gave the optional background buffer, DESIGN §3):
+// where the coverage (w) is at least 1, the pixel's footprint holds nothing but the
+// directly seen environment, and the output is the background (xyz) instead of the
+// network's reconstruction; the background is sanitised as colour is (ssr/lib/sanitize),
+// values changed counted in `sanitized`. A non-finite coverage is not 1. The network's own
+// output (its history) is left as it was.
+//
+//#param BACKGROUND 0
 
 struct Params {
     width: u32,
@@ -11,12 +19,26 @@ struct Params {
 @group(0) @binding(0) var<uniform> p: Params;
 @group(0) @binding(1) var<storage, read> src: array<vec4<f32>>;
 @group(0) @binding(2) var dst: texture_storage_2d<rgba32float, write>;
+//#if BACKGROUND
+@group(0) @binding(3) var<storage, read> background: array<vec4<f32>>;
+@group(0) @binding(4) var<storage, read_write> sanitized: array<atomic<u32>>;
+//#end
 
 @compute @workgroup_size(8, 8, 1)
 fn main(@builtin(global_invocation_id) gid: vec3<u32>) {
     if (gid.x >= p.width || gid.y >= p.height) {
         return;
     }
-    let v = src[(gid.y * p.padded_width + gid.x) * p.c4];
-    textureStore(dst, vec2<u32>(gid.xy), vec4<f32>(v.xyz, 1.0));
+    var rgb = src[(gid.y * p.padded_width + gid.x) * p.c4].xyz;
+//#if BACKGROUND
+    let b = background[gid.y * p.width + gid.x];
+    if (b.w >= 1.0 && b.w <= F32_MAX) {
+        var bad = 0u;
+        rgb = sanitize_radiance(b.xyz, &bad);
+        if (bad > 0u) {
+            atomicAdd(&sanitized[0], bad);
+        }
+    }
+//#end
+    textureStore(dst, vec2<u32>(gid.xy), vec4<f32>(rgb, 1.0));
 }

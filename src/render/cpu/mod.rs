@@ -35,7 +35,7 @@ use rayon::prelude::*;
 use super::packed::PackedScene;
 use super::settings::{FrameSettings, FrameStats, Mode, REFERENCE_SEED_XOR, ReferenceHalves, tile_offset};
 use crate::error::{Error, Result};
-use crate::frame::HostFrame;
+use crate::frame::{Background, HostFrame};
 use crate::nn::HostTensor;
 use integrator::{Params, gbuffer_of_hit, gbuffer_pixel, pixel_samples, primary_dir};
 use lights::EnvInfo;
@@ -216,6 +216,7 @@ impl CpuTracer {
             metallic: HostTensor::zeros(w, h, 1),
             roughness: HostTensor::zeros(w, h, 1),
             motion: HostTensor::zeros(w, h, 2),
+            background: None,
         };
         let mut rays = 0;
         let mut i = 0;
@@ -236,6 +237,10 @@ impl CpuTracer {
             }
         }
         debug_assert_eq!(i, n);
+        if s.background > 0 {
+            let (radiance, coverage) = self.background(scene, s, s.background)?;
+            f.background = Some(Background { radiance, coverage });
+        }
         let samples = match s.mode {
             Mode::Quarter => (w.div_ceil(2) as u64) * (h.div_ceil(2) as u64),
             _ => n as u64 * spp as u64,

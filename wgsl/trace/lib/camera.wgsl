@@ -6,7 +6,7 @@ struct FrameParams {
     prev: Camera,          // camera of the previous frame (motion vectors)
     size: vec4<u32>,       // width, height, frame index, seed
     mode: vec4<u32>,       // mode (0 quarter, 1 full, 2 reference), tile dx, tile dy, max_depth
-    accum: vec4<u32>,      // samples accumulated so far, samples in this pass, 0, 0
+    accum: vec4<u32>,      // samples accumulated so far, samples in this pass, background lookups per axis, 0
     misc: vec4<f32>,       // scene far distance (depth normalisation), 0, 0, 0
 }
 

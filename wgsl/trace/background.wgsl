@@ -1,0 +1,39 @@
+// The optional background buffer (DESIGN.md section 3): per pixel, the environment seen
+// directly through the pixel's footprint, averaged over n x n stratified camera rays
+// (n = p.accum.z; rays that hit anything, transmissive surfaces included, count 0), and the
+// fraction of those rays that escape (the coverage). Where the coverage is 1 this is the
+// pixel's radiance, estimated with n x n environment lookups instead of path samples.
+// CPU twin: `background_pixel` in src/render/cpu/integrator.rs.
+
+@group(0) @binding(0) var<uniform> p: FrameParams;
+// The scene at bindings 1-7 (trace/lib/scene.wgsl).
+@group(0) @binding(8) var<storage, read_write> background: array<vec4<f32>>;
+
+@compute @workgroup_size(8, 8, 1)
+fn main(@builtin(global_invocation_id) gid: vec3<u32>) {
+    let w = p.size.x;
+    let h = p.size.y;
+    if (gid.x >= w || gid.y >= h) {
+        return;
+    }
+    let n = max(p.accum.z, 1u);
+    let size = vec2<f32>(f32(w), f32(h));
+    let o = p.cam.pos.xyz;
+    var sum = vec3<f32>(0.0);
+    var escaped = 0u;
+    for (var j = 0u; j < n; j++) {
+        for (var i = 0u; i < n; i++) {
+            let px = vec2<f32>(
+                f32(gid.x) + (f32(i) + 0.5) / f32(n),
+                f32(gid.y) + (f32(j) + 0.5) / f32(n),
+            );
+            let d = camera_dir(p.cam, px, size);
+            if (traverse(o, d, BIG, false, NO_HIT).prim == NO_HIT) {
+                escaped += 1u;
+                sum += env_radiance(d); // 0 without an environment
+            }
+        }
+    }
+    let count = f32(n * n);
+    background[gid.y * w + gid.x] = vec4<f32>(sum / count, f32(escaped) / count);
+}
