@@ -1,6 +1,7 @@
 #!/usr/bin/env bash
 # Rebuilds the paper's Table 1 layout for our scenes (rows: input, hold-filled, accumulation,
-# RAE, NSRR, OIDN (a), OIDN (b), SSR, then SSR's other and per-scene models; columns: scenes;
+# RAE, NSRR, OIDN (a), OIDN (b), SSR (with the background rows below when the frames have
+# the background buffer), then SSR's other and per-scene models; columns: scenes;
 # every cell PSNR / SSIM / temporal error; test sequences only) from a dataset rendered by
 # `subpixel dataset`.
 #
@@ -43,9 +44,20 @@ cargo build --release --quiet --manifest-path "$root/Cargo.toml"
 bin="$root/target/release/subpixel"
 # denoise WEIGHTS METHOD: the engine's output for sequence $seq as PRED/METHOD/test/$name.
 denoise() { "$bin" denoise --weights "$1" --input "$seq" --out "$pred/$2/test/$name" >/dev/null; }
+# Frames with the background buffer (`subpixel dataset --background N`): SSR uses it (the
+# engine outputs it where it covers a whole pixel); two more rows show what it is worth:
+# ssr-no-background (the engine ignoring it) and oidn-a-background (OIDN (a) given it too).
+background=0
+if (cd "$here" && "$py" -c 'import sys; from ssr.data import exr_size; sys.exit("coverage.Y" not in exr_size(sys.argv[1])[2])' "$first"); then
+  background=1
+  (cd "$here" && "$py" -m ssr.background_probe --data "$data" --pred "$pred" --write oidn-a >/dev/null)
+fi
 for seq in "$data"/test/*/; do
   name="$(basename "$seq")"
   denoise "$ssr" ssr
+  if [ "$background" = 1 ]; then
+    "$bin" denoise --no-background --weights "$ssr" --input "$seq" --out "$pred/ssr-no-background/test/$name" >/dev/null
+  fi
   for extra in "$(dirname "$rae")"/ssr-*.safetensors; do
     if [ -f "$extra" ]; then denoise "$extra" "$(basename "$extra" .safetensors)"; fi
   done

@@ -267,16 +267,18 @@ fn table(pred: &std::path::Path, root: &std::path::Path, split: &str, only: &[St
         .filter_map(|e| e.ok().map(|e| e.path()))
         .filter(|p| p.join(split).is_dir())
         .collect();
-    // The row order (the paper's plus hold-filled and OIDN), then any other method
-    // alphabetically.
-    const ORDER: [&str; 8] = [
+    // The row order (the paper's plus hold-filled and OIDN; the background buffer's
+    // rows by the ones they change), then any other method alphabetically.
+    const ORDER: [&str; 10] = [
         "input",
         "hold",
         "accumulation",
         "rae",
         "nsrr",
         "oidn-a",
+        "oidn-a-background",
         "oidn-b",
+        "ssr-no-background",
         "ssr",
     ];
     let rank = |p: &PathBuf| {

@@ -12,6 +12,13 @@ channels (the environment over the pixel's footprint, `subpixel dataset --backgr
 Prints, per scene, the fraction of background pixels and PSNR / SSIM (tonemapped 8-bit, as
 everywhere) of each method as it is and with that background. A probe for deciding the data
 contract's next step (training/README.md, "Generalisation" 9); it changes nothing.
+
+    python -m ssr.background_probe --data ROOT --pred PRED --write METHOD [--split test]
+
+instead writes METHOD's predictions with wholly sky pixels (coverage 1) taken from the
+`background` channels, as PRED/METHOD-background/SPLIT/SEQUENCE/frame_NNNN.exr: what the
+engine's output pass does for SSR (`subpixel denoise`), given to another method (table1.sh's
+`oidn-a-background` row).
 """
 
 from __future__ import annotations
@@ -23,7 +30,7 @@ from typing import Dict, List, Optional
 
 import numpy as np
 
-from .data import DatasetError, frame_name, list_sequences, read_exr
+from .data import DatasetError, frame_name, list_sequences, read_exr, write_exr
 from .metrics import psnr, ssim
 
 RGB = ("R", "G", "B")
@@ -72,6 +79,22 @@ def probe(
     }
 
 
+def write_composite(data: str, pred: str, method: str, split: str = "test") -> str:
+    """Writes PRED/METHOD-background/SPLIT/...: METHOD's predictions with the `background`
+    channels where `coverage` is 1 (every frame of every SPLIT sequence). Returns the name."""
+    from .evaluate import PRED_SUFFIXES
+
+    out = f"{method}-background"
+    for seq in list_sequences(data, split, None):
+        for t in range(seq.frames):
+            a = read_exr(seq.frame_path(t), [f"background.{c}" for c in RGB] + ["coverage.Y"])
+            p = read_exr(os.path.join(pred, method, split, seq.name, frame_name(t)), [f"pred.{c}" for c in RGB])
+            mixed = np.where((a[..., 3] >= 1.0)[..., None], a[..., 0:3], p)
+            dst = os.path.join(pred, out, split, seq.name, frame_name(t))
+            write_exr(dst, {"pred": mixed.transpose(2, 0, 1)}, PRED_SUFFIXES)
+    return out
+
+
 def main(argv: Optional[List[str]] = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--data", required=True, help="dataset root (its frames need the `full` channels)")
@@ -82,7 +105,17 @@ def main(argv: Optional[List[str]] = None) -> int:
     ap.add_argument("--split", default="test")
     ap.add_argument("--source", choices=["full", "background"], default="full",
                     help="where the background comes from (see the module doc)")
+    ap.add_argument("--write", metavar="METHOD", default=None,
+                    help="write METHOD's predictions with the background where coverage is 1 (see the module doc)")
     a = ap.parse_args(argv)
+    if a.write:
+        try:
+            out = write_composite(a.data, a.pred, a.write, a.split)
+        except DatasetError as err:
+            print(f"error: {err}", file=sys.stderr)
+            return 1
+        print(f"wrote {os.path.join(a.pred, out, a.split)}")
+        return 0
     try:
         res = probe(a.data, a.pred, a.methods, a.scenes, a.frames, a.split, a.source)
     except DatasetError as err:

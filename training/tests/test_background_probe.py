@@ -57,6 +57,15 @@ def test_probe_replaces_background_pixels_with_the_1spp_frame(tmp_path, capsys):
     assert abs(r2["background"] - 7 / 64) < 1e-9 and abs(r2["black+bg"][0] - e[3]) < 1e-9
     assert B.main(["--data", root, "--pred", pred, "--methods", "black"]) == 0
     assert "| synthetic | 48% |" in capsys.readouterr().out
+    # --write: the black predictions with the background where coverage is 1, scored as the
+    # probe scored them
+    assert B.main(["--data", root, "--pred", pred, "--write", "black"]) == 0
+    for t in range(2):
+        got = read_exr(os.path.join(pred, "black-background", "test", "synthetic_000", frame_name(t)), [f"pred.{c}" for c in RGB])
+        want = np.zeros((8, 8, 3), np.float32)
+        want[:4, :2] = 0.25 + t
+        want[0, 0] = 0.0
+        assert np.array_equal(got, want)
     # a method without predictions: an error naming the missing frame
     assert B.main(["--data", root, "--pred", pred, "--methods", "nope"]) == 1
     err = capsys.readouterr().err
