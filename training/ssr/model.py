@@ -262,6 +262,19 @@ def remodulate(o: torch.Tensor, albedo: torch.Tensor) -> torch.Tensor:
     return torch.clamp(torch.exp(o) - 1.0, min=0.0) * (torch.clamp(albedo, min=0.0) + ALBEDO_EPS)
 
 
+def composite_background(output: torch.Tensor, frame: Dict[str, torch.Tensor]) -> torch.Tensor:
+    """The engine's output pass with the optional background buffer (wgsl/ssr/store_output.wgsl):
+    where `frame["coverage"]` is 1 the pixel shows nothing but the environment, and the output
+    is `frame["background"]` (negative or non-finite values 0); elsewhere `output` as it is.
+    Without those buffers, `output` unchanged. [N, 3, H, W] (or [3, H, W]) like the frame."""
+    if "background" not in frame or "coverage" not in frame:
+        return output
+    bg = torch.nan_to_num(frame["background"], nan=0.0, posinf=0.0, neginf=0.0).clamp(0.0, 1e12)
+    cov = frame["coverage"]
+    sky = (cov >= 1.0) & torch.isfinite(cov)
+    return torch.where(sky, bg.to(output.dtype), output)
+
+
 def quarter_mask(height: int, width: int, t: int, *, dtype=torch.float32) -> torch.Tensor:
     """The 1/4-spp mask of frame t, [1, 1, H, W]: 1 at (2i+dx, 2j+dy), (dx, dy) = TILE_OFFSETS[t % 4]."""
     dx, dy = TILE_OFFSETS[t % 4]

@@ -27,10 +27,12 @@ from .model import TILE_OFFSETS
 
 
 def make_sequence(
-    width: int, height: int, frames: int, seed: int, scene_seed: int = 0, full: bool = False
+    width: int, height: int, frames: int, seed: int, scene_seed: int = 0, full: bool = False, background: bool = False
 ) -> List[Dict[str, np.ndarray]]:
     """Frames as dicts of float32 [C, H, W] arrays with every buffer of data.BUFFERS (and
-    `full`, the 1-spp colour, with `full`)."""
+    `full`, the 1-spp colour, with `full`; with `background`, the background buffer: the top
+    quarter of the rows wholly sky, `coverage` 1 and `background` the reference there, the
+    next row half covered, the rest none)."""
     rng = np.random.default_rng(seed)
     frng = np.random.default_rng(20_000 + seed)
     srng = np.random.default_rng(10_000 + scene_seed)
@@ -76,6 +78,13 @@ def make_sequence(
         }
         if full:
             frame["full"] = (reference * frng.lognormal(-0.125, 0.5, size=(3, height, width))).astype(np.float32)
+        if background:
+            sky = height // 4
+            cov = np.zeros((1, height, width), np.float32)
+            cov[:, :sky] = 1.0
+            cov[:, sky] = 0.5
+            frame["coverage"] = cov
+            frame["background"] = (frame["reference"] * cov).astype(np.float32)
         out.append(frame)
     return out
 
@@ -91,6 +100,7 @@ def write_sequence(
     scene: str = "synthetic",
     scene_seed: int = 0,
     full: bool = False,
+    background: bool = False,
 ) -> str:
     os.makedirs(folder, exist_ok=True)
     meta = {
@@ -106,8 +116,8 @@ def write_sequence(
     }
     with open(os.path.join(folder, "sequence.json"), "w") as f:
         json.dump(meta, f, indent=2)
-    for t, fr in enumerate(make_sequence(width, height, frames, seed, scene_seed, full)):
-        write_exr(os.path.join(folder, frame_name(t)), fr, {"full": ("R", "G", "B")})
+    for t, fr in enumerate(make_sequence(width, height, frames, seed, scene_seed, full, background)):
+        write_exr(os.path.join(folder, frame_name(t)), fr, {"full": ("R", "G", "B"), "background": ("R", "G", "B"), "coverage": ("Y",)})
     return folder
 
 
@@ -120,6 +130,7 @@ def write_dataset(
     scenes: Optional[List[str]] = None,
     seed: int = 0,
     full: bool = False,
+    background: bool = False,
 ) -> str:
     """Writes ROOT/{split}/{scene}_{i:03d}/ for every scene and split; returns root."""
     splits = splits if splits is not None else {"train": 2, "val": 1, "test": 1}
@@ -129,7 +140,7 @@ def write_dataset(
         for split, count in splits.items():
             for i in range(count):
                 folder = os.path.join(root, split, f"{scene}_{i:03d}")
-                write_sequence(folder, split, i, frames, width, height, seed * 1000 + k, scene, si, full)
+                write_sequence(folder, split, i, frames, width, height, seed * 1000 + k, scene, si, full, background)
                 k += 1
     return root
 

@@ -53,7 +53,7 @@ from . import losses
 from .baselines import build_model, export_model, loss_aux
 from .data import THIN_KEEP_MIN, DatasetError, SequenceDataset, WindowSampler, collate, pad_frame
 from .metrics import image_metrics, mean_metrics
-from .model import SSRModel
+from .model import SSRModel, composite_background
 
 CHECKPOINT_FORMAT = "subpixel-train-checkpoint"
 CHECKPOINT_VERSION = 1
@@ -114,6 +114,12 @@ def parse_args(argv=None) -> argparse.Namespace:
     )
     ap.add_argument("--threads", type=int, default=0, help="PyTorch CPU threads (0: PyTorch's default)")
     ap.add_argument(
+        "--background", default="none", choices=["none", "val", "loss"],
+        help="the background buffer (frames need the background and coverage channels, `subpixel dataset "
+        "--background N`): `val` scores validation on the engine's output (the background where coverage is "
+        "1), `loss` also trains on it (no gradient from wholly sky pixels); default none",
+    )
+    ap.add_argument(
         "--lambda", dest="lambdas", action="append", default=[], metavar="TERM=WEIGHT",
         help=f"override a loss weight (repeatable; terms and defaults: {losses.LAMBDAS}), e.g. --lambda m=1",
     )
@@ -173,6 +179,8 @@ def run_config(args: argparse.Namespace) -> dict:
         "lambdas": dict(args.lambdas),
         # Only present for runs started from weights (older checkpoints have no such key).
         **({"init": init_identity(args.init)} if args.init is not None else {}),
+        # Only present when the loss sees the background (older checkpoints have no such key).
+        **({"background": "loss"} if args.background == "loss" else {}),
         # Only present when sample thinning is on (older checkpoints have no such key).
         **({"thin": args.thin} if args.thin > 0 else {}),
         **({"thin_keep_min": args.thin_keep_min} if args.thin > 0 and args.thin_keep_min != THIN_KEEP_MIN else {}),
@@ -408,7 +416,8 @@ def load_checkpoint(path: str, config: dict) -> dict:
 def validate(model: nn.Module, ds: SequenceDataset, device: torch.device, frames: int, size: int = 0) -> dict:
     """Runs every val sequence from frame 0 for `frames` frames (whole frames, padded to a
     multiple of 4 like the engine, optionally centre-cropped to `size`) and averages the
-    per-frame metrics (PSNR/SSIM tonemapped 8-bit, RMSE/relMSE HDR)."""
+    per-frame metrics (PSNR/SSIM tonemapped 8-bit, RMSE/relMSE HDR). With the background
+    buffers loaded (`ds.store.extra`), the output is composited as the engine does."""
     was_training = model.training
     model.eval()
     rows, per_scene = [], {}
@@ -425,7 +434,7 @@ def validate(model: nn.Module, ds: SequenceDataset, device: torch.device, frames
             padded, (h, w) = pad_frame(f)
             r = model(padded, state)
             state = r["state"]
-            pred = r["output"][0, :, :h, :w].float().cpu()
+            pred = composite_background(r["output"][:, :, :h, :w], f)[0].float().cpu()
             m = image_metrics(pred, f["reference"][0].cpu())
             rows.append(m)
             per_scene.setdefault(seq.scene, []).append(m)
@@ -498,16 +507,20 @@ def _train(args, config: dict, dd: Dist) -> dict:
             print(f"{tag} {msg}", flush=True)
 
     # data
+    background = ("background", "coverage")
     train_ds = SequenceDataset(
         args.data, "train", window=args.window, crop=args.crop, flips=not args.no_flips, scenes=args.scenes,
         cache=args.cache, cache_mb=args.cache_mb, cache_dir=args.cache_dir, thin=args.thin,
-        thin_keep_min=args.thin_keep_min,
+        thin_keep_min=args.thin_keep_min, extra=background if args.background == "loss" else (),
     )
     if tuple(train_ds.crop_hw) != (args.crop, args.crop):
         say(f"note: frames smaller than --crop {args.crop}: crops are {train_ds.crop_hw[1]}x{train_ds.crop_hw[0]}")
     val_ds = None
     try:
-        val_ds = SequenceDataset(args.data, "val", window=1, crop=None, flips=False, scenes=args.scenes, cache="none")
+        val_ds = SequenceDataset(
+            args.data, "val", window=1, crop=None, flips=False, scenes=args.scenes, cache="none",
+            extra=background if args.background != "none" else (),
+        )
     except DatasetError as err:
         say(f"note: no validation ({err})")
 
@@ -620,6 +633,8 @@ def _train(args, config: dict, dd: Dist) -> dict:
                 g["lr"] = lr
             frames = [{k: v.to(device, non_blocking=True) for k, v in f.items()} for f in batch]
             results = runner(frames)
+            if args.background == "loss":
+                results = [{**r, "output": composite_background(r["output"], f)} for r, f in zip(results, frames)]
             loss, parts = compute_loss(model, results, frames, weights, args.lambdas)
             opt.zero_grad(set_to_none=True)
             loss.backward()
@@ -690,6 +705,7 @@ def _train(args, config: dict, dd: Dist) -> dict:
             "crop": list(train_ds.crop_hw),
             "window": args.window,
             "augmentation": {"flips": not args.no_flips, "thin": args.thin, "thin_keep_min": args.thin_keep_min},
+            "background": args.background,
             "lr": args.lr,
             "lr_schedule": "Adam; halved at 1/3 and 2/3 of the iterations",
             "losses": {"frame_weights": list(weights), "lambdas": dict(args.lambdas)},

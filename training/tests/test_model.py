@@ -463,3 +463,18 @@ def test_tfa_softmax_is_stable():
         r = model.tfa(a, mt, a, torch.ones(n, 1, 4, 4))
     assert torch.isfinite(r["tfa_weights"]).all()
     torch.testing.assert_close(r["tfa_weights"][:, 0], torch.full((1, 4, 4), 0.5))
+
+
+def test_composite_background_mirrors_the_engines_output_pass():
+    from ssr.model import composite_background
+
+    out = torch.full((1, 3, 2, 3), 7.0, requires_grad=True)
+    bg = torch.tensor([0.5, float("nan"), -1.0]).view(1, 3, 1, 1).expand(1, 3, 2, 3).clone()
+    cov = torch.tensor([[1.0, 0.99, float("inf")], [1.0, float("nan"), 0.0]]).view(1, 1, 2, 3)
+    got = composite_background(out, {"background": bg, "coverage": cov})
+    sky = torch.tensor([[True, False, False], [True, False, False]])
+    want = torch.where(sky, torch.tensor([0.5, 0.0, 0.0]).view(1, 3, 1, 1), torch.tensor(7.0))
+    assert torch.equal(got, want)
+    got.sum().backward()  # no gradient reaches the network where the background is used
+    assert torch.equal(out.grad, (~sky).float().expand(1, 3, 2, 3))
+    assert composite_background(out, {}) is out
