@@ -41,21 +41,7 @@ impl<'a> FrameInputs<'a> {
     /// The six buffers in the order of the table above (e.g. a `Vec` of them), or seven
     /// with the background last; an error naming the count for any other number.
     pub fn from_slice(buffers: &'a [wgpu::Buffer]) -> Result<Self> {
-        let (
-            [
-                color_mask,
-                albedo_depth,
-                normal_metallic,
-                shadow_roughness,
-                transparent,
-                motion,
-            ],
-            background,
-        ) = (match buffers {
-            [six @ .., bg] if buffers.len() == 7 => (six, Some(bg)),
-            six => (six, None),
-        })
-        else {
+        if !(6..=7).contains(&buffers.len()) {
             return Err(Error::shape(
                 "denoiser input",
                 format!(
@@ -64,15 +50,15 @@ impl<'a> FrameInputs<'a> {
                     Self::NAMES.join(", ")
                 ),
             ));
-        };
+        }
         Ok(Self {
-            color_mask,
-            albedo_depth,
-            normal_metallic,
-            shadow_roughness,
-            transparent,
-            motion,
-            background,
+            color_mask: &buffers[0],
+            albedo_depth: &buffers[1],
+            normal_metallic: &buffers[2],
+            shadow_roughness: &buffers[3],
+            transparent: &buffers[4],
+            motion: &buffers[5],
+            background: buffers.get(6),
         })
     }
 

@@ -11,13 +11,11 @@
 
 @compute @workgroup_size(8, 8, 1)
 fn main(@builtin(global_invocation_id) gid: vec3<u32>) {
-    let w = p.size.x;
-    let h = p.size.y;
-    if (gid.x >= w || gid.y >= h) {
+    if (outside_frame(gid, p.size)) {
         return;
     }
     let n = max(p.accum.z, 1u);
-    let size = vec2<f32>(f32(w), f32(h));
+    let size = vec2<f32>(p.size.xy);
     let o = p.cam.pos.xyz;
     var sum = vec3<f32>(0.0);
     var escaped = 0u;
@@ -35,5 +33,5 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>) {
         }
     }
     let count = f32(n * n);
-    background[gid.y * w + gid.x] = vec4<f32>(sum / count, f32(escaped) / count);
+    background[gid.y * p.size.x + gid.x] = vec4<f32>(sum / count, f32(escaped) / count);
 }

@@ -12,13 +12,11 @@
 
 @compute @workgroup_size(8, 8, 1)
 fn main(@builtin(global_invocation_id) gid: vec3<u32>) {
-    let w = p.size.x;
-    let h = p.size.y;
-    if (gid.x >= w || gid.y >= h) {
+    if (outside_frame(gid, p.size)) {
         return;
     }
-    let i = gid.y * w + gid.x;
-    let size = vec2<f32>(f32(w), f32(h));
+    let i = gid.y * p.size.x + gid.x;
+    let size = vec2<f32>(p.size.xy);
     let pos = vec2<f32>(f32(gid.x) + 0.5, f32(gid.y) + 0.5);
     let d = camera_dir(p.cam, pos, size);
     let hit = traverse(p.cam.pos.xyz, d, BIG, false, NO_HIT);

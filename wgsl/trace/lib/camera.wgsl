@@ -14,6 +14,11 @@ const MODE_QUARTER: u32 = 0u;
 const MODE_FULL: u32 = 1u;
 const MODE_REFERENCE: u32 = 2u;
 
+// Whether invocation `gid` of an image kernel lies outside the frame (size.xy: width, height).
+fn outside_frame(gid: vec3<u32>, size: vec4<u32>) -> bool {
+    return gid.x >= size.x || gid.y >= size.y;
+}
+
 // Unit direction through continuous pixel position px of a width x height image.
 fn camera_dir(c: Camera, px: vec2<f32>, size: vec2<f32>) -> vec3<f32> {
     let ndc = vec2<f32>(2.0 * px.x / size.x - 1.0, 1.0 - 2.0 * px.y / size.y);
