@@ -25,7 +25,7 @@ use subpixel::gpu::{AdapterKind, Bound, Dispatch, Gpu, Profiler};
 use subpixel::nn::{Tensor, ops};
 use subpixel::render::{Camera, CameraPath, FrameSettings, GpuScene, Mode, load_scene};
 use subpixel::ssr::Weights;
-use subpixel::view::{Display, DisplayMode, View};
+use subpixel::view::{Display, DisplayMode, Source, View};
 use winit::application::ApplicationHandler;
 use winit::event::{ElementState, MouseButton, MouseScrollDelta, WindowEvent};
 use winit::event_loop::{ActiveEventLoop, ControlFlow, EventLoop};
@@ -153,6 +153,8 @@ struct App {
     gpu: Gpu,
     scene: GpuScene,
     far: f32,
+    /// Background lookups per pixel axis (the scene's default: 4 with an environment).
+    background: u32,
     weights: Weights,
     path: Option<CameraPath>,
     fly: Fly,
@@ -225,9 +227,7 @@ impl App {
             max_depth: subpixel::render::DEFAULT_MAX_DEPTH,
             seed: 1,
             far: self.far,
-            // No background pass: the views show the network's own output buffer, not the
-            // denoiser's output texture where the background is composited.
-            background: 0,
+            background: self.background,
         };
         let mut enc = self.gpu.device.create_command_encoder(&Default::default());
         frame
@@ -268,24 +268,26 @@ impl App {
             })?;
             d.encode(&mut enc);
         }
-        let net = frame.fl.denoiser.network();
-        let ssr = net.output();
-        let (src, other, mode, first, channels): (&Tensor, Option<&Tensor>, DisplayMode, u32, u32) =
+        // The denoiser's output texture (the background composited where it covers a
+        // whole pixel), as an embedding would show it.
+        let ssr = Source::Texture(frame.fl.denoiser.output());
+        let t = Source::Tensor;
+        let (src, other, mode, first, channels): (Source<'_>, Option<Source<'_>>, DisplayMode, u32, u32) =
             match self.view {
-                ViewKind::Input => (&b.color_mask, None, DisplayMode::Radiance, 0, 3),
+                ViewKind::Input => (t(&b.color_mask), None, DisplayMode::Radiance, 0, 3),
                 ViewKind::Ssr => (ssr, None, DisplayMode::Radiance, 0, 3),
-                ViewKind::Split => (&b.color_mask, Some(ssr), DisplayMode::Radiance, 0, 3),
-                ViewKind::Accumulated => (&frame.accumulated, None, DisplayMode::Radiance, 0, 3),
-                ViewKind::Reference => (&frame.reference, None, DisplayMode::Radiance, 0, 3),
-                ViewKind::Albedo => (&b.albedo_depth, None, DisplayMode::Unit, 0, 3),
-                ViewKind::Normal => (&b.normal_metallic, None, DisplayMode::Signed(1.0), 0, 3),
-                ViewKind::Depth => (&b.albedo_depth, None, DisplayMode::Unit, 3, 1),
-                ViewKind::Shadow => (&b.shadow_roughness, None, DisplayMode::Radiance, 0, 3),
-                ViewKind::Motion => (&b.motion, None, DisplayMode::Signed(0.125), 0, 2),
-                ViewKind::Mask => (&b.color_mask, None, DisplayMode::Unit, 3, 1),
-                ViewKind::Transparent => (&b.transparent, None, DisplayMode::Unit, 0, 3),
-                ViewKind::Metallic => (&b.normal_metallic, None, DisplayMode::Unit, 3, 1),
-                ViewKind::Roughness => (&b.shadow_roughness, None, DisplayMode::Unit, 3, 1),
+                ViewKind::Split => (t(&b.color_mask), Some(ssr), DisplayMode::Radiance, 0, 3),
+                ViewKind::Accumulated => (t(&frame.accumulated), None, DisplayMode::Radiance, 0, 3),
+                ViewKind::Reference => (t(&frame.reference), None, DisplayMode::Radiance, 0, 3),
+                ViewKind::Albedo => (t(&b.albedo_depth), None, DisplayMode::Unit, 0, 3),
+                ViewKind::Normal => (t(&b.normal_metallic), None, DisplayMode::Signed(1.0), 0, 3),
+                ViewKind::Depth => (t(&b.albedo_depth), None, DisplayMode::Unit, 3, 1),
+                ViewKind::Shadow => (t(&b.shadow_roughness), None, DisplayMode::Radiance, 0, 3),
+                ViewKind::Motion => (t(&b.motion), None, DisplayMode::Signed(0.125), 0, 2),
+                ViewKind::Mask => (t(&b.color_mask), None, DisplayMode::Unit, 3, 1),
+                ViewKind::Transparent => (t(&b.transparent), None, DisplayMode::Unit, 0, 3),
+                ViewKind::Metallic => (t(&b.normal_metallic), None, DisplayMode::Unit, 3, 1),
+                ViewKind::Roughness => (t(&b.shadow_roughness), None, DisplayMode::Unit, 3, 1),
             };
         let fps = self.fps.len() as f64 / self.fps.iter().sum::<f64>().max(1e-9);
         let mut text = vec![format!(
@@ -533,6 +535,7 @@ fn main() -> Result<()> {
     let (lo, hi) = scene.bounds();
     let extent = (hi - lo).length().max(1e-3);
     let far = scene.far_distance([&scene.camera.position]);
+    let background = scene.default_background();
     let gpu_scene = GpuScene::new(&gpu, &scene)?;
     let path = scene
         .camera_path
@@ -554,6 +557,7 @@ fn main() -> Result<()> {
         gpu,
         scene: gpu_scene,
         far,
+        background,
         weights,
         window: None,
         surface: None,

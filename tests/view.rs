@@ -57,7 +57,7 @@ fn display_matches_reference() {
             (&ta, &tb, &a, &b)
         };
         let mut enc = g.device.create_command_encoder(&Default::default());
-        disp.draw(&mut enc, ta, Some(tb), v).unwrap();
+        disp.draw(&mut enc, ta, Some(tb.into()), v).unwrap();
         g.queue.submit([enc.finish()]);
         let img = disp.read_rgba().unwrap();
         for y in 0..h {
@@ -88,4 +88,81 @@ fn display_matches_reference() {
             .to_string()
             .contains("channels 15..18")
     );
+}
+
+/// A texture source (the denoiser's output is one) against the same reference: the texture
+/// on its own, and right of a tensor in split screen; its 4 channels bound the view.
+#[test]
+fn display_reads_textures() {
+    let g = common::gpu();
+    let (w, h) = (11, 7);
+    let a = common::random(3, w, h, 4, -1.0, 4.0);
+    let b = common::random(4, w, h, 4, 0.0, 8.0);
+    let ta = Tensor::from_host(&g, "a", &a).unwrap();
+    let tex = g.device.create_texture(&wgpu::TextureDescriptor {
+        label: Some("b"),
+        size: wgpu::Extent3d {
+            width: w,
+            height: h,
+            depth_or_array_layers: 1,
+        },
+        mip_level_count: 1,
+        sample_count: 1,
+        dimension: wgpu::TextureDimension::D2,
+        format: wgpu::TextureFormat::Rgba32Float,
+        usage: wgpu::TextureUsages::TEXTURE_BINDING | wgpu::TextureUsages::COPY_DST,
+        view_formats: &[],
+    });
+    g.queue.write_texture(
+        tex.as_image_copy(),
+        bytemuck::cast_slice(&b.data),
+        wgpu::TexelCopyBufferLayout {
+            offset: 0,
+            bytes_per_row: Some(w * 16),
+            rows_per_image: None,
+        },
+        tex.size(),
+    );
+    let disp = Display::new(&g, 23, 15).unwrap();
+    let views = [
+        View::default(),
+        View {
+            mode: DisplayMode::Unit,
+            first: 3,
+            channels: 1,
+            split_x: Some(9),
+            ..Default::default()
+        },
+    ];
+    for (i, v) in views.iter().enumerate() {
+        let mut enc = g.device.create_command_encoder(&Default::default());
+        if v.split_x.is_some() {
+            disp.draw(&mut enc, &ta, Some((&tex).into()), v).unwrap();
+        } else {
+            disp.draw(&mut enc, &tex, None, v).unwrap();
+        }
+        g.queue.submit([enc.finish()]);
+        let img = disp.read_rgba().unwrap();
+        let left = if v.split_x.is_some() { &a } else { &b };
+        for y in 0..15 {
+            for x in 0..23 {
+                let want = reference_pixel(left, &b, v, 23, 15, x, y);
+                let got = img.get_pixel(x, y).0;
+                for c in 0..3 {
+                    assert!(
+                        (got[c] as i32 - want[c] as i32).abs() <= 1,
+                        "view {i} at ({x},{y}) ch {c}: gpu {got:?} cpu {want:?}"
+                    );
+                }
+            }
+        }
+    }
+    let mut enc = g.device.create_command_encoder(&Default::default());
+    let beyond = View {
+        first: 2,
+        channels: 3,
+        ..Default::default()
+    };
+    let e = disp.draw(&mut enc, &tex, None, &beyond).unwrap_err().to_string();
+    assert!(e.contains("channels 2..5"), "{e}");
 }

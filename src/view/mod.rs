@@ -19,6 +19,67 @@ pub enum DisplayMode {
     Unit,
 }
 
+/// A source the display reads: a tensor (channels padded to 4), or a float texture of 4
+/// channels such as the denoiser's output ([`crate::ssr::Denoiser::output`]).
+#[derive(Debug, Clone, Copy)]
+pub enum Source<'a> {
+    /// A GPU tensor.
+    Tensor(&'a Tensor),
+    /// A 2D texture with a float sample type (e.g. `rgba32float`) and `TEXTURE_BINDING`.
+    Texture(&'a wgpu::Texture),
+}
+
+impl<'a> From<&'a Tensor> for Source<'a> {
+    fn from(t: &'a Tensor) -> Self {
+        Source::Tensor(t)
+    }
+}
+
+impl<'a> From<&'a wgpu::Texture> for Source<'a> {
+    fn from(t: &'a wgpu::Texture) -> Self {
+        Source::Texture(t)
+    }
+}
+
+/// What a bound display dispatch reads, to know when to rebind.
+#[derive(Debug, Clone, PartialEq)]
+enum SourceKey {
+    Buffer(wgpu::Buffer),
+    Texture(wgpu::Texture),
+}
+
+impl Source<'_> {
+    fn size(&self) -> (u32, u32) {
+        match self {
+            Source::Tensor(t) => (t.width, t.height),
+            Source::Texture(t) => (t.width(), t.height()),
+        }
+    }
+
+    /// Channels, padded to a multiple of 4 as the kernel reads them.
+    fn padded_channels(&self) -> u32 {
+        match self {
+            Source::Tensor(t) => t.c4() * 4,
+            Source::Texture(_) => 4,
+        }
+    }
+
+    fn c4(&self) -> u32 {
+        self.padded_channels() / 4
+    }
+
+    fn key(&self) -> SourceKey {
+        match self {
+            Source::Tensor(t) => SourceKey::Buffer(t.buffer.clone()),
+            Source::Texture(t) => SourceKey::Texture((*t).clone()),
+        }
+    }
+
+    fn is_texture(&self) -> bool {
+        matches!(self, Source::Texture(_))
+    }
+}
+
 /// What to show.
 #[derive(Debug, Clone, PartialEq)]
 pub struct View {
@@ -112,8 +173,8 @@ pub struct Display {
     target: wgpu::Texture,
     width: u32,
     height: u32,
-    /// The last dispatch and the source buffers it binds.
-    cached: std::sync::Mutex<Bound<(wgpu::Buffer, wgpu::Buffer), crate::gpu::Dispatch>>,
+    /// The last dispatch and the sources it binds.
+    cached: std::sync::Mutex<Bound<(SourceKey, SourceKey), crate::gpu::Dispatch>>,
 }
 
 impl Display {
@@ -162,24 +223,26 @@ impl Display {
     /// Records drawing `a` (and `b` right of `view.split_x`) with the overlay (at most
     /// [`TEXT_MAX`] columns and lines). The text and parameters are written with queue
     /// writes, which take effect at the next submission: submit between two draws.
-    pub fn draw(
+    pub fn draw<'s>(
         &self,
         encoder: &mut wgpu::CommandEncoder,
-        a: &Tensor,
-        b: Option<&Tensor>,
+        a: impl Into<Source<'s>>,
+        b: Option<Source<'s>>,
         view: &View,
     ) -> Result<()> {
+        let a = a.into();
         let b = b.unwrap_or(a);
-        if (a.width, a.height) != (b.width, b.height) {
+        if a.size() != b.size() {
             return Err(Error::shape("display", "split-screen sources differ in size"));
         }
         let need = view.first + view.channels.clamp(1, 3);
-        if need > a.channels.max(b.channels).div_ceil(4) * 4 || !(1..=3).contains(&view.channels) {
+        let have = a.padded_channels().min(b.padded_channels());
+        if need > have || !(1..=3).contains(&view.channels) {
             return Err(Error::shape(
                 "display",
                 format!(
-                    "view of channels {}..{need} of a {}-channel tensor",
-                    view.first, a.channels
+                    "view of channels {}..{need} of a source of {have} channels",
+                    view.first
                 ),
             ));
         }
@@ -195,8 +258,8 @@ impl Display {
         let params = Params {
             out_w: self.width,
             out_h: self.height,
-            src_w: a.width,
-            src_h: a.height,
+            src_w: a.size().0,
+            src_h: a.size().1,
             mode,
             first: view.first,
             channels: view.channels,
@@ -210,15 +273,30 @@ impl Display {
             _pad: [0; 2],
         };
         let mut cached = self.cached.lock().unwrap_or_else(|e| e.into_inner());
-        let d = cached.get_or_build((a.buffer.clone(), b.buffer.clone()), || {
+        let d = cached.get_or_build((a.key(), b.key()), || {
             let tv = self.target.create_view(&Default::default());
+            let views = [a, b].map(|s| match s {
+                Source::Texture(t) => Some(t.create_view(&Default::default())),
+                Source::Tensor(_) => None,
+            });
+            fn bind<'r>(s: Source<'r>, v: &'r Option<wgpu::TextureView>) -> wgpu::BindingResource<'r> {
+                match (s, v) {
+                    (_, Some(v)) => wgpu::BindingResource::TextureView(v),
+                    (Source::Tensor(t), None) => t.buffer.as_entire_binding(),
+                    (Source::Texture(_), None) => unreachable!("a view for every texture"),
+                }
+            }
+            let flags = Specialisation(vec![
+                ("TEXTURE_A", a.is_texture() as u32 as f64),
+                ("TEXTURE_B", b.is_texture() as u32 as f64),
+            ]);
             self.gpu.kernels.dispatch_with(
                 "view/display",
-                &Specialisation::none(),
+                &flags,
                 bytemuck::bytes_of(&params),
                 &[
-                    a.buffer.as_entire_binding(),
-                    b.buffer.as_entire_binding(),
+                    bind(a, &views[0]),
+                    bind(b, &views[1]),
                     self.text.as_entire_binding(),
                     self.font.as_entire_binding(),
                     wgpu::BindingResource::TextureView(&tv),

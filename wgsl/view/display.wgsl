@@ -5,6 +5,11 @@
 //   mode 1: signed values in [-1, 1] shown as [0, 1] (normals, motion / 8 px)
 //   mode 2: values clamped to [0, 1] (albedo, depth, masks, roughness)
 // `channels` = 1 shows channel `first` as grey, 2 shows (first, first+1, 0), 3 shows rgb.
+// A source is a tensor (storage buffer, channels padded to 4) or, with template flag
+// TEXTURE_A / TEXTURE_B, a float texture read texel by texel (e.g. the denoiser's output).
+//
+//#param TEXTURE_A 0
+//#param TEXTURE_B 0
 
 struct Params {
     out_w: u32,
@@ -26,8 +31,16 @@ struct Params {
 }
 
 @group(0) @binding(0) var<uniform> p: Params;
+//#if TEXTURE_A
+@group(0) @binding(1) var src_a: texture_2d<f32>;
+//#else
 @group(0) @binding(1) var<storage, read> src_a: array<vec4<f32>>;
+//#end
+//#if TEXTURE_B
+@group(0) @binding(2) var src_b: texture_2d<f32>;
+//#else
 @group(0) @binding(2) var<storage, read> src_b: array<vec4<f32>>;
+//#end
 @group(0) @binding(3) var<storage, read> text: array<u32>;   // one char code per u32
 @group(0) @binding(4) var<storage, read> font: array<u32>;   // 128 glyphs x 2 words (8 rows of 8 bits)
 @group(0) @binding(5) var dst: texture_storage_2d<rgba8unorm, write>;
@@ -48,11 +61,20 @@ fn tonemap(v: vec3<f32>) -> vec3<f32> {
     return pow(t, vec3<f32>(1.0 / 2.2));
 }
 
-fn channel(use_b: bool, pix: u32, c: u32) -> f32 {
+fn channel(use_b: bool, sx: u32, sy: u32, c: u32) -> f32 {
+    let pix = sy * p.src_w + sx;
     if (use_b) {
+//#if TEXTURE_B
+        return textureLoad(src_b, vec2<u32>(sx, sy), 0)[c % 4u];
+//#else
         return src_b[pix * p.c4_b + c / 4u][c % 4u];
+//#end
     }
+//#if TEXTURE_A
+    return textureLoad(src_a, vec2<u32>(sx, sy), 0)[c % 4u];
+//#else
     return src_a[pix * p.c4_a + c / 4u][c % 4u];
+//#end
 }
 
 @compute @workgroup_size(8, 8, 1)
@@ -64,11 +86,10 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>) {
     }
     let sx = min(x * p.src_w / p.out_w, p.src_w - 1u);
     let sy = min(y * p.src_h / p.out_h, p.src_h - 1u);
-    let pix = sy * p.src_w + sx;
     let use_b = x >= p.split_x;
     var v = vec3<f32>(0.0);
     for (var i = 0u; i < min(p.channels, 3u); i++) {
-        v[i] = channel(use_b, pix, p.first + i);
+        v[i] = channel(use_b, sx, sy, p.first + i);
     }
     if (p.channels == 1u) {
         v = vec3<f32>(v.x);
