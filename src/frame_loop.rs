@@ -58,8 +58,9 @@ impl FrameLoop {
 
     /// Records frame `s` of `scene` into `encoder`: the tracer's `gbuffer`, `trace` (and
     /// with `s.background` > 0, `background`) passes, then the denoiser's `pack`, `tfa`,
-    /// `unet` and `output` passes, each timed by `profiler` when given; the denoiser
-    /// outputs the background where it covers a whole pixel. Submit the encoder (e.g. [`Profiler::submit`]) to run it.
+    /// `unet` and `output` passes, each timed by `profiler` when given (the output pass
+    /// composites the background, [`crate::frame::FrameInputs`]). Submit the encoder (e.g.
+    /// [`Profiler::submit`]) to run it.
     pub fn encode(
         &mut self,
         encoder: &mut wgpu::CommandEncoder,

@@ -766,13 +766,14 @@ fn output_never_exceeds_the_brightest_recent_sample() {
     }
 }
 
-/// The optional background of the frame contract (DESIGN §3): where its coverage is 1 the
-/// output is the background (sanitised as colour is: non-finite or negative values become
-/// 0 and are counted), everywhere else exactly the network's reconstruction without it; a
-/// non-finite coverage is not 1. The history stays the network's own, so a later frame
-/// without a background comes out exactly as if none had ever been given.
+/// The optional background of the frame contract (DESIGN §3): the output is background +
+/// (1 - coverage) x the network's reconstruction (the background alone where the coverage is
+/// 1, the reconstruction alone where it is 0), with the background sanitised as colour is
+/// and the coverage brought into [0, 1] (non-finite: 0), every value changed counted. The
+/// history stays the network's own, so a later frame without a background comes out
+/// exactly as if none had ever been given.
 #[test]
-fn background_replaces_wholly_sky_pixels_only() {
+fn background_composites_by_coverage() {
     use subpixel::frame::Background;
     let gpu = common::gpu();
     let weights = Weights::load(golden_weights_path()).unwrap();
@@ -784,10 +785,13 @@ fn background_replaces_wholly_sky_pixels_only() {
     });
     coverage.set(1, 0, 0, f32::NAN);
     coverage.set(2, 0, 0, f32::INFINITY);
-    let mut radiance = HostTensor::from_fn(w, h, 3, |x, y, c| 0.1 * (x + y + c) as f32 + 0.05);
-    radiance.set(0, 0, 0, f32::NAN); // coverage 1: output 0, counted
-    radiance.set(3, 0, 2, -2.0); // coverage 1: output 0, counted
-    radiance.set(1, 0, 1, f32::NAN); // coverage NaN: not used, not counted
+    let mut radiance = HostTensor::from_fn(w, h, 3, |x, y, c| {
+        (0.1 * (x + y + c) as f32 + 0.05) * coverage.at(x, y, 0)
+    });
+    radiance.set(0, 0, 0, f32::NAN); // output 0 there, counted
+    radiance.set(3, 0, 2, -2.0); // output 0 there, counted
+    // (Pixels (1, 0) and (2, 0), of NaN and infinite coverage, get non-finite radiance from
+    // the premultiplication: all counted, all 0.)
     let f0 = random_frame(w, h, 50);
     let want = plain.denoise_host(&f0).unwrap();
     let bg = HostFrame {
@@ -798,25 +802,35 @@ fn background_replaces_wholly_sky_pixels_only() {
         ..f0.clone()
     };
     let got = with.denoise_host(&bg).unwrap();
-    let mut sky = 0;
+    let (mut sky, mut mixed, mut changed) = (0, 0, 0);
+    let out_of_range = |v: f32, lo: f32, hi: f32| !(lo..=hi).contains(&v) as u64;
     for y in 0..h {
         for x in 0..w {
-            let wholly_sky = coverage.at(x, y, 0) == 1.0;
-            sky += wholly_sky as u32;
-            for c in 0..3 {
-                let r = radiance.at(x, y, c);
-                let expect = if wholly_sky {
-                    if r.is_finite() { r.max(0.0) } else { 0.0 }
-                } else {
-                    want.at(x, y, c)
-                };
-                assert_eq!(got.at(x, y, c), expect, "pixel ({x}, {y}) channel {c}");
+            let c = coverage.at(x, y, 0);
+            changed += out_of_range(c, 0.0, 1.0);
+            let c = if c.is_finite() { c.clamp(0.0, 1.0) } else { 0.0 };
+            sky += (c == 1.0) as u32;
+            mixed += (c > 0.0 && c < 1.0) as u32;
+            for k in 0..3 {
+                let r = radiance.at(x, y, k);
+                changed += out_of_range(r, 0.0, 1e12);
+                let r = if r.is_finite() { r.max(0.0) } else { 0.0 };
+                let expect = r + (1.0 - c) * want.at(x, y, k);
+                let g = got.at(x, y, k);
+                assert!(
+                    (g - expect).abs() <= 1e-6 * (1.0 + expect.abs()),
+                    "pixel ({x}, {y}) channel {k}: {g} vs {expect}"
+                );
+                if c == 1.0 {
+                    assert_eq!(g, r, "wholly sky pixel ({x}, {y}): the background alone");
+                }
             }
         }
     }
-    assert!(sky > 40, "{sky} wholly sky pixels");
+    assert!(sky > 40 && mixed > 40, "{sky} wholly sky, {mixed} mixed pixels");
     let counted = with.sanitized_count().unwrap() - plain.sanitized_count().unwrap();
-    assert_eq!(counted, 2, "background values sanitised");
+    assert_eq!(changed, 10); // the four pixels above: 1 + 4 (NaN coverage) + 4 (Inf) + 1
+    assert_eq!(counted, changed, "background values sanitised");
     // The next frame, without a background: the same on both.
     let f1 = random_frame(w, h, 51);
     assert_eq!(with.denoise_host(&f1).unwrap(), plain.denoise_host(&f1).unwrap());

@@ -45,7 +45,7 @@ bin="$root/target/release/subpixel"
 # denoise WEIGHTS METHOD: the engine's output for sequence $seq as PRED/METHOD/test/$name.
 denoise() { "$bin" denoise --weights "$1" --input "$seq" --out "$pred/$2/test/$name" >/dev/null; }
 # Frames with the background buffer (`subpixel dataset --background N`): SSR uses it (the
-# engine outputs it where it covers a whole pixel); two more rows show what it is worth:
+# engine composites it, background + (1 - coverage) x output); two more rows show its worth:
 # ssr-no-background (the engine ignoring it) and oidn-a-background (OIDN (a) given it too).
 background=0
 if (cd "$here" && "$py" -c 'import sys; from ssr.data import exr_size; sys.exit("coverage.Y" not in exr_size(sys.argv[1])[2])' "$first"); then

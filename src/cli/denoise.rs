@@ -27,8 +27,8 @@ pub(super) struct DenoiseArgs {
     #[arg(long)]
     png: bool,
     /// Ignore the frames' background channels (`background`, `coverage`): reconstruct
-    /// every pixel, the wholly sky ones included. By default a frame that has them outputs
-    /// its background where the coverage is 1.
+    /// every pixel, the wholly sky ones included. By default a frame that has them is
+    /// composited with its background (`background + (1 - coverage) x reconstruction`).
     #[arg(long)]
     no_background: bool,
 }

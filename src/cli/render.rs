@@ -72,9 +72,9 @@ pub struct RenderArgs {
     pub full_spp: bool,
     /// Also store the directly seen environment averaged over each pixel's footprint
     /// (`background` channels) and the fraction of the footprint that escapes (`coverage`),
-    /// from N x N stratified lookups per pixel (no path tracing; the denoiser outputs it
-    /// where the coverage is 1). With `--resume`, frames written before without them get
-    /// them added (by the CPU twin).
+    /// from N x N stratified lookups per pixel (no path tracing; the denoiser composites
+    /// it). With `--resume`, frames written before without them get them added (by the CPU
+    /// twin).
     #[arg(long, value_name = "N", value_parser = clap::value_parser!(u32).range(1..))]
     pub background: Option<u32>,
     /// Camera path when neither `--path` nor the scene gives one (set by `subpixel

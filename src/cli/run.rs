@@ -47,8 +47,8 @@ pub(super) struct RunArgs {
     /// an embedding.
     #[arg(long, value_enum, default_value_t = Backend::Auto)]
     backend: Backend,
-    /// Background lookups per pixel axis (N x N camera rays per pixel; the denoiser outputs
-    /// the environment where it covers a whole pixel); 0: none. Default: 4 for a scene
+    /// Background lookups per pixel axis (N x N camera rays per pixel; the denoiser takes
+    /// each pixel's directly seen environment from it); 0: none. Default: 4 for a scene
     /// with an environment, 0 without.
     #[arg(long, value_name = "N")]
     background: Option<u32>,
@@ -103,7 +103,7 @@ pub(super) fn run(a: &RunArgs) -> Result<()> {
     let background = a.background.unwrap_or(scene.default_background());
     if background > 0 {
         println!(
-            "background: {background}x{background} environment lookups per pixel, output where the sky covers a whole pixel"
+            "background: {background}x{background} environment lookups per pixel, composited by the denoiser"
         );
     }
     std::fs::create_dir_all(&a.out).with_context(|| format!("cannot create {}", a.out.display()))?;

@@ -33,8 +33,9 @@ pub struct HostFrame {
 /// The optional `background` buffer of the contract: per pixel, the environment seen
 /// directly through the pixel's footprint, averaged over the footprint (rays that hit
 /// anything count 0), and the fraction of the footprint that escapes to the environment.
-/// Where the coverage is 1 the pixel shows nothing but the environment, and the denoiser
-/// outputs the background there instead of reconstructing it from sparse samples.
+/// A pixel's radiance is the background plus `(1 - coverage)` times the radiance of the
+/// rest of its footprint, and that is how the denoiser composites it: where the coverage
+/// is 1 the output is the background, not a reconstruction from sparse samples.
 #[derive(Debug, Clone, PartialEq)]
 pub struct Background {
     /// Environment radiance averaged over the footprint (3).

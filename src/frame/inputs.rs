@@ -14,11 +14,12 @@ use crate::error::{Error, Result};
 /// | `shadow_roughness` | NEE light x visibility at traced pixels | perceptual roughness |
 /// | `transparent` | first transmissive tint (0 where none) | unused |
 /// | `motion` | x, y: motion in pixels, `prev = pos + motion` | unused |
-/// | `background` (optional) | directly seen environment over the pixel's footprint | coverage: fraction of the footprint that escapes |
+/// | `background` (optional) | directly seen environment over the pixel's footprint (rays that hit anything count 0) | coverage: fraction of the footprint that escapes |
 ///
-/// With a `background`, pixels whose coverage is 1 (nothing but environment in the
-/// footprint) output the background instead of the network's reconstruction
-/// ([`crate::frame::Background`]); without one, every pixel is reconstructed.
+/// With a `background`, the output is `background + (1 - coverage) x reconstruction`: the
+/// environment part of each pixel comes from the background, the network reconstructs the
+/// rest (the background alone where the coverage is 1; [`crate::frame::Background`]);
+/// without one, every pixel is the network's reconstruction.
 #[derive(Debug, Clone, Copy)]
 pub struct FrameInputs<'a> {
     /// Radiance rgb + mask.

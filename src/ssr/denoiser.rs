@@ -210,8 +210,8 @@ impl Denoiser {
         )
     }
 
-    /// The output store: the network's output, cropped, into the output texture, with
-    /// the background composited where its coverage is 1 when the caller gives one.
+    /// The output store: the network's output, cropped, into the output texture, composited
+    /// with the background (`background + (1 - coverage) x output`) when the caller gives one.
     fn store_dispatch(&self, background: Option<&wgpu::Buffer>) -> Result<Dispatch> {
         let params = StoreParams {
             width: self.width,

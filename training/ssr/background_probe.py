@@ -2,8 +2,10 @@
 its background pixels replaced by the environment seen there. Two sources:
 `--source full` (default): pixels whose primary ray escapes (depth 1, no transmissive
 tint) take the dataset's 1-spp frame (`full`, one jittered lookup of the environment per
-pixel); `--source background`: pixels wholly sky (`coverage` 1) take the `background`
-channels (the environment over the pixel's footprint, `subpixel dataset --background N`).
+pixel); `--source background`: every pixel as the engine's output pass composites it with
+the `background` and `coverage` channels (`subpixel dataset --background N`): background +
+(1 - coverage) x the method's output (`model.composite_background`); the fraction printed is
+then that of wholly sky pixels (coverage 1).
 
     python -m ssr.background_probe --data ROOT --pred PRED [--methods ssr oidn-a]
         [--scenes barn-lamp flight-helmet living-room] [--frames 8] [--split test]
@@ -15,10 +17,9 @@ contract's next step (training/README.md, "Generalisation" 9); it changes nothin
 
     python -m ssr.background_probe --data ROOT --pred PRED --write METHOD [--split test]
 
-instead writes METHOD's predictions with wholly sky pixels (coverage 1) taken from the
-`background` channels, as PRED/METHOD-background/SPLIT/SEQUENCE/frame_NNNN.exr: what the
-engine's output pass does for SSR (`subpixel denoise`), given to another method (table1.sh's
-`oidn-a-background` row).
+instead writes METHOD's predictions composited with the background as the engine's output
+pass does for SSR (`subpixel denoise`), as PRED/METHOD-background/SPLIT/SEQUENCE/
+frame_NNNN.exr: the background given to another method (table1.sh's `oidn-a-background`).
 """
 
 from __future__ import annotations
@@ -30,7 +31,10 @@ from typing import Dict, List, Optional
 
 import numpy as np
 
+import torch
+
 from .data import DatasetError, frame_name, list_sequences, read_exr, write_exr
+from .model import composite_background
 from .metrics import psnr, ssim
 
 RGB = ("R", "G", "B")
@@ -39,6 +43,14 @@ RGB = ("R", "G", "B")
 def background_mask(depth: np.ndarray, transparent: np.ndarray) -> np.ndarray:
     """[H, W] bool: the primary ray escapes (depth 1) without crossing a transmissive surface."""
     return (depth[..., 0] >= 0.999) & (np.abs(transparent).sum(axis=-1) == 0)
+
+
+def composite(pred: np.ndarray, background: np.ndarray, coverage: np.ndarray) -> np.ndarray:
+    """[H, W, 3] `pred` composited with [H, W, 3] `background` and [H, W, 1] `coverage` as the
+    engine's output pass does (`model.composite_background`)."""
+    chw = lambda x: torch.from_numpy(np.ascontiguousarray(x.transpose(2, 0, 1)))
+    out = composite_background(chw(pred), {"background": chw(background), "coverage": chw(coverage)})
+    return out.numpy().transpose(1, 2, 0)
 
 
 def scores(pred: np.ndarray, ref: np.ndarray) -> tuple:
@@ -70,7 +82,7 @@ def probe(
             r["background"].append(float(bg.mean()))
             for m in methods:
                 p = read_exr(os.path.join(pred, m, split, seq.name, frame_name(t)), [f"pred.{c}" for c in RGB])
-                mixed = np.where(bg[..., None], full, p)
+                mixed = np.where(bg[..., None], full, p) if source == "full" else composite(p, full, a[..., 6:7])
                 r.setdefault(m, []).append(scores(p, ref))
                 r.setdefault(m + "+bg", []).append(scores(mixed, ref))
     return {
@@ -80,8 +92,8 @@ def probe(
 
 
 def write_composite(data: str, pred: str, method: str, split: str = "test") -> str:
-    """Writes PRED/METHOD-background/SPLIT/...: METHOD's predictions with the `background`
-    channels where `coverage` is 1 (every frame of every SPLIT sequence). Returns the name."""
+    """Writes PRED/METHOD-background/SPLIT/...: METHOD's predictions composited with the
+    background (`composite`; every frame of every SPLIT sequence). Returns the name."""
     from .evaluate import PRED_SUFFIXES
 
     out = f"{method}-background"
@@ -89,7 +101,7 @@ def write_composite(data: str, pred: str, method: str, split: str = "test") -> s
         for t in range(seq.frames):
             a = read_exr(seq.frame_path(t), [f"background.{c}" for c in RGB] + ["coverage.Y"])
             p = read_exr(os.path.join(pred, method, split, seq.name, frame_name(t)), [f"pred.{c}" for c in RGB])
-            mixed = np.where((a[..., 3] >= 1.0)[..., None], a[..., 0:3], p)
+            mixed = composite(p, a[..., 0:3], a[..., 3:4])
             dst = os.path.join(pred, out, split, seq.name, frame_name(t))
             write_exr(dst, {"pred": mixed.transpose(2, 0, 1)}, PRED_SUFFIXES)
     return out
@@ -106,7 +118,7 @@ def main(argv: Optional[List[str]] = None) -> int:
     ap.add_argument("--source", choices=["full", "background"], default="full",
                     help="where the background comes from (see the module doc)")
     ap.add_argument("--write", metavar="METHOD", default=None,
-                    help="write METHOD's predictions with the background where coverage is 1 (see the module doc)")
+                    help="write METHOD's predictions composited with the background (see the module doc)")
     a = ap.parse_args(argv)
     if a.write:
         try:
@@ -130,7 +142,7 @@ def main(argv: Optional[List[str]] = None) -> int:
     for s, r in res.items():
         cells = [f"{r[c][0]:.2f} / {r[c][1]:.4f}" for c in cols]
         print(f"| {s} | {100 * r['background']:.0f}% | " + " | ".join(cells) + " |")
-    what = "the 1-spp frame" if a.source == "full" else "the background channels (coverage 1)"
+    what = "the 1-spp frame" if a.source == "full" else "the background channels, composited as by the engine"
     print(f"\nPSNR (dB) / SSIM on tonemapped 8-bit images; +bg: background pixels from {what}.")
     return 0
 

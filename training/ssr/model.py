@@ -264,15 +264,16 @@ def remodulate(o: torch.Tensor, albedo: torch.Tensor) -> torch.Tensor:
 
 def composite_background(output: torch.Tensor, frame: Dict[str, torch.Tensor]) -> torch.Tensor:
     """The engine's output pass with the optional background buffer (wgsl/ssr/store_output.wgsl):
-    where `frame["coverage"]` is 1 the pixel shows nothing but the environment, and the output
-    is `frame["background"]` (negative or non-finite values 0); elsewhere `output` as it is.
-    Without those buffers, `output` unchanged. [N, 3, H, W] (or [3, H, W]) like the frame."""
+    `background + (1 - coverage) * output`, the directly seen environment over the part of the
+    footprint that escapes (premultiplied by it) plus the reconstruction of the rest; the
+    background alone where the coverage is 1. Sanitised as the engine does: background values
+    non-finite or negative 0 (at most 1e12), coverage into [0, 1] (non-finite 0). Without those
+    buffers, `output` unchanged. [N, 3, H, W] (or [3, H, W]) like the frame."""
     if "background" not in frame or "coverage" not in frame:
         return output
     bg = torch.nan_to_num(frame["background"], nan=0.0, posinf=0.0, neginf=0.0).clamp(0.0, 1e12)
-    cov = frame["coverage"]
-    sky = (cov >= 1.0) & torch.isfinite(cov)
-    return torch.where(sky, bg.to(output.dtype), output)
+    cov = torch.nan_to_num(frame["coverage"], nan=0.0, posinf=0.0, neginf=0.0).clamp(0.0, 1.0)
+    return bg.to(output.dtype) + (1.0 - cov.to(output.dtype)) * output
 
 
 def quarter_mask(height: int, width: int, t: int, *, dtype=torch.float32) -> torch.Tensor:

@@ -116,8 +116,8 @@ def parse_args(argv=None) -> argparse.Namespace:
     ap.add_argument(
         "--background", default="none", choices=["none", "val", "loss"],
         help="the background buffer (frames need the background and coverage channels, `subpixel dataset "
-        "--background N`): `val` scores validation on the engine's output (the background where coverage is "
-        "1), `loss` also trains on it (no gradient from wholly sky pixels); default none",
+        "--background N`): `val` scores validation on the engine's output (composited with the background, "
+        "model.composite_background), `loss` also trains on it (no gradient from wholly sky pixels); default none",
     )
     ap.add_argument(
         "--lambda", dest="lambdas", action="append", default=[], metavar="TERM=WEIGHT",

@@ -43,9 +43,8 @@ def test_probe_replaces_background_pixels_with_the_1spp_frame(tmp_path, capsys):
         mixed[:, :, :4] = bufs["full"][:, :, :4]
         mixed[:, 0, 0] = 0.0
         ref = bufs["reference"]
-        from_bg = zeros.copy()
-        from_bg[:, :4, :2] = 0.25 + t
-        from_bg[:, 0, 0] = 0.0
+        # black predictions composited: background + (1 - coverage) * 0 = the background
+        from_bg = bufs["background"].copy()
         expected.append((psnr(mixed, ref), ssim(mixed, ref), psnr(zeros, ref), psnr(from_bg, ref)))
     res = B.probe(root, pred, ["black"], None, 8, "test")
     r = res["synthetic"]
@@ -57,15 +56,21 @@ def test_probe_replaces_background_pixels_with_the_1spp_frame(tmp_path, capsys):
     assert abs(r2["background"] - 7 / 64) < 1e-9 and abs(r2["black+bg"][0] - e[3]) < 1e-9
     assert B.main(["--data", root, "--pred", pred, "--methods", "black"]) == 0
     assert "| synthetic | 48% |" in capsys.readouterr().out
-    # --write: the black predictions with the background where coverage is 1, scored as the
-    # probe scored them
+    # --write: the predictions composited, background + (1 - coverage) * pred; black ones
+    # give the background, ones of 1 give background + 1 - coverage
     assert B.main(["--data", root, "--pred", pred, "--write", "black"]) == 0
     for t in range(2):
         got = read_exr(os.path.join(pred, "black-background", "test", "synthetic_000", frame_name(t)), [f"pred.{c}" for c in RGB])
-        want = np.zeros((8, 8, 3), np.float32)
-        want[:4, :2] = 0.25 + t
-        want[0, 0] = 0.0
-        assert np.array_equal(got, want)
+        assert np.array_equal(got, np.full((8, 8, 3), 0.25 + t, np.float32))
+        ones = np.ones((3, 8, 8), np.float32)
+        write_exr(os.path.join(pred, "white", "test", "synthetic_000", frame_name(t)), {"pred": ones}, PRED_SUFFIXES)
+    assert B.main(["--data", root, "--pred", pred, "--write", "white"]) == 0
+    cov = np.zeros((8, 8, 1), np.float32)
+    cov[:4, :2] = 1.0
+    cov[0, 0] = 0.5
+    for t in range(2):
+        got = read_exr(os.path.join(pred, "white-background", "test", "synthetic_000", frame_name(t)), [f"pred.{c}" for c in RGB])
+        assert np.allclose(got, 0.25 + t + 1.0 - cov, atol=1e-6)
     # a method without predictions: an error naming the missing frame
     assert B.main(["--data", root, "--pred", pred, "--methods", "nope"]) == 1
     err = capsys.readouterr().err

@@ -468,13 +468,14 @@ def test_tfa_softmax_is_stable():
 def test_composite_background_mirrors_the_engines_output_pass():
     from ssr.model import composite_background
 
-    out = torch.full((1, 3, 2, 3), 7.0, requires_grad=True)
+    out = torch.full((1, 3, 2, 3), 8.0, requires_grad=True)
     bg = torch.tensor([0.5, float("nan"), -1.0]).view(1, 3, 1, 1).expand(1, 3, 2, 3).clone()
-    cov = torch.tensor([[1.0, 0.99, float("inf")], [1.0, float("nan"), 0.0]]).view(1, 1, 2, 3)
+    cov = torch.tensor([[1.0, 0.75, float("inf")], [2.0, float("nan"), 0.0]]).view(1, 1, 2, 3)
     got = composite_background(out, {"background": bg, "coverage": cov})
-    sky = torch.tensor([[True, False, False], [True, False, False]])
-    want = torch.where(sky, torch.tensor([0.5, 0.0, 0.0]).view(1, 3, 1, 1), torch.tensor(7.0))
+    # sanitised: background (0.5, 0, 0); coverage 1, 0.75, 0 (inf), 1 (2 clamped), 0 (nan), 0
+    c = torch.tensor([[1.0, 0.75, 0.0], [1.0, 0.0, 0.0]]).view(1, 1, 2, 3)
+    want = torch.tensor([0.5, 0.0, 0.0]).view(1, 3, 1, 1) + (1.0 - c) * 8.0
     assert torch.equal(got, want)
-    got.sum().backward()  # no gradient reaches the network where the background is used
-    assert torch.equal(out.grad, (~sky).float().expand(1, 3, 2, 3))
+    got.sum().backward()  # the network's gradient is scaled by the uncovered part
+    assert torch.equal(out.grad, (1.0 - c).expand(1, 3, 2, 3))
     assert composite_background(out, {}) is out

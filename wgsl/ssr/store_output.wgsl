@@ -1,11 +1,12 @@
 // Writes the first 3 channels of a padded Wp x Hp tensor into the W x H output texture
 // (rgba32float, alpha = 1), cropping the padding.
 // With template flag BACKGROUND (the caller gave the optional background buffer, DESIGN §3):
-// where the coverage (w) is at least 1, the pixel's footprint holds nothing but the
-// directly seen environment, and the output is the background (xyz) instead of the
-// network's reconstruction; the background is sanitised as colour is (ssr/lib/sanitize),
-// values changed counted in `sanitized`. A non-finite coverage is not 1. The network's own
-// output (its history) is left as it was.
+// a pixel's radiance is the directly seen environment over the part of its footprint that
+// escapes (the background, xyz, premultiplied by that part) plus the rest's radiance, so the
+// output is background + (1 - coverage) * reconstruction: the background alone where the
+// coverage (w) is 1, the network's reconstruction alone where it is 0. Both are sanitised
+// (background as colour, ssr/lib/sanitize; coverage into [0, 1], non-finite 0), values
+// changed counted in `sanitized`. The network's own output (its history) is left as it was.
 //
 //#param BACKGROUND 0
 
@@ -32,12 +33,11 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>) {
     var rgb = src[(gid.y * p.padded_width + gid.x) * p.c4].xyz;
 //#if BACKGROUND
     let b = background[gid.y * p.width + gid.x];
-    if (b.w >= 1.0 && b.w <= F32_MAX) {
-        var bad = 0u;
-        rgb = sanitize_radiance(b.xyz, &bad);
-        if (bad > 0u) {
-            atomicAdd(&sanitized[0], bad);
-        }
+    var bad = 0u;
+    let coverage = in_range(b.w, 0.0, 1.0, &bad);
+    rgb = sanitize_radiance(b.xyz, &bad) + (1.0 - coverage) * rgb;
+    if (bad > 0u) {
+        atomicAdd(&sanitized[0], bad);
     }
 //#end
     textureStore(dst, vec2<u32>(gid.xy), vec4<f32>(rgb, 1.0));
