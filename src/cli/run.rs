@@ -48,7 +48,7 @@ pub(super) struct RunArgs {
     #[arg(long, value_enum, default_value_t = Backend::Auto)]
     backend: Backend,
     /// Background lookups per pixel axis (N x N camera rays per pixel; the denoiser takes
-    /// each pixel's directly seen environment from it); 0: none. Default: 4 for a scene
+    /// each pixel's directly seen environment from it); 0: none. Default: 2 for a scene
     /// with an environment, 0 without.
     #[arg(long, value_name = "N")]
     background: Option<u32>,
