@@ -45,12 +45,17 @@ bin="$root/target/release/subpixel"
 # denoise WEIGHTS METHOD: the engine's output for sequence $seq as PRED/METHOD/test/$name.
 denoise() { "$bin" denoise --weights "$1" --input "$seq" --out "$pred/$2/test/$name" >/dev/null; }
 # Frames with the background buffer (`subpixel dataset --background N`): SSR uses it (the
-# engine composites it, background + (1 - coverage) x output); two more rows show its worth:
-# ssr-no-background (the engine ignoring it) and oidn-a-background (OIDN (a) given it too).
+# engine composites it, background + (1 - coverage) x output); more rows show its worth:
+# ssr-no-background (the engine ignoring it) and METHOD-background for RAE, NSRR and OIDN (a)
+# (their outputs composited the same way: the baselines given the buffer too).
 background=0
 if (cd "$here" && "$py" -c 'import sys; from ssr.data import exr_size; sys.exit("coverage.Y" not in exr_size(sys.argv[1])[2])' "$first"); then
   background=1
-  (cd "$here" && "$py" -m ssr.background_probe --data "$data" --pred "$pred" --write oidn-a >/dev/null)
+  for m in rae nsrr oidn-a; do
+    if [ -d "$pred/$m/test" ]; then
+      (cd "$here" && "$py" -m ssr.background_probe --data "$data" --pred "$pred" --write "$m" >/dev/null)
+    fi
+  done
 fi
 for seq in "$data"/test/*/; do
   name="$(basename "$seq")"

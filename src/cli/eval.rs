@@ -269,12 +269,14 @@ fn table(pred: &std::path::Path, root: &std::path::Path, split: &str, only: &[St
         .collect();
     // The row order (the paper's plus hold-filled and OIDN; the background buffer's
     // rows by the ones they change), then any other method alphabetically.
-    const ORDER: [&str; 10] = [
+    const ORDER: [&str; 12] = [
         "input",
         "hold",
         "accumulation",
         "rae",
+        "rae-background",
         "nsrr",
+        "nsrr-background",
         "oidn-a",
         "oidn-a-background",
         "oidn-b",
