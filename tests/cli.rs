@@ -942,3 +942,72 @@ fn default_weights_follow_the_binary_and_the_environment() {
     );
     std::fs::remove_dir_all(&root).ok();
 }
+
+/// `subpixel denoise` reads a frame's background channels and the engine composites them
+/// (background + (1 - coverage) x reconstruction; `tests/ssr_api.rs` checks the rule), and
+/// `--no-background` ignores them: the golden frames given a background with coverage 1 on
+/// the left half (its value) and 0 on the right (background 0) come out as that value on
+/// the left and exactly as without a background on the right.
+#[test]
+fn denoise_uses_the_frames_background() {
+    let plain = tmp("bg-plain");
+    golden_folder(&plain);
+    let with = tmp("bg-with");
+    for i in 0..3 {
+        let name = format!("frame_{i:04}.exr");
+        let mut f = read_frame(&plain.join(&name)).unwrap();
+        let frame = f.frame.as_mut().unwrap();
+        let (w, h) = frame.size().unwrap();
+        let sky = |x: u32| x < w / 2;
+        frame.background = Some(subpixel::frame::Background {
+            radiance: HostTensor::from_fn(w, h, 3, |x, _, c| if sky(x) { 0.5 + c as f32 } else { 0.0 }),
+            coverage: HostTensor::from_fn(w, h, 1, |x, _, _| sky(x) as u32 as f32),
+        });
+        write_frame(&with.join(&name), &f).unwrap();
+    }
+    let denoise = |input: &Path, name: &str, extra: &[&str]| {
+        let out = tmp(name);
+        let o = bin()
+            .args(["denoise", "--weights"])
+            .arg(data("golden_weights.safetensors"))
+            .arg("--input")
+            .arg(input)
+            .arg("--out")
+            .arg(&out)
+            .args(extra)
+            .output()
+            .unwrap();
+        assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+        (out, String::from_utf8_lossy(&o.stdout).to_string())
+    };
+    let (a, _) = denoise(&plain, "bg-out-plain", &[]);
+    let (b, said) = denoise(&with, "bg-out-with", &[]);
+    assert!(said.contains("background in 3 of them"), "{said}");
+    let (c, said) = denoise(&with, "bg-out-ignored", &["--no-background"]);
+    assert!(
+        said.contains("background in 0 of them") && said.contains("--no-background"),
+        "{said}"
+    );
+    for i in 0..3 {
+        let pred = |d: &Path| {
+            read_frame(&d.join(format!("frame_{i:04}.exr")))
+                .unwrap()
+                .pred
+                .unwrap()
+        };
+        let (pa, pb, pc) = (pred(&a), pred(&b), pred(&c));
+        assert_eq!(pc, pa, "--no-background: as without a background");
+        for y in 0..pa.height {
+            for x in 0..pa.width {
+                for k in 0..3 {
+                    let want = if x < pa.width / 2 {
+                        0.5 + k as f32
+                    } else {
+                        pa.at(x, y, k)
+                    };
+                    assert_eq!(pb.at(x, y, k), want, "frame {i} pixel ({x}, {y}) channel {k}");
+                }
+            }
+        }
+    }
+}
