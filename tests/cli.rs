@@ -34,6 +34,18 @@ fn tmp(name: &str) -> PathBuf {
     d
 }
 
+/// `subpixel denoise` of the frame folder `input` into `out` with the golden weights.
+fn golden_denoise(input: &Path, out: &Path) -> Command {
+    let mut c = bin();
+    c.args(["denoise", "--weights"])
+        .arg(data("golden_weights.safetensors"))
+        .arg("--input")
+        .arg(input)
+        .arg("--out")
+        .arg(out);
+    c
+}
+
 fn data(name: &str) -> PathBuf {
     PathBuf::from(env!("CARGO_MANIFEST_DIR"))
         .join("tests/data")
@@ -84,16 +96,7 @@ fn denoise_then_eval_a_frame_folder() {
     let input = tmp("in");
     let out = tmp("out");
     golden_folder(&input);
-    let o = bin()
-        .args(["denoise", "--weights"])
-        .arg(data("golden_weights.safetensors"))
-        .arg("--input")
-        .arg(&input)
-        .arg("--out")
-        .arg(&out)
-        .arg("--png")
-        .output()
-        .unwrap();
+    let o = golden_denoise(&input, &out).arg("--png").output().unwrap();
     let stderr = String::from_utf8_lossy(&o.stderr);
     assert!(o.status.success(), "{stderr}");
     assert!(
@@ -269,15 +272,7 @@ fn bad_input_gives_clear_errors() {
     let input = tmp("bad");
     golden_folder(&input);
     std::fs::remove_file(input.join("frame_0001.exr")).unwrap();
-    let o = bin()
-        .args(["denoise", "--weights"])
-        .arg(data("golden_weights.safetensors"))
-        .arg("--input")
-        .arg(&input)
-        .arg("--out")
-        .arg(input.join("out"))
-        .output()
-        .unwrap();
+    let o = golden_denoise(&input, &input.join("out")).output().unwrap();
     let stderr = String::from_utf8_lossy(&o.stderr);
     assert!(!o.status.success());
     assert!(stderr.contains("frame_0001.exr is missing"), "{stderr}");
@@ -674,17 +669,7 @@ fn denoise_never_destroys_its_input() {
     let input = root.join("in");
     golden_folder(&input);
     let before = snapshot(&input);
-    let denoise = |input: &Path, out: &Path| {
-        bin()
-            .args(["denoise", "--weights"])
-            .arg(data("golden_weights.safetensors"))
-            .arg("--input")
-            .arg(input)
-            .arg("--out")
-            .arg(out)
-            .output()
-            .unwrap()
-    };
+    let denoise = |input: &Path, out: &Path| golden_denoise(input, out).output().unwrap();
     #[cfg(unix)]
     std::os::unix::fs::symlink(&input, root.join("link")).unwrap();
     let mut cases = vec![
@@ -967,16 +952,7 @@ fn denoise_uses_the_frames_background() {
     }
     let denoise = |input: &Path, name: &str, extra: &[&str]| {
         let out = tmp(name);
-        let o = bin()
-            .args(["denoise", "--weights"])
-            .arg(data("golden_weights.safetensors"))
-            .arg("--input")
-            .arg(input)
-            .arg("--out")
-            .arg(&out)
-            .args(extra)
-            .output()
-            .unwrap();
+        let o = golden_denoise(input, &out).args(extra).output().unwrap();
         assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
         (out, String::from_utf8_lossy(&o.stdout).to_string())
     };
