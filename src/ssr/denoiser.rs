@@ -53,6 +53,9 @@ struct ExposureFinalParams {
 /// exposure, as on a first frame (`[1]`) or a later one (`[2]`).
 type ExposureDispatches = [Dispatch; 3];
 
+/// The caller's buffers a bound [`InputPasses`] reads: the six, and the background.
+type InputKey = ([wgpu::Buffer; 6], Option<wgpu::Buffer>);
+
 /// The dispatches bound to the caller's buffers: exposure, input packing, and the output
 /// store (which reads the optional background).
 struct InputPasses {
@@ -126,7 +129,7 @@ pub struct Denoiser {
     height: u32,
     output: wgpu::Texture,
     /// The passes bound to the caller's buffers (six, and the background when given).
-    inputs: Bound<Vec<wgpu::Buffer>, InputPasses>,
+    inputs: Bound<InputKey, InputPasses>,
     /// The denoiser's own input buffers for [`Denoiser::denoise_host`] (the six and a
     /// background), made on first use; never the caller's buffers of an earlier
     /// [`Denoiser::denoise`].
@@ -357,12 +360,7 @@ impl Denoiser {
     }
 
     fn bind_inputs(&mut self, inputs: &FrameInputs<'_>) -> Result<()> {
-        let key: Vec<wgpu::Buffer> = inputs
-            .buffers()
-            .into_iter()
-            .chain(inputs.background)
-            .cloned()
-            .collect();
+        let key = (inputs.buffers().map(|b| b.clone()), inputs.background.cloned());
         let mut bound = std::mem::take(&mut self.inputs);
         let built = bound.get_or_build(key, || self.input_passes(inputs)).map(|_| ());
         // (Taken out so the build can borrow the denoiser; put back before any return.)
