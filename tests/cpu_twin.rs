@@ -179,9 +179,10 @@ fn background_matches_the_reference_on_wholly_sky_pixels() {
     let scene = load_scene("builtin:procedural:1").unwrap();
     let p = packed(&scene);
     let (w, h) = (32, 32);
-    let s = settings(&scene, Mode::Reference, 256, 3);
+    let mut s = settings(&scene, Mode::Reference, 256, 3);
+    s.background = 8;
     let tracer = CpuTracer::new(w, h).unwrap();
-    let (bg, cov) = tracer.background(&p, &s, 8).unwrap();
+    let (bg, cov) = tracer.background(&p, &s).unwrap();
     let reference = tracer.render_reference(&p, &s, 256).unwrap().mean(256);
     let g = cpu_frame(&p, w, h, &s);
     let (mut sky, mut ground, mut rel_sum) = (0, 0, 0.0f64);
@@ -208,7 +209,8 @@ fn background_matches_the_reference_on_wholly_sky_pixels() {
         mean_rel < 0.01,
         "background vs reference on sky pixels: mean relative difference {mean_rel}"
     );
-    assert!(tracer.background(&p, &s, 0).is_err());
+    s.background = 0;
+    assert!(tracer.background(&p, &s).is_err());
 }
 
 /// The WGSL tracer's background pass (`trace/background`) against the CPU twin's

@@ -340,7 +340,7 @@ fn add_background(file: &Path, packed: &PackedScene, settings: &FrameSettings) -
         return Ok(());
     }
     let (w, h) = frame.size()?;
-    let (radiance, coverage) = CpuTracer::new(w, h)?.background(packed, settings, settings.background)?;
+    let (radiance, coverage) = CpuTracer::new(w, h)?.background(packed, settings)?;
     frame.background = Some(Background { radiance, coverage });
     write_frame_atomically(file, &ff)
 }

@@ -237,9 +237,7 @@ pub(crate) fn background_pixel(
             let d = camera_dir(&p.cam, px, size);
             if traverse(sc, o, d, BIG, false, NO_HIT, rays).prim == NO_HIT {
                 escaped += 1;
-                if ei.present {
-                    sum += env_radiance(sc, ei, d);
-                }
+                sum += env_radiance(sc, ei, d); // 0 without an environment
             }
         }
     }

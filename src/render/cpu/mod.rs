@@ -238,7 +238,7 @@ impl CpuTracer {
         }
         debug_assert_eq!(i, n);
         if s.background > 0 {
-            let (radiance, coverage) = self.background(scene, s, s.background)?;
+            let (radiance, coverage) = self.background(scene, s)?;
             f.background = Some(Background { radiance, coverage });
         }
         let samples = match s.mode {
@@ -248,20 +248,15 @@ impl CpuTracer {
         Ok((f, FrameStats { rays, samples }))
     }
 
-    /// The directly seen environment of frame `s`, for the background proposal of
-    /// `training/README.md` ("Generalisation" 9): per pixel, the mean over `n x n`
-    /// stratified positions in the pixel of the environment radiance along the camera rays
-    /// that escape the scene (0 for rays that hit anything, glass included), as
-    /// `(background, coverage)`: 3 and 1 channels, coverage the fraction that escape. Where
-    /// the coverage is 1 the background is the pixel's radiance (a primary ray that escapes
-    /// carries the environment's radiance and nothing else), estimated with `n x n`
-    /// stratified lookups instead of path samples. CPU twin only for now.
-    pub fn background(
-        &self,
-        scene: &PackedScene,
-        s: &FrameSettings,
-        n: u32,
-    ) -> Result<(HostTensor, HostTensor)> {
+    /// The background buffer of frame `s` ([`crate::frame::Background`]): per pixel, the
+    /// mean over `s.background x s.background` stratified positions in the pixel of the
+    /// environment radiance along the camera rays that escape the scene (0 for rays that
+    /// hit anything, glass included), as `(background, coverage)`: 3 and 1 channels,
+    /// coverage the fraction that escape. Where the coverage is 1 the background is the
+    /// pixel's radiance, estimated with lookups instead of path samples. The reference of
+    /// the WGSL tracer's `trace/background` pass; an error when `s.background` is 0.
+    pub fn background(&self, scene: &PackedScene, s: &FrameSettings) -> Result<(HostTensor, HostTensor)> {
+        let n = s.background;
         if n == 0 {
             return Err(Error::Invalid(
                 "background: n must be at least 1 (n x n lookups per pixel)".into(),
@@ -270,21 +265,15 @@ impl CpuTracer {
         let (w, h) = (self.width, self.height);
         let p = self.params(s, s.seed);
         let ei = EnvInfo::new(scene);
-        let rows: Vec<Vec<[f32; 4]>> = (0..h)
+        let px: Vec<(glam::Vec3A, f32)> = (0..h)
             .into_par_iter()
-            .map(|y| {
-                let mut rays = 0u64;
-                (0..w)
-                    .map(|x| {
-                        let (bg, cov) = integrator::background_pixel(scene, &ei, &p, x, y, n, &mut rays);
-                        [bg.x, bg.y, bg.z, cov]
-                    })
-                    .collect()
+            .flat_map_iter(|y| {
+                let (p, ei) = (&p, &ei);
+                (0..w).map(move |x| integrator::background_pixel(scene, ei, p, x, y, n, &mut 0))
             })
             .collect();
-        let px: Vec<[f32; 4]> = rows.into_iter().flatten().collect();
-        let background = px.iter().flat_map(|v| [v[0], v[1], v[2]]).collect();
-        let coverage = px.iter().map(|v| v[3]).collect();
+        let background = px.iter().flat_map(|(b, _)| b.to_array()).collect();
+        let coverage = px.iter().map(|(_, c)| *c).collect();
         Ok((
             HostTensor::from_vec(w, h, 3, background),
             HostTensor::from_vec(w, h, 1, coverage),
