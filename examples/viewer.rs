@@ -153,7 +153,7 @@ struct App {
     gpu: Gpu,
     scene: GpuScene,
     far: f32,
-    /// Background lookups per pixel axis (the scene's default: 4 with an environment).
+    /// Background lookups per pixel axis (the scene's default: 2 with an environment).
     background: u32,
     weights: Weights,
     path: Option<CameraPath>,
@@ -268,8 +268,8 @@ impl App {
             })?;
             d.encode(&mut enc);
         }
-        // The denoiser's output texture (the background composited where it covers a
-        // whole pixel), as an embedding would show it.
+        // The denoiser's output texture (composited with the background), as an embedding
+        // would show it.
         let ssr = Source::Texture(frame.fl.denoiser.output());
         let t = Source::Tensor;
         let (src, other, mode, first, channels): (Source<'_>, Option<Source<'_>>, DisplayMode, u32, u32) =
