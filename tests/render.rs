@@ -87,7 +87,7 @@ fn random_mesh(rng: &mut StdRng, kind: usize) -> Scene {
             for i in 0..20 {
                 for j in 0..20 {
                     let o = Vec3::new(i as f32 - 10.0, j as f32 - 10.0, ((i * j) % 5) as f32);
-                    g.push_quad(o, o + Vec3::X, o + Vec3::X + Vec3::Y, o + Vec3::Y, 0);
+                    g.push_quad([o, o + Vec3::X, o + Vec3::X + Vec3::Y, o + Vec3::Y], 0);
                 }
             }
         }
@@ -727,11 +727,14 @@ fn environment_lighting_matches_cpu_integral() {
     let mut env = test_env(16, 8, 20.0);
     env.pixels[2 * 16 + 5] = [60.0, 50.0, 40.0]; // a "sun" in the upper hemisphere
     let mut g = Geometry::default();
+    let v = Vec3::new;
     g.push_quad(
-        Vec3::new(-50.0, 0.0, 50.0),
-        Vec3::new(50.0, 0.0, 50.0),
-        Vec3::new(50.0, 0.0, -50.0),
-        Vec3::new(-50.0, 0.0, -50.0),
+        [
+            v(-50., 0., 50.),
+            v(50., 0., 50.),
+            v(50., 0., -50.),
+            v(-50., 0., -50.),
+        ],
         0,
     );
     let camera = Camera {
@@ -857,7 +860,7 @@ fn emissive_box_furnace_converges_to_one() {
     for [a, b, cc, d] in faces {
         let n = (b - a).cross(cc - a);
         assert!(n.dot(-(a + cc) * 0.5) > 0.0, "face must point inwards");
-        g.push_quad(a, b, cc, d, 1);
+        g.push_quad([a, b, cc, d], 1);
     }
     let gs = GpuScene::new(&gpu(), &scene).unwrap();
     assert_eq!(gs.emissive_triangles, 12);

@@ -78,8 +78,19 @@ pub fn push_box(g: &mut Geometry, c: Vec3, h: Vec3, rot: Quat, material: u32) {
         [p(-1., -1., -1.), p(1., -1., -1.), p(1., -1., 1.), p(-1., -1., 1.)],
     ];
     for [a, b, cc, d] in faces {
-        g.push_quad(a, b, cc, d, material);
+        g.push_quad([a, b, cc, d], material);
     }
+}
+
+/// The corners of the rectangle `x0..x1` by `z0..z1` at height `y`, counter-clockwise seen
+/// from below (a ceiling light).
+fn facing_down(y: f32, [x0, x1]: [f32; 2], [z0, z1]: [f32; 2]) -> [Vec3; 4] {
+    [
+        Vec3::new(x0, y, z0),
+        Vec3::new(x1, y, z0),
+        Vec3::new(x1, y, z1),
+        Vec3::new(x0, y, z1),
+    ]
 }
 
 fn add_material(s: &mut Scene, m: Material) -> u32 {
@@ -128,48 +139,17 @@ pub fn cornell(o: &CornellOptions) -> Scene {
     );
     let g = &mut s.geometry;
     let v = Vec3::new;
-    g.push_quad(
-        v(-1., 0., -1.),
-        v(-1., 0., 1.),
-        v(1., 0., 1.),
-        v(1., 0., -1.),
-        white,
-    ); // floor
-    g.push_quad(
-        v(-1., 2., -1.),
-        v(1., 2., -1.),
-        v(1., 2., 1.),
-        v(-1., 2., 1.),
-        white,
-    ); // ceiling
-    g.push_quad(
-        v(-1., 0., -1.),
-        v(1., 0., -1.),
-        v(1., 2., -1.),
-        v(-1., 2., -1.),
-        white,
-    ); // back
-    g.push_quad(
-        v(-1., 0., -1.),
-        v(-1., 2., -1.),
-        v(-1., 2., 1.),
-        v(-1., 0., 1.),
-        left,
-    );
-    g.push_quad(
-        v(1., 0., -1.),
-        v(1., 0., 1.),
-        v(1., 2., 1.),
-        v(1., 2., -1.),
-        right,
-    );
-    g.push_quad(
-        v(-0.25, 1.98, -0.2),
-        v(0.25, 1.98, -0.2),
-        v(0.25, 1.98, 0.2),
-        v(-0.25, 1.98, 0.2),
-        light,
-    );
+    let walls = [
+        [v(-1., 0., -1.), v(-1., 0., 1.), v(1., 0., 1.), v(1., 0., -1.)], // floor
+        [v(-1., 2., -1.), v(1., 2., -1.), v(1., 2., 1.), v(-1., 2., 1.)], // ceiling
+        [v(-1., 0., -1.), v(1., 0., -1.), v(1., 2., -1.), v(-1., 2., -1.)], // back
+        [v(-1., 0., -1.), v(-1., 2., -1.), v(-1., 2., 1.), v(-1., 0., 1.)], // left
+        [v(1., 0., -1.), v(1., 0., 1.), v(1., 2., 1.), v(1., 2., -1.)],   // right
+        facing_down(1.98, [-0.25, 0.25], [-0.2, 0.2]),                    // light
+    ];
+    for (corners, material) in walls.into_iter().zip([white, white, white, left, right, light]) {
+        g.push_quad(corners, material);
+    }
     if o.objects {
         let glass = add_material(&mut s, Material::glass("glass", [1.0; 3], 0.0, 1.5, false));
         let metal = add_material(&mut s, Material::metal("metal", [0.91, 0.92, 0.92], 0.25));
@@ -423,10 +403,7 @@ pub fn room() -> Scene {
         floor,
     );
     g.push_quad(
-        v(-3., 3., -3.),
-        v(3., 3., -3.),
-        v(3., 3., 3.),
-        v(-3., 3., 3.),
+        [v(-3., 3., -3.), v(3., 3., -3.), v(3., 3., 3.), v(-3., 3., 3.)],
         paint,
     ); // ceiling
     // Back wall (z = -3) with a window x in [-1.5, 0.5], y in [1, 2.3].
@@ -453,34 +430,15 @@ pub fn room() -> Scene {
     back(g, -3.0, 3.0, 2.3, 3.0);
     back(g, -3.0, -1.5, 1.0, 2.3);
     back(g, 0.5, 3.0, 1.0, 2.3);
-    g.push_quad(
-        v(-3., 0., -3.),
-        v(-3., 3., -3.),
-        v(-3., 3., 3.),
-        v(-3., 0., 3.),
-        blue,
-    ); // left
-    g.push_quad(
-        v(3., 0., 3.),
-        v(3., 3., 3.),
-        v(3., 3., -3.),
-        v(3., 0., -3.),
-        paint,
-    ); // right
-    g.push_quad(
-        v(3., 0., 3.),
-        v(-3., 0., 3.),
-        v(-3., 3., 3.),
-        v(3., 3., 3.),
-        paint,
-    ); // front
-    g.push_quad(
-        v(0.6, 2.98, -0.4),
-        v(1.4, 2.98, -0.4),
-        v(1.4, 2.98, 0.4),
-        v(0.6, 2.98, 0.4),
-        lamp,
-    );
+    let walls = [
+        [v(-3., 0., -3.), v(-3., 3., -3.), v(-3., 3., 3.), v(-3., 0., 3.)], // left
+        [v(3., 0., 3.), v(3., 3., 3.), v(3., 3., -3.), v(3., 0., -3.)],     // right
+        [v(3., 0., 3.), v(-3., 0., 3.), v(-3., 3., 3.), v(3., 3., 3.)],     // front
+        facing_down(2.98, [0.6, 1.4], [-0.4, 0.4]),                         // lamp
+    ];
+    for (corners, material) in walls.into_iter().zip([blue, paint, paint, lamp]) {
+        g.push_quad(corners, material);
+    }
     // Table: top and four legs.
     push_box(g, v(0.0, 0.75, -1.2), v(0.8, 0.04, 0.5), Quat::IDENTITY, wood);
     for (lx, lz) in [(-0.7, -0.8), (0.7, -0.8), (-0.7, -1.6), (0.7, -1.6)] {
@@ -488,13 +446,13 @@ pub fn room() -> Scene {
     }
     push_sphere(g, v(0.3, 0.99, -1.2), 0.2, 32, 16, metal);
     // A thin glass pane in the window, slightly inside.
-    g.push_quad(
+    let pane = [
         v(-1.5, 1.0, -2.95),
         v(0.5, 1.0, -2.95),
         v(0.5, 2.3, -2.95),
         v(-1.5, 2.3, -2.95),
-        glass,
-    );
+    ];
+    g.push_quad(pane, glass);
     // A cut-out leaf screen standing on the floor.
     uvq(
         g,

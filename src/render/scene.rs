@@ -392,22 +392,16 @@ impl Geometry {
         self.push_mesh(&pos, Some(&nrm), Some(&uv), tan, &tris, material);
     }
 
-    /// Appends a quad `a b c d` (counter-clockwise seen from the front).
-    pub fn push_quad(&mut self, a: Vec3, b: Vec3, c: Vec3, d: Vec3, material: u32) {
+    /// Appends a quad with the `corners` `a b c d` (counter-clockwise seen from the front),
+    /// uv (0, 1) at `a`, (1, 1) at `b`, (1, 0) at `c` and (0, 0) at `d`.
+    pub fn push_quad(&mut self, corners: [Vec3; 4], material: u32) {
         let uv = [
             Vec2::new(0.0, 1.0),
             Vec2::new(1.0, 1.0),
             Vec2::new(1.0, 0.0),
             Vec2::new(0.0, 0.0),
         ];
-        self.push_mesh(
-            &[a, b, c, d],
-            None,
-            Some(&uv),
-            None,
-            &[[0, 1, 2], [0, 2, 3]],
-            material,
-        );
+        self.push_mesh(&corners, None, Some(&uv), None, &[[0, 1, 2], [0, 2, 3]], material);
     }
 
     /// Axis-aligned bounds `(min, max)` of all vertices.
