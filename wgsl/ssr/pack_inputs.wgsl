@@ -24,12 +24,10 @@ const EPS: f32 = 0.00316;
 
 @compute @workgroup_size(8, 8, 1)
 fn main(@builtin(global_invocation_id) gid: vec3<u32>) {
-    let x = gid.x;
-    let y = gid.y;
-    if (x >= p.padded_width || y >= p.padded_height) {
+    if (outside_padded(gid)) {
         return;
     }
-    let src = source_pixel(x, y);
+    let src = source_pixel(gid);
     var bad = 0u;
     let cm = color_mask[src];
     let ad = albedo_depth[src];
@@ -43,15 +41,12 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>) {
     let metallic = in_range(nm.w, 0.0, 1.0, &bad);
     let shadow_in = sanitize_radiance(sr.xyz, &bad);
     let roughness = in_range(sr.w, 0.0, 1.0, &bad);
-    let inside = x < p.width && y < p.height;
-    if (inside && bad > 0u) {
-        atomicAdd(&sanitized[0], bad);
-    }
+    count_sanitized(gid, bad);
     let s = exposure[0].xyz;
     let e = log(vec3<f32>(1.0) + (color / s) / (albedo + vec3<f32>(EPS)));
     let s_shadow = vec3<f32>(exposure[0].w, exposure[1].xy);
     let shadow = log(vec3<f32>(1.0) + shadow_in / s_shadow);
-    let dst = y * p.padded_width + x;
+    let dst = padded_pixel(gid);
     a_t[dst * 4u + 0u] = vec4<f32>(e, albedo.x);
     a_t[dst * 4u + 1u] = vec4<f32>(albedo.yz, normal.xy);
     a_t[dst * 4u + 2u] = vec4<f32>(normal.z, shadow);

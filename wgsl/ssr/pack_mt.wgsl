@@ -15,23 +15,18 @@
 
 @compute @workgroup_size(8, 8, 1)
 fn main(@builtin(global_invocation_id) gid: vec3<u32>) {
-    let x = gid.x;
-    let y = gid.y;
-    if (x >= p.padded_width || y >= p.padded_height) {
+    if (outside_padded(gid)) {
         return;
     }
-    let src = source_pixel(x, y);
+    let src = source_pixel(gid);
     var counted_elsewhere = 0u;
     let mask = sanitize_mask(color_mask[src].w, &counted_elsewhere);
     var bad = 0u;
     let tint = sanitize_unit(transparent[src].xyz, &bad);
     let mv = motion[src].xy;
     let m = vec2<f32>(finite_or_zero(mv.x, &bad), finite_or_zero(mv.y, &bad));
-    let inside = x < p.width && y < p.height;
-    if (inside && bad > 0u) {
-        atomicAdd(&sanitized[0], bad);
-    }
-    let dst = y * p.padded_width + x;
+    count_sanitized(gid, bad);
+    let dst = padded_pixel(gid);
     mt[dst] = vec4<f32>(mask, tint);
     motion_out[dst] = vec4<f32>(m, 0.0, 0.0);
 }
