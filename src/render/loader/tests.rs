@@ -62,6 +62,37 @@ fn tmp(name: &str) -> PathBuf {
     d
 }
 
+/// [`tiny_gltf`] whose material has the image at `uri` as its base colour texture.
+fn textured_gltf(uri: &str) -> String {
+    let extra = format!(
+        r#", "materials": [{{"pbrMetallicRoughness": {{"baseColorTexture": {{"index": 0}}}}}}],
+        "textures": [{{"source": 0}}], "images": [{{"uri": "{uri}"}}]"#
+    );
+    tiny_gltf(&extra, "", r#", "material": 0"#)
+}
+
+/// Writes `ok.gltf` (a [`tiny_gltf`]) and a `scene.json` loading it with the environment
+/// map `file` into `d`; returns the path of `scene.json`.
+fn scene_with_environment(d: &Path, file: &str) -> PathBuf {
+    std::fs::write(d.join("ok.gltf"), tiny_gltf("", "", "")).unwrap();
+    let json = d.join("scene.json");
+    let text = format!(r#"{{"gltf": "ok.gltf", "environment": {{"file": "{file}", "scale": 1.0}}}}"#);
+    std::fs::write(&json, text).unwrap();
+    json
+}
+
+/// The message of the error loading `path` gives.
+fn load_err(path: &Path) -> String {
+    load_scene(path.to_str().unwrap()).unwrap_err().to_string()
+}
+
+/// Writes `text` to `d/name` and returns the message of the error loading it gives.
+fn write_load_err(d: &Path, name: &str, text: impl AsRef<[u8]>) -> String {
+    let p = d.join(name);
+    std::fs::write(&p, text).unwrap();
+    load_err(&p)
+}
+
 #[test]
 fn tiny_gltf_loads_with_node_transform_and_mirroring() {
     let d = tmp("ok");
@@ -84,57 +115,38 @@ fn tiny_gltf_loads_with_node_transform_and_mirroring() {
 fn bad_files_are_named_errors() {
     let d = tmp("bad");
     // Malformed JSON.
-    let p = d.join("broken.gltf");
-    std::fs::write(&p, "{ not json").unwrap();
-    let e = load_scene(p.to_str().unwrap()).unwrap_err().to_string();
+    let e = write_load_err(&d, "broken.gltf", "{ not json");
     assert!(e.contains("broken.gltf") && e.contains("malformed"), "{e}");
     // Unsupported required extension.
-    let p = d.join("draco.gltf");
     let ext = r#", "extensionsUsed": ["KHR_draco_mesh_compression"], "extensionsRequired": ["KHR_draco_mesh_compression"]"#;
-    std::fs::write(&p, tiny_gltf(ext, "", "")).unwrap();
-    let e = load_scene(p.to_str().unwrap()).unwrap_err().to_string();
+    let e = write_load_err(&d, "draco.gltf", tiny_gltf(ext, "", ""));
     assert!(
         e.contains("draco.gltf") && e.contains("KHR_draco_mesh_compression"),
         "{e}"
     );
     // Missing texture file.
-    let p = d.join("tex.gltf");
-    let extra = r#", "materials": [{"pbrMetallicRoughness": {"baseColorTexture": {"index": 0}}}],
-        "textures": [{"source": 0}], "images": [{"uri": "missing_albedo.png"}]"#;
-    std::fs::write(&p, tiny_gltf(extra, "", r#", "material": 0"#)).unwrap();
-    let e = load_scene(p.to_str().unwrap()).unwrap_err().to_string();
+    let e = write_load_err(&d, "tex.gltf", textured_gltf("missing_albedo.png"));
     assert!(e.contains("missing_albedo.png") && e.contains("tex.gltf"), "{e}");
     // Undecodable texture.
     std::fs::write(d.join("missing_albedo.png"), b"not a png").unwrap();
-    let e = load_scene(p.to_str().unwrap()).unwrap_err().to_string();
+    let e = load_err(&d.join("tex.gltf"));
     assert!(e.contains("missing_albedo.png") && e.contains("decode"), "{e}");
     // Unreadable / corrupt environment map.
-    let ok = d.join("ok.gltf");
-    std::fs::write(&ok, tiny_gltf("", "", "")).unwrap();
-    let json = d.join("scene.json");
-    std::fs::write(
-        &json,
-        r#"{"gltf": "ok.gltf", "environment": {"file": "sky.hdr", "scale": 1.0}}"#,
-    )
-    .unwrap();
-    let e = load_scene(d.to_str().unwrap()).unwrap_err().to_string();
+    let json = scene_with_environment(&d, "sky.hdr");
+    let e = load_err(&d);
     assert!(e.contains("sky.hdr"), "{e}");
     std::fs::write(d.join("sky.hdr"), b"#?RADIANCE\ngarbage").unwrap();
-    let e = load_scene(json.to_str().unwrap()).unwrap_err().to_string();
+    let e = load_err(&json);
     assert!(e.contains("sky.hdr") && e.contains("environment"), "{e}");
     // Malformed scene.json.
     std::fs::write(&json, r#"{"environment": null}"#).unwrap();
-    let e = load_scene(json.to_str().unwrap()).unwrap_err().to_string();
+    let e = load_err(&json);
     assert!(e.contains("scene.json") && e.contains("gltf"), "{e}");
     // Missing file, unknown extension.
-    let e = load_scene(d.join("nope.glb").to_str().unwrap())
-        .unwrap_err()
-        .to_string();
+    let e = load_err(&d.join("nope.glb"));
     assert!(e.contains("nope.glb"), "{e}");
     std::fs::write(d.join("x.obj"), "").unwrap();
-    let e = load_scene(d.join("x.obj").to_str().unwrap())
-        .unwrap_err()
-        .to_string();
+    let e = load_err(&d.join("x.obj"));
     assert!(e.contains("x.obj"), "{e}");
     std::fs::remove_dir_all(&d).ok();
 }
@@ -148,17 +160,13 @@ fn special_files_are_refused() {
     let fifo = d.join("fifo.bin");
     let made = std::process::Command::new("mkfifo").arg(&fifo).status();
     assert!(made.map(|s| s.success()).unwrap_or(false), "mkfifo");
-    let e = load_scene("/dev/zero").unwrap_err().to_string();
+    let e = load_err(Path::new("/dev/zero"));
     assert!(e.contains("/dev/zero"), "{e}");
     std::os::unix::fs::symlink("/dev/zero", d.join("zero.gltf")).unwrap();
-    let e = load_scene(d.join("zero.gltf").to_str().unwrap())
-        .unwrap_err()
-        .to_string();
+    let e = load_err(&d.join("zero.gltf"));
     assert!(e.contains("zero.gltf") && e.contains("not a regular file"), "{e}");
     std::os::unix::fs::symlink(&fifo, d.join("fifo.glb")).unwrap();
-    let e = load_scene(d.join("fifo.glb").to_str().unwrap())
-        .unwrap_err()
-        .to_string();
+    let e = load_err(&d.join("fifo.glb"));
     assert!(e.contains("not a regular file"), "{e}");
     // A buffer and an image that are a FIFO and /dev/zero.
     let data_uri = tiny_gltf("", "", "");
@@ -168,29 +176,15 @@ fn special_files_are_refused() {
         format!("{}{uri}{}", &data_uri[..at], &data_uri[end..])
     };
     for uri in ["fifo.bin", "/dev/zero"] {
-        let p = d.join("buf.gltf");
-        std::fs::write(&p, with_buffer(uri)).unwrap();
-        let e = load_scene(p.to_str().unwrap()).unwrap_err().to_string();
+        let e = write_load_err(&d, "buf.gltf", with_buffer(uri));
         assert!(
             e.contains("not a regular file") && e.contains("buffer 0"),
             "{uri}: {e}"
         );
     }
-    let p = d.join("tex.gltf");
-    let extra = r#", "materials": [{"pbrMetallicRoughness": {"baseColorTexture": {"index": 0}}}],
-        "textures": [{"source": 0}], "images": [{"uri": "fifo.bin"}]"#;
-    std::fs::write(&p, tiny_gltf(extra, "", r#", "material": 0"#)).unwrap();
-    let e = load_scene(p.to_str().unwrap()).unwrap_err().to_string();
+    let e = write_load_err(&d, "tex.gltf", textured_gltf("fifo.bin"));
     assert!(e.contains("fifo.bin") && e.contains("not a regular file"), "{e}");
-    std::fs::write(d.join("ok.gltf"), tiny_gltf("", "", "")).unwrap();
-    std::fs::write(
-        d.join("scene.json"),
-        r#"{"gltf": "ok.gltf", "environment": {"file": "fifo.bin", "scale": 1.0}}"#,
-    )
-    .unwrap();
-    let e = load_scene(d.join("scene.json").to_str().unwrap())
-        .unwrap_err()
-        .to_string();
+    let e = load_err(&scene_with_environment(&d, "fifo.bin"));
     assert!(e.contains("fifo.bin") && e.contains("not a regular file"), "{e}");
     std::fs::remove_dir_all(&d).ok();
 }
@@ -314,10 +308,8 @@ fn degenerate_cameras_are_named_errors() {
         assert!(e.contains("scene.json") && e.contains(want), "{p}: {e}");
     }
     // A glTF camera with yfov 0.
-    let p = d.join("cam.gltf");
     let extra = r#", "cameras": [{"type": "perspective", "perspective": {"yfov": 0.0, "znear": 0.1}}]"#;
-    std::fs::write(&p, tiny_gltf(extra, r#", "camera": 0"#, "")).unwrap();
-    let e = load_scene(p.to_str().unwrap()).unwrap_err().to_string();
+    let e = write_load_err(&d, "cam.gltf", tiny_gltf(extra, r#", "camera": 0"#, ""));
     assert!(
         e.contains("cam.gltf") && e.contains("yfov") && e.contains("node 0"),
         "{e}"
