@@ -14,26 +14,18 @@ use crate::render::scene::Scene;
 #[derive(Debug, Deserialize)]
 struct Sidecar {
     gltf: String,
-    #[serde(default)]
     environment: Option<EnvSpec>,
-    #[serde(default)]
     camera: Option<CamSpec>,
-    #[serde(default)]
     film: Option<[u32; 2]>,
-    #[serde(default)]
     camera_path: Option<PathSpec>,
 }
 
 #[derive(Debug, Deserialize)]
 struct EnvSpec {
     file: String,
-    #[serde(default)]
     scale: Option<f32>,
-    #[serde(default)]
     to_world: Option<[[f32; 4]; 4]>,
-    #[serde(default)]
     rotation_y_deg: Option<f32>,
-    #[serde(default)]
     mapping: Option<String>,
 }
 
@@ -41,7 +33,6 @@ struct EnvSpec {
 struct CamSpec {
     position: [f32; 3],
     target: [f32; 3],
-    #[serde(default)]
     up: Option<[f32; 3]>,
     yfov_deg: f32,
 }
@@ -56,15 +47,11 @@ struct CamSpec {
 enum PathSpec {
     Static,
     Orbit {
-        #[serde(default)]
         degrees_per_frame: Option<f32>,
     },
     Flythrough {
-        #[serde(default)]
         frames_per_key: Option<f32>,
-        #[serde(default)]
         keys: Option<Vec<KeySpec>>,
-        #[serde(default)]
         cut_every: Option<u32>,
     },
 }
