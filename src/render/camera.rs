@@ -611,16 +611,15 @@ impl CameraPath {
     /// Whether frame `frame` starts a new shot (a cut: the camera jumps, and the motion
     /// vectors of this frame refer to the previous shot's camera).
     pub fn is_cut(&self, frame: u32) -> bool {
-        match self {
-            CameraPath::Cuts {
-                shots,
-                frames_per_shot,
-            } => {
-                let n = (*frames_per_shot).max(1);
-                frame > 0 && frame.is_multiple_of(n) && (frame / n) < shots.len() as u32
-            }
-            _ => false,
-        }
+        let CameraPath::Cuts {
+            shots,
+            frames_per_shot,
+        } = self
+        else {
+            return false;
+        };
+        let n = (*frames_per_shot).max(1);
+        frame > 0 && frame.is_multiple_of(n) && (frame / n) < shots.len() as u32
     }
 
     /// [`CameraPath::from_spec`] after checking the base camera and the spec, then every
@@ -717,6 +716,16 @@ mod tests {
             up: Vec3::Y,
             yfov: 0.7,
         }
+    }
+
+    /// `n` keys: [`base`] moved to x = 0, 1, .. at y = 0.
+    fn keys_along_x(n: u32) -> Vec<Camera> {
+        (0..n)
+            .map(|i| Camera {
+                position: Vec3::new(i as f32, 0.0, 5.0),
+                ..base()
+            })
+            .collect()
     }
 
     #[test]
@@ -1041,12 +1050,7 @@ mod tests {
             "cuts jump ({jumps}) much farther than frames move ({within})"
         );
         // Explicit keys: shot s starts at key s.
-        let keys: Vec<Camera> = (0..3)
-            .map(|i| Camera {
-                position: Vec3::new(i as f32, 0.0, 5.0),
-                ..base()
-            })
-            .collect();
+        let keys = keys_along_x(3);
         let spec = CameraPathSpec::FlyThrough {
             keys: Some(keys.clone()),
             frames_per_key: 30.0,
@@ -1067,12 +1071,7 @@ mod tests {
 
     #[test]
     fn keyframes_pass_through_keys() {
-        let keys: Vec<Camera> = (0..4)
-            .map(|i| Camera {
-                position: Vec3::new(i as f32, 0.0, 5.0),
-                ..base()
-            })
-            .collect();
+        let keys = keys_along_x(4);
         let path = CameraPath::Keyframes {
             keys: keys.clone(),
             frames_per_key: 10.0,
