@@ -7,14 +7,14 @@
 
 mod common;
 
-use common::gpu;
 use common::twin::{
     assert_backgrounds_match, assert_references_agree, assert_same_seed_frames_match, cpu_frame, gpu_frame,
     packed, settings,
 };
+use common::{furnace, gpu};
 use subpixel::frame::HostFrame;
 use subpixel::render::builtin;
-use subpixel::render::scene::{Scene, Wrap};
+use subpixel::render::scene::{Material, Scene, Wrap};
 use subpixel::render::{CpuTracer, GpuScene, Mode, Tracer, load_scene};
 
 /// The scenes every agreement test covers.
@@ -84,12 +84,13 @@ fn deterministic_for_a_seed_at_any_thread_count() {
     assert_ne!(cpu_frame(&p, 17, 13, &s2).color, a.color);
 }
 
-fn sphere_mean(f: &HostFrame, c: usize) -> (f64, usize) {
-    let px: Vec<usize> = (0..f.depth.data.len())
-        .filter(|&i| f.depth.data[i] < 1.0)
-        .collect();
-    let m = px.iter().map(|&i| f.color.data[3 * i + c] as f64).sum::<f64>() / px.len().max(1) as f64;
-    (m, px.len())
+/// The CPU reference of `builtin:furnace` with its sphere made of `m`: 24 x 24 pixels,
+/// `spp` samples with seed `seed`, at most 32 bounces.
+fn cpu_furnace(m: Material, spp: u32, seed: u32) -> HostFrame {
+    let scene = furnace::scene(m);
+    let mut s = settings(&scene, Mode::Reference, spp, seed);
+    s.max_depth = 32;
+    cpu_frame(&packed(&scene), 24, 24, &s)
 }
 
 /// White furnaces on the CPU: a white Lambertian, a smooth mirror, solid and thin glass in a
@@ -97,16 +98,11 @@ fn sphere_mean(f: &HostFrame, c: usize) -> (f64, usize) {
 #[test]
 fn cpu_white_furnaces_converge_to_one() {
     let mut cases = vec![("lambert", builtin::furnace().materials[0].clone())];
-    cases.extend(common::furnace::smooth());
+    cases.extend(furnace::smooth());
     for (name, m) in cases {
-        let mut scene = builtin::furnace();
-        scene.materials[0] = m;
-        let p = packed(&scene);
-        let mut s = settings(&scene, Mode::Reference, 256, 1);
-        s.max_depth = 32;
-        let f = cpu_frame(&p, 24, 24, &s);
+        let f = cpu_furnace(m, 256, 1);
         for c in 0..3 {
-            let (m, n) = sphere_mean(&f, c);
+            let (m, n) = furnace::sphere_mean(&f, c);
             assert!(n > 100, "{name}: sphere covers {n} pixels");
             assert!((m - 1.0).abs() < 0.01, "furnace {name} channel {c}: {m}");
         }
@@ -117,16 +113,10 @@ fn cpu_white_furnaces_converge_to_one() {
 /// `furnace_rough_materials_do_not_gain_energy`: single-scattering GGX loses some).
 #[test]
 fn cpu_rough_furnace_does_not_gain_energy() {
-    let cases = common::furnace::rough();
-    for (name, m) in cases {
-        let mut scene = builtin::furnace();
-        scene.materials[0] = m;
-        let p = packed(&scene);
-        let mut s = settings(&scene, Mode::Reference, 256, 8);
-        s.max_depth = 32;
-        let f = cpu_frame(&p, 24, 24, &s);
+    for (name, m) in furnace::rough() {
+        let f = cpu_furnace(m, 256, 8);
         assert!(f.color.data.iter().all(|v| v.is_finite()), "{name}: non-finite");
-        let (m, _) = sphere_mean(&f, 0);
+        let (m, _) = furnace::sphere_mean(&f, 0);
         eprintln!("cpu furnace {name}: {m}");
         assert!(m <= 1.015 && m > 0.75, "furnace {name}: {m}");
     }

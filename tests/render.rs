@@ -2,7 +2,7 @@
 
 mod common;
 
-use common::gpu;
+use common::{furnace, gpu};
 use glam::{Vec2, Vec3};
 use rand::{Rng, SeedableRng, rngs::StdRng};
 use subpixel::frame::HostFrame;
@@ -194,6 +194,13 @@ fn reference(scene: &Scene, gs: &GpuScene, w: u32, h: u32, spp: u32, max_depth: 
     s.max_depth = max_depth;
     s.seed = seed;
     render(scene, gs, w, h, &s)
+}
+
+/// The reference of `builtin:furnace` with its sphere made of `m`, at 12 x 12 pixels.
+fn furnace_reference(m: Material, spp: u32, max_depth: u32, seed: u32) -> HostFrame {
+    let scene = furnace::scene(m);
+    let gs = GpuScene::new(&gpu(), &scene).unwrap();
+    reference(&scene, &gs, 12, 12, spp, max_depth, seed)
 }
 
 fn mean(v: impl Iterator<Item = f32>) -> f64 {
@@ -783,15 +790,9 @@ fn environment_lighting_matches_cpu_integral() {
 /// a white mirror, a solid glass sphere and a thin-walled glass sphere.
 #[test]
 fn furnace_smooth_metal_and_glass() {
-    let cases = common::furnace::smooth();
-    for (name, m) in cases {
-        let mut scene = builtin::furnace();
-        scene.materials[0] = m;
-        let gs = GpuScene::new(&gpu(), &scene).unwrap();
-        let f = reference(&scene, &gs, 12, 12, 64, 32, 2);
-        let sphere: Vec<usize> = (0..144).filter(|&i| f.depth.data[i] < 1.0).collect();
-        assert!(sphere.len() > 30);
-        let m = mean(sphere.iter().map(|&i| f.color.data[3 * i]));
+    for (name, m) in furnace::smooth() {
+        let (m, n) = furnace::sphere_mean(&furnace_reference(m, 64, 32, 2), 0);
+        assert!(n > 30);
         eprintln!("furnace {name}: {m}");
         assert!((m - 1.0).abs() < 0.02, "furnace {name}: {m}");
     }
@@ -882,15 +883,10 @@ fn emissive_box_furnace_converges_to_one() {
 /// little), and stay finite.
 #[test]
 fn furnace_rough_materials_do_not_gain_energy() {
-    let cases = common::furnace::rough();
-    for (name, m) in cases {
-        let mut scene = builtin::furnace();
-        scene.materials[0] = m;
-        let gs = GpuScene::new(&gpu(), &scene).unwrap();
-        let f = reference(&scene, &gs, 12, 12, 128, 32, 8);
+    for (name, m) in furnace::rough() {
+        let f = furnace_reference(m, 128, 32, 8);
         assert!(f.color.data.iter().all(|v| v.is_finite()), "{name}: non-finite");
-        let sphere: Vec<usize> = (0..144).filter(|&i| f.depth.data[i] < 1.0).collect();
-        let m = mean(sphere.iter().map(|&i| f.color.data[3 * i]));
+        let (m, _) = furnace::sphere_mean(&f, 0);
         eprintln!("furnace {name}: {m}");
         assert!(m <= 1.015 && m > 0.75, "furnace {name}: {m}");
     }

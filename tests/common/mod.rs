@@ -78,7 +78,26 @@ pub fn assert_close(case: &str, gpu: &HostTensor, cpu: &HostTensor, tol: Tol) {
 /// Materials of the white-furnace tests, shared by the GPU and CPU-twin tests: smooth
 /// materials that must converge to 1, and rough ones that must not gain energy.
 pub mod furnace {
-    use subpixel::render::scene::Material;
+    use subpixel::frame::HostFrame;
+    use subpixel::render::builtin;
+    use subpixel::render::scene::{Material, Scene};
+
+    /// `builtin:furnace` with its sphere made of `m`.
+    pub fn scene(m: Material) -> Scene {
+        let mut scene = builtin::furnace();
+        scene.materials[0] = m;
+        scene
+    }
+
+    /// The mean of colour channel `c` over the sphere's pixels (depth < 1) of a furnace
+    /// frame, and their count.
+    pub fn sphere_mean(f: &HostFrame, c: usize) -> (f64, usize) {
+        let px: Vec<usize> = (0..f.depth.data.len())
+            .filter(|&i| f.depth.data[i] < 1.0)
+            .collect();
+        let m = px.iter().map(|&i| f.color.data[3 * i + c] as f64).sum::<f64>() / px.len().max(1) as f64;
+        (m, px.len())
+    }
 
     /// A smooth mirror, solid glass and thin glass (they converge to 1).
     pub fn smooth() -> Vec<(&'static str, Material)> {
