@@ -3,7 +3,7 @@
 mod common;
 
 use common::{furnace, gpu};
-use glam::{Vec2, Vec3};
+use glam::{BVec3, Vec2, Vec3};
 use rand::{Rng, SeedableRng, rngs::StdRng};
 use subpixel::frame::HostFrame;
 use subpixel::render::builtin::{self, CornellOptions};
@@ -38,37 +38,30 @@ fn debug_png(name: &str, t: &subpixel::nn::HostTensor) {
         .unwrap();
 }
 
+/// A uniformly random point of the cube [-r, r]^3.
+fn in_cube(rng: &mut StdRng, r: f32) -> Vec3 {
+    Vec3::new(
+        rng.random_range(-r..r),
+        rng.random_range(-r..r),
+        rng.random_range(-r..r),
+    )
+}
+
 fn random_mesh(rng: &mut StdRng, kind: usize) -> Scene {
     let mut g = Geometry::default();
     match kind {
         0 => {
             // Triangle soup.
             for _ in 0..400 {
-                let c = Vec3::new(
-                    rng.random_range(-5.0..5.0),
-                    rng.random_range(-5.0..5.0),
-                    rng.random_range(-5.0..5.0),
-                );
-                let p: Vec<Vec3> = (0..3)
-                    .map(|_| {
-                        c + Vec3::new(
-                            rng.random_range(-1.0..1.0),
-                            rng.random_range(-1.0..1.0),
-                            rng.random_range(-1.0..1.0),
-                        )
-                    })
-                    .collect();
+                let c = in_cube(rng, 5.0);
+                let p: Vec<Vec3> = (0..3).map(|_| c + in_cube(rng, 1.0)).collect();
                 g.push_mesh(&p, None, None, None, &[[0, 1, 2]], 0);
             }
         }
         1 => {
             // Spheres and boxes.
             for i in 0..12 {
-                let c = Vec3::new(
-                    rng.random_range(-4.0..4.0),
-                    rng.random_range(-4.0..4.0),
-                    rng.random_range(-4.0..4.0),
-                );
+                let c = in_cube(rng, 4.0);
                 if i % 2 == 0 {
                     builtin::push_sphere(&mut g, c, rng.random_range(0.3..1.5), 24, 12, 0);
                 } else {
@@ -122,27 +115,15 @@ fn gpu_traversal_matches_obvhs_cpu() {
         let gs = GpuScene::new(&g, &scene).unwrap();
         let mut rays = Vec::new();
         for i in 0..3000 {
-            let o = Vec3::new(
-                rng.random_range(-8.0..8.0),
-                rng.random_range(-8.0..8.0),
-                rng.random_range(-8.0..8.0),
-            );
+            let o = in_cube(&mut rng, 8.0);
             let mut d = if kind == 2 && i % 3 == 0 {
                 // Axis-aligned directions.
                 [Vec3::X, Vec3::Y, Vec3::Z, -Vec3::X, -Vec3::Y, -Vec3::Z][i % 6]
             } else if i % 3 == 1 {
-                Vec3::new(
-                    rng.random_range(-1.0..1.0),
-                    rng.random_range(-1.0..1.0),
-                    rng.random_range(-1.0..1.0),
-                )
+                in_cube(&mut rng, 1.0)
             } else {
                 // Aimed into the geometry.
-                Vec3::new(
-                    rng.random_range(-4.0..4.0),
-                    rng.random_range(-4.0..4.0),
-                    rng.random_range(-4.0..4.0),
-                ) - o
+                in_cube(&mut rng, 4.0) - o
             };
             if d.length() < 1e-3 {
                 d = Vec3::X;
@@ -811,52 +792,17 @@ fn emissive_box_furnace_converges_to_one() {
         ..Material::diffuse("glow", [0.0; 3])
     });
     let (lo, hi) = (Vec3::new(-2.0, -1.5, -3.0), Vec3::new(2.5, 1.5, 6.0));
-    let c = |x: bool, y: bool, z: bool| {
-        Vec3::new(
-            if x { hi.x } else { lo.x },
-            if y { hi.y } else { lo.y },
-            if z { hi.z } else { lo.z },
-        )
-    };
+    // Corner 0bXYZ of the box: a set bit takes `hi` along its axis, a clear one `lo`.
+    let c = |xyz: u8| Vec3::select(BVec3::new(xyz & 4 != 0, xyz & 2 != 0, xyz & 1 != 0), hi, lo);
     let g = &mut scene.geometry;
     // Inward-facing faces (counter-clockwise seen from inside).
     let faces = [
-        [
-            c(false, false, false),
-            c(false, false, true),
-            c(true, false, true),
-            c(true, false, false),
-        ], // floor
-        [
-            c(false, true, false),
-            c(true, true, false),
-            c(true, true, true),
-            c(false, true, true),
-        ], // ceiling
-        [
-            c(false, false, false),
-            c(true, false, false),
-            c(true, true, false),
-            c(false, true, false),
-        ], // back
-        [
-            c(true, false, true),
-            c(false, false, true),
-            c(false, true, true),
-            c(true, true, true),
-        ], // front
-        [
-            c(false, false, true),
-            c(false, false, false),
-            c(false, true, false),
-            c(false, true, true),
-        ], // left
-        [
-            c(true, false, false),
-            c(true, false, true),
-            c(true, true, true),
-            c(true, true, false),
-        ], // right
+        [c(0b000), c(0b001), c(0b101), c(0b100)], // floor
+        [c(0b010), c(0b110), c(0b111), c(0b011)], // ceiling
+        [c(0b000), c(0b100), c(0b110), c(0b010)], // back
+        [c(0b101), c(0b001), c(0b011), c(0b111)], // front
+        [c(0b001), c(0b000), c(0b010), c(0b011)], // left
+        [c(0b100), c(0b101), c(0b111), c(0b110)], // right
     ];
     for [a, b, cc, d] in faces {
         let n = (b - a).cross(cc - a);
