@@ -2,9 +2,10 @@
 //! errors a user sees for bad input.
 
 use std::path::{Path, PathBuf};
-use std::process::Command;
+use std::process::{Command, Output};
 
 use subpixel::io::exr::{FrameFile, read_frame, write_frame};
+use subpixel::io::frames::frame_name;
 use subpixel::nn::HostTensor;
 use subpixel::ssr::HostFrame;
 
@@ -25,6 +26,36 @@ fn bench16() -> Command {
         "--model-only",
     ]);
     c
+}
+
+/// The stderr of the run `o`, asserting that it succeeded.
+fn succeeded(o: &Output) -> String {
+    let stderr = String::from_utf8_lossy(&o.stderr).into_owned();
+    assert!(o.status.success(), "{stderr}");
+    stderr
+}
+
+/// The stderr of the run `o` (`what` names it), asserting that it failed.
+fn failed(o: &Output, what: impl std::fmt::Display) -> String {
+    let stdout = String::from_utf8_lossy(&o.stdout);
+    assert!(!o.status.success(), "{what} succeeded: {stdout}");
+    String::from_utf8_lossy(&o.stderr).into_owned()
+}
+
+/// Asserts that `text` contains each of `parts`.
+fn assert_contains_all(text: &str, parts: &[&str]) {
+    for part in parts {
+        assert!(text.contains(part), "no '{part}' in: {text}");
+    }
+}
+
+/// Copies frames `0..n` of the frame folder `from` into `to` (created if missing).
+fn copy_frames(n: usize, from: &Path, to: &Path) {
+    std::fs::create_dir_all(to).unwrap();
+    for i in 0..n {
+        let name = frame_name(i);
+        std::fs::copy(from.join(&name), to.join(&name)).unwrap();
+    }
 }
 
 fn tmp(name: &str) -> PathBuf {
@@ -97,8 +128,7 @@ fn denoise_then_eval_a_frame_folder() {
     let out = tmp("out");
     golden_folder(&input);
     let o = golden_denoise(&input, &out).arg("--png").output().unwrap();
-    let stderr = String::from_utf8_lossy(&o.stderr);
-    assert!(o.status.success(), "{stderr}");
+    let stderr = succeeded(&o);
     assert!(
         stderr.contains("random test weights"),
         "random weights must be flagged: {stderr}"
@@ -117,7 +147,7 @@ fn denoise_then_eval_a_frame_folder() {
         .arg(&input)
         .output()
         .unwrap();
-    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    succeeded(&o);
     let v: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
     assert_eq!(v["frames"], 3);
     assert!(v["psnr"].as_f64().unwrap() > 50.0, "{v}");
@@ -155,7 +185,7 @@ fn denoise_then_eval_a_frame_folder() {
         .arg(&root)
         .output()
         .unwrap();
-    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    succeeded(&o);
     let v: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
     let psnr = |m: usize| v[m]["scenes"]["golden"]["psnr"].as_f64().unwrap();
     assert_eq!(
@@ -177,10 +207,7 @@ fn denoise_then_eval_a_frame_folder() {
         .output()
         .unwrap();
     let md = String::from_utf8_lossy(&o.stdout);
-    assert!(
-        md.contains("| method | golden | mean |") && md.contains("| ssr |"),
-        "{md}"
-    );
+    assert_contains_all(&md, &["| method | golden | mean |", "| ssr |"]);
     // Procedural scenes (one per seed) share one column; --scenes picks and orders columns.
     for seed in [5, 9] {
         let name = format!("procedural_{seed}_test_000");
@@ -255,11 +282,8 @@ fn denoise_then_eval_a_frame_folder() {
         "{md}"
     );
     let o = table(&["--scenes", "nope"]);
-    let err = String::from_utf8_lossy(&o.stderr);
-    assert!(
-        !o.status.success() && err.contains("no predictions for scene 'nope'"),
-        "{err}"
-    );
+    let err = failed(&o, "--scenes nope");
+    assert!(err.contains("no predictions for scene 'nope'"), "{err}");
     for d in [&root, &pred] {
         std::fs::remove_dir_all(d).ok();
     }
@@ -273,8 +297,7 @@ fn bad_input_gives_clear_errors() {
     golden_folder(&input);
     std::fs::remove_file(input.join("frame_0001.exr")).unwrap();
     let o = golden_denoise(&input, &input.join("out")).output().unwrap();
-    let stderr = String::from_utf8_lossy(&o.stderr);
-    assert!(!o.status.success());
+    let stderr = failed(&o, "a missing frame");
     assert!(stderr.contains("frame_0001.exr is missing"), "{stderr}");
     let o = bin()
         .args(["denoise", "--weights", "/nonexistent.safetensors", "--input"])
@@ -290,7 +313,7 @@ fn bad_input_gives_clear_errors() {
 fn prints_all(cmd: &mut Command, keys: &[&str]) -> String {
     let o = cmd.output().unwrap();
     let out = String::from_utf8_lossy(&o.stdout).to_string();
-    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    succeeded(&o);
     for k in keys {
         assert!(out.contains(k), "missing {k} in\n{out}");
     }
@@ -358,11 +381,8 @@ fn bench_denoise_models_passes_and_takes_fixed_kernels() {
         &["f16 activations", "modelled total"],
     );
     let o = bench16().env("SUBPIXEL_PRECISION", "half").output().unwrap();
-    let err = String::from_utf8_lossy(&o.stderr);
-    assert!(
-        !o.status.success() && err.contains("SUBPIXEL_PRECISION") && err.contains("half"),
-        "{err}"
-    );
+    let err = failed(&o, "SUBPIXEL_PRECISION=half");
+    assert_contains_all(&err, &["SUBPIXEL_PRECISION", "half"]);
     let o = bin()
         .env("SUBPIXEL_CONV_KERNEL", "fastest")
         .args([
@@ -370,11 +390,8 @@ fn bench_denoise_models_passes_and_takes_fixed_kernels() {
         ])
         .output()
         .unwrap();
-    let err = String::from_utf8_lossy(&o.stderr);
-    assert!(
-        !o.status.success() && err.contains("SUBPIXEL_CONV_KERNEL") && err.contains("fastest"),
-        "{err}"
-    );
+    let err = failed(&o, "SUBPIXEL_CONV_KERNEL=fastest");
+    assert_contains_all(&err, &["SUBPIXEL_CONV_KERNEL", "fastest"]);
 }
 
 #[test]
@@ -385,7 +402,7 @@ fn bench_denoise_prints_per_layer_flops() {
         ])
         .output()
         .unwrap();
-    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    succeeded(&o);
     let v: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
     let layers = v["layers"].as_array().unwrap();
     assert!(
@@ -437,7 +454,7 @@ fn dataset_shards_resume_and_write_the_loader_keys() {
     };
     for range in ["1..2", "0..1"] {
         let o = run(range);
-        assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+        succeeded(&o);
     }
     let seq = out.join("val/cornell-empty_val_000");
     for f in 0..2 {
@@ -462,7 +479,7 @@ fn dataset_shards_resume_and_write_the_loader_keys() {
         "resume skips finished frames"
     );
     let o = run("1..5");
-    assert!(!o.status.success() && String::from_utf8_lossy(&o.stderr).contains("within 0..2"));
+    assert!(failed(&o, "--frames 1..5").contains("within 0..2"));
     std::fs::remove_dir_all(&out).ok();
 }
 
@@ -474,7 +491,7 @@ fn bench_frame_times_every_stage_in_both_modes() {
         ])
         .output()
         .unwrap();
-    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    succeeded(&o);
     let v: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
     let rows = v["results"].as_array().unwrap();
     assert_eq!(rows.len(), 2);
@@ -586,8 +603,7 @@ fn range_arguments_are_refused() {
         ),
     ] {
         let r = o(&args);
-        let stderr = String::from_utf8_lossy(&r.stderr);
-        assert!(!r.status.success(), "{args:?} succeeded");
+        let stderr = failed(&r, format!("{args:?}"));
         assert!(stderr.contains(want), "{args:?}: {stderr}");
         assert!(!stderr.contains("panicked"), "{args:?}: {stderr}");
     }
@@ -621,10 +637,7 @@ fn the_main_job_writes_previews_a_person_can_judge() {
         "{stdout}{}",
         String::from_utf8_lossy(&o.stderr)
     );
-    assert!(
-        stdout.contains("SSR PSNR") && stdout.contains("time per frame at 24x20"),
-        "{stdout}"
-    );
+    assert_contains_all(&stdout, &["SSR PSNR", "time per frame at 24x20"]);
     for f in 0..2 {
         let png = image::open(out.join(format!("frame_{f:04}.png")))
             .unwrap()
@@ -682,8 +695,7 @@ fn denoise_never_destroys_its_input() {
     cases.push((root.join("link"), "is the same folder as"));
     for (out, want) in cases {
         let o = denoise(&input, &out);
-        let stderr = String::from_utf8_lossy(&o.stderr);
-        assert!(!o.status.success(), "--out {} accepted", out.display());
+        let stderr = failed(&o, format!("--out {}", out.display()));
         assert!(
             stderr.contains(want) && stderr.contains("--out") && stderr.contains("--input"),
             "--out {}: {stderr}",
@@ -701,12 +713,8 @@ fn denoise_never_destroys_its_input() {
     // Frames of different sizes: refused before any output, naming the odd file.
     let mixed = root.join("mixed");
     let out = root.join("out");
-    std::fs::create_dir_all(&mixed).unwrap();
     std::fs::create_dir_all(&out).unwrap();
-    for i in 0..2 {
-        let name = format!("frame_{i:04}.exr");
-        std::fs::copy(input.join(&name), mixed.join(&name)).unwrap();
-    }
+    copy_frames(2, &input, &mixed);
     let mut small = read_frame(&input.join("frame_0002.exr")).unwrap();
     let f = small.frame.as_mut().unwrap();
     for t in f.tensors_mut() {
@@ -721,27 +729,18 @@ fn denoise_never_destroys_its_input() {
         std::fs::write(out.join(n), b).unwrap();
     }
     let o = denoise(&mixed, &out);
-    let stderr = String::from_utf8_lossy(&o.stderr);
-    assert!(!o.status.success());
-    assert!(
-        stderr.contains("frame_0002.exr") && stderr.contains("20x12") && stderr.contains("40x24"),
-        "{stderr}"
-    );
+    let stderr = failed(&o, "mixed frame sizes");
+    assert_contains_all(&stderr, &["frame_0002.exr", "20x12", "40x24"]);
     assert_eq!(snapshot(&out), stale);
 
     // A frame whose header is fine but whose pixels are cut off: frames 0 and 1 are
     // denoised, frame 2 fails, and the output folder still holds only the stale frames.
     let cut = root.join("cut");
-    std::fs::create_dir_all(&cut).unwrap();
-    for i in 0..3 {
-        let name = format!("frame_{i:04}.exr");
-        std::fs::copy(input.join(&name), cut.join(&name)).unwrap();
-    }
+    copy_frames(3, &input, &cut);
     let bytes = std::fs::read(cut.join("frame_0002.exr")).unwrap();
     std::fs::write(cut.join("frame_0002.exr"), &bytes[..bytes.len() - 200]).unwrap();
     let o = denoise(&cut, &out);
-    let stderr = String::from_utf8_lossy(&o.stderr);
-    assert!(!o.status.success(), "a truncated frame must fail");
+    let stderr = failed(&o, "a truncated frame");
     assert!(stderr.contains("frame_0002.exr"), "{stderr}");
     assert!(!stderr.contains("panicked"), "{stderr}");
     assert_eq!(
@@ -752,7 +751,7 @@ fn denoise_never_destroys_its_input() {
 
     // The same folders that were refused above are fine once separate.
     let o = denoise(&input, &out);
-    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    succeeded(&o);
     let names: Vec<String> = snapshot(&out).into_iter().map(|(n, _)| n).collect();
     assert_eq!(names, ["frame_0000.exr", "frame_0001.exr", "frame_0002.exr"]);
     assert!(read_frame(&out.join("frame_0001.exr")).unwrap().pred.is_some());
@@ -798,7 +797,7 @@ fn eval_refuses_non_finite_predictions() {
     // Clean predictions score (the control).
     write_preds(&|_, _| {});
     let o = eval(&["--json"], &pred, &input);
-    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    succeeded(&o);
     // Seven NaN / Inf pixels in frame 1 (two channels of one pixel count once).
     write_preds(&|i, t| {
         if i == 1 {
@@ -810,12 +809,7 @@ fn eval_refuses_non_finite_predictions() {
     });
     for mode in [&[][..], &["--json"][..]] {
         let o = eval(mode, &pred, &input);
-        let stderr = String::from_utf8_lossy(&o.stderr);
-        assert!(
-            !o.status.success(),
-            "{mode:?}: scored: {}",
-            String::from_utf8_lossy(&o.stdout)
-        );
+        let stderr = failed(&o, format!("{mode:?}"));
         assert!(
             stderr.contains("frame_0001.exr") && stderr.contains("7 non-finite") && stderr.contains("of 960"),
             "{mode:?}: {stderr}"
@@ -832,35 +826,19 @@ fn eval_refuses_non_finite_predictions() {
         }
     });
     let o = eval(&["--json"], &pred, &input);
-    let stderr = String::from_utf8_lossy(&o.stderr);
-    assert!(
-        !o.status.success() && stderr.contains("960 non-finite"),
-        "{stderr}"
-    );
+    let stderr = failed(&o, "an all-NaN prediction");
+    assert!(stderr.contains("960 non-finite"), "{stderr}");
     // The table over a dataset root.
     let droot = root.join("dataset");
     let seq = droot.join("test/golden_test_000");
     std::fs::create_dir_all(&seq).unwrap();
     std::fs::write(seq.join("sequence.json"), r#"{"scene": "builtin:golden"}"#).unwrap();
-    let ssr = root.join("methods/ssr/test/golden_test_000");
-    std::fs::create_dir_all(&ssr).unwrap();
-    for i in 0..3 {
-        let name = format!("frame_{i:04}.exr");
-        std::fs::copy(input.join(&name), seq.join(&name)).unwrap();
-        std::fs::copy(pred.join(&name), ssr.join(&name)).unwrap();
-    }
+    copy_frames(3, &input, &seq);
+    copy_frames(3, &pred, &root.join("methods/ssr/test/golden_test_000"));
     for mode in [&["--table"][..], &["--table", "--json"][..]] {
         let o = eval(mode, &root.join("methods"), &droot);
-        let stderr = String::from_utf8_lossy(&o.stderr);
-        assert!(
-            !o.status.success(),
-            "{mode:?}: {}",
-            String::from_utf8_lossy(&o.stdout)
-        );
-        assert!(
-            stderr.contains("frame_0002.exr") && stderr.contains("non-finite"),
-            "{stderr}"
-        );
+        let stderr = failed(&o, format!("{mode:?}"));
+        assert_contains_all(&stderr, &["frame_0002.exr", "non-finite"]);
     }
     std::fs::remove_dir_all(&root).ok();
 }
@@ -898,8 +876,7 @@ fn default_weights_follow_the_binary_and_the_environment() {
     };
     // The golden weights are random test weights: the warning names the file in use.
     let o = denoise(&exe, None, "out1");
-    let stderr = String::from_utf8_lossy(&o.stderr);
-    assert!(o.status.success(), "{stderr}");
+    let stderr = succeeded(&o);
     assert!(
         stderr.contains(&format!(
             "{} holds random test weights",
@@ -911,20 +888,15 @@ fn default_weights_follow_the_binary_and_the_environment() {
     let elsewhere = root.join("elsewhere.safetensors");
     std::fs::copy(&weights, &elsewhere).unwrap();
     let o = denoise(&exe, Some(&elsewhere), "out2");
-    let stderr = String::from_utf8_lossy(&o.stderr);
-    assert!(o.status.success(), "{stderr}");
+    let stderr = succeeded(&o);
     assert!(
         stderr.contains(&format!("{} holds random", elsewhere.display())),
         "{stderr}"
     );
     // An environment variable naming nothing is an error naming it, not a fallback.
     let o = denoise(&exe, Some(&root.join("nope.safetensors")), "out3");
-    let stderr = String::from_utf8_lossy(&o.stderr);
-    assert!(!o.status.success());
-    assert!(
-        stderr.contains("SUBPIXEL_WEIGHTS") && stderr.contains("nope.safetensors"),
-        "{stderr}"
-    );
+    let stderr = failed(&o, "SUBPIXEL_WEIGHTS naming no file");
+    assert_contains_all(&stderr, &["SUBPIXEL_WEIGHTS", "nope.safetensors"]);
     std::fs::remove_dir_all(&root).ok();
 }
 
@@ -953,17 +925,14 @@ fn denoise_uses_the_frames_background() {
     let denoise = |input: &Path, name: &str, extra: &[&str]| {
         let out = tmp(name);
         let o = golden_denoise(input, &out).args(extra).output().unwrap();
-        assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+        succeeded(&o);
         (out, String::from_utf8_lossy(&o.stdout).to_string())
     };
     let (a, _) = denoise(&plain, "bg-out-plain", &[]);
     let (b, said) = denoise(&with, "bg-out-with", &[]);
     assert!(said.contains("background in 3 of them"), "{said}");
     let (c, said) = denoise(&with, "bg-out-ignored", &["--no-background"]);
-    assert!(
-        said.contains("background in 0 of them") && said.contains("--no-background"),
-        "{said}"
-    );
+    assert_contains_all(&said, &["background in 0 of them", "--no-background"]);
     for i in 0..3 {
         let pred = |d: &Path| {
             read_frame(&d.join(format!("frame_{i:04}.exr")))
