@@ -713,18 +713,23 @@ fn linear_to_srgb_u8(c: f32) -> u8 {
     (s * 255.0).round() as u8
 }
 
-fn texture(name: String, srgb: bool, f: impl Fn(u32, u32) -> [u8; 4]) -> Texture {
+/// `f(x, y)` of every texel of a TEX x TEX image, row by row.
+fn texels<T>(f: impl Fn(u32, u32) -> T) -> Vec<T> {
     let mut texels = Vec::with_capacity((TEX * TEX) as usize);
     for y in 0..TEX {
         for x in 0..TEX {
             texels.push(f(x, y));
         }
     }
+    texels
+}
+
+fn texture(name: String, srgb: bool, f: impl Fn(u32, u32) -> [u8; 4]) -> Texture {
     Texture {
         name,
         width: TEX,
         height: TEX,
-        texels,
+        texels: texels(f),
         srgb,
         wrap: [Wrap::Repeat; 2],
     }
@@ -933,113 +938,107 @@ impl<'a> Builder<'a> {
         let b = colour(r, (0.0, 0.6), (0.1, 0.7));
         let mortar = colour(r, (0.0, 0.15), (0.6, 0.9));
         let variation = r.range(0.05, 0.35);
-        let mut col = vec![Vec3::ZERO; (TEX * TEX) as usize];
-        let mut height = vec![0.0f32; (TEX * TEX) as usize];
-        let strength;
-        match pattern {
+        // Per texel: the colour and the height.
+        let (strength, field): (f32, Vec<(Vec3, f32)>) = match pattern {
             Pattern::Checker => {
                 let cell = [8u32, 16, 32][r.index(3)];
                 let groove = r.chance(0.5);
-                strength = if groove {
+                let strength = if groove {
                     r.range(0.5, 2.0)
                 } else {
                     r.range(0.2, 0.8)
                 };
-                for y in 0..TEX {
-                    for x in 0..TEX {
-                        let i = (y * TEX + x) as usize;
-                        let on = ((x / cell) + (y / cell)).is_multiple_of(2);
-                        let n = fbm(x as f32, y as f32, 16, 3, seed);
-                        col[i] = if on { a } else { b } * (1.0 - variation * 0.5 + variation * n);
-                        let edge = (x % cell)
-                            .min(cell - 1 - x % cell)
-                            .min((y % cell).min(cell - 1 - y % cell));
-                        height[i] = if groove { (edge as f32).min(2.0) } else { 0.0 } + n * 2.0;
-                    }
-                }
+                let field = texels(|x, y| {
+                    let on = ((x / cell) + (y / cell)).is_multiple_of(2);
+                    let n = fbm(x as f32, y as f32, 16, 3, seed);
+                    let edge = (x % cell)
+                        .min(cell - 1 - x % cell)
+                        .min((y % cell).min(cell - 1 - y % cell));
+                    (
+                        if on { a } else { b } * (1.0 - variation * 0.5 + variation * n),
+                        if groove { (edge as f32).min(2.0) } else { 0.0 } + n * 2.0,
+                    )
+                });
+                (strength, field)
             }
             Pattern::Stripes => {
                 let period = [8u32, 16, 32, 64][r.index(4)];
                 let diagonal = r.chance(0.3);
                 let vertical = r.chance(0.5);
                 let duty = r.range(0.3, 0.7);
-                strength = r.range(0.5, 3.0);
-                for y in 0..TEX {
-                    for x in 0..TEX {
-                        let i = (y * TEX + x) as usize;
-                        let s = if diagonal {
-                            (x + y) % period
-                        } else if vertical {
-                            x % period
-                        } else {
-                            y % period
-                        };
-                        let t = s as f32 / period as f32;
-                        let n = fbm(x as f32, y as f32, 32, 2, seed);
-                        col[i] = if t < duty { a } else { b } * (1.0 - variation * 0.3 + variation * 0.3 * n);
-                        height[i] = (t * std::f32::consts::TAU).sin() * period as f32 / 8.0;
-                    }
-                }
+                let strength = r.range(0.5, 3.0);
+                let field = texels(|x, y| {
+                    let s = if diagonal {
+                        (x + y) % period
+                    } else if vertical {
+                        x % period
+                    } else {
+                        y % period
+                    };
+                    let t = s as f32 / period as f32;
+                    let n = fbm(x as f32, y as f32, 32, 2, seed);
+                    (
+                        if t < duty { a } else { b } * (1.0 - variation * 0.3 + variation * 0.3 * n),
+                        (t * std::f32::consts::TAU).sin() * period as f32 / 8.0,
+                    )
+                });
+                (strength, field)
             }
             Pattern::Noise => {
                 let period = [4u32, 8, 16][r.index(3)];
                 let sharp = r.range(1.0, 4.0);
-                strength = r.range(2.0, 8.0);
-                for y in 0..TEX {
-                    for x in 0..TEX {
-                        let i = (y * TEX + x) as usize;
-                        let n = fbm(x as f32, y as f32, period, 4, seed);
-                        let t = ((n - 0.5) * sharp + 0.5).clamp(0.0, 1.0);
-                        col[i] = a.lerp(b, t);
-                        height[i] = n * 4.0;
-                    }
-                }
+                let strength = r.range(2.0, 8.0);
+                let field = texels(|x, y| {
+                    let n = fbm(x as f32, y as f32, period, 4, seed);
+                    let t = ((n - 0.5) * sharp + 0.5).clamp(0.0, 1.0);
+                    (a.lerp(b, t), n * 4.0)
+                });
+                (strength, field)
             }
             Pattern::Bricks => {
                 let (bw, bh) = ([16u32, 32][r.index(2)], [8u32, 16][r.index(2)]);
                 let bw = bw.max(bh);
                 let m = r.int(1, 2);
-                strength = r.range(0.6, 1.5);
-                for y in 0..TEX {
-                    for x in 0..TEX {
-                        let i = (y * TEX + x) as usize;
-                        let row = y / bh;
-                        let xo = (x + if row % 2 == 1 { bw / 2 } else { 0 }) % TEX;
-                        let (bx, by) = (xo % bw, y % bh);
-                        let d = bx.min(bw - 1 - bx).min(by.min(bh - 1 - by));
-                        let n = fbm(x as f32, y as f32, 32, 3, seed);
-                        if d < m {
-                            col[i] = mortar * (0.9 + 0.1 * n);
-                            height[i] = 0.0;
-                        } else {
-                            let v = hash3(xo / bw, row, seed);
-                            col[i] = a * (1.0 - variation + 2.0 * variation * v) * (0.85 + 0.15 * n);
-                            height[i] = (d - m + 1).min(2) as f32 + n;
-                        }
+                let strength = r.range(0.6, 1.5);
+                let field = texels(|x, y| {
+                    let row = y / bh;
+                    let xo = (x + if row % 2 == 1 { bw / 2 } else { 0 }) % TEX;
+                    let (bx, by) = (xo % bw, y % bh);
+                    let d = bx.min(bw - 1 - bx).min(by.min(bh - 1 - by));
+                    let n = fbm(x as f32, y as f32, 32, 3, seed);
+                    if d < m {
+                        (mortar * (0.9 + 0.1 * n), 0.0)
+                    } else {
+                        let v = hash3(xo / bw, row, seed);
+                        (
+                            a * (1.0 - variation + 2.0 * variation * v) * (0.85 + 0.15 * n),
+                            (d - m + 1).min(2) as f32 + n,
+                        )
                     }
-                }
+                });
+                (strength, field)
             }
             Pattern::Tiles => {
                 let cell = [16u32, 32, 64][r.index(3)];
                 let m = r.int(1, 2);
-                strength = r.range(0.6, 1.5);
-                for y in 0..TEX {
-                    for x in 0..TEX {
-                        let i = (y * TEX + x) as usize;
-                        let (tx, ty) = (x % cell, y % cell);
-                        let d = tx.min(cell - 1 - tx).min(ty.min(cell - 1 - ty));
-                        let v = hash3(x / cell, y / cell, seed);
-                        if d < m {
-                            col[i] = mortar * 0.8;
-                            height[i] = 0.0;
-                        } else {
-                            col[i] = if v < 0.5 { a } else { b } * (1.0 - variation * 0.5 + variation * v);
-                            height[i] = (d - m + 1).min(3) as f32;
-                        }
+                let strength = r.range(0.6, 1.5);
+                let field = texels(|x, y| {
+                    let (tx, ty) = (x % cell, y % cell);
+                    let d = tx.min(cell - 1 - tx).min(ty.min(cell - 1 - ty));
+                    let v = hash3(x / cell, y / cell, seed);
+                    if d < m {
+                        (mortar * 0.8, 0.0)
+                    } else {
+                        (
+                            if v < 0.5 { a } else { b } * (1.0 - variation * 0.5 + variation * v),
+                            (d - m + 1).min(3) as f32,
+                        )
                     }
-                }
+                });
+                (strength, field)
             }
-        }
+        };
+        let (col, height): (Vec<Vec3>, Vec<f32>) = field.into_iter().unzip();
         let id = format!("{name} {}", pattern.name());
         let base = self.texture(texture(format!("{id} colour"), true, |x, y| {
             let c = col[(y * TEX + x) as usize].min(Vec3::splat(0.9));
