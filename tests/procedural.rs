@@ -2,7 +2,7 @@
 
 mod common;
 
-use std::process::Command;
+use std::process::{Command, Output};
 
 use subpixel::nn::Tensor;
 use subpixel::render::{FrameSettings, GpuScene, Mode, Tracer, load_scene};
@@ -43,23 +43,31 @@ fn procedural_scene_renders_finite_and_lit() {
             tracer.render(&gs, &s).unwrap();
             tracer.buffers.download(&g).unwrap()
         };
-        for (name, t) in [
-            ("color", &f.color),
-            ("albedo", &f.albedo),
-            ("normal", &f.normal),
-            ("depth", &f.depth),
-            ("motion", &f.motion),
-        ] {
+        for (name, t, _) in f.fields() {
             assert!(t.data.iter().all(|v| v.is_finite()), "seed {seed}: {name}");
         }
     }
 }
 
-fn subpixel(args: &[&str]) -> std::process::Output {
+/// `subpixel scene --scene NAME ARGS..`.
+fn scene(name: &str, args: &[&str]) -> Output {
     Command::new(env!("CARGO_BIN_EXE_subpixel"))
+        .args(["scene", "--scene", name])
         .args(args)
         .output()
         .expect("run subpixel")
+}
+
+/// The stdout of [`scene`], asserting that it succeeded.
+fn scene_ok(name: &str, args: &[&str]) -> String {
+    let out = scene(name, args);
+    let stdout = String::from_utf8_lossy(&out.stdout).into_owned();
+    assert!(
+        out.status.success(),
+        "{stdout}\n{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    stdout
 }
 
 #[test]
@@ -67,25 +75,9 @@ fn scene_command_summarises_and_previews() {
     let dir = std::env::temp_dir().join(format!("subpixel-scene-cli-{}", std::process::id()));
     std::fs::create_dir_all(&dir).unwrap();
     let png = dir.join("p.png");
-    let out = subpixel(&[
-        "scene",
-        "--scene",
-        "builtin:procedural:7",
-        "--preview",
-        png.to_str().unwrap(),
-        "--width",
-        "24",
-        "--height",
-        "16",
-        "--spp",
-        "2",
-    ]);
-    let stdout = String::from_utf8_lossy(&out.stdout);
-    assert!(
-        out.status.success(),
-        "{stdout}\n{}",
-        String::from_utf8_lossy(&out.stderr)
-    );
+    let p = png.to_str().unwrap();
+    let args = ["--preview", p, "--width", "24", "--height", "16", "--spp", "2"];
+    let stdout = scene_ok("builtin:procedural:7", &args);
     for key in [
         "builtin:procedural:7",
         "enclosure:",
@@ -102,31 +94,13 @@ fn scene_command_summarises_and_previews() {
     assert_eq!((img.width(), img.height()), (24, 16));
     // A broken prop: one warning naming it, and the scene still builds.
     std::fs::write(dir.join("broken.glb"), b"glTF but not really").unwrap();
-    let out = subpixel(&[
-        "scene",
-        "--scene",
-        "builtin:procedural:2",
-        "--props",
-        dir.to_str().unwrap(),
-    ]);
-    let stdout = String::from_utf8_lossy(&out.stdout);
-    assert!(
-        out.status.success(),
-        "{stdout}\n{}",
-        String::from_utf8_lossy(&out.stderr)
-    );
+    let stdout = scene_ok("builtin:procedural:2", &["--props", dir.to_str().unwrap()]);
     assert_eq!(stdout.matches("broken.glb").count(), 1, "{stdout}");
     // Bad input: a seed that is not a number, a props path that does not exist.
-    let out = subpixel(&["scene", "--scene", "builtin:procedural:abc"]);
+    let out = scene("builtin:procedural:abc", &[]);
     assert!(!out.status.success());
     assert!(String::from_utf8_lossy(&out.stderr).contains("procedural:abc"));
-    let out = subpixel(&[
-        "scene",
-        "--scene",
-        "builtin:procedural:1",
-        "--props",
-        "/nonexistent/props-dir",
-    ]);
+    let out = scene("builtin:procedural:1", &["--props", "/nonexistent/props-dir"]);
     assert!(!out.status.success());
     assert!(String::from_utf8_lossy(&out.stderr).contains("props-dir"));
     std::fs::remove_dir_all(&dir).ok();
