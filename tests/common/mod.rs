@@ -99,72 +99,51 @@ pub mod furnace {
         (m, px.len())
     }
 
+    /// A white metal of `roughness`.
+    fn metal(roughness: f32) -> Material {
+        Material {
+            base_color: [1.0; 4],
+            metallic: 1.0,
+            roughness,
+            ..Default::default()
+        }
+    }
+
+    /// A solid (or `thin`-walled) clear glass of `roughness`.
+    fn glass(roughness: f32, thin: bool) -> Material {
+        Material {
+            metallic: 0.0,
+            roughness,
+            transmission: 1.0,
+            thin,
+            ..Default::default()
+        }
+    }
+
     /// A smooth mirror, solid glass and thin glass (they converge to 1).
     pub fn smooth() -> Vec<(&'static str, Material)> {
+        let thin = Material {
+            double_sided: true,
+            ..glass(0.0, true)
+        };
         vec![
-            (
-                "mirror",
-                Material {
-                    base_color: [1.0; 4],
-                    metallic: 1.0,
-                    roughness: 0.0,
-                    ..Default::default()
-                },
-            ),
-            (
-                "solid glass",
-                Material {
-                    metallic: 0.0,
-                    roughness: 0.0,
-                    transmission: 1.0,
-                    thin: false,
-                    ..Default::default()
-                },
-            ),
-            (
-                "thin glass",
-                Material {
-                    metallic: 0.0,
-                    roughness: 0.0,
-                    transmission: 1.0,
-                    thin: true,
-                    double_sided: true,
-                    ..Default::default()
-                },
-            ),
+            ("mirror", metal(0.0)),
+            ("solid glass", glass(0.0, false)),
+            ("thin glass", thin),
         ]
     }
 
     /// Rough metal, rough glass and rough plastic (single-scattering GGX loses some).
     pub fn rough() -> Vec<(&'static str, Material)> {
+        let plastic = Material {
+            metallic: 0.0,
+            roughness: 0.4,
+            ..Material::diffuse("p", [1.0; 3])
+        };
         vec![
-            (
-                "rough metal",
-                Material {
-                    base_color: [1.0; 4],
-                    metallic: 1.0,
-                    roughness: 0.6,
-                    ..Default::default()
-                },
-            ),
-            (
-                "rough glass",
-                Material {
-                    metallic: 0.0,
-                    roughness: 0.5,
-                    transmission: 1.0,
-                    thin: false,
-                    ..Default::default()
-                },
-            ),
-            (
-                "rough plastic",
-                Material {
-                    metallic: 0.0,
-                    roughness: 0.4,
-                    ..Material::diffuse("p", [1.0; 3])
-                },
-            ),
+            ("rough metal", metal(0.6)),
+            ("rough glass", glass(0.5, false)),
+            ("rough plastic", plastic),
         ]
     }
 }
