@@ -344,45 +344,20 @@ mod tests {
 
     #[test]
     fn bad_options_are_named() {
-        let mut c = SsrConfig {
-            feature_pool: "median".into(),
-            ..Default::default()
-        };
-        assert!(
-            c.validate()
-                .unwrap_err()
-                .to_string()
-                .contains("feature_pool 'median'")
-        );
-        c.feature_pool = "max".into();
-        c.input_channels = 36;
-        assert!(
-            c.validate()
-                .unwrap_err()
-                .to_string()
-                .contains("input_channels is 36")
-        );
-        let c = SsrConfig {
-            exposure: Some("global".into()),
-            ..Default::default()
-        };
-        assert!(
-            c.validate()
-                .unwrap_err()
-                .to_string()
-                .contains("exposure 'global'")
-        );
-        let c = SsrConfig {
-            history: None,
-            ..Default::default()
-        };
-        let e = c.validate().unwrap_err().to_string();
-        assert!(e.contains("version 2 needs the 'history' option"), "{e}");
-        let c = SsrConfig {
-            version: 3,
-            ..Default::default()
-        };
-        assert!(c.validate().unwrap_err().to_string().contains("version 3"));
+        type Edit = fn(&mut SsrConfig);
+        let cases: [(Edit, &str); 5] = [
+            (|c| c.feature_pool = "median".into(), "feature_pool 'median'"),
+            (|c| c.input_channels = 36, "input_channels is 36"),
+            (|c| c.exposure = Some("global".into()), "exposure 'global'"),
+            (|c| c.history = None, "version 2 needs the 'history' option"),
+            (|c| c.version = 3, "version 3"),
+        ];
+        for (edit, want) in cases {
+            let mut c = SsrConfig::default();
+            edit(&mut c);
+            let e = c.validate().unwrap_err().to_string();
+            assert!(e.contains(want), "{e}");
+        }
     }
 
     #[test]
