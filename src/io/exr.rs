@@ -383,11 +383,22 @@ mod tests {
         }
     }
 
+    /// A fresh temporary folder for test `test`, and the path of `file` in it.
+    fn temp_file(test: &str, file: &str) -> (std::path::PathBuf, std::path::PathBuf) {
+        let dir = std::env::temp_dir().join(format!("subpixel-exr-{test}-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let path = dir.join(file);
+        (dir, path)
+    }
+
+    /// The message of the error reading the frame at `path` gives.
+    fn read_err(path: &Path) -> String {
+        read_frame(path).unwrap_err().to_string()
+    }
+
     #[test]
     fn frame_round_trip_is_exact() {
-        let dir = std::env::temp_dir().join(format!("subpixel-exr-{}", std::process::id()));
-        std::fs::create_dir_all(&dir).unwrap();
-        let path = dir.join("frame_0000.exr");
+        let (dir, path) = temp_file("round-trip", "frame_0000.exr");
         let f = FrameFile {
             frame: Some(HostFrame {
                 background: Some(Background {
@@ -418,9 +429,7 @@ mod tests {
     /// A small file whose header claims 100000 x 100000 pixels is refused before decoding.
     #[test]
     fn header_bombs_are_refused() {
-        let dir = std::env::temp_dir().join(format!("subpixel-exr-bomb-{}", std::process::id()));
-        std::fs::create_dir_all(&dir).unwrap();
-        let path = dir.join("frame_0000.exr");
+        let (dir, path) = temp_file("bomb", "frame_0000.exr");
         write_frame(
             &path,
             &FrameFile {
@@ -438,7 +447,7 @@ mod tests {
         }
         std::fs::write(&path, &bytes).unwrap();
         assert!(bytes.len() < 100_000);
-        let e = read_frame(&path).unwrap_err().to_string();
+        let e = read_err(&path);
         assert!(e.contains("frame_0000.exr") && e.contains("100000x100000"), "{e}");
         // A FIFO (or any non-regular file) is refused without blocking.
         #[cfg(unix)]
@@ -449,7 +458,7 @@ mod tests {
                 .status()
                 .map(|s| s.success());
             if ok.unwrap_or(false) {
-                let e = read_frame(&fifo).unwrap_err().to_string();
+                let e = read_err(&fifo);
                 assert!(e.contains("not a regular file"), "{e}");
             }
         }
@@ -458,9 +467,7 @@ mod tests {
 
     #[test]
     fn missing_channels_are_named() {
-        let dir = std::env::temp_dir().join(format!("subpixel-exr-missing-{}", std::process::id()));
-        std::fs::create_dir_all(&dir).unwrap();
-        let path = dir.join("frame_0001.exr");
+        let (dir, path) = temp_file("missing", "frame_0001.exr");
         let f = frame(4, 4);
         let fields = f.fields();
         let partial: Vec<(&str, &HostTensor)> = fields
@@ -469,12 +476,12 @@ mod tests {
             .map(|(n, t, _)| (*n, *t))
             .collect();
         write_tensors(&path, &partial).unwrap();
-        let e = read_frame(&path).unwrap_err().to_string();
+        let e = read_err(&path);
         assert!(
             e.contains("frame_0001.exr") && e.contains("'motion.X' is missing"),
             "{e}"
         );
-        let e = read_frame(&dir.join("nope.exr")).unwrap_err().to_string();
+        let e = read_err(&dir.join("nope.exr"));
         assert!(e.contains("nope.exr") && e.contains("cannot read EXR"), "{e}");
         std::fs::remove_dir_all(&dir).ok();
     }
