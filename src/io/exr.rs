@@ -385,8 +385,7 @@ mod tests {
 
     /// A fresh temporary folder for test `test`, and the path of `file` in it.
     fn temp_file(test: &str, file: &str) -> (std::path::PathBuf, std::path::PathBuf) {
-        let dir = std::env::temp_dir().join(format!("subpixel-exr-{test}-{}", std::process::id()));
-        std::fs::create_dir_all(&dir).unwrap();
+        let dir = crate::io::test_dir(&format!("exr-{test}"));
         let path = dir.join(file);
         (dir, path)
     }

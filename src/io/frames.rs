@@ -51,8 +51,7 @@ mod tests {
 
     #[test]
     fn gaps_are_named() {
-        let dir = std::env::temp_dir().join(format!("subpixel-frames-{}", std::process::id()));
-        std::fs::create_dir_all(&dir).unwrap();
+        let dir = crate::io::test_dir("frames");
         for i in [0, 1, 3] {
             std::fs::write(dir.join(frame_name(i)), b"").unwrap();
         }

@@ -59,6 +59,15 @@ pub fn read_regular(path: &Path, cap: u64) -> std::io::Result<Vec<u8>> {
     Ok(buf)
 }
 
+/// A temporary folder for the unit test `name` (created; named after the process, so
+/// concurrent test runs do not meet).
+#[cfg(test)]
+pub(crate) fn test_dir(name: &str) -> std::path::PathBuf {
+    let dir = std::env::temp_dir().join(format!("subpixel-{name}-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    dir
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -67,8 +76,7 @@ mod tests {
     /// forever; reads stop at the cap.
     #[test]
     fn only_regular_files_are_read_up_to_their_cap() {
-        let dir = std::env::temp_dir().join(format!("subpixel-io-{}", std::process::id()));
-        std::fs::create_dir_all(&dir).unwrap();
+        let dir = test_dir("io");
         let f = dir.join("f.bin");
         std::fs::write(&f, b"0123456789").unwrap();
         assert_eq!(read_regular(&f, u64::MAX).unwrap(), b"0123456789");

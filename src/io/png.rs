@@ -72,8 +72,7 @@ mod tests {
                 }
             }
         }
-        let dir = std::env::temp_dir().join(format!("subpixel-png-{}", std::process::id()));
-        std::fs::create_dir_all(&dir).unwrap();
+        let dir = crate::io::test_dir("png");
         let (p1, p3) = (dir.join("one.png"), dir.join("three.png"));
         write_png_row(&p1, &[&t, &t]).unwrap();
         write_png_row_scaled(&p3, &[&t, &t], 3).unwrap();

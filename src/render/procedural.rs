@@ -3395,7 +3395,7 @@ mod tests {
 
     #[test]
     fn broken_props_are_skipped_with_one_warning() {
-        let d = std::env::temp_dir().join(format!("subpixel-props-{}", std::process::id()));
+        let d = crate::io::test_dir("props");
         let sub = d.join("nested");
         std::fs::create_dir_all(&sub).unwrap();
         std::fs::write(d.join("broken.gltf"), "{ this is not glTF").unwrap();

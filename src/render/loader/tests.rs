@@ -57,9 +57,7 @@ fn tiny_gltf(extra: &str, node: &str, material: &str) -> String {
 }
 
 fn tmp(name: &str) -> PathBuf {
-    let d = std::env::temp_dir().join(format!("subpixel-loader-{}-{name}", std::process::id()));
-    std::fs::create_dir_all(&d).unwrap();
-    d
+    crate::io::test_dir(&format!("loader-{name}"))
 }
 
 /// [`tiny_gltf`] whose material has the image at `uri` as its base colour texture.
