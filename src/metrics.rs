@@ -116,28 +116,28 @@ pub fn reference_halves_psnr(reference: &HostTensor, first_half: &HostTensor, sp
     psnr(first_half, &second)
 }
 
-/// Root mean squared error on HDR values.
-pub fn rmse(pred: &HostTensor, reference: &HostTensor) -> f64 {
+/// The mean of `f(p, r)` over the values `p` of `pred` and `r` of `reference` (same shape).
+fn mean_of(pred: &HostTensor, reference: &HostTensor, f: impl Fn(f32, f32) -> f64) -> f64 {
     same_shape(pred, reference);
     let s: f64 = pred
         .data
         .iter()
         .zip(&reference.data)
-        .map(|(a, b)| ((a - b) as f64).powi(2))
+        .map(|(&a, &b)| f(a, b))
         .sum();
-    (s / pred.data.len() as f64).sqrt()
+    s / pred.data.len() as f64
+}
+
+/// Root mean squared error on HDR values.
+pub fn rmse(pred: &HostTensor, reference: &HostTensor) -> f64 {
+    mean_of(pred, reference, |a, b| ((a - b) as f64).powi(2)).sqrt()
 }
 
 /// Relative MSE on HDR values: mean of `(p - r)^2 / (r^2 + 0.01)`.
 pub fn relmse(pred: &HostTensor, reference: &HostTensor) -> f64 {
-    same_shape(pred, reference);
-    let s: f64 = pred
-        .data
-        .iter()
-        .zip(&reference.data)
-        .map(|(a, b)| ((a - b) as f64).powi(2) / ((*b as f64).powi(2) + 0.01))
-        .sum();
-    s / pred.data.len() as f64
+    mean_of(pred, reference, |a, b| {
+        ((a - b) as f64).powi(2) / ((b as f64).powi(2) + 0.01)
+    })
 }
 
 /// Brightness error on HDR values: the largest over the RGB channels of `|ln(P_c / R_c)|`,
