@@ -255,6 +255,18 @@ impl Gpu {
         })
     }
 
+    /// Four `u32` counters that kernels add to (storage binding) and the host clears and
+    /// reads back (copy destination and source): the tracer's statistics, the denoiser's
+    /// count of sanitised input values.
+    pub fn counter_buffer(&self, label: &str) -> wgpu::Buffer {
+        self.device.create_buffer(&wgpu::BufferDescriptor {
+            label: Some(label),
+            size: 16,
+            usage: wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_SRC | wgpu::BufferUsages::COPY_DST,
+            mapped_at_creation: false,
+        })
+    }
+
     /// Blocks until all submitted work is done.
     pub fn wait(&self) -> Result<()> {
         self.device

@@ -209,16 +209,10 @@ impl Tracer {
                 "trace/background",
             ],
         )?;
-        let counters = gpu.device.create_buffer(&wgpu::BufferDescriptor {
-            label: Some("subpixel.trace.counters"),
-            size: 16,
-            usage: wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_SRC | wgpu::BufferUsages::COPY_DST,
-            mapped_at_creation: false,
-        });
         Ok(Self {
             gpu: gpu.clone(),
             buffers: FrameBuffers::new(gpu, width, height)?,
-            counters,
+            counters: gpu.counter_buffer("subpixel.trace.counters"),
             scratch: None,
             paths_per_pass: PATHS_PER_PASS,
             frame_dispatches: Bound::new(),

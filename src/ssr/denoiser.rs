@@ -182,12 +182,6 @@ impl Denoiser {
         gpu.kernels.check_limits("the denoiser", KERNELS_USED)?;
         let net = Network::new(gpu, weights, round_up4(width), round_up4(height), options)?;
         let output = Self::make_output(gpu, width, height);
-        let sanitized = gpu.device.create_buffer(&wgpu::BufferDescriptor {
-            label: Some("subpixel.ssr.sanitized"),
-            size: 16,
-            usage: wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_SRC | wgpu::BufferUsages::COPY_DST,
-            mapped_at_creation: false,
-        });
         Ok(Self {
             gpu: gpu.clone(),
             weights: weights.clone(),
@@ -197,7 +191,7 @@ impl Denoiser {
             output,
             inputs: Bound::new(),
             host_inputs: None,
-            sanitized,
+            sanitized: gpu.counter_buffer("subpixel.ssr.sanitized"),
             first: true,
             frames: 0,
             options,
