@@ -140,6 +140,74 @@ fn conv3x3_every_autotuner_candidate_matches_reference() {
     assert!(chunked >= 5, "{chunked} chunked dispatches");
 }
 
+/// Issue 14, fusion: a convolution that reads an input resampled on load (2x2 max or
+/// average pooling of a tensor twice its size, odd sizes included so that windows are
+/// clipped; 2x nearest or bilinear upsampling of one half its size) agrees with the CPU
+/// reference of the resampling followed by the convolution, on every kernel the autotuner
+/// can pick, beside an input read as stored; an input of the wrong size is an error that
+/// names the layer, the input and the sizes.
+#[test]
+fn conv3x3_resamples_inputs_on_load() {
+    use ops::Fetch;
+    let g = gpu();
+    let (w, h) = (11u32, 6u32);
+    let mut tried = 0;
+    for (i, fetch) in [
+        Fetch::Pool(PoolMode::Max),
+        Fetch::Pool(PoolMode::Average),
+        Fetch::Upsample(UpsampleMode::Nearest),
+        Fetch::Upsample(UpsampleMode::Bilinear),
+    ]
+    .into_iter()
+    .enumerate()
+    {
+        // The stored tensor: 21x11 (clipped windows at the edge) for pooling, 6x3 for
+        // upsampling.
+        let (sw, sh) = match fetch {
+            Fetch::Pool(_) => (2 * w - 1, 2 * h - 1),
+            _ => (w.div_ceil(2), h.div_ceil(2)),
+        };
+        let stored = random(700 + i as u64, sw, sh, 6, -1.0, 1.0);
+        let direct = random(710 + i as u64, w, h, 3, -1.0, 1.0);
+        let read = match fetch {
+            Fetch::Pool(mode) => reference::pool2x2(&stored, mode),
+            Fetch::Upsample(mode) => reference::upsample2x(&stored, mode, w, h),
+            Fetch::Direct => unreachable!(),
+        };
+        let (split, cout) = ([3u32, 6], 12u32);
+        let weight = random_vec(720 + i as u64, (cout * 9 * 9) as usize, -0.5, 0.5);
+        let bias = random_vec(730 + i as u64, cout as usize, -0.5, 0.5);
+        let mut conv = Conv3x3::new(&g, "fused", &weight, &bias, &split, cout, Activation::Relu).unwrap();
+        conv.set_fetch(&[Fetch::Direct, fetch]).unwrap();
+        let want = reference::conv3x3(&[&direct, &read], &weight, &bias, cout, Activation::Relu);
+        let (gd, gs) = (up(&g, "direct", &direct), up(&g, "stored", &stored));
+        for kernel in conv.candidates(&g) {
+            let out = Tensor::new(&g, "out", w, h, cout).unwrap();
+            let d = conv.bind_with(&g, kernel, &[&gd, &gs], &out).unwrap();
+            ops::run(&g, &[&d]).unwrap();
+            let case = format!("conv3x3 {kernel} reading {}", fetch.name());
+            assert_tensor(&case, &out, &want, REDUCTION);
+            tried += 1;
+        }
+        // The input at the layer's size instead of the stored size.
+        let out = Tensor::new(&g, "out", w, h, cout).unwrap();
+        let same = up(&g, "same", &random(1, w, h, 6, -1.0, 1.0));
+        let e = conv.bind(&g, &[&gd, &same], &out).unwrap_err().to_string();
+        let expect = format!("input 1 is {w}x{h}, expected");
+        assert!(
+            e.contains("fused") && e.contains(&expect) && e.contains(fetch.name()),
+            "{e}"
+        );
+    }
+    assert!(tried >= 4 * 10, "{tried} kernel/fetch pairs");
+    let mut conv = Conv3x3::new(&g, "fused", &[0.0; 27], &[0.0], &[3], 1, Activation::None).unwrap();
+    let e = conv.set_fetch(&[]).unwrap_err().to_string();
+    assert!(
+        e.contains("fused") && e.contains("0 fetch modes for 1 inputs"),
+        "{e}"
+    );
+}
+
 /// A host tensor's values rounded to f16 (what an f16 tensor stores).
 fn to_f16(t: &HostTensor) -> HostTensor {
     let mut r = t.clone();
@@ -658,29 +726,29 @@ fn zero_sized_and_oversized_dispatches_are_errors() {
     let e = g
         .kernels
         .dispatch(
-            "nn/pool2x2",
+            "nn/resample2x",
             &Default::default(),
-            &[0u8; 32],
+            &[0u8; 80],
             &[],
             Grid::Workgroups([0, 1, 1]),
         )
         .unwrap_err()
         .to_string();
-    assert!(e.contains("nn/pool2x2") && e.contains("zero-sized"), "{e}");
+    assert!(e.contains("nn/resample2x") && e.contains("zero-sized"), "{e}");
     let big = g.device.limits().max_compute_workgroups_per_dimension + 1;
     let e = g
         .kernels
         .dispatch(
-            "nn/pool2x2",
+            "nn/resample2x",
             &Default::default(),
-            &[0u8; 32],
+            &[0u8; 80],
             &[],
             Grid::Invocations([8 * big, 1, 1]),
         )
         .unwrap_err()
         .to_string();
     assert!(e.contains("exceeds"), "{e}");
-    // Invocation grids become workgroups of the kernel's own size (pool2x2: 8x8), in 2D
+    // Invocation grids become workgroups of the kernel's own size (resample2x: 8x8), in 2D
     // for large images (2048x1024 -> 1024x512: 128 x 64 workgroups). Only checks that the
     // dispatch is accepted (built), not run, to keep the CPU adapter fast.
     for ((w, h), groups) in [((18, 10), [2, 1, 1]), ((2048, 1024), [128, 64, 1])] {

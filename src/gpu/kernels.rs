@@ -139,10 +139,9 @@ impl ParamsBinding {
 
 /// Every WGSL kernel of the crate.
 pub const KERNELS: &[KernelSource] = &[
-    kernel!("nn/conv3x3", ["nn/lib/storage"]),
-    kernel!("nn/conv3x3_blocked", ["nn/lib/storage"]),
-    kernel!("nn/pool2x2", ["nn/lib/storage", "nn/lib/resample"]),
-    kernel!("nn/upsample2x", ["nn/lib/resample"]),
+    kernel!("nn/conv3x3", ["nn/lib/storage", "nn/lib/fetch"]),
+    kernel!("nn/conv3x3_blocked", ["nn/lib/storage", "nn/lib/fetch"]),
+    kernel!("nn/resample2x", ["nn/lib/storage", "nn/lib/fetch"]),
     kernel!("nn/tfa_blend", ["nn/lib/grid"]),
     kernel!("nn/warp", ["nn/lib/grid"]),
     kernel!("nn/demodulate", ["nn/lib/grid", "nn/lib/modulation"]),
@@ -846,7 +845,7 @@ mod tests {
                 "nn/conv3x3",
                 &["F16_IN0", "F16_IN1", "F16_IN2", "F16_IN3", "F16_OUT"][..],
             ),
-            ("nn/pool2x2", &["F16_IN0", "F16_OUT"][..]),
+            ("nn/resample2x", &["F16_IN0", "F16_OUT"][..]),
         ] {
             let k = kernel_source(name).unwrap();
             for flag in flags {

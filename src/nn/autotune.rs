@@ -23,6 +23,7 @@ use std::path::PathBuf;
 use std::sync::{Mutex, OnceLock};
 
 use super::conv::{Conv3x3, ConvKernel};
+use super::ops::Fetch;
 use super::{DType, HostTensor, Tensor};
 use crate::error::{Error, Result};
 use crate::gpu::{Gpu, time_dispatch};
@@ -260,8 +261,15 @@ pub fn key(gpu: &Gpu, conv: &Conv3x3, w: u32, h: u32, storage: &LayerStorage) ->
         "f32" => String::new(),
         s => format!(" {s}"),
     };
+    // Inputs resampled on load (all-direct keys are those of earlier versions).
+    let fetch = if conv.fetch().iter().all(|&f| f == Fetch::Direct) {
+        String::new()
+    } else {
+        let names: Vec<&str> = conv.fetch().iter().map(|f| f.name()).collect();
+        format!(" read {}", names.join(","))
+    };
     format!(
-        "{} | {:?} | {} {} | {} | conv3x3 {:?}->{} {:?} at {w}x{h}{storage}",
+        "{} | {:?} | {} {} | {} | conv3x3 {:?}->{} {:?} at {w}x{h}{storage}{fetch}",
         gpu.info.name,
         gpu.info.backend,
         gpu.info.driver,
@@ -300,7 +308,8 @@ pub fn measure(
         .iter()
         .enumerate()
         .map(|(i, &c)| {
-            let host = HostTensor::from_fn(w, h, c, |x, y, ch| {
+            let (sw, sh) = conv.fetch()[i].stored_size(w, h);
+            let host = HostTensor::from_fn(sw, sh, c, |x, y, ch| {
                 let v = (x * 7 + y * 13 + ch * 5 + i as u32 * 3) % 17;
                 v as f32 / 8.0 - 1.0
             });

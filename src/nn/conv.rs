@@ -20,7 +20,7 @@ use std::sync::Mutex;
 use bytemuck::{Pod, Zeroable};
 
 use super::Tensor;
-use super::ops::{Activation, check_channels, check_size, distinct};
+use super::ops::{Activation, Fetch, check_channels, distinct};
 use super::tensor::padded;
 use crate::error::{Error, Result};
 use crate::gpu::{Dispatch, Gpu, Grid, Specialisation};
@@ -37,6 +37,7 @@ struct ConvParams {
     act: u32,
     slope: f32,
     _pad: u32,
+    src: [[u32; 4]; 4],
 }
 
 #[repr(C)]
@@ -45,6 +46,7 @@ struct BlockedParams {
     width: u32,
     height: u32,
     _pad: [u32; 2],
+    src: [[u32; 4]; 4],
 }
 
 /// Output channels one `nn/conv3x3` invocation computes (4 vec4s).
@@ -155,6 +157,8 @@ pub struct Conv3x3 {
     bias: wgpu::Buffer,
     /// The kernel [`Conv3x3::bind`] uses ([`ConvKernel::Generic`] until set).
     kernel: ConvKernel,
+    /// How it reads each input ([`Fetch::Direct`] until set).
+    fetch: Vec<Fetch>,
     /// Uniform weight buffers of the blocked kernel, by output block `cob` (the packing's
     /// output stride depends on it).
     blocked: Mutex<HashMap<u32, Vec<wgpu::Buffer>>>,
@@ -191,6 +195,7 @@ impl Conv3x3 {
             weights: mk("weight", &packed),
             bias: mk("bias", &b),
             kernel: ConvKernel::Generic,
+            fetch: vec![Fetch::Direct; input_channels.len()],
             blocked: Mutex::new(HashMap::new()),
         })
     }
@@ -347,8 +352,21 @@ impl Conv3x3 {
                 format!("input channels {got:?}, expected {:?}", self.input_channels),
             ));
         }
-        for (i, t) in inputs.iter().enumerate() {
-            check_size(&op, &format!("input {i}"), t, out.width, out.height)?;
+        for (i, (t, f)) in inputs.iter().zip(&self.fetch).enumerate() {
+            if !f.fits(t.width, t.height, out.width, out.height) {
+                let (sw, sh) = f.stored_size(out.width, out.height);
+                return Err(Error::shape(
+                    &op,
+                    format!(
+                        "input {i} is {}x{}, expected {sw}x{sh} (read {} for a {}x{} output)",
+                        t.width,
+                        t.height,
+                        f.name(),
+                        out.width,
+                        out.height
+                    ),
+                ));
+            }
         }
         check_channels(&op, "output", out, self.cout)?;
         distinct(&op, out, inputs)
@@ -357,6 +375,29 @@ impl Conv3x3 {
     /// The kernel [`Conv3x3::bind`] uses.
     pub fn kernel(&self) -> ConvKernel {
         self.kernel
+    }
+
+    /// How the layer reads each input (every [`Fetch::Direct`] unless set).
+    pub fn fetch(&self) -> &[Fetch] {
+        &self.fetch
+    }
+
+    /// Makes the layer read its inputs through `fetch` (one per input): e.g. the pooled or
+    /// upsampled tensor of the U-Net level beside it, resampled on load instead of by a
+    /// pass of its own. An error names the layer when the count is wrong.
+    pub fn set_fetch(&mut self, fetch: &[Fetch]) -> Result<()> {
+        if fetch.len() != self.input_channels.len() {
+            return Err(Error::shape(
+                &format!("conv3x3 '{}'", self.name),
+                format!(
+                    "{} fetch modes for {} inputs",
+                    fetch.len(),
+                    self.input_channels.len()
+                ),
+            ));
+        }
+        self.fetch = fetch.to_vec();
+        Ok(())
     }
 
     /// Makes [`Conv3x3::bind`] use `kernel`; an error names the layer and why when the
@@ -397,18 +438,26 @@ impl Conv3x3 {
         let (w, h) = (out.width, out.height);
         let mut bufs: Vec<&wgpu::Buffer> = inputs.iter().map(|t| &t.buffer).collect();
         let mut cin4 = [0u32; 4];
+        let mut src = [[0u32; 4]; 4];
         for (i, t) in inputs.iter().enumerate() {
             cin4[i] = t.c4();
+            src[i] = [t.width, t.height, 0, 0];
         }
         let (act, slope) = self.act.code();
         // Storage of each input slot (unused slots repeat the first input) and the output.
         let f16 = |i: usize| inputs.get(i).unwrap_or(&inputs[0]).dtype.f16_flag() as f64;
+        // How each input slot is read (unused slots as stored).
+        let fetch = |i: usize| self.fetch.get(i).map_or(0, |f| f.code()) as f64;
         let storage = [
             ("F16_IN0", f16(0)),
             ("F16_IN1", f16(1)),
             ("F16_IN2", f16(2)),
             ("F16_IN3", f16(3)),
             ("F16_OUT", out.dtype.f16_flag() as f64),
+            ("FETCH0", fetch(0)),
+            ("FETCH1", fetch(1)),
+            ("FETCH2", fetch(2)),
+            ("FETCH3", fetch(3)),
         ];
         match kernel {
             ConvKernel::Generic => {
@@ -422,6 +471,7 @@ impl Conv3x3 {
                     act,
                     slope,
                     _pad: 0,
+                    src,
                 };
                 // nn/conv3x3 declares 4 inputs: repeat the first in unused slots.
                 while bufs.len() < 4 {
@@ -441,6 +491,7 @@ impl Conv3x3 {
                     width: w,
                     height: h,
                     _pad: [0; 2],
+                    src,
                 };
                 let chunks = self.blocked_chunks(cob);
                 let weights = self.blocked_buffers(gpu, cob)?;

@@ -44,7 +44,7 @@ impl Activation {
 }
 
 /// 2x2 pooling mode.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
 pub enum PoolMode {
     /// Maximum of the window.
     Max,
@@ -53,7 +53,7 @@ pub enum PoolMode {
 }
 
 /// 2x upsampling mode.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
 pub enum UpsampleMode {
     /// Nearest neighbour.
     Nearest,
@@ -123,72 +123,89 @@ pub(super) fn distinct(op: &str, out: &Tensor, inputs: &[&Tensor]) -> Result<()>
 #[repr(C)]
 #[derive(Clone, Copy, Pod, Zeroable)]
 struct ResampleParams {
-    in_w: u32,
-    in_h: u32,
-    out_w: u32,
-    out_h: u32,
+    width: u32,
+    height: u32,
     c4: u32,
-    mode: u32,
-    _pad: [u32; 2],
+    _pad: u32,
+    src: [[u32; 4]; 4],
+}
+
+/// How a kernel reads an input tensor (`nn/lib/fetch`): as stored, or resampled 2x on load
+/// (the U-Net's pooling and upsampling between levels, fused into the convolution that
+/// reads them, or run as a pass of its own by [`pool2x2`] and [`upsample2x`]).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Default)]
+pub enum Fetch {
+    /// As stored, at the reader's size.
+    #[default]
+    Direct,
+    /// 2x upsampled from a tensor of `ceil(w/2) x ceil(h/2)`.
+    Upsample(UpsampleMode),
+    /// 2x2 pooled from a tensor of `2w-1..=2w x 2h-1..=2h` (windows clipped to it).
+    Pool(PoolMode),
+}
+
+impl Fetch {
+    /// Its `FETCHk` code in `nn/lib/fetch`.
+    pub fn code(self) -> u32 {
+        match self {
+            Fetch::Direct => 0,
+            Fetch::Upsample(UpsampleMode::Nearest) => 1,
+            Fetch::Upsample(UpsampleMode::Bilinear) => 2,
+            Fetch::Pool(PoolMode::Max) => 3,
+            Fetch::Pool(PoolMode::Average) => 4,
+        }
+    }
+
+    /// The size of a stored tensor that a reader of `w x h` reads through it (for pooling,
+    /// the even one of the two that fit).
+    pub fn stored_size(self, w: u32, h: u32) -> (u32, u32) {
+        match self {
+            Fetch::Direct => (w, h),
+            Fetch::Upsample(_) => (w.div_ceil(2), h.div_ceil(2)),
+            Fetch::Pool(_) => (2 * w, 2 * h),
+        }
+    }
+
+    /// Whether a reader of `w x h` can read a stored tensor of `src_w x src_h` through it.
+    pub fn fits(self, src_w: u32, src_h: u32, w: u32, h: u32) -> bool {
+        match self {
+            Fetch::Direct => (src_w, src_h) == (w, h),
+            Fetch::Upsample(_) => (w.div_ceil(2), h.div_ceil(2)) == (src_w, src_h),
+            Fetch::Pool(_) => (src_w.div_ceil(2), src_h.div_ceil(2)) == (w, h),
+        }
+    }
+
+    /// Short name (cache keys, reports): `direct`, `up-nearest`, `up-bilinear`,
+    /// `pool-max`, `pool-average`.
+    pub fn name(self) -> &'static str {
+        match self {
+            Fetch::Direct => "direct",
+            Fetch::Upsample(UpsampleMode::Nearest) => "up-nearest",
+            Fetch::Upsample(UpsampleMode::Bilinear) => "up-bilinear",
+            Fetch::Pool(PoolMode::Max) => "pool-max",
+            Fetch::Pool(PoolMode::Average) => "pool-average",
+        }
+    }
 }
 
 /// 2x2 pooling of `input` into `out` (`ceil(w/2) x ceil(h/2)`, same channels); either
 /// may be stored as f16.
 pub fn pool2x2(gpu: &Gpu, mode: PoolMode, input: &Tensor, out: &Tensor) -> Result<Dispatch> {
-    let op = "pool2x2";
     check_size(
-        op,
+        "pool2x2",
         "output",
         out,
         input.width.div_ceil(2),
         input.height.div_ceil(2),
     )?;
-    let mode = match mode {
-        PoolMode::Max => 0,
-        PoolMode::Average => 1,
-    };
-    let storage = Specialisation(vec![
-        ("F16_IN0", input.dtype.f16_flag() as f64),
-        ("F16_OUT", out.dtype.f16_flag() as f64),
-    ]);
-    resample(gpu, op, mode, input, out, &storage)
-}
-
-/// The dispatch of resampling kernel `op` (`pool2x2`, `upsample2x`) once the sizes are
-/// checked: same channels, distinct buffers, one thread per output pixel.
-fn resample(
-    gpu: &Gpu,
-    op: &str,
-    mode: u32,
-    input: &Tensor,
-    out: &Tensor,
-    spec: &Specialisation,
-) -> Result<Dispatch> {
-    check_channels(op, "output", out, input.channels)?;
-    distinct(op, out, &[input])?;
-    let params = ResampleParams {
-        in_w: input.width,
-        in_h: input.height,
-        out_w: out.width,
-        out_h: out.height,
-        c4: input.c4(),
-        mode,
-        _pad: [0; 2],
-    };
-    gpu.kernels.dispatch(
-        &format!("nn/{op}"),
-        spec,
-        bytemuck::bytes_of(&params),
-        &[&input.buffer, &out.buffer],
-        Grid::pixels(out.width, out.height),
-    )
+    resample("pool2x2", gpu, Fetch::Pool(mode), input, out)
 }
 
 /// 2x upsampling of `input` into `out`, whose size must be within 2x of the input
 /// (`2w-1..=2w` by `2h-1..=2h`, so padded odd sizes work).
 pub fn upsample2x(gpu: &Gpu, mode: UpsampleMode, input: &Tensor, out: &Tensor) -> Result<Dispatch> {
     let op = "upsample2x";
-    if out.width.div_ceil(2) != input.width || out.height.div_ceil(2) != input.height {
+    if !Fetch::Upsample(mode).fits(input.width, input.height, out.width, out.height) {
         return Err(Error::shape(
             op,
             format!(
@@ -197,12 +214,36 @@ pub fn upsample2x(gpu: &Gpu, mode: UpsampleMode, input: &Tensor, out: &Tensor) -
             ),
         ));
     }
-    let mode = match mode {
-        UpsampleMode::Nearest => 0,
-        UpsampleMode::Bilinear => 1,
-    };
     f32_only(op, &[("input", input), ("output", out)])?;
-    resample(gpu, op, mode, input, out, &Specialisation::none())
+    resample(op, gpu, Fetch::Upsample(mode), input, out)
+}
+
+/// The dispatch of `nn/resample2x` for operation `op` once the sizes are checked: same
+/// channels, distinct buffers, one thread per output pixel.
+fn resample(op: &str, gpu: &Gpu, fetch: Fetch, input: &Tensor, out: &Tensor) -> Result<Dispatch> {
+    check_channels(op, "output", out, input.channels)?;
+    distinct(op, out, &[input])?;
+    let mut src = [[0; 4]; 4];
+    src[0] = [input.width, input.height, 0, 0];
+    let params = ResampleParams {
+        width: out.width,
+        height: out.height,
+        c4: input.c4(),
+        _pad: 0,
+        src,
+    };
+    let spec = Specialisation(vec![
+        ("F16_IN0", input.dtype.f16_flag() as f64),
+        ("F16_OUT", out.dtype.f16_flag() as f64),
+        ("FETCH0", fetch.code() as f64),
+    ]);
+    gpu.kernels.dispatch(
+        "nn/resample2x",
+        &spec,
+        bytemuck::bytes_of(&params),
+        &[&input.buffer, &out.buffer],
+        Grid::pixels(out.width, out.height),
+    )
 }
 
 // ---------------------------------------------------------------------------------------
@@ -471,8 +512,7 @@ pub fn run(gpu: &Gpu, dispatches: &[&Dispatch]) -> Result<()> {
 /// Size in bytes of each kernel's uniform `Params` as the Rust side lays it out, for the
 /// test that compares them with naga's layout.
 pub const PARAM_SIZES: &[(&str, usize)] = &[
-    ("nn/pool2x2", std::mem::size_of::<ResampleParams>()),
-    ("nn/upsample2x", std::mem::size_of::<ResampleParams>()),
+    ("nn/resample2x", std::mem::size_of::<ResampleParams>()),
     ("nn/tfa_blend", std::mem::size_of::<BlendParams>()),
     ("nn/warp", std::mem::size_of::<WarpParams>()),
     ("nn/demodulate", std::mem::size_of::<ModParams>()),

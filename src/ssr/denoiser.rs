@@ -87,8 +87,7 @@ pub const KERNELS_USED: &[&str] = &[
     "nn/conv3x3",
     "nn/conv3x3_blocked",
     "nn/tfa_blend",
-    "nn/pool2x2",
-    "nn/upsample2x",
+    "nn/resample2x",
     "nn/remodulate",
 ];
 

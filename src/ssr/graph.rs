@@ -7,7 +7,7 @@
 
 use super::config::{A_CHANNELS, ExposureMode, HistoryTest, MT_CHANNELS, RGB, RemodulationAlbedo, SsrConfig};
 use crate::error::Result;
-use crate::nn::ops::PoolMode;
+use crate::nn::ops::{Fetch, PoolMode};
 
 /// What a tensor is besides its shape ([`TensorId::traits`]).
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -101,13 +101,13 @@ tensor_ids! {
     Enc1Hidden = "enc1_hidden": Transient F16,
     /// U-Net encoder level 1.
     Enc1 = "enc1": F16,
-    /// Its pooling.
+    /// Its pooling (a view: [`TensorId::stored`]).
     Pool1 = "pool1": Transient F16,
     /// Encoder level 2, hidden layer.
     Enc2Hidden = "enc2_hidden": Transient F16,
     /// Encoder level 2.
     Enc2 = "enc2": F16,
-    /// Its pooling.
+    /// Its pooling (a view).
     Pool2 = "pool2": Transient F16,
     /// Encoder level 3, hidden layer.
     Enc3Hidden = "enc3_hidden": Transient F16,
@@ -117,13 +117,13 @@ tensor_ids! {
     Dec3Hidden = "dec3_hidden": Transient F16,
     /// Decoder level 3 output I3.
     I3 = "i3",
-    /// I3 upsampled.
+    /// I3 upsampled (a view).
     Up3 = "up3": Transient,
     /// Decoder level 2, hidden layer.
     Dec2Hidden = "dec2_hidden": Transient F16,
     /// Decoder level 2 output I2.
     I2 = "i2",
-    /// I2 upsampled.
+    /// I2 upsampled (a view).
     Up2 = "up2": Transient,
     /// Decoder level 1, hidden layer.
     Dec1Hidden = "dec1_hidden": Transient F16,
@@ -155,6 +155,21 @@ impl TensorId {
     /// Whether it has trait [`Trait::F16`].
     pub fn may_store_f16(self) -> bool {
         self.traits().contains(&Trait::F16)
+    }
+
+    /// The stored tensor it is read from and how: itself as stored, or, for a view (the
+    /// U-Net's pooled encoder levels and upsampled decoder outputs), its source resampled
+    /// on load by the convolution that reads it (`nn/lib/fetch`), so that it takes no pass
+    /// and no memory of its own.
+    pub fn stored(self, config: &SsrConfig) -> Result<(TensorId, Fetch)> {
+        use TensorId::*;
+        Ok(match self {
+            Pool1 => (Enc1, Fetch::Pool(config.pool_mode()?)),
+            Pool2 => (Enc2, Fetch::Pool(config.pool_mode()?)),
+            Up3 => (I3, Fetch::Upsample(config.upsample_mode()?)),
+            Up2 => (I2, Fetch::Upsample(config.upsample_mode()?)),
+            _ => (self, Fetch::Direct),
+        })
     }
 
     /// Its extent and channel count under `config`.
@@ -204,8 +219,6 @@ pub enum Op {
     TfaBlend,
     /// 2x2 pooling (`in, out`).
     Pool(PoolMode),
-    /// 2x upsampling in the config's mode (`in, out`).
-    Upsample,
     /// Remodulation by the albedo at channel 3 of the second tensor and the colour
     /// exposure (`o, albedo, exposure, output`).
     Remodulate,
@@ -262,7 +275,6 @@ pub fn steps(config: &SsrConfig) -> Result<Vec<StepSpec>> {
         RemodulationAlbedo::Current => ACur,
         RemodulationAlbedo::Accumulated => AAcc,
     };
-    let pool = config.pool_mode()?;
     let mut all = vec![warp];
     all.extend([
         step("tfa", "tfa.ref.0", Conv("tfa.ref.0"), &[ACur, Mt, RefHidden]),
@@ -303,7 +315,6 @@ pub fn steps(config: &SsrConfig) -> Result<Vec<StepSpec>> {
             &[ACur, Mt, AAcc, WarpOut, Enc1Hidden],
         ),
         step("unet", "unet.enc1.2", Conv("unet.enc1.2"), &[Enc1Hidden, Enc1]),
-        step("unet", "pool enc1", Pool(pool), &[Enc1, Pool1]),
         step(
             "unet",
             "unet.enc2.0",
@@ -311,7 +322,6 @@ pub fn steps(config: &SsrConfig) -> Result<Vec<StepSpec>> {
             &[Pool1, Wo2, Enc2Hidden],
         ),
         step("unet", "unet.enc2.2", Conv("unet.enc2.2"), &[Enc2Hidden, Enc2]),
-        step("unet", "pool enc2", Pool(pool), &[Enc2, Pool2]),
         step(
             "unet",
             "unet.enc3.0",
@@ -326,7 +336,6 @@ pub fn steps(config: &SsrConfig) -> Result<Vec<StepSpec>> {
             &[Enc3, Wo4, Dec3Hidden],
         ),
         step("unet", "unet.dec3.2", Conv("unet.dec3.2"), &[Dec3Hidden, I3]),
-        step("unet", "upsample I3", Upsample, &[I3, Up3]),
         step(
             "unet",
             "unet.dec2.0",
@@ -334,7 +343,6 @@ pub fn steps(config: &SsrConfig) -> Result<Vec<StepSpec>> {
             &[Enc2, Up3, Wo2, Dec2Hidden],
         ),
         step("unet", "unet.dec2.2", Conv("unet.dec2.2"), &[Dec2Hidden, I2]),
-        step("unet", "upsample I2", Upsample, &[I2, Up2]),
         step(
             "unet",
             "unet.dec1.0",

@@ -13,7 +13,7 @@ use crate::error::{Error, Result};
 use crate::gpu::{Dispatch, Gpu, Grid, Profiler, Specialisation};
 use crate::nn::autotune::{self, EngineOptions, LayerStorage, Precision};
 use crate::nn::conv::ConvKernel;
-use crate::nn::ops::{self, Conv3x3, TfaBlend};
+use crate::nn::ops::{self, Conv3x3, Fetch, TfaBlend};
 use crate::nn::{DType, HostTensor, Tensor};
 
 #[repr(C)]
@@ -57,6 +57,8 @@ pub struct Network {
     ones: Tensor,
     /// The steps of a frame, in execution order.
     specs: Vec<StepSpec>,
+    /// Each tensor's stored tensor and how steps read it ([`TensorId::stored`]).
+    stored: BTreeMap<TensorId, (TensorId, Fetch)>,
     /// Storage of the interior activations ([`TensorId::may_store_f16`]).
     activations: DType,
     /// `[parity][step]` -> its dispatch.
@@ -172,6 +174,22 @@ impl Network {
                 Conv3x3::new(gpu, &l.name, w, b, &l.inputs, l.cout, l.act)?,
             );
         }
+        let stored: BTreeMap<TensorId, (TensorId, Fetch)> = TensorId::ALL
+            .iter()
+            .map(|&id| Ok((id, id.stored(&config)?)))
+            .collect::<Result<_>>()?;
+        // Each layer reads its views resampled on load (one step per layer is enough: the
+        // graph gives a layer the same inputs in every step that runs it, up to history).
+        for s in &specs {
+            if let Op::Conv(layer) = s.op {
+                let (_, ins) = s.tensors.split_last().expect("a convolution has an output");
+                let fetch: Vec<Fetch> = ins.iter().map(|id| stored[id].1).collect();
+                convs
+                    .get_mut(layer)
+                    .expect("every layer is built")
+                    .set_fetch(&fetch)?;
+            }
+        }
         let size = |l: &LayerSpec| (width >> l.level, height >> l.level);
         let activations = activation_storage(gpu, &specs, &layers, &convs, options.precision, size)?;
         for l in &layers {
@@ -205,7 +223,8 @@ impl Network {
         // tensor takes the memory of an earlier one of the same shape that is dead by then.
         let mut life: BTreeMap<TensorId, (usize, usize)> = BTreeMap::new();
         for (i, s) in specs.iter().enumerate() {
-            for &id in &s.tensors {
+            for id in &s.tensors {
+                let id = stored[id].0;
                 life.entry(id).and_modify(|l| l.1 = i).or_insert((i, i));
             }
         }
@@ -218,7 +237,8 @@ impl Network {
             if matches!(
                 id,
                 TensorId::AAcc | TensorId::AAccPrev | TensorId::O | TensorId::OPrev
-            ) {
+            ) || stored[&id].0 != id
+            {
                 continue;
             }
             let transient = life.get(&id).copied().filter(|_| id.is_transient());
@@ -261,6 +281,7 @@ impl Network {
             o,
             ones,
             specs,
+            stored,
             activations,
             dispatches: [Vec::new(), Vec::new()],
             parity: 0,
@@ -288,12 +309,12 @@ impl Network {
 
     /// Tensor `id` when the frame of parity `p` is recorded.
     fn at(&self, id: TensorId, p: usize) -> &Tensor {
-        match id {
+        match self.stored[&id].0 {
             TensorId::AAcc => &self.a_acc[p],
             TensorId::AAccPrev => &self.a_acc[1 - p],
             TensorId::O => &self.o[p],
             TensorId::OPrev => &self.o[1 - p],
-            _ => &self.tensors[&id],
+            id => &self.tensors[&id],
         }
     }
 
@@ -347,7 +368,6 @@ impl Network {
                 },
             ),
             Op::Pool(mode) => ops::pool2x2(gpu, mode, t[0], t[1]),
-            Op::Upsample => ops::upsample2x(gpu, self.config.upsample_mode()?, t[0], t[1]),
             Op::Remodulate => {
                 let ceiling = match self.config.ceiling_mode()? {
                     CeilingMode::None => None,

@@ -9,7 +9,11 @@
 // hostile weights or inputs) becomes 0 and finite ones are clamped far beyond any real
 // activation, so that the layers after it (sums of 9 Cin products, dot products in the
 // TFA) cannot overflow either. Each input and the output are stored as f32 or f16
-// (nn/lib/storage); the sums are f32.
+// (nn/lib/storage); the sums are f32. Each input may be read resampled 2x (nn/lib/fetch:
+// override FETCHk, its stored size in `src`), so a layer reads the pooled or upsampled
+// tensor of the level beside it without a pass that stores it.
+//
+//#param N_IN 4
 
 struct Params {
     width: u32,
@@ -21,6 +25,7 @@ struct Params {
     act: u32,             // 0 none, 1 relu, 2 leaky relu
     slope: f32,
     _pad: u32,
+    src: array<vec4<u32>, 4>, // xy: the stored size of each input
 }
 
 @group(0) @binding(0) var<uniform> p: Params;
@@ -34,12 +39,12 @@ struct Params {
 
 const COB: u32 = 4u;
 
-fn fetch(k: u32, i: u32) -> vec4<f32> {
+fn fetch(k: u32, x: u32, y: u32, c4: u32, ci: u32) -> vec4<f32> {
     switch k {
-        case 0u: { return vec4<f32>(in0[i]); }
-        case 1u: { return vec4<f32>(in1[i]); }
-        case 2u: { return vec4<f32>(in2[i]); }
-        default: { return vec4<f32>(in3[i]); }
+        case 0u: { return load0(x, y, c4, ci); }
+        case 1u: { return load1(x, y, c4, ci); }
+        case 2u: { return load2(x, y, c4, ci); }
+        default: { return load3(x, y, c4, ci); }
     }
 }
 
@@ -62,12 +67,11 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>) {
         if (xx < 0 || yy < 0 || xx >= i32(p.width) || yy >= i32(p.height)) {
             continue;
         }
-        let pix = u32(yy) * p.width + u32(xx);
         var ci_base = 0u;
         for (var k = 0u; k < p.n_inputs; k++) {
             let c4 = p.cin4[k];
             for (var ci = 0u; ci < c4; ci++) {
-                let v = fetch(k, pix * c4 + ci);
+                let v = fetch(k, u32(xx), u32(yy), c4, ci);
                 let wrow = ((tap * p.cin4_total + ci_base + ci) * p.cout4 + co4_0) * 4u;
                 for (var j = 0u; j < nb; j++) {
                     let w = wrow + j * 4u;

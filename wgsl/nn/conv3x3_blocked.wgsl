@@ -17,7 +17,10 @@
 //   (nn::conv packs them; a layer whose single output block does not fit runs on
 //   nn/conv3x3, which reads weights from storage).
 // - each input and the output are stored as f32 or f16 (nn/lib/storage: template flags,
-//   `array<vec4<f16>>` with SHADER_F16); the sums are f32.
+//   `array<vec4<f16>>` with SHADER_F16); the sums are f32;
+// - each input may be read resampled 2x (nn/lib/fetch: override FETCHk, its stored size in
+//   `src`): the pooled or upsampled tensor of the level beside the layer, without a pass
+//   that stores it.
 // The grid: x over groups of PX pixels, y over rows, z over blocks of COB output vec4s.
 //
 //#param N_IN 4
@@ -39,6 +42,7 @@ struct Params {
     height: u32,
     _pad0: u32,
     _pad1: u32,
+    src: array<vec4<u32>, 4>, // xy: the stored size of each input
 }
 
 const MAX_WEIGHTS: u32 = 4096u; // vec4s: 64 KiB, WebGPU's default uniform binding size
@@ -92,14 +96,13 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>) {
         if (yy < 0 || yy >= i32(p.height)) {
             continue;
         }
-        let row = u32(yy) * p.width;
         var ci_base = 0u;
         //#repeat k N_IN
         for (var ci = 0u; ci < CIN4_{k}; ci++) {
             // The row's PX + 2 input vec4s (zero outside the image).
             //#repeat i PX+2
             let xx{i} = i32(x0) + {i} - 1;
-            let v{i} = select(vec4<f32>(0.0), vec4<f32>(in{k}[(row + u32(clamp(xx{i}, 0, w_last))) * CIN4_{k} + ci]), xx{i} >= 0 && xx{i} <= w_last);
+            let v{i} = select(vec4<f32>(0.0), load{k}(u32(clamp(xx{i}, 0, w_last)), u32(yy), CIN4_{k}, ci), xx{i} >= 0 && xx{i} <= w_last);
             //#end
             //#repeat tx 3
             let wr{tx} = (((ty * 3u + {tx}u) * cin4_total + ci_base + ci) * cout4_stride + local0) * 4u;
