@@ -19,7 +19,9 @@
 # seeds of the three splits are disjoint ranges; every sequence of every split flies its
 # own camera path (seeded by scene, split and number).
 #
-# Environment: SUBPIXEL (the binary, default target/release/subpixel), SCENES (default
+# Environment: SUBPIXEL (the binary; default target/dist/subpixel, which the recipe builds
+# with `cargo build --profile dist`: whole-program optimisation, the same images as a
+# release build, faster), SCENES (default
 # ../shared/scenes), SPP (reference samples, default 1024), TRAIN_SPP (reference samples of
 # the val and train phases, default SPP), SIZE (default 128), HELDOUT_SEQUENCES (per
 # held-out scene, default 2), TEST_SEEDS (procedural test seeds, default 20), TRAIN_SEEDS
@@ -38,9 +40,9 @@
 # run the same command with 0/N .. N-1/N on N machines and merge the OUT folders), PROCEDURAL=0 (skip procedural
 # scenes, e.g. before they exist). Finished frames are skipped, so re-running continues;
 # each frame is written atomically. A build for the machine's own CPU renders about 10 %
-# faster (the same images on cbox, checked byte for byte) and can live in its own target
-# folder: CARGO_TARGET_DIR=~/work-data/target-native RUSTFLAGS="-C target-cpu=native"
-# cargo build --release, then SUBPIXEL=~/work-data/target-native/release/subpixel.
+# faster still (the same images on cbox, checked byte for byte) and can live in its own
+# target folder: CARGO_TARGET_DIR=~/work-data/target-native RUSTFLAGS="-C target-cpu=native"
+# cargo build --profile dist, then SUBPIXEL=~/work-data/target-native/dist/subpixel.
 # To stop a background run cleanly, `touch OUT/STOP`: it stops before its next sequence
 # (a killed run leaves at most one unfinished sequence, which the next run completes).
 # Logs go to stdout: run it with nohup, e.g.
@@ -52,7 +54,10 @@ out="${1:?usage: dataset_recipe.sh OUT [heldout|val|train|test ...]}"
 shift
 phases=("$@")
 [ ${#phases[@]} -eq 0 ] && phases=(heldout val train test)
-bin="${SUBPIXEL:-$root/target/release/subpixel}"
+if [ -z "${SUBPIXEL:-}" ]; then
+  (cd "$root" && cargo build --profile dist --bin subpixel --quiet)
+fi
+bin="${SUBPIXEL:-$root/target/dist/subpixel}"
 scenes="${SCENES:-$root/../shared/scenes}"
 spp="${SPP:-1024}"
 train_spp="${TRAIN_SPP:-$spp}"
@@ -68,7 +73,7 @@ shard="${SHARD:-0/1}"
 shard_k="${shard%/*}"
 shard_n="${shard#*/}"
 procedural="${PROCEDURAL:-1}"
-[ -x "$bin" ] || { echo "no binary at $bin: run 'cargo build --release' first" >&2; exit 1; }
+[ -x "$bin" ] || { echo "no binary at $bin (SUBPIXEL)" >&2; exit 1; }
 
 fixed=(builtin:cornell builtin:room "$scenes/cbox" "$scenes/cornell-box" "$scenes/dining-room" "$scenes/staircase2")
 held_out=("$scenes/living-room" "$scenes/flight-helmet" "$scenes/barn-lamp")
