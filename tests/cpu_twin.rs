@@ -34,6 +34,32 @@ fn gbuffers_and_same_seed_paths_match_the_gpu() {
     }
 }
 
+/// The brute-force search behind the G-buffer tie check sees a ray that grazes the edge
+/// between two surfaces: on builtin:cornell at 24x20 (quarter frame), pixel (21, 0) meets
+/// the ceiling within rounding of its edge with the right wall. An H100 reported the wall
+/// there and the twin the ceiling; the search finds only the ceiling along the ray itself,
+/// and both once rays tilted by 1e-5 radians are searched too.
+#[test]
+fn edge_grazing_rays_find_both_surfaces() {
+    let scene = load_scene("builtin:cornell").unwrap();
+    let p = packed(&scene);
+    let s = settings(&scene, Mode::Quarter, 1, 7);
+    let cpu = CpuTracer::new(24, 20).unwrap();
+    let material = |t: &subpixel::render::PrimarySurface| scene.materials[t.material as usize].name.clone();
+    let along: Vec<String> = cpu
+        .primary_surfaces(&p, &s, (21, 0), 1e-5, 0.0)
+        .iter()
+        .map(material)
+        .collect();
+    let grazing: Vec<String> = cpu
+        .primary_surfaces(&p, &s, (21, 0), 1e-5, 1e-5)
+        .iter()
+        .map(material)
+        .collect();
+    assert_eq!(along, ["white"], "along the ray");
+    assert_eq!(grazing, ["white", "right"], "with tilted rays");
+}
+
 /// Repeat- and mirror-wrapped textures looked up at negative texture coordinates match.
 /// WGSL defines `%` of negative operands, but naga's GLSL output does not (on Mesa
 /// llvmpipe's GL, -4000 % 894 gave 450): the GPU's wrap once fetched the wrong texels there

@@ -93,16 +93,23 @@ fn all_close(a: &[(&str, f32)], b: &[(&str, f32)]) -> bool {
 
 /// Relative distance within which two surfaces along a ray are at the same distance.
 const TIE_EPS: f32 = 1e-5;
+/// Angle (radians, about 1/3000 of a pixel of these tests' images) within which a ray
+/// grazes a triangle's edge.
+const GRAZE: f32 = 1e-5;
 
 /// Checks that the GPU's G-buffers `g` and the CPU twin's `c` of frame `s` agree at every
 /// pixel to float tolerance, except at genuine ties, and returns the number of ties.
 ///
 /// A tie is a pixel whose primary ray meets two overlapping surfaces at the same distance
-/// (z-fighting in the scene), so that float rounding decides which one each backend's
+/// (z-fighting in the scene) or passes within rounding of the edge between two surfaces
+/// (the corner of two walls), so that float rounding decides which one each backend's
 /// traversal reports: there the backends may disagree, but only if a brute-force search of
-/// every triangle along that ray ([`CpuTracer::primary_surfaces`], independent of either
-/// traversal) finds several triangles at the distance of the closest hit (within
-/// [`TIE_EPS`]), and the GPU's and the CPU's values are those of two different ones.
+/// every triangle along that ray and along rays tilted by [`GRAZE`]
+/// ([`CpuTracer::primary_surfaces`], independent of either traversal) finds several
+/// triangles at the distance of the closest hit (within [`TIE_EPS`]), and the GPU's and the
+/// CPU's values are those of two different ones. The edge case was first seen on an H100
+/// (builtin:cornell at 24x20, pixel (21, 0): the ceiling on the CPU, the right wall on the
+/// GPU, whose compiler fuses multiply-adds); CPU drivers round as the twin does.
 ///
 /// In the shared scenes: dining-room (the Breakfast Room) has one genuine tie at 32x18,
 /// pixel (6, 15): its floor, FloorTiles triangles 269310-269313 in the plane y = -1.419958,
@@ -135,7 +142,7 @@ fn gbuffer_ties(scene: &Scene, p: &PackedScene, s: &FrameSettings, g: &HostFrame
             .filter(|(a, b)| !close(a.1, b.1))
             .map(|(a, b)| (a.0, a.1, b.1))
             .collect();
-        let surfaces = cpu.primary_surfaces(p, s, x, y, TIE_EPS);
+        let surfaces = cpu.primary_surfaces(p, s, (x, y), TIE_EPS, GRAZE);
         let find = |v: &[(&str, f32)]| surfaces.iter().position(|t| all_close(v, &surface_values(t)));
         let (gi, ci) = (find(&gv), find(&cv));
         let described: Vec<String> = surfaces
@@ -183,9 +190,11 @@ fn gbuffer_ties(scene: &Scene, p: &PackedScene, s: &FrameSettings, g: &HostFrame
 
 /// The GPU's background `g` and the CPU twin's `c` (`n x n` rays per pixel) agree: the same
 /// camera rays, so coverage and background agree to float tolerance at nearly every pixel.
-/// The others are those where a ray grazes a silhouette (one backend's traversal reports the
-/// hit, the other's not: coverage then differs by exactly one ray, 1 / n^2; at most 2 % of
-/// pixels) or where a lookup direction lies within float rounding of an environment texel
+/// The others are those where rays graze a silhouette (one backend's traversal reports the
+/// hit, the other's not; at most 2 % of pixels): coverage then differs by a whole number of
+/// rays, from 1 to n, since a straight edge passes through at most n points of the pixel's
+/// n x n grid of rays (seen on an H100: two rays of a 2 x 2 grid on one edge of
+/// builtin:cornell), or where a lookup direction lies within float rounding of an environment texel
 /// boundary: the environment is looked up at the nearest texel, and the GPU's `atan2` and
 /// `acos` differ from the CPU's in the last bits (at 4096 texels across, about 0.04 texel),
 /// so one of the n^2 lookups may take the neighbouring texel, which on a high-contrast map
@@ -212,7 +221,7 @@ pub fn assert_backgrounds_match(what: &str, g: &Background, c: &Background, n: u
         } else {
             let rays = (gc - cc).abs() * (n * n) as f32;
             assert!(
-                (rays - 1.0).abs() < 1e-3,
+                (rays - rays.round()).abs() < 1e-3 && (1.0..=n as f32).contains(&rays.round()),
                 "{what} pixel {i}: coverage {gc} vs {cc}"
             );
             grazing += 1;

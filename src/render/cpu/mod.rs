@@ -115,39 +115,57 @@ impl CpuTracer {
     /// distance of its closest hit, up to relative `rel_eps`, nearest first: each with the
     /// G-buffer values of the pixel had the ray hit it. Several when the scene has
     /// overlapping surfaces there (z-fighting), where float rounding decides which one a
-    /// traversal reports. A brute-force test of every triangle (the BVH traversal's
-    /// triangle test and alpha cut-outs, none of its order), for diagnostics and tests.
+    /// traversal reports. With `graze > 0` (radians), also those of four rays tilted from it
+    /// by that angle: where the ray passes within rounding of a triangle's edge (the corner
+    /// of two walls), a backend whose arithmetic rounds otherwise (fused multiply-adds on a
+    /// GPU) may report the surface on the other side of the edge. A brute-force test of
+    /// every triangle (the BVH traversal's triangle test and alpha cut-outs, none of its
+    /// order), for diagnostics and tests.
     pub fn primary_surfaces(
         &self,
         scene: &PackedScene,
         s: &FrameSettings,
-        x: u32,
-        y: u32,
+        (x, y): (u32, u32),
         rel_eps: f32,
+        graze: f32,
     ) -> Vec<PrimarySurface> {
         let p = self.params(s, s.seed);
         let d = primary_dir(&p, x, y);
         let o = glam::Vec3A::from_slice(&p.cam.pos[..3]);
-        let mut hits: Vec<traverse::Hit> = (0..scene.tris.len() as u32 / 4)
-            .filter_map(|prim| {
-                let (t, u, v) = traverse::intersect_tri(scene, prim, o, d, 0.0, common::BIG)?;
-                let info = material::tri_info(scene, prim)[3];
-                (info & super::packed::TRI_FLAG_ALPHA == 0 || material::alpha_passes(scene, prim, u, v))
-                    .then_some(traverse::Hit { t, prim, u, v })
-            })
-            .collect();
-        hits.sort_by(|a, b| a.t.total_cmp(&b.t));
-        let Some(nearest) = hits.first().map(|h| h.t) else {
-            return Vec::new();
-        };
-        hits.iter()
-            .take_while(|h| h.t <= nearest + rel_eps * nearest.abs())
-            .map(|h| {
+        let mut dirs = vec![d];
+        if graze > 0.0 {
+            let (a, b) = glam::Vec3::from(d).any_orthonormal_pair();
+            for t in [a, -a, b, -b] {
+                dirs.push((d + glam::Vec3A::from(t) * graze.tan()).normalize());
+            }
+        }
+        let mut found: Vec<PrimarySurface> = Vec::new();
+        for d in dirs {
+            let mut hits: Vec<traverse::Hit> = (0..scene.tris.len() as u32 / 4)
+                .filter_map(|prim| {
+                    let (t, u, v) = traverse::intersect_tri(scene, prim, o, d, 0.0, common::BIG)?;
+                    let info = material::tri_info(scene, prim)[3];
+                    (info & super::packed::TRI_FLAG_ALPHA == 0 || material::alpha_passes(scene, prim, u, v))
+                        .then_some(traverse::Hit { t, prim, u, v })
+                })
+                .collect();
+            hits.sort_by(|a, b| a.t.total_cmp(&b.t));
+            let Some(nearest) = hits.first().map(|h| h.t) else {
+                continue;
+            };
+            for h in hits
+                .iter()
+                .take_while(|h| h.t <= nearest + rel_eps * nearest.abs())
+            {
+                let triangle = scene.bvh.order[h.prim as usize];
+                if found.iter().any(|f| f.triangle == triangle) {
+                    continue;
+                }
                 let g = gbuffer_of_hit(scene, &p, x, y, d, h);
                 let [a0, a1, a2, depth] = g.albedo_depth;
                 let [n0, n1, n2, metallic] = g.normal_metallic;
-                PrimarySurface {
-                    triangle: scene.bvh.order[h.prim as usize],
+                found.push(PrimarySurface {
+                    triangle,
                     material: material::tri_info(scene, h.prim)[3] & super::packed::TRI_MATERIAL_MASK,
                     t: h.t,
                     albedo: [a0, a1, a2],
@@ -157,9 +175,10 @@ impl CpuTracer {
                     roughness: g.roughness,
                     transparent: g.transparent,
                     motion: g.motion,
-                }
-            })
-            .collect()
+                });
+            }
+        }
+        found
     }
 
     /// Renders frame `s` (every buffer of the data contract), as [`super::Tracer::render`]
