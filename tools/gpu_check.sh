@@ -1,0 +1,69 @@
+#!/usr/bin/env bash
+# One call on a lent GPU machine: the GPU-facing tests and every benchmark, in one sitting.
+#
+#   tools/gpu_check.sh BIN_DIR OUT_DIR
+#
+# BIN_DIR holds `subpixel` and the test binaries `kernels`, `ssr_api`, `ssr_golden`,
+# `render`, `cpu_twin`, `view` built on this machine's architecture
+# (`tools/gpu_bins.sh BIN_DIR` copies them out of target/release); OUT_DIR gets one log per
+# step, the benchmarks' JSON, the autotuner's cache and a preview of the main job. Each
+# step has its own time limit, so one that hangs does not cost the others. The machine
+# needs a Vulkan loader and the GPU's ICD; the lent machines of this workplace get the
+# loader from `.gl/*.deb` (see README Performance).
+set -u
+BIN=$(realpath "${1:?BIN_DIR}")
+OUT=$(realpath "${2:?OUT_DIR}")
+mkdir -p "$OUT"
+cd "$(dirname "$0")/.."
+ROOT=$PWD
+
+export NODEVICE_SELECT=1 RUST_LOG=${RUST_LOG:-warn} PYTHONUNBUFFERED=1
+export SUBPIXEL_CACHE_DIR="$OUT/cache"
+if [ -z "${VK_DRIVER_FILES:-}" ] && [ -f /usr/local/nvidia/share/vulkan/icd.d/nvidia_icd.json ]; then
+  export VK_DRIVER_FILES=/usr/local/nvidia/share/vulkan/icd.d/nvidia_icd.json
+fi
+# The test binaries look for their data under the path they were built in (BIN_DIR/built_in).
+built_in=$(cat "$BIN/built_in" 2>/dev/null)
+if [ -n "$built_in" ] && [ ! -e "$built_in" ]; then
+  mkdir -p "$(dirname "$built_in")" && ln -s "$ROOT" "$built_in"
+fi
+
+step() { # name limit_s command...
+  local name=$1 limit=$2; shift 2
+  local t0=$SECONDS
+  timeout "$limit" "$@" > "$OUT/$name.log" 2>&1
+  local rc=$?
+  echo "== $name: rc $rc in $((SECONDS - t0)) s" | tee -a "$OUT/summary.txt"
+}
+
+nvidia-smi --query-gpu=name,driver_version,clocks.sm,clocks.max.sm,memory.total --format=csv \
+  > "$OUT/gpu.txt" 2>&1
+cat "$OUT/gpu.txt"
+
+step denoise_f32 90 "$BIN/subpixel" bench denoise --width 1920 --height 1080 --precision f32
+step denoise_auto_json 90 "$BIN/subpixel" bench denoise --width 1920 --height 1080 --precision auto --json
+step kernels 90 "$BIN/subpixel" bench kernels --width 1920 --height 1080 --channels 32
+step frame 90 "$BIN/subpixel" bench frame
+for t in kernels ssr_api ssr_golden; do
+  step "test_$t" 120 "$BIN/$t" --test-threads 4
+done
+step vs_torch 120 python3 training/bench_vs_torch.py --bin "$BIN/subpixel" --width 1920 --height 1080 \
+  --device cuda --rounds 3 --frames 50
+step run 120 "$BIN/subpixel" run --out "$OUT/run"
+# Keep what comes back small: one preview, the rest removed.
+if [ -d "$OUT/run" ]; then
+  last=$(ls "$OUT/run"/*.png 2>/dev/null | tail -1)
+  [ -n "$last" ] && cp "$last" "$OUT/run_last_frame.png"
+  rm -rf "$OUT/run"
+fi
+step render 90 "$BIN/subpixel" bench render --width 1920 --height 1080
+step denoise_f16 60 "$BIN/subpixel" bench denoise --width 1920 --height 1080 --precision f16
+step torch_modes 120 python3 training/bench_torch.py --weights weights/ssr.safetensors --width 1920 \
+  --height 1080 --device cuda --frames 50
+for t in render cpu_twin view; do
+  step "test_$t" 120 "$BIN/$t" --test-threads 8
+done
+echo "== test results"
+grep -h "^test result" "$OUT"/test_*.log
+grep -h "FAILED\|panicked" "$OUT"/test_*.log | head -20
+cat "$OUT/summary.txt"
