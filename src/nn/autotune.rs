@@ -38,12 +38,13 @@ pub const ENV_CACHE_DIR: &str = "SUBPIXEL_CACHE_DIR";
 /// would make tuning slow there, and its ranking already holds at this size: a CPU driver's
 /// few cores are full with a few thousand invocations).
 pub const TUNE_MAX_SIDE_CPU: u32 = 128;
-/// On a GPU, layers are tuned at their own size rounded up to a multiple of this, so that
-/// nearby sizes share one measurement. A small layer leaves a large GPU mostly idle and
-/// ranks kernels by how many invocations they launch, not by their arithmetic: measured on
-/// an H100 (Vulkan, driver 580.159.04), a 32->32 conv3x3 tuned at 128x128 picked px4-cob1,
-/// which at 1920x1080 takes 15.1 ms against px2-cob4's 1.7 ms.
-pub const TUNE_STEP_GPU: u32 = 128;
+/// On a GPU, layers are tuned on at most this many pixels per side. Below it a layer is
+/// tuned on at least its own size, so the GPU is at least as full as when the layer runs: a
+/// small size leaves a large GPU mostly idle and ranks kernels by how many invocations they
+/// launch, not by their arithmetic. Measured on an H100 (Vulkan, driver 580.159.04), a
+/// 32->32 conv3x3 tuned at 128x128 picked px4-cob1, which at 1920x1080 takes 15.1 ms
+/// against px2-cob4's 1.7 ms.
+pub const TUNE_MAX_SIDE_GPU: u32 = 2048;
 /// Timed runs per candidate (after one warm-up run); the median is compared.
 pub const TUNE_ITERATIONS: u32 = 3;
 
@@ -291,15 +292,16 @@ pub fn key(gpu: &Gpu, conv: &Conv3x3, w: u32, h: u32, storage: &LayerStorage) ->
 /// Layers are tuned on at least this many pixels per side.
 pub const TUNE_MIN_SIDE: u32 = 32;
 
-/// The size a layer of `w x h` is tuned at on an adapter of `kind`, so that nearby sizes
-/// share one measurement: on a CPU driver each side rounded up to a power of two within
-/// [`TUNE_MIN_SIDE`]..=[`TUNE_MAX_SIDE_CPU`]; on a GPU the layer's own size, each side
-/// rounded up to a multiple of [`TUNE_STEP_GPU`].
+/// The size a layer of `w x h` is tuned at on an adapter of `kind`: each side rounded up to
+/// a power of two within [`TUNE_MIN_SIDE`] and [`TUNE_MAX_SIDE_CPU`] on a CPU driver,
+/// [`TUNE_MAX_SIDE_GPU`] on a GPU, so that nearby sizes (a window being resized) share one
+/// measurement.
 pub fn tune_size(kind: AdapterKind, w: u32, h: u32) -> (u32, u32) {
-    let side = |n: u32| match kind {
-        AdapterKind::Cpu => n.next_power_of_two().clamp(TUNE_MIN_SIDE, TUNE_MAX_SIDE_CPU),
-        _ => n.max(TUNE_MIN_SIDE).div_ceil(TUNE_STEP_GPU) * TUNE_STEP_GPU,
+    let max = match kind {
+        AdapterKind::Cpu => TUNE_MAX_SIDE_CPU,
+        _ => TUNE_MAX_SIDE_GPU,
     };
+    let side = |n: u32| n.next_power_of_two().clamp(TUNE_MIN_SIDE, max);
     (side(w), side(h))
 }
 
@@ -470,10 +472,11 @@ mod tests {
         assert_eq!(tune_size(cpu, 33, 64), (64, 64));
         assert_eq!(tune_size(cpu, 100, 8), (128, 32));
         for gpu in [AdapterKind::Discrete, AdapterKind::Integrated, AdapterKind::Other] {
-            assert_eq!(tune_size(gpu, 1920, 1080), (1920, 1152));
-            assert_eq!(tune_size(gpu, 960, 540), (1024, 640));
-            assert_eq!(tune_size(gpu, 1900, 1080), (1920, 1152));
-            assert_eq!(tune_size(gpu, 16, 20), (128, 128));
+            assert_eq!(tune_size(gpu, 1920, 1080), (2048, 2048));
+            assert_eq!(tune_size(gpu, 1366, 768), (2048, 1024));
+            assert_eq!(tune_size(gpu, 960, 540), (1024, 1024));
+            assert_eq!(tune_size(gpu, 3840, 2160), (2048, 2048));
+            assert_eq!(tune_size(gpu, 16, 20), (32, 32));
         }
     }
 
