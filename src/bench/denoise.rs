@@ -2,7 +2,7 @@
 
 use super::roofline::{self, GpuModel, ModelledPass};
 use crate::error::Result;
-use crate::gpu::{Gpu, Profiler, Stats};
+use crate::gpu::{AdapterKind, Gpu, Profiler, Stats};
 use crate::nn::HostTensor;
 use crate::nn::autotune::{EngineOptions, Precision};
 use crate::ssr::{Denoiser, FrameInputs, Granularity, HostFrame, Weights};
@@ -35,6 +35,9 @@ pub struct DenoiseBench {
     pub frames: u32,
     /// Whether GPU timestamps were used.
     pub gpu_timestamps: bool,
+    /// Whether each pass's own timestamps are meaningful (GPU timestamps on an adapter that
+    /// is not a CPU driver: lavapipe's do not add up to the stage totals).
+    pub per_pass_timestamps: bool,
     /// Per-layer timings (each layer in its own pass).
     pub layers: Vec<LayerTiming>,
     /// Per-stage timings (one pass per stage, as in production).
@@ -187,6 +190,7 @@ pub fn bench_denoise(
         height: h,
         frames,
         gpu_timestamps: sp.gpu_timed(),
+        per_pass_timestamps: lp.gpu_timed() && gpu.kind() != AdapterKind::Cpu,
         layers,
         stages,
         total_ms,
@@ -294,13 +298,38 @@ pub fn table(b: &DenoiseBench) -> String {
         b.dispatches,
         b.activations
     );
+    // Beside each pass, its own measured time where it was timed alone (the per-layer run)
+    // and the adapter's per-pass timestamps are meaningful.
+    let per_pass = b.frames > 0 && b.per_pass_timestamps;
+    let measured = |p: &ModelledPass| {
+        b.layers
+            .iter()
+            .find(|l| l.stage == p.stage && (l.name == p.name || (p.stage == "output" && l.name == "output")))
+            .map(|l| l.stats.median_ms)
+    };
     s += &format!(
-        "{:<7} {:<20} {:>10} {:>10} {:>10} {:>8} {:>12}\n",
-        "stage", "pass", "MFLOP", "MB read", "MB written", "bound", "modelled ms"
+        "{:<7} {:<20} {:>10} {:>10} {:>10} {:>8} {:>12}{}\n",
+        "stage",
+        "pass",
+        "MFLOP",
+        "MB read",
+        "MB written",
+        "bound",
+        "modelled ms",
+        if per_pass {
+            "  measured ms  measured/modelled"
+        } else {
+            ""
+        }
     );
     for p in &b.modelled {
+        let beside = match measured(p).filter(|_| per_pass) {
+            Some(m) => format!(" {m:>12.4} {:>18.1}", m / p.modelled_ms),
+            None if per_pass => format!(" {:>12} {:>18}", "-", "-"),
+            None => String::new(),
+        };
         s += &format!(
-            "{:<7} {:<20} {:>10.1} {:>10.2} {:>10.2} {:>8} {:>12.4}\n",
+            "{:<7} {:<20} {:>10.1} {:>10.2} {:>10.2} {:>8} {:>12.4}{beside}\n",
             p.stage,
             p.name,
             p.flops as f64 * 1e-6,
@@ -322,4 +351,89 @@ pub fn table(b: &DenoiseBench) -> String {
         bytes as f64 * 1e-6,
     );
     s
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn pass(stage: &str, name: &str, modelled_ms: f64) -> ModelledPass {
+        ModelledPass {
+            stage: stage.into(),
+            name: name.into(),
+            flops: 0,
+            bytes_read: 0,
+            bytes_written: 0,
+            modelled_ms,
+            bound: "memory",
+        }
+    }
+
+    fn timed(stage: &str, name: &str, median_ms: f64) -> LayerTiming {
+        LayerTiming {
+            stage: stage.into(),
+            name: name.into(),
+            flops: 0,
+            stats: Stats::from_samples(&[median_ms]).unwrap(),
+            gflop_per_s: 0.0,
+        }
+    }
+
+    fn bench(per_pass_timestamps: bool) -> DenoiseBench {
+        DenoiseBench {
+            adapter: "test".into(),
+            width: 4,
+            height: 4,
+            frames: 1,
+            gpu_timestamps: true,
+            per_pass_timestamps,
+            layers: vec![timed("unet", "unet.enc1.0", 0.5), timed("output", "output", 0.03)],
+            stages: Vec::new(),
+            total_ms: 0.6,
+            total_flops: 0,
+            flops_per_pixel: 0.0,
+            gflop_per_s: 0.0,
+            fraction_of_peak: None,
+            conv_kernels: Vec::new(),
+            dispatches: 3,
+            tensor_bytes: 0,
+            model: GpuModel::preset("h100").unwrap(),
+            activations: "f32".into(),
+            modelled: vec![
+                pass("pack", "pack_inputs", 0.1),
+                pass("unet", "unet.enc1.0", 0.25),
+                pass("output", "store output", 0.01),
+            ],
+            modelled_ms: 0.36,
+        }
+    }
+
+    /// Each modelled pass shows its own measured time and the ratio where it was timed
+    /// alone (the stage's output pass is timed as `output`), `-` where not; a CPU driver's
+    /// per-pass timestamps are left out.
+    #[test]
+    fn modelled_passes_show_their_measured_time() {
+        let t = table(&bench(true));
+        let model = t.split("roofline model").nth(1).unwrap().to_string();
+        let row = |name: &str| model.lines().find(|l| l.contains(name)).unwrap().to_string();
+        assert!(t.contains("measured/modelled"));
+        assert!(
+            row("unet.enc1.0 ")
+                .trim_end()
+                .ends_with("0.5000                2.0"),
+            "{t}"
+        );
+        assert!(
+            row("store output")
+                .trim_end()
+                .ends_with("0.0300                3.0"),
+            "{t}"
+        );
+        assert!(row("pack_inputs").trim_end().ends_with('-'), "{t}");
+        let t = table(&bench(false));
+        assert!(!t.contains("measured/modelled"));
+        let model = t.split("roofline model").nth(1).unwrap();
+        let pack = model.lines().find(|l| l.contains("pack_inputs")).unwrap();
+        assert!(pack.trim_end().ends_with("0.1000"), "{t}");
+    }
 }
