@@ -580,6 +580,42 @@ fn denoiser_runs_on_default_limits_and_refuses_lower_ones() {
     );
 }
 
+/// The autotuner's scratch tensors stay within the device's buffer limits: a layer whose
+/// own tensors fit is tuned at its own size where those of its tuning size (each side
+/// rounded up to a power of two) would exceed the storage binding size, and tunes there.
+#[test]
+fn autotuning_stays_within_the_buffer_limits() {
+    use subpixel::nn::autotune::{self, LayerStorage};
+    use subpixel::nn::conv::Conv3x3;
+    use subpixel::nn::ops::Activation;
+    // The input, 13 channels (16 stored) of f32: 102,400 bytes at 40x40; 262,144 at 64x64,
+    // the tuning size. The limit stays above the weights' 64 KiB buffer.
+    let limits = wgpu::Limits {
+        max_storage_buffer_binding_size: 150_000,
+        ..wgpu::Limits::default()
+    };
+    let (device, queue) = device_with_limits(limits);
+    let info = common::gpu().info.clone();
+    let small = subpixel::gpu::Gpu::from_device(&device, &queue, info);
+    let big = common::gpu();
+    // An unusual shape, so that no earlier tuning is cached for it.
+    let conv = |g: &subpixel::gpu::Gpu| {
+        let w: Vec<f32> = (0..13 * 11 * 9).map(|i| ((i % 13) as f32 - 6.0) * 0.01).collect();
+        Conv3x3::new(g, "limits", &w, &[0.0; 11], &[13], 11, Activation::Relu).unwrap()
+    };
+    let (cs, cb) = (conv(&small), conv(&big));
+    let storage = LayerStorage::f32(&cs);
+    assert_eq!(autotune::tuning_size(&big, &cb, 40, 40, &storage), (64, 64));
+    assert_eq!(autotune::tuning_size(&small, &cs, 40, 40, &storage), (40, 40));
+    // At its own size every candidate runs; at 64x64 none could.
+    let own = autotune::measure(&small, &cs, 40, 40, &storage, 1, 1).unwrap();
+    assert!(own.candidates.iter().all(|c| c.median_ms.is_some()), "{own:?}");
+    let e = autotune::measure(&small, &cs, 64, 64, &storage, 1, 1).unwrap_err();
+    assert!(e.to_string().contains("no candidate"), "{e}");
+    let (tuning, _) = autotune::tune(&small, &cs, 40, 40, &storage).unwrap();
+    assert!(own.candidates.iter().any(|c| c.kernel == tuning.choice));
+}
+
 /// A device on the test adapter created with exactly `limits`.
 fn device_with_limits(limits: wgpu::Limits) -> (wgpu::Device, wgpu::Queue) {
     let adapter = common::gpu()

@@ -191,11 +191,8 @@ pub fn conv_choice(gpu: &Gpu, o: &KernelBenchOptions) -> Result<(ConvKernel, boo
     let conv = bench_conv(gpu, o.channels)?;
     let storage = autotune::LayerStorage::f32(&conv);
     let (t, cached) = autotune::tune(gpu, &conv, o.width, o.height, &storage)?;
-    Ok((
-        t.choice,
-        cached,
-        autotune::tune_size(gpu.kind(), o.width, o.height),
-    ))
+    let size = autotune::tuning_size(gpu, &conv, o.width, o.height, &storage);
+    Ok((t.choice, cached, size))
 }
 
 /// Formats the rows as a table.

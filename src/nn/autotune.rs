@@ -24,6 +24,7 @@ use std::sync::{Mutex, OnceLock};
 
 use super::conv::{Conv3x3, ConvKernel};
 use super::ops::Fetch;
+use super::tensor::padded;
 use super::{DType, HostTensor, Tensor};
 use crate::error::{Error, Result};
 use crate::gpu::{AdapterKind, Gpu, time_dispatch};
@@ -305,6 +306,28 @@ pub fn tune_size(kind: AdapterKind, w: u32, h: u32) -> (u32, u32) {
     (side(w), side(h))
 }
 
+/// The size `conv`, a layer of `w x h` with `storage`, is tuned at on `gpu`: [`tune_size`],
+/// or the layer's own size where a scratch tensor at that size would exceed the device's
+/// buffer limits (the layer's own tensors fit them, or the network could not hold them).
+pub fn tuning_size(gpu: &Gpu, conv: &Conv3x3, w: u32, h: u32, storage: &LayerStorage) -> (u32, u32) {
+    let (tw, th) = tune_size(gpu.kind(), w, h);
+    let limits = gpu.device.limits();
+    let max = limits
+        .max_buffer_size
+        .min(limits.max_storage_buffer_binding_size as u64);
+    let bytes =
+        |c: u32, dtype: DType, (sw, sh): (u32, u32)| sw as u64 * sh as u64 * padded(c) as u64 * dtype.size();
+    let inputs_fit = conv.input_channels.iter().enumerate().all(|(i, &c)| {
+        let dtype = storage.inputs.get(i).copied().unwrap_or(DType::F32);
+        bytes(c, dtype, conv.fetch()[i].stored_size(tw, th)) <= max
+    });
+    if inputs_fit && bytes(conv.cout, storage.output, (tw, th)) <= max {
+        (tw, th)
+    } else {
+        (w, h)
+    }
+}
+
 /// Times every candidate of `conv` at `w x h` on scratch tensors stored as `storage` says
 /// (deterministic pseudo-random inputs). A candidate that fails to build or run is recorded
 /// with its error and skipped (logged), never fatal; the generic kernel always runs.
@@ -375,10 +398,10 @@ pub fn measure(
 }
 
 /// The tuning of `conv` for a `w x h` layer with `storage`: from the process's memory,
-/// else the disk cache, else measured now (at [`tune_size`]) and cached. Returns it and
+/// else the disk cache, else measured now (at [`tuning_size`]) and cached. Returns it and
 /// whether it came from a cache.
 pub fn tune(gpu: &Gpu, conv: &Conv3x3, w: u32, h: u32, storage: &LayerStorage) -> Result<(Tuning, bool)> {
-    let (tw, th) = tune_size(gpu.kind(), w, h);
+    let (tw, th) = tuning_size(gpu, conv, w, h, storage);
     let key = key(gpu, conv, tw, th, storage);
     if let Some(t) = memory().lock().unwrap().get(&key) {
         // A cached choice this build cannot run (an edited cache) is re-measured.
@@ -430,7 +453,7 @@ pub fn tuned_ms(gpu: &Gpu, conv: &Conv3x3, w: u32, h: u32, storage: &LayerStorag
         .iter()
         .filter_map(|c| c.median_ms)
         .fold(f64::INFINITY, f64::min);
-    let (tw, th) = tune_size(gpu.kind(), w, h);
+    let (tw, th) = tuning_size(gpu, conv, w, h, storage);
     Ok(best * (w as f64 * h as f64) / (tw as f64 * th as f64))
 }
 
