@@ -312,9 +312,7 @@ pub fn tune_size(kind: AdapterKind, w: u32, h: u32) -> (u32, u32) {
 pub fn tuning_size(gpu: &Gpu, conv: &Conv3x3, w: u32, h: u32, storage: &LayerStorage) -> (u32, u32) {
     let (tw, th) = tune_size(gpu.kind(), w, h);
     let limits = gpu.device.limits();
-    let max = limits
-        .max_buffer_size
-        .min(limits.max_storage_buffer_binding_size as u64);
+    let max = limits.max_buffer_size.min(limits.max_storage_buffer_binding_size);
     let bytes =
         |c: u32, dtype: DType, (sw, sh): (u32, u32)| sw as u64 * sh as u64 * padded(c) as u64 * dtype.size();
     let inputs_fit = conv.input_channels.iter().enumerate().all(|(i, &c)| {
