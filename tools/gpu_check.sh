@@ -9,7 +9,9 @@
 # step, the benchmarks' JSON, the autotuner's cache and a preview of the main job. Each
 # step has its own time limit, so one that hangs does not cost the others. The machine
 # needs a Vulkan loader and the GPU's ICD; the lent machines of this workplace get the
-# loader from `.gl/*.deb` (see README Performance).
+# loader from `.gl/*.deb` (see README Performance). Steps run in order of value; on an H100
+# the whole script takes about 8-10 minutes, so give the call an overall limit that leaves
+# time to pack OUT_DIR (logs of the steps not reached are simply missing).
 set -u
 BIN=$(realpath "${1:?BIN_DIR}")
 OUT=$(realpath "${2:?OUT_DIR}")
@@ -40,16 +42,18 @@ nvidia-smi --query-gpu=name,driver_version,clocks.sm,clocks.max.sm,memory.total 
   > "$OUT/gpu.txt" 2>&1
 cat "$OUT/gpu.txt"
 
-step denoise_f32 90 "$BIN/subpixel" bench denoise --width 1920 --height 1080 --precision f32
-step denoise_auto_json 90 "$BIN/subpixel" bench denoise --width 1920 --height 1080 --precision auto --json
+# The first Denoiser::new at a size tunes every layer shape (about 70 s on an H100 at 1080p,
+# more with `auto`, which tunes f16 too); later steps at 1080p reuse the cache.
+step denoise_f32 200 "$BIN/subpixel" bench denoise --width 1920 --height 1080 --precision f32
+step denoise_auto_json 200 "$BIN/subpixel" bench denoise --width 1920 --height 1080 --precision auto --json
 step kernels 90 "$BIN/subpixel" bench kernels --width 1920 --height 1080 --channels 32
-step frame 90 "$BIN/subpixel" bench frame
+step frame 90 "$BIN/subpixel" bench frame --sizes 1920x1080
 for t in kernels ssr_api ssr_golden; do
   step "test_$t" 120 "$BIN/$t" --test-threads 4
 done
 step vs_torch 120 python3 training/bench_vs_torch.py --bin "$BIN/subpixel" --width 1920 --height 1080 \
   --device cuda --rounds 3 --frames 50
-step run 120 "$BIN/subpixel" run --out "$OUT/run"
+step run 120 "$BIN/subpixel" run --width 1920 --height 1080 --out "$OUT/run"
 # Keep what comes back small: one preview, the rest removed.
 if [ -d "$OUT/run" ]; then
   last=$(ls "$OUT/run"/*.png 2>/dev/null | tail -1)
