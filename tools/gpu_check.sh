@@ -12,6 +12,13 @@
 # loader from `.gl/*.deb` (see README Performance). Steps run in order of value; on an H100
 # the whole script takes about 8-10 minutes, so give the call an overall limit that leaves
 # time to pack OUT_DIR (logs of the steps not reached are simply missing).
+#
+# As run on this workplace's lent H100 (the device tool carries `.devpack`, ignored by git):
+#   here:   tools/gpu_bins.sh .devbin && mkdir -p .devpack && tar -C .devbin -cJf .devpack/bins.tar.xz . \
+#           && cp -r .gl .devpack/        # .gl: the loader debs, as the device README says
+#   there:  python3 -c "import tarfile; tarfile.open('.devpack/bins.tar.xz').extractall('/tmp/bin')" \
+#           && for f in .devpack/.gl/*.deb; do dpkg -x $f /; done; ldconfig; \
+#           timeout 540 bash tools/gpu_check.sh /tmp/bin /tmp/gc; tar -czf $OUT/gpu_check.tar.gz -C /tmp gc
 set -u
 BIN=$(realpath "${1:?BIN_DIR}")
 OUT=$(realpath "${2:?OUT_DIR}")
