@@ -27,7 +27,7 @@ use super::ops::Fetch;
 use super::tensor::padded;
 use super::{DType, HostTensor, Tensor};
 use crate::error::{Error, Result};
-use crate::gpu::{AdapterKind, Gpu, time_dispatch};
+use crate::gpu::{AdapterKind, Dispatch, Gpu, time_dispatch};
 
 /// The environment variable that fixes the convolution kernel.
 pub const ENV_KERNEL: &str = "SUBPIXEL_CONV_KERNEL";
@@ -354,12 +354,19 @@ pub fn measure(
         .collect::<Result<_>>()?;
     let out = Tensor::new_typed(gpu, "autotune.out", w, h, conv.cout, storage.output)?;
     let refs: Vec<&Tensor> = inputs.iter().collect();
+    // Each candidate is a pipeline of its own: they are compiled on every core at once (the
+    // driver's compile is most of a tuning's time), then timed one after another.
+    let bound: Vec<(ConvKernel, Result<Dispatch>)> = {
+        use rayon::prelude::*;
+        conv.candidates(gpu)
+            .into_par_iter()
+            .map(|kernel| (kernel, conv.bind_with(gpu, kernel, &refs, &out)))
+            .collect()
+    };
     let mut candidates = Vec::new();
     let mut gpu_timestamps = true;
-    for kernel in conv.candidates(gpu) {
-        let timed = conv
-            .bind_with(gpu, kernel, &refs, &out)
-            .and_then(|d| time_dispatch(gpu, &d, warmup, iterations));
+    for (kernel, dispatch) in bound {
+        let timed = dispatch.and_then(|d| time_dispatch(gpu, &d, warmup, iterations));
         match timed {
             Ok((stats, timestamps)) => {
                 gpu_timestamps &= timestamps;
