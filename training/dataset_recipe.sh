@@ -34,7 +34,8 @@
 # `training/sparse_light_seeds.sh 600000 4` prints them), TRAIN_SPARSE_SEEDS (default: the
 # first 16 such seeds from 300000, `training/sparse_light_seeds.sh 300000 16`; one sequence
 # each, rendered after the rest of the train phase; "" for none),
-# BACKGROUND=N (also store each frame's directly seen environment from N x N lookups per
+# BACKEND (the renderer, `subpixel dataset --backend`: cpu, the default, or gpu on a machine
+# with a real GPU, where several SHARDs side by side keep it busy), BACKGROUND=N (also store each frame's directly seen environment from N x N lookups per
 # pixel, `subpixel dataset --background`; re-running the recipe with it adds the channels to
 # the frames already rendered), FRAMES (default 8), SHARD=K/N (this machine renders the sequences whose hash is K mod N;
 # run the same command with 0/N .. N-1/N on N machines and merge the OUT folders), PROCEDURAL=0 (skip procedural
@@ -97,7 +98,7 @@ render() {
   fi
   echo "== $(date -u +%FT%TZ) $split $scene sequence $k"
   "$bin" dataset --scene "$scene" --split "$split" --first-sequence "$k" --sequences "$((k + 1))" \
-    --frames "$frames" --width "$size" --height "$size" --reference-spp "$rspp" --backend cpu \
+    --frames "$frames" --width "$size" --height "$size" --reference-spp "$rspp" --backend "${BACKEND:-cpu}" \
     ${BACKGROUND:+--background "$BACKGROUND"} --out "$out" "$@"
 }
 proc() { echo "builtin:procedural:$1"; }

@@ -279,6 +279,15 @@ class StopOnSignal:
         return any(dd.gather(self.received is not None))
 
 
+def leave_stop_signals_to_main(_worker_id: int) -> None:
+    """DataLoader workers ignore SIGTERM and SIGINT: a signal sent to the whole process
+    group (`timeout`, `kill -- -PGID`, Ctrl-C in a terminal) reaches them too, and a worker
+    that died of it would make the loader raise before the main process could checkpoint
+    (StopOnSignal). The main process still ends them when the run stops."""
+    for sig in StopOnSignal.SIGNALS:
+        signal.signal(sig, signal.SIG_IGN)
+
+
 # ----------------------------------------------------------------------------- distributed
 
 
@@ -573,7 +582,7 @@ def _train(args, config: dict, dd: Dist) -> dict:
     sampler = WindowSampler(train_ds, per_rank, start, stop, seed=args.seed, rank=dd.rank)
     loader = torch.utils.data.DataLoader(
         train_ds, batch_sampler=sampler, collate_fn=collate, num_workers=args.workers,
-        pin_memory=device.type == "cuda", persistent_workers=False,
+        pin_memory=device.type == "cuda", persistent_workers=False, worker_init_fn=leave_stop_signals_to_main,
     )
     weights = frame_weights(args.window)
 

@@ -118,6 +118,31 @@ def test_a_signal_stops_after_the_iteration_with_a_checkpoint(dataset, tmp_path,
         assert torch.equal(resumed.state_dict()[k], v), k
 
 
+def test_a_signal_to_the_process_group_stops_with_a_checkpoint(dataset, tmp_path):
+    """SIGTERM to the whole process group (as `timeout` sends it) while DataLoader workers
+    run: the workers leave it to the main process, which checkpoints and exits cleanly."""
+    import signal
+    import subprocess
+    import sys
+
+    out = str(tmp_path / "run")
+    cmd = [sys.executable, "-u", "-m", "ssr.train", *args(dataset, out, "--workers", "2", "--ckpt-every", "100000", iters=100000)]
+    here = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+    p = subprocess.Popen(cmd, cwd=here, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, start_new_session=True)
+    lines = []
+    for line in p.stdout:
+        lines.append(line)
+        if "it 3/" in line:  # the workers are running
+            os.killpg(p.pid, signal.SIGTERM)
+            break
+    rest, _ = p.communicate(timeout=120)
+    text = "".join(lines) + rest
+    assert p.returncode == 0, text
+    assert "(SIGTERM)" in text and "stopped at iteration" in text, text
+    ck = torch.load(os.path.join(out, "checkpoint.pt"), weights_only=False)
+    assert ck["iteration"] >= 3
+
+
 def test_init_from_weights_and_snapshots(dataset, tmp_path, capsys):
     # a run of 2 iterations with snapshots every iteration
     a = str(tmp_path / "a")
