@@ -14,8 +14,7 @@
 # time to pack OUT_DIR (logs of the steps not reached are simply missing).
 #
 # As run on this workplace's lent H100 (the device tool carries `.devpack`, ignored by git):
-#   here:   tools/gpu_bins.sh .devbin && mkdir -p .devpack && tar -C .devbin -cJf .devpack/bins.tar.xz . \
-#           && cp -r .gl .devpack/        # .gl: the loader debs, as the device README says
+#   here:   tools/gpu_pack.sh
 #   there:  python3 -c "import tarfile; tarfile.open('.devpack/bins.tar.xz').extractall('/tmp/bin')" \
 #           && for f in .devpack/.gl/*.deb; do dpkg -x $f /; done; ldconfig; \
 #           timeout 540 bash tools/gpu_check.sh /tmp/bin /tmp/gc; tar -czf $OUT/gpu_check.tar.gz -C /tmp gc

@@ -23,6 +23,13 @@
 # length, which sets its learning-rate schedule), DEVICE (default cuda), CHECKPOINT, INIT
 # (weights to start a new run from; default weights/ssr.safetensors), TRAIN_ARGS (default
 # "--thin 0.5 --thin-keep-min 0.02", the shipped model's), PYTHON (default python3).
+#
+# As a call on this workplace's lent GPU machine (after tools/gpu_pack.sh here; carry .devpack):
+#   python3 -c "import tarfile; tarfile.open('.devpack/bins.tar.xz').extractall('/tmp/bin')" \
+#   && for f in .devpack/.gl/*.deb; do dpkg -x $f /; done; ldconfig \
+#   && python3 -m pip install -q --no-index --no-deps --target /tmp/site .devpack/.whl/*.whl \
+#   && PYTHONPATH=/tmp/site SCENES=.devpack/scenes TRAIN_SECONDS=360 [CHECKPOINT=.devpack/checkpoint.pt] \
+#      tools/gpu_train.sh /tmp/bin /tmp/work $OUT
 set -euo pipefail
 bin_dir=$(realpath "${1:?usage: gpu_train.sh BIN_DIR WORK OUT}")
 work=$(realpath -m "${2:?WORK}")
