@@ -42,6 +42,9 @@ jobs="${JOBS:-8}"
 ds="$work/ds"
 run="$work/runs/ssr"
 export NODEVICE_SELECT=1 PYTHONUNBUFFERED=1
+if [ -z "${VK_DRIVER_FILES:-}" ] && [ -f /usr/local/nvidia/share/vulkan/icd.d/nvidia_icd.json ]; then
+  export VK_DRIVER_FILES=/usr/local/nvidia/share/vulkan/icd.d/nvidia_icd.json
+fi
 
 t0=$SECONDS
 echo "== rendering val and train with $jobs shards side by side"
