@@ -1,0 +1,101 @@
+"""A probe, not a feature: a mean-preserving correction after the network (training/README
+"Generalisation" 12). Each predicted frame is scaled per `block` x `block` tile and channel
+by the ratio of the traced samples' sum to the prediction's sum at the same pixels over the
+last `frames` frames (no motion compensation), clamped to [lo, hi] and interpolated
+bilinearly between tile centres.
+
+    python -m ssr.mean_probe --data ROOT --split val --pred PRED/ssr --out PRED/meanfix \\
+        [--block 32] [--frames 4]
+
+PRED/ssr/SPLIT/SEQUENCE/frame_NNNN.exr (`pred.R/G/B`, as `subpixel denoise` writes) become
+PRED/meanfix/SPLIT/SEQUENCE/frame_NNNN.exr; score both with `subpixel eval --table --pred
+PRED --ref ROOT --split SPLIT`.
+"""
+
+from __future__ import annotations
+
+import argparse
+import glob
+import os
+import sys
+from typing import List
+
+import numpy as np
+
+from .data import read_exr, write_exr
+
+
+def block_sums(x: np.ndarray, block: int) -> np.ndarray:
+    """[H, W, C] -> [ceil(H/block), ceil(W/block), C] sums (the image padded with zeros)."""
+    h, w, c = x.shape
+    hb, wb = -(-h // block), -(-w // block)
+    p = np.zeros((hb * block, wb * block, c), dtype=np.float64)
+    p[:h, :w] = x
+    return p.reshape(hb, block, wb, block, c).sum(axis=(1, 3))
+
+
+def upsample(c: np.ndarray, block: int, h: int, w: int) -> np.ndarray:
+    """Tile values [hb, wb, C] bilinearly to pixels [h, w, C] (tile centres, edges held)."""
+    hb, wb = c.shape[:2]
+    ys = (np.arange(h) + 0.5) / block - 0.5
+    xs = (np.arange(w) + 0.5) / block - 0.5
+    y0 = np.clip(np.floor(ys).astype(int), 0, hb - 1)
+    x0 = np.clip(np.floor(xs).astype(int), 0, wb - 1)
+    y1, x1 = np.minimum(y0 + 1, hb - 1), np.minimum(x0 + 1, wb - 1)
+    fy = np.clip(ys - y0, 0.0, 1.0)[:, None, None]
+    fx = np.clip(xs - x0, 0.0, 1.0)[None, :, None]
+    top = c[y0][:, x0] * (1 - fx) + c[y0][:, x1] * fx
+    bottom = c[y1][:, x0] * (1 - fx) + c[y1][:, x1] * fx
+    return top * (1 - fy) + bottom * fy
+
+
+def correct(preds: List[np.ndarray], samples: List[np.ndarray], masks: List[np.ndarray], block: int,
+            lo: float = 0.5, hi: float = 2.0, eps: float = 1e-4) -> np.ndarray:
+    """The last prediction [H, W, 3] scaled so that, per tile, its sum at the traced pixels of
+    the given frames matches the samples' sum there (samples are colour times mask)."""
+    s = sum(block_sums(x, block) for x in samples)
+    p = sum(block_sums(pr * m, block) for pr, m in zip(preds, masks))
+    c = np.clip((s + eps) / (p + eps), lo, hi)
+    h, w = preds[-1].shape[:2]
+    return preds[-1] * upsample(c, block, h, w)
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--data", required=True)
+    ap.add_argument("--split", default="val")
+    ap.add_argument("--pred", required=True, help="folder of SPLIT/SEQUENCE/frame_NNNN.exr predictions")
+    ap.add_argument("--out", required=True)
+    ap.add_argument("--block", type=int, default=32)
+    ap.add_argument("--frames", type=int, default=4)
+    a = ap.parse_args(argv)
+    if a.block < 1 or a.frames < 1:
+        ap.error("--block and --frames must be positive")
+    seqs = sorted(glob.glob(os.path.join(a.data, a.split, "*", "")))
+    if not seqs:
+        print(f"error: no sequences under {os.path.join(a.data, a.split)}", file=sys.stderr)
+        return 1
+    for seq in seqs:
+        name = os.path.basename(seq.rstrip("/"))
+        frames = sorted(glob.glob(os.path.join(seq, "frame_*.exr")))
+        preds, samples, masks = [], [], []
+        for f in frames:
+            x = read_exr(f, ["color.R", "color.G", "color.B", "mask.Y"])
+            pred_file = os.path.join(a.pred, a.split, name, os.path.basename(f))
+            if not os.path.isfile(pred_file):
+                print(f"error: {pred_file}: missing prediction", file=sys.stderr)
+                return 1
+            preds.append(read_exr(pred_file, ["pred.R", "pred.G", "pred.B"]))
+            samples.append(x[..., :3] * x[..., 3:4])
+            masks.append(x[..., 3:4])
+            k = max(0, len(preds) - a.frames)
+            fixed = correct(preds[k:], samples[k:], masks[k:], a.block)
+            d = os.path.join(a.out, a.split, name)
+            os.makedirs(d, exist_ok=True)
+            write_exr(os.path.join(d, os.path.basename(f)), {"pred": fixed.transpose(2, 0, 1).astype(np.float32)},
+                      {"pred": ["R", "G", "B"]})
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
