@@ -1,11 +1,12 @@
 """A probe, not a feature: a mean-preserving correction after the network (training/README
 "Generalisation" 12). Each predicted frame is scaled per `block` x `block` tile and channel
 by the ratio of the traced samples' sum to the prediction's sum at the same pixels over the
-last `frames` frames (no motion compensation), clamped to [lo, hi] and interpolated
-bilinearly between tile centres.
+last `frames` frames (no motion compensation), clamped to [lo, hi], optionally smoothed
+over frames (`--smooth A`: the log of the factor is A times this frame's plus 1 - A times
+the previous frame's), and interpolated bilinearly between tile centres.
 
     python -m ssr.mean_probe --data ROOT --split val --pred PRED/ssr --out PRED/meanfix \\
-        [--block 32] [--frames 4]
+        [--block 32] [--frames 4] [--smooth 1]
 
 PRED/ssr/SPLIT/SEQUENCE/frame_NNNN.exr (`pred.R/G/B`, as `subpixel denoise` writes) become
 PRED/meanfix/SPLIT/SEQUENCE/frame_NNNN.exr; score both with `subpixel eval --table --pred
@@ -49,13 +50,20 @@ def upsample(c: np.ndarray, block: int, h: int, w: int) -> np.ndarray:
     return top * (1 - fy) + bottom * fy
 
 
+def factors(preds: List[np.ndarray], samples: List[np.ndarray], masks: List[np.ndarray], block: int,
+            lo: float = 0.5, hi: float = 2.0, eps: float = 1e-4) -> np.ndarray:
+    """Per tile and channel, the samples' sum over the prediction's sum at the traced pixels
+    of the given frames (samples are colour times mask), clamped to [lo, hi]."""
+    s = sum(block_sums(x, block) for x in samples)
+    p = sum(block_sums(pr * m, block) for pr, m in zip(preds, masks))
+    return np.clip((s + eps) / (p + eps), lo, hi)
+
+
 def correct(preds: List[np.ndarray], samples: List[np.ndarray], masks: List[np.ndarray], block: int,
             lo: float = 0.5, hi: float = 2.0, eps: float = 1e-4) -> np.ndarray:
     """The last prediction [H, W, 3] scaled so that, per tile, its sum at the traced pixels of
-    the given frames matches the samples' sum there (samples are colour times mask)."""
-    s = sum(block_sums(x, block) for x in samples)
-    p = sum(block_sums(pr * m, block) for pr, m in zip(preds, masks))
-    c = np.clip((s + eps) / (p + eps), lo, hi)
+    the given frames matches the samples' sum there (within the clamp)."""
+    c = factors(preds, samples, masks, block, lo, hi, eps)
     h, w = preds[-1].shape[:2]
     return preds[-1] * upsample(c, block, h, w)
 
@@ -68,9 +76,12 @@ def main(argv=None) -> int:
     ap.add_argument("--out", required=True)
     ap.add_argument("--block", type=int, default=32)
     ap.add_argument("--frames", type=int, default=4)
+    ap.add_argument("--smooth", type=float, default=1.0, help="weight of this frame's log factor (1: no smoothing)")
     a = ap.parse_args(argv)
     if a.block < 1 or a.frames < 1:
         ap.error("--block and --frames must be positive")
+    if not 0.0 < a.smooth <= 1.0:
+        ap.error("--smooth must be in (0, 1]")
     seqs = sorted(glob.glob(os.path.join(a.data, a.split, "*", "")))
     if not seqs:
         print(f"error: no sequences under {os.path.join(a.data, a.split)}", file=sys.stderr)
@@ -79,6 +90,7 @@ def main(argv=None) -> int:
         name = os.path.basename(seq.rstrip("/"))
         frames = sorted(glob.glob(os.path.join(seq, "frame_*.exr")))
         preds, samples, masks = [], [], []
+        log_c = None
         for f in frames:
             x = read_exr(f, ["color.R", "color.G", "color.B", "mask.Y"])
             pred_file = os.path.join(a.pred, a.split, name, os.path.basename(f))
@@ -89,7 +101,10 @@ def main(argv=None) -> int:
             samples.append(x[..., :3] * x[..., 3:4])
             masks.append(x[..., 3:4])
             k = max(0, len(preds) - a.frames)
-            fixed = correct(preds[k:], samples[k:], masks[k:], a.block)
+            now = np.log(factors(preds[k:], samples[k:], masks[k:], a.block))
+            log_c = now if log_c is None else a.smooth * now + (1.0 - a.smooth) * log_c
+            h, w = preds[-1].shape[:2]
+            fixed = preds[-1] * upsample(np.exp(log_c), a.block, h, w)
             d = os.path.join(a.out, a.split, name)
             os.makedirs(d, exist_ok=True)
             write_exr(os.path.join(d, os.path.basename(f)), {"pred": fixed.transpose(2, 0, 1).astype(np.float32)},
