@@ -27,7 +27,7 @@ use std::sync::{Mutex, OnceLock};
 
 use super::conv::{Conv3x3, ConvKernel};
 use super::ops::Fetch;
-use super::tensor::padded;
+use super::tensor::tensor_bytes;
 use super::{DType, HostTensor, Tensor};
 use crate::error::{Error, Result};
 use crate::gpu::{AdapterKind, Dispatch, Gpu, time_dispatch};
@@ -316,13 +316,12 @@ pub fn tuning_size(gpu: &Gpu, conv: &Conv3x3, w: u32, h: u32, storage: &LayerSto
     let (tw, th) = tune_size(gpu.kind(), w, h);
     let limits = gpu.device.limits();
     let max = limits.max_buffer_size.min(limits.max_storage_buffer_binding_size);
-    let bytes =
-        |c: u32, dtype: DType, (sw, sh): (u32, u32)| sw as u64 * sh as u64 * padded(c) as u64 * dtype.size();
     let inputs_fit = conv.input_channels.iter().enumerate().all(|(i, &c)| {
         let dtype = storage.inputs.get(i).copied().unwrap_or(DType::F32);
-        bytes(c, dtype, conv.fetch()[i].stored_size(tw, th)) <= max
+        let (sw, sh) = conv.fetch()[i].stored_size(tw, th);
+        tensor_bytes(sw, sh, c, dtype) <= max
     });
-    if inputs_fit && bytes(conv.cout, storage.output, (tw, th)) <= max {
+    if inputs_fit && tensor_bytes(tw, th, conv.cout, storage.output) <= max {
         (tw, th)
     } else {
         (w, h)

@@ -57,6 +57,11 @@ pub fn padded(c: u32) -> u32 {
     c.div_ceil(4) * 4
 }
 
+/// Bytes of a `width x height x channels` tensor of `dtype` (channels padded to 4).
+pub fn tensor_bytes(width: u32, height: u32, channels: u32, dtype: DType) -> u64 {
+    width as u64 * height as u64 * padded(channels) as u64 * dtype.size()
+}
+
 impl Tensor {
     /// A zero-filled f32 tensor.
     pub fn new(gpu: &Gpu, label: &str, width: u32, height: u32, channels: u32) -> Result<Self> {
@@ -81,7 +86,7 @@ impl Tensor {
                 format!("tensor of size {width}x{height}x{channels}: every dimension must be > 0"),
             ));
         }
-        let size = width as u64 * height as u64 * padded(channels) as u64 * dtype.size();
+        let size = tensor_bytes(width, height, channels, dtype);
         let max = gpu.device.limits().max_buffer_size;
         if size > max {
             return Err(Error::shape(

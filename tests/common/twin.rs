@@ -194,11 +194,11 @@ fn gbuffer_ties(scene: &Scene, p: &PackedScene, s: &FrameSettings, g: &HostFrame
 /// hit, the other's not; at most 2 % of pixels): coverage then differs by a whole number of
 /// rays, from 1 to n, since a straight edge passes through at most n points of the pixel's
 /// n x n grid of rays (seen on an H100: two rays of a 2 x 2 grid on one edge of
-/// builtin:cornell), or where a lookup direction lies within float rounding of an environment texel
-/// boundary: the environment is looked up at the nearest texel, and the GPU's `atan2` and
-/// `acos` differ from the CPU's in the last bits (at 4096 texels across, about 0.04 texel),
-/// so one of the n^2 lookups may take the neighbouring texel, which on a high-contrast map
-/// (barn-lamp's beach) moves that pixel by up to a third. Hence: at least 85 % of pixels
+/// builtin:cornell), or where a lookup direction lies within float rounding of an
+/// environment texel boundary: the environment is looked up at the nearest texel, and the
+/// GPU's `atan2` and `acos` differ from the CPU's in the last bits (at 4096 texels across,
+/// about 0.04 texel), so one of the n^2 lookups may take the neighbouring texel, which on a
+/// high-contrast map (barn-lamp's beach) moves that pixel by up to a third. Hence: at least 85 % of pixels
 /// exact to 1e-5, and the mean relative difference over all pixels below 1 %.
 pub fn assert_backgrounds_match(what: &str, g: &Background, c: &Background, n: u32) {
     let all = c.coverage.data.len();
