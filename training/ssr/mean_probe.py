@@ -19,7 +19,7 @@ import argparse
 import glob
 import os
 import sys
-from typing import List
+from typing import List, Optional, Tuple
 
 import numpy as np
 
@@ -50,22 +50,21 @@ def upsample(c: np.ndarray, block: int, h: int, w: int) -> np.ndarray:
     return top * (1 - fy) + bottom * fy
 
 
-def factors(preds: List[np.ndarray], samples: List[np.ndarray], masks: List[np.ndarray], block: int,
-            lo: float = 0.5, hi: float = 2.0, eps: float = 1e-4) -> np.ndarray:
-    """Per tile and channel, the samples' sum over the prediction's sum at the traced pixels
-    of the given frames (samples are colour times mask), clamped to [lo, hi]."""
+def correct(preds: List[np.ndarray], samples: List[np.ndarray], masks: List[np.ndarray], block: int,
+            prev_log: Optional[np.ndarray] = None, smooth: float = 1.0,
+            lo: float = 0.5, hi: float = 2.0, eps: float = 1e-4) -> Tuple[np.ndarray, np.ndarray]:
+    """The last prediction [H, W, 3] scaled per tile and channel by the samples' sum over
+    the prediction's sum at the traced pixels of the given frames (samples are colour times
+    mask), clamped to [lo, hi]; with `prev_log` (the previous frame's log factors) the log
+    factor is `smooth` times this frame's plus `1 - smooth` times it. Returns the corrected
+    frame and its log factors [tiles_y, tiles_x, 3]."""
     s = sum(block_sums(x, block) for x in samples)
     p = sum(block_sums(pr * m, block) for pr, m in zip(preds, masks))
-    return np.clip((s + eps) / (p + eps), lo, hi)
-
-
-def correct(preds: List[np.ndarray], samples: List[np.ndarray], masks: List[np.ndarray], block: int,
-            lo: float = 0.5, hi: float = 2.0, eps: float = 1e-4) -> np.ndarray:
-    """The last prediction [H, W, 3] scaled so that, per tile, its sum at the traced pixels of
-    the given frames matches the samples' sum there (within the clamp)."""
-    c = factors(preds, samples, masks, block, lo, hi, eps)
+    log_c = np.log(np.clip((s + eps) / (p + eps), lo, hi))
+    if prev_log is not None:
+        log_c = smooth * log_c + (1.0 - smooth) * prev_log
     h, w = preds[-1].shape[:2]
-    return preds[-1] * upsample(c, block, h, w)
+    return preds[-1] * upsample(np.exp(log_c), block, h, w), log_c
 
 
 def main(argv=None) -> int:
@@ -101,10 +100,7 @@ def main(argv=None) -> int:
             samples.append(x[..., :3] * x[..., 3:4])
             masks.append(x[..., 3:4])
             k = max(0, len(preds) - a.frames)
-            now = np.log(factors(preds[k:], samples[k:], masks[k:], a.block))
-            log_c = now if log_c is None else a.smooth * now + (1.0 - a.smooth) * log_c
-            h, w = preds[-1].shape[:2]
-            fixed = preds[-1] * upsample(np.exp(log_c), a.block, h, w)
+            fixed, log_c = correct(preds[k:], samples[k:], masks[k:], a.block, log_c, a.smooth)
             d = os.path.join(a.out, a.split, name)
             os.makedirs(d, exist_ok=True)
             write_exr(os.path.join(d, os.path.basename(f)), {"pred": fixed.transpose(2, 0, 1).astype(np.float32)},

@@ -13,12 +13,12 @@ def test_a_uniform_bias_is_removed_and_the_scale_is_clamped():
     h, w = 20, 24
     pred = np.full((h, w, 3), 1.0)
     m = quarter_mask(h, w)
-    out = correct([pred], [1.5 * m * np.ones((h, w, 3))], [m], block=8)
+    out, _ = correct([pred], [1.5 * m * np.ones((h, w, 3))], [m], block=8)
     assert np.allclose(out, 1.5)
-    out = correct([pred], [10.0 * m * np.ones((h, w, 3))], [m], block=8)
+    out, _ = correct([pred], [10.0 * m * np.ones((h, w, 3))], [m], block=8)
     assert np.allclose(out, 2.0)
     # nothing traced and nothing predicted: unchanged
-    out = correct([np.zeros((h, w, 3))], [np.zeros((h, w, 3))], [m], block=8)
+    out, _ = correct([np.zeros((h, w, 3))], [np.zeros((h, w, 3))], [m], block=8)
     assert np.allclose(out, 0.0)
 
 
