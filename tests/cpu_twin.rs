@@ -261,3 +261,82 @@ fn background_matches_the_gpu() {
         assert!(cpu_frame(&p, w, h, &s).background.is_none());
     }
 }
+
+/// Environment portals on both backends: on a room lit through an open window, same-seed
+/// frames and high-spp references agree as for the builtin scenes.
+#[test]
+fn portal_sampling_matches_the_gpu() {
+    let scene = common::window_room::scene(true);
+    assert_same_seed_frames_match(&scene, 24, 20);
+    assert_references_agree(&scene, 24, 24, 128);
+}
+
+/// Portals change the noise, never the image: the window room rendered with and without its
+/// portal (CPU twin, 1,024 spp, three seeds each) differs only by noise (the PSNR between a
+/// render with and one without no lower, beyond 0.5 dB, than between two without; channel
+/// means within 1.5 %), and with the portal the reference's halves are at least 6 dB closer.
+#[test]
+fn portals_keep_the_image_and_cut_the_noise() {
+    let (w, h, spp) = (24u32, 24u32, 1024u32);
+    let t = CpuTracer::new(w, h).unwrap();
+    let render = |portals: bool, seed: u32| {
+        let scene = common::window_room::scene(portals);
+        let s = settings(&scene, Mode::Reference, spp, seed);
+        t.render_reference(&packed(&scene), &s, spp).unwrap()
+    };
+    let seeds = [1u32, 2, 5];
+    let with: Vec<_> = seeds.iter().map(|&k| render(true, k)).collect();
+    let without: Vec<_> = seeds.iter().map(|&k| render(false, k)).collect();
+    let (mut same, mut mixed) = (Vec::new(), Vec::new());
+    for i in 0..seeds.len() {
+        for j in 0..seeds.len() {
+            let (a, b) = (without[i].mean(spp), without[j].mean(spp));
+            if i < j {
+                same.push(subpixel::metrics::psnr(&a, &b));
+            }
+            if i != j {
+                mixed.push(subpixel::metrics::psnr(&with[i].mean(spp), &b));
+            }
+        }
+    }
+    let pooled =
+        |v: &[f64]| -10.0 * (v.iter().map(|p| 10f64.powf(-p / 10.0)).sum::<f64>() / v.len() as f64).log10();
+    let (same, mixed) = (pooled(&same), pooled(&mixed));
+    eprintln!("PSNR without-without {same:.2} dB, with-without {mixed:.2} dB");
+    assert!(
+        mixed >= same - 0.5,
+        "portals change the image: {mixed:.2} vs {same:.2} dB"
+    );
+    let mean = |v: &[subpixel::render::ReferenceHalves]| {
+        let m: Vec<Vec<f64>> = v
+            .iter()
+            .map(|r| common::twin::channel_means(&r.mean(spp)))
+            .collect();
+        (0..3)
+            .map(|c| m.iter().map(|x| x[c]).sum::<f64>() / m.len() as f64)
+            .collect::<Vec<_>>()
+    };
+    let (mw, mo) = (mean(&with), mean(&without));
+    for c in 0..3 {
+        let rel = (mw[c] - mo[c]).abs() / mo[c];
+        assert!(
+            rel < 0.015,
+            "channel {c}: mean {} with portals, {} without",
+            mw[c],
+            mo[c]
+        );
+    }
+    let halves = |v: &[subpixel::render::ReferenceHalves]| {
+        pooled(
+            &v.iter()
+                .map(|r| subpixel::metrics::psnr(&r.first, &r.second))
+                .collect::<Vec<_>>(),
+        )
+    };
+    let (hw, ho) = (halves(&with), halves(&without));
+    eprintln!("PSNR between halves: with portals {hw:.2} dB, without {ho:.2} dB");
+    assert!(
+        hw >= ho + 6.0,
+        "halves: {hw:.2} dB with portals, {ho:.2} dB without"
+    );
+}

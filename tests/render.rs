@@ -638,6 +638,7 @@ fn test_env(w: u32, h: u32, rot_deg: f32) -> subpixel::render::scene::Environmen
         pixels,
         scale: 1.5,
         to_world: glam::Mat3::from_rotation_y(rot_deg.to_radians()) * glam::Mat3::from_rotation_x(0.3),
+        portals: Vec::new(),
     }
 }
 

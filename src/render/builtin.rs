@@ -248,6 +248,7 @@ fn sky() -> Environment {
         pixels,
         scale: 1.0,
         to_world: Mat3::IDENTITY,
+        portals: Vec::new(),
     }
 }
 

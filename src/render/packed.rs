@@ -11,7 +11,7 @@ use bytemuck::{Pod, Zeroable};
 use glam::{Mat3, Vec3};
 
 use super::bvh::SceneBvh;
-use super::scene::{AlphaMode, Environment, Scene, Texture, luminance};
+use super::scene::{AlphaMode, Environment, Portal, Scene, Texture, luminance};
 use crate::error::Result;
 
 /// `Material` of the WGSL tracer (96 bytes).
@@ -40,6 +40,9 @@ pub(crate) const TRI_FLAG_ALPHA: u32 = 0x8000_0000;
 pub(crate) const TRI_FLAG_TANGENT_NEG: u32 = 0x4000_0000;
 pub(crate) const TRI_FLAG_HAS_TANGENT: u32 = 0x2000_0000;
 pub(crate) const TRI_MATERIAL_MASK: u32 = 0x00ff_ffff;
+/// Probability with which an environment light sample picks a point on a portal (when the
+/// environment has any) rather than a direction from the map.
+pub(crate) const PORTAL_PROBABILITY: f32 = 0.5;
 /// Vec4s before the environment's marginal CDF (`ENV_HDR` in lights.wgsl).
 pub(crate) const ENV_HDR: usize = 8;
 
@@ -58,7 +61,7 @@ pub struct PackedScene {
     pub materials: Vec<GpuMaterial>,
     /// Texture headers and RGBA8 texels (`texels`).
     pub texels: Vec<u32>,
-    /// Emissive-triangle list (`lights`).
+    /// Emissive-triangle list, then the environment's portals (`lights`).
     pub lights: Vec<[f32; 4]>,
     /// Environment map and its CDFs (`env`).
     pub env: Vec<[f32; 4]>,
@@ -287,11 +290,19 @@ impl PackedScene {
             (true, false) => 0.5,
             (false, _) => 0.0,
         };
+        let portals: &[Portal] = match &scene.environment {
+            Some(e) => &e.portals,
+            None => &[],
+        };
+        let portals: Vec<&Portal> = portals
+            .iter()
+            .filter(|q| q.area() > 0.0 && q.area().is_finite())
+            .collect();
         let mut light_buf = vec![[
             f32::from_bits(lights.len() as u32),
             total as f32,
             env_probability,
-            0.0,
+            f32::from_bits(portals.len() as u32),
         ]];
         let mut acc = 0.0f64;
         for (k, &(slot, power, area)) in lights.iter().enumerate() {
@@ -302,6 +313,20 @@ impl PackedScene {
                 (acc / total) as f32
             };
             light_buf.push([f32::from_bits(slot), cdf, (power / total) as f32, area]);
+        }
+        // Portals after the triangles, 3 vec4 each (layout in lights.wgsl), picked by area.
+        let portal_area: f64 = portals.iter().map(|q| q.area() as f64).sum();
+        let mut acc = 0.0f64;
+        for (k, q) in portals.iter().enumerate() {
+            acc += q.area() as f64;
+            let cdf = if k + 1 == portals.len() {
+                1.0
+            } else {
+                (acc / portal_area) as f32
+            };
+            light_buf.push([q.corner.x, q.corner.y, q.corner.z, cdf]);
+            light_buf.push([q.u.x, q.u.y, q.u.z, portal_area as f32]);
+            light_buf.push([q.v.x, q.v.y, q.v.z, PORTAL_PROBABILITY]);
         }
 
         let (texels, halved) = pack_textures(&scene.textures, texture_budget_bytes);

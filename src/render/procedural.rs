@@ -41,7 +41,7 @@ use glam::{Mat3, Quat, Vec2, Vec3, Vec4};
 use super::bvh::SceneBvh;
 use super::camera::{Camera, CameraPathSpec, SplitMix};
 use super::loader::{SceneOptions, load_environment, load_gltf};
-use super::scene::{AlphaMode, Environment, Geometry, Material, Scene, Texture, Wrap, luminance};
+use super::scene::{AlphaMode, Environment, Geometry, Material, Portal, Scene, Texture, Wrap, luminance};
 use crate::error::{Error, Result};
 
 /// Scenes tried per seed (the first, then sub-seeds) before the fallback scene is used.
@@ -1415,6 +1415,7 @@ impl<'a> Builder<'a> {
             pixels,
             scale: 1.0,
             to_world: Mat3::IDENTITY,
+            portals: Vec::new(),
         };
         let mean = mean_radiance(&e);
         e.scale = if mean > 0.0 { level / mean } else { 1.0 };
@@ -1625,8 +1626,14 @@ impl<'a> Builder<'a> {
             let inward = u.cross(v);
             let corner = o + u * s0 + v * t0;
             let (du, dv) = (u * (s1 - s0), v * (t1 - t0));
+            let paned = glass.is_some() && t0 > 0.0;
+            if !paned && let Some(env) = self.scene.environment.as_mut() {
+                // An open window lets the environment in: sample it through the opening.
+                // (Behind a pane the shadow rays would end on the glass.)
+                env.portals.push(Portal { corner, u: du, v: dv });
+            }
             if let Some(m) = glass
-                && t0 > 0.0
+                && paned
             {
                 push_rect(
                     &mut self.scene.geometry,

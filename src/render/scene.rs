@@ -252,6 +252,31 @@ pub struct Environment {
     pub scale: f32,
     /// Map-to-world rotation (`to_world` of `scene.json`).
     pub to_world: Mat3,
+    /// Openings (windows, doors) through which the environment lights an interior. When
+    /// there are any, half of the environment's light samples pick a point on one of them
+    /// instead of a direction from the map. A sampling aid only: portals change the noise,
+    /// never the expected image, even where they do not match the geometry.
+    pub portals: Vec<Portal>,
+}
+
+/// An opening through which the environment is seen from inside a scene: the
+/// parallelogram `corner + s u + t v`, `s` and `t` in `[0, 1]`, looked through from the side
+/// that `u x v` points to.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Portal {
+    /// One corner.
+    pub corner: Vec3,
+    /// First edge from the corner.
+    pub u: Vec3,
+    /// Second edge from the corner.
+    pub v: Vec3,
+}
+
+impl Portal {
+    /// Area of the opening.
+    pub fn area(&self) -> f32 {
+        self.u.cross(self.v).length()
+    }
 }
 
 impl Environment {
@@ -265,6 +290,7 @@ impl Environment {
             pixels: vec![rgb; (width * height) as usize],
             scale: 1.0,
             to_world: Mat3::IDENTITY,
+            portals: Vec::new(),
         }
     }
 

@@ -147,3 +147,76 @@ pub mod furnace {
         ]
     }
 }
+
+/// A closed room lit only through an open window by a non-uniform environment (a sky
+/// gradient with a bright patch): the case environment portals are for. `portals` gives the
+/// environment the window as its one portal.
+pub mod window_room {
+    use glam::{Mat3, Vec3};
+    use subpixel::render::Camera;
+    use subpixel::render::scene::{Environment, Geometry, Material, Portal, Scene};
+
+    /// The window in the back wall (`z = -1`): `x` in [-0.4, 0.4], `y` in [0.6, 1.4].
+    pub const WINDOW: Portal = Portal {
+        corner: Vec3::new(-0.4, 0.6, -1.0),
+        u: Vec3::new(0.8, 0.0, 0.0),
+        v: Vec3::new(0.0, 0.8, 0.0),
+    };
+
+    /// The room, with or without the window as a portal.
+    pub fn scene(portals: bool) -> Scene {
+        let v = Vec3::new;
+        let mut g = Geometry::default();
+        let quad = |g: &mut Geometry, o: Vec3, a: Vec3, b: Vec3| g.push_quad([o, o + a, o + a + b, o + b], 0);
+        quad(&mut g, v(-1.0, 0.0, -1.0), v(2.0, 0.0, 0.0), v(0.0, 0.0, 2.0)); // floor
+        quad(&mut g, v(-1.0, 2.0, -1.0), v(2.0, 0.0, 0.0), v(0.0, 0.0, 2.0)); // ceiling
+        quad(&mut g, v(-1.0, 0.0, -1.0), v(0.0, 2.0, 0.0), v(0.0, 0.0, 2.0)); // left
+        quad(&mut g, v(1.0, 0.0, -1.0), v(0.0, 2.0, 0.0), v(0.0, 0.0, 2.0)); // right
+        quad(&mut g, v(-1.0, 0.0, 1.0), v(2.0, 0.0, 0.0), v(0.0, 2.0, 0.0)); // front
+        // The back wall around the window.
+        quad(&mut g, v(-1.0, 0.0, -1.0), v(2.0, 0.0, 0.0), v(0.0, 0.6, 0.0));
+        quad(&mut g, v(-1.0, 1.4, -1.0), v(2.0, 0.0, 0.0), v(0.0, 0.6, 0.0));
+        quad(&mut g, v(-1.0, 0.6, -1.0), v(0.6, 0.0, 0.0), v(0.0, 0.8, 0.0));
+        quad(&mut g, v(0.4, 0.6, -1.0), v(0.6, 0.0, 0.0), v(0.0, 0.8, 0.0));
+        let (w, h) = (16u32, 8u32);
+        let pixels = (0..w * h)
+            .map(|i| {
+                let (x, y) = (i % w, i / w);
+                if (x, y) == (7, 3) {
+                    [40.0, 36.0, 30.0]
+                } else {
+                    let t = y as f32 / h as f32;
+                    [0.4 + 1.2 * t, 0.6 + 0.8 * t, 1.2 - 0.4 * t]
+                }
+            })
+            .collect();
+        let environment = Environment {
+            source: "window room sky".into(),
+            width: w,
+            height: h,
+            pixels,
+            scale: 1.0,
+            to_world: Mat3::IDENTITY,
+            portals: if portals { vec![WINDOW] } else { vec![] },
+        };
+        Scene {
+            name: format!("window room (portals: {portals})"),
+            geometry: g,
+            materials: vec![Material {
+                double_sided: true,
+                ..Material::diffuse("walls", [0.7, 0.6, 0.5])
+            }],
+            textures: vec![],
+            environment: Some(environment),
+            camera: Camera {
+                position: v(0.3, 1.2, 0.9),
+                target: v(-0.1, 0.5, -1.0),
+                up: Vec3::Y,
+                yfov: 1.2,
+            },
+            film: (24, 24),
+            camera_path: None,
+            approximations: vec![],
+        }
+    }
+}

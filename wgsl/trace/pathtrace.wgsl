@@ -38,6 +38,8 @@ fn trace_path(o: vec3<f32>, d0: vec3<f32>, rng: ptr<function, u32>) -> PathResul
     var skip = NO_HIT;
     var thr = vec3<f32>(1.0);
     var prev_pdf = 0.0;
+    // The previous path vertex (the environment's light pdf depends on it through portals).
+    var prev_p = o;
     // Participating medium of the solid dielectric the path is inside (Beer-Lambert).
     var sigma = vec3<f32>(0.0);
     let max_depth = p.mode.w;
@@ -48,7 +50,7 @@ fn trace_path(o: vec3<f32>, d0: vec3<f32>, rng: ptr<function, u32>) -> PathResul
             if (env_present()) {
                 var w = 1.0;
                 if (depth > 1u) {
-                    w = mis_power(prev_pdf, env_select_prob() * env_pdf(rd));
+                    w = mis_power(prev_pdf, env_select_prob() * env_light_pdf(prev_p, rd));
                 }
                 res.radiance += thr * env_radiance(rd) * w;
             }
@@ -97,6 +99,7 @@ fn trace_path(o: vec3<f32>, d0: vec3<f32>, rng: ptr<function, u32>) -> PathResul
         }
         thr *= bs.weight;
         prev_pdf = bs.pdf;
+        prev_p = s.p;
         if (bs.transmitted && s.transmission > 0.0 && (s.flags & MAT_THIN) == 0u) {
             if (s.front && s.attenuation.w > 0.0) {
                 sigma = -log(clamp(s.attenuation.rgb, vec3<f32>(1.0e-6), vec3<f32>(1.0))) / s.attenuation.w;

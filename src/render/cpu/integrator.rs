@@ -7,7 +7,7 @@ use glam::{Vec2, Vec3A as Vec3};
 use super::bsdf::{Lobes, bsdf_eval_with, bsdf_sample_with};
 use super::common::{BIG, NO_HIT, Rng, finite3, max3, offset_ray, rng_seed};
 use super::lights::{
-    EnvInfo, env_pdf, env_radiance, env_select_prob, has_lights, mis_power, sample_light, tri_light_pdf,
+    EnvInfo, env_light_pdf, env_radiance, env_select_prob, has_lights, mis_power, sample_light, tri_light_pdf,
 };
 use super::material::surface_at;
 use super::traverse::{Hit, occluded, traverse};
@@ -76,6 +76,8 @@ pub(crate) fn trace_path(
     let mut skip = NO_HIT;
     let mut thr = Vec3::ONE;
     let mut prev_pdf = 0.0;
+    // The previous path vertex (the environment's light pdf depends on it through portals).
+    let mut prev_p = o;
     let mut sigma = Vec3::ZERO;
     let lights_on = has_lights(sc);
     let mut depth = 1;
@@ -84,7 +86,7 @@ pub(crate) fn trace_path(
         if hit.prim == NO_HIT {
             if ei.present {
                 let w = if depth > 1 {
-                    mis_power(prev_pdf, env_select_prob(sc) * env_pdf(sc, ei, rd))
+                    mis_power(prev_pdf, env_select_prob(sc) * env_light_pdf(sc, ei, prev_p, rd))
                 } else {
                     1.0
                 };
@@ -130,6 +132,7 @@ pub(crate) fn trace_path(
         };
         thr *= bs.weight;
         prev_pdf = bs.pdf;
+        prev_p = s.p;
         if bs.transmitted && s.transmission > 0.0 && s.flags & MAT_THIN == 0 {
             sigma = if s.front && s.attenuation.w > 0.0 {
                 -Vec3::from_vec4(s.attenuation)

@@ -1,5 +1,6 @@
 //! Twin of `wgsl/trace/lib/lights.wgsl`: next-event estimation on emissive triangles (by
-//! power) and the environment (importance sampled from its CDFs), and the MIS weights.
+//! power) and the environment (importance sampled from its CDFs, mixed with points on its
+//! portals when it has any), and the MIS weights.
 
 use glam::Vec3A as Vec3;
 
@@ -222,6 +223,89 @@ fn env_sample(sc: &PackedScene, ei: &EnvInfo, u: [f32; 2]) -> Option<LightSample
     })
 }
 
+#[inline]
+pub(crate) fn portal_count(sc: &PackedScene) -> u32 {
+    sc.lights[0][3].to_bits()
+}
+
+#[inline]
+fn portal_base(sc: &PackedScene) -> usize {
+    1 + light_count(sc) as usize
+}
+
+/// Probability with which an environment light sample picks a portal.
+#[inline]
+fn portal_prob(sc: &PackedScene) -> f32 {
+    sc.lights[portal_base(sc) + 2][3]
+}
+
+/// Solid-angle pdf with which [`portal_sample`] from `p` picks direction `d`: the sum over
+/// the portals that the ray `p + t d` (`t > 0`) leaves through.
+pub(crate) fn portal_pdf(sc: &PackedScene, p: Vec3, d: Vec3) -> f32 {
+    let mut pdf = 0.0;
+    for k in 0..portal_count(sc) as usize {
+        let b = portal_base(sc) + 3 * k;
+        let (c, eu, ev) = (v3(sc.lights[b]), v3(sc.lights[b + 1]), v3(sc.lights[b + 2]));
+        let nn = eu.cross(ev);
+        let dn = d.dot(nn);
+        if !(dn < 0.0) {
+            continue;
+        }
+        let t = (c - p).dot(nn) / dn;
+        if !(t > 0.0) {
+            continue;
+        }
+        let r = p + t * d - c;
+        let inv = 1.0 / nn.dot(nn);
+        let s = r.cross(ev).dot(nn) * inv;
+        let w = eu.cross(r).dot(nn) * inv;
+        if (0.0..=1.0).contains(&s) && (0.0..=1.0).contains(&w) {
+            // Area density 1 / (total area), over |cos| = -dn / |nn| at distance t.
+            pdf += t * t * nn.length() / (-dn * sc.lights[b + 1][3]);
+        }
+    }
+    pdf
+}
+
+/// Solid-angle pdf of the environment's light samples from `p` (its selection probability
+/// not included): the map's pdf, mixed with the portals' when there are any.
+pub(crate) fn env_light_pdf(sc: &PackedScene, ei: &EnvInfo, p: Vec3, d: Vec3) -> f32 {
+    if portal_count(sc) == 0 {
+        return env_pdf(sc, ei, d);
+    }
+    let pp = portal_prob(sc);
+    (1.0 - pp) * env_pdf(sc, ei, d) + pp * portal_pdf(sc, p, d)
+}
+
+/// A direction from `p` through a point of a portal (`u.z` picks the portal by area, `u.x`
+/// and `u.y` the point), with pdf 0 (the caller weighs it); `None` where `p` is not on the
+/// portal's inner side.
+fn portal_sample(sc: &PackedScene, ei: &EnvInfo, p: Vec3, u: Vec3) -> Option<LightSample> {
+    let n = portal_count(sc) as usize;
+    let mut k = 0;
+    while k + 1 < n && sc.lights[portal_base(sc) + 3 * k][3] <= u.z {
+        k += 1;
+    }
+    let b = portal_base(sc) + 3 * k;
+    let (eu, ev) = (v3(sc.lights[b + 1]), v3(sc.lights[b + 2]));
+    let q = v3(sc.lights[b]) + u.x * eu + u.y * ev;
+    let mut wi = q - p;
+    let dist = wi.length();
+    if !(dist > 0.0) {
+        return None;
+    }
+    wi /= dist;
+    if !(wi.dot(eu.cross(ev)) < 0.0) {
+        return None;
+    }
+    Some(LightSample {
+        wi,
+        dist: BIG,
+        le: env_radiance(sc, ei, wi),
+        pdf: 0.0,
+    })
+}
+
 /// Solid-angle pdf with which [`sample_light`] picks the point on emissive triangle `prim`
 /// seen at distance `dist` under `cos_l`.
 pub(crate) fn tri_light_pdf(sc: &PackedScene, prim: u32, dist: f32, cos_l: f32) -> f32 {
@@ -274,10 +358,25 @@ fn sample_tri_light(sc: &PackedScene, p: Vec3, u: Vec3) -> Option<LightSample> {
 pub(crate) fn sample_light(sc: &PackedScene, ei: &EnvInfo, p: Vec3, u: Vec3) -> Option<LightSample> {
     let pe = env_select_prob(sc);
     if u.z < pe {
-        return env_sample(sc, ei, [u.x, u.y]).map(|mut s| {
-            s.pdf *= pe;
-            s
-        });
+        if portal_count(sc) == 0 {
+            return env_sample(sc, ei, [u.x, u.y]).map(|mut s| {
+                s.pdf *= pe;
+                s
+            });
+        }
+        // A portal or the map (u.z rescaled picks which, then the portal), weighed by the
+        // mixture's pdf.
+        let pp = portal_prob(sc);
+        let ue = u.z / pe;
+        let (s, map_pdf) = if ue < pp {
+            let s = portal_sample(sc, ei, p, Vec3::new(u.x, u.y, ue / pp))?;
+            (s, env_pdf(sc, ei, s.wi))
+        } else {
+            let s = env_sample(sc, ei, [u.x, u.y])?;
+            (s, s.pdf)
+        };
+        let pdf = pe * ((1.0 - pp) * map_pdf + pp * portal_pdf(sc, p, s.wi));
+        return (pdf > 0.0).then_some(LightSample { pdf, ..s });
     }
     if light_count(sc) == 0 {
         return None;
@@ -344,5 +443,77 @@ mod tests {
                 }
             }
         }
+    }
+
+    /// Portal sampling's pdf is the density of its samples. From a point with two portals
+    /// in front (the nearer one seen in front of part of the farther one) and a third it is
+    /// outside of: the pdf integrates to the probability that a sample succeeds (the third
+    /// portal's samples fail), and over portal samples the mean of f / pdf is the integral
+    /// of f over the directions the pdf covers (both against uniform sphere sampling).
+    #[test]
+    fn portal_pdf_is_the_density_of_portal_samples() {
+        use crate::render::scene::Portal;
+        let mut scene = crate::render::builtin::furnace();
+        let portal = |corner: Vec3, u: Vec3, v: Vec3| Portal {
+            corner: corner.into(),
+            u: u.into(),
+            v: v.into(),
+        };
+        let portals = vec![
+            portal(Vec3::new(-0.5, 0.0, -1.0), Vec3::X, Vec3::Y),
+            portal(Vec3::new(-1.0, -0.5, -2.0), 2.0 * Vec3::X, 2.0 * Vec3::Y),
+            portal(Vec3::new(-0.5, -0.5, 1.0), Vec3::X, Vec3::Y),
+        ];
+        let areas: Vec<f32> = portals.iter().map(|q| q.area()).collect();
+        scene.environment.as_mut().unwrap().portals = portals;
+        let sc = PackedScene::new(&scene, u64::MAX).unwrap();
+        let ei = EnvInfo::new(&sc);
+        assert_eq!(portal_count(&sc), 3);
+        let p = Vec3::new(0.1, 0.3, 0.0);
+        let axis = Vec3::new(0.3, 0.2, -1.0).normalize();
+        let f = |d: Vec3| (3.0 * d.dot(axis)).exp() as f64;
+        let mut rng = Rng(11);
+        // Uniform sphere sampling: the pdf's integral and f's over where the pdf is positive.
+        let n = 2_000_000;
+        let (mut pdf_integral, mut f_integral) = (0.0f64, 0.0f64);
+        for _ in 0..n {
+            let [a, b, _] = rng.next3().to_array();
+            let z = 1.0 - 2.0 * a;
+            let r = (1.0 - z * z).max(0.0).sqrt();
+            let phi = TWO_PI * b;
+            let d = Vec3::new(r * phi.cos(), r * phi.sin(), z);
+            let pdf = portal_pdf(&sc, p, d) as f64;
+            pdf_integral += pdf;
+            if pdf > 0.0 {
+                f_integral += f(d);
+            }
+        }
+        let sphere = 4.0 * std::f64::consts::PI / n as f64;
+        let (pdf_integral, f_integral) = (pdf_integral * sphere, f_integral * sphere);
+        let success = 1.0 - areas[2] as f64 / areas.iter().sum::<f32>() as f64;
+        assert!(
+            (pdf_integral - success).abs() < 0.01,
+            "integral of the portal pdf {pdf_integral}, expected {success}"
+        );
+        // Portal samples: f / pdf, 0 for the samples that fail.
+        let m = 400_000;
+        let mut estimate = 0.0f64;
+        let mut failed = 0;
+        for _ in 0..m {
+            match portal_sample(&sc, &ei, p, rng.next3()) {
+                Some(s) => estimate += f(s.wi) / portal_pdf(&sc, p, s.wi) as f64,
+                None => failed += 1,
+            }
+        }
+        estimate /= m as f64;
+        let fail_rate = failed as f64 / m as f64;
+        assert!(
+            (fail_rate - (1.0 - success)).abs() < 0.005,
+            "{failed} of {m} samples failed"
+        );
+        assert!(
+            (estimate / f_integral - 1.0).abs() < 0.015,
+            "portal estimate {estimate}, sphere estimate {f_integral}"
+        );
     }
 }

@@ -33,5 +33,6 @@ pub fn load_environment(path: &Path, scale: f32, to_world: Mat3) -> Result<Envir
         pixels,
         scale,
         to_world,
+        portals: Vec::new(),
     })
 }

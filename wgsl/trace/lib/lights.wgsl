@@ -1,8 +1,12 @@
 // Path tracer library: next-event estimation on emissive triangles and the environment.
 //
-// lights[0] = (count bits, total selection power, probability of choosing the environment, 0)
+// lights[0] = (count bits, total selection power, probability of choosing the environment,
+//     portal count bits)
 // lights[1 + k] = (BVH-order triangle bits, cdf (inclusive), pmf, area): emissive triangles,
 //     chosen in proportion to power = Material.emissive.w (luminance) x area.
+// lights[1 + count + 3 k ..] = the environment's portals (render::scene::Portal), picked by
+//     area: (corner xyz, cdf (inclusive)), (edge u xyz, total area), (edge v xyz, probability
+//     of sampling a portal rather than the map). Seen from the side u x v points to.
 // env[0] = (width bits, height bits, sum of the sampling weights, present bits)
 // env[1] = (weight floor, 0, 0, 0)
 // env[2..5) = rows of world -> map rotation (inverse of scene.json's to_world); env[5..8) = map -> world
@@ -108,6 +112,54 @@ fn search_row(u: f32, row: u32, w: u32, h: u32) -> u32 {
     return lo;
 }
 
+fn portal_count() -> u32 {
+    return bitcast<u32>(lights[0].w);
+}
+
+fn portal_base() -> u32 {
+    return 1u + light_count();
+}
+
+// Solid-angle pdf with which portal_sample from p picks direction d: the sum over the
+// portals that the ray p + t d (t > 0) leaves through.
+fn portal_pdf(p: vec3<f32>, d: vec3<f32>) -> f32 {
+    var pdf = 0.0;
+    for (var k = 0u; k < portal_count(); k++) {
+        let b = portal_base() + 3u * k;
+        let c = lights[b].xyz;
+        let eu = lights[b + 1u].xyz;
+        let ev = lights[b + 2u].xyz;
+        let nn = cross(eu, ev);
+        let dn = dot(d, nn);
+        if (!(dn < 0.0)) {
+            continue;
+        }
+        let t = dot(c - p, nn) / dn;
+        if (!(t > 0.0)) {
+            continue;
+        }
+        let r = p + t * d - c;
+        let inv = 1.0 / dot(nn, nn);
+        let s = dot(cross(r, ev), nn) * inv;
+        let w = dot(cross(eu, r), nn) * inv;
+        if (s >= 0.0 && s <= 1.0 && w >= 0.0 && w <= 1.0) {
+            // Area density 1 / (total area), over |cos| = -dn / |nn| at distance t.
+            pdf += t * t * length(nn) / (-dn * lights[b + 1u].w);
+        }
+    }
+    return pdf;
+}
+
+// Solid-angle pdf of the environment's light samples from p (the environment's selection
+// probability not included): the map's pdf, mixed with the portals' when there are any.
+fn env_light_pdf(p: vec3<f32>, d: vec3<f32>) -> f32 {
+    if (portal_count() == 0u) {
+        return env_pdf(d);
+    }
+    let pp = lights[portal_base() + 2u].w;
+    return (1.0 - pp) * env_pdf(d) + pp * portal_pdf(p, d);
+}
+
 struct LightSample {
     wi: vec3<f32>,
     dist: f32,          // distance to the light point (BIG for the environment)
@@ -140,6 +192,34 @@ fn env_sample(u: vec2<f32>) -> LightSample {
     out.le = env[base + i].rgb;
     out.pdf = env_pixel_pdf(vec2<u32>(i, j), sin_t);
     out.ok = out.pdf > 0.0;
+    return out;
+}
+
+// A direction from p through a point of a portal (u.z picks the portal by area, u.xy the
+// point); pdf not set. Fails where p is not on the portal's inner side.
+fn portal_sample(p: vec3<f32>, u: vec3<f32>) -> LightSample {
+    var out = LightSample(vec3<f32>(0.0), BIG, vec3<f32>(0.0), 0.0, false);
+    let n = portal_count();
+    var k = 0u;
+    while (k + 1u < n && lights[portal_base() + 3u * k].w <= u.z) {
+        k++;
+    }
+    let b = portal_base() + 3u * k;
+    let eu = lights[b + 1u].xyz;
+    let ev = lights[b + 2u].xyz;
+    let q = lights[b].xyz + u.x * eu + u.y * ev;
+    var wi = q - p;
+    let dist = length(wi);
+    if (!(dist > 0.0)) {
+        return out;
+    }
+    wi /= dist;
+    if (!(dot(wi, cross(eu, ev)) < 0.0)) {
+        return out;
+    }
+    out.wi = wi;
+    out.le = env_radiance(wi);
+    out.ok = true;
     return out;
 }
 
@@ -205,8 +285,26 @@ fn sample_tri_light(p: vec3<f32>, u: vec3<f32>) -> LightSample {
 fn sample_light(p: vec3<f32>, u: vec3<f32>) -> LightSample {
     let pe = env_select_prob();
     if (u.z < pe) {
-        var s = env_sample(u.xy);
-        s.pdf *= pe;
+        if (portal_count() == 0u) {
+            var s = env_sample(u.xy);
+            s.pdf *= pe;
+            return s;
+        }
+        // A portal or the map (u.z rescaled picks which, then the portal), weighed by
+        // the mixture's pdf.
+        let pp = lights[portal_base() + 2u].w;
+        let ue = u.z / pe;
+        var s: LightSample;
+        var map_pdf: f32;
+        if (ue < pp) {
+            s = portal_sample(p, vec3<f32>(u.xy, ue / pp));
+            map_pdf = env_pdf(s.wi);
+        } else {
+            s = env_sample(u.xy);
+            map_pdf = s.pdf;
+        }
+        s.pdf = pe * ((1.0 - pp) * map_pdf + pp * portal_pdf(p, s.wi));
+        s.ok = s.ok && s.pdf > 0.0;
         return s;
     }
     if (light_count() == 0u) {
