@@ -158,12 +158,21 @@ fn summary(scene: &Scene, generated: Option<&Generated>) -> Result<()> {
     );
     match &scene.environment {
         Some(e) => println!(
-            "  environment: {} ({}x{}, scale {:.3}, mean radiance {:.3})",
+            "  environment: {} ({}x{}, scale {:.3}, mean radiance {:.3}); {} portal(s){}",
             e.source.display(),
             e.width,
             e.height,
             e.scale,
-            mean_radiance(e)
+            mean_radiance(e),
+            e.portals.len(),
+            if e.portals.is_empty() {
+                String::new()
+            } else {
+                format!(
+                    " of {:.2} m^2 (openings it is sampled through)",
+                    e.portals.iter().map(|q| q.area()).sum::<f32>()
+                )
+            }
         ),
         None => println!("  environment: none (black)"),
     }

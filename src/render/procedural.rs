@@ -3201,6 +3201,43 @@ mod tests {
         PropLibrary::default()
     }
 
+    /// The environment's portals are the open windows: from just inside a portal, a ray out
+    /// through it meets nothing near the wall (no pane, no wall), and the camera, in the
+    /// room, is on its inner side. Paned windows are not portals.
+    #[test]
+    fn portals_are_open_windows() {
+        let mut lib = no_props();
+        let (mut with, mut portals) = (0, 0);
+        for seed in 0..48u64 {
+            let s = generate_with(seed, &mut lib).unwrap().scene;
+            let Some(e) = &s.environment else { continue };
+            if e.portals.is_empty() {
+                continue;
+            }
+            with += 1;
+            let bvh = SceneBvh::build(&s.name, &s.geometry.positions, &s.geometry.triangles).unwrap();
+            for q in &e.portals {
+                portals += 1;
+                let n = q.u.cross(q.v).normalize();
+                for (a, b) in [(0.5, 0.5), (0.2, 0.3), (0.8, 0.7)] {
+                    let p = q.corner + a * q.u + b * q.v + 0.1 * n;
+                    assert!(
+                        bvh.intersect(p, -n, 0.3).is_none(),
+                        "seed {seed}: portal {q:?} is blocked at ({a}, {b})"
+                    );
+                }
+                assert!(
+                    (s.camera.position - q.corner).dot(n) > 0.0,
+                    "seed {seed}: portal {q:?} faces away from the camera in the room"
+                );
+            }
+        }
+        assert!(
+            with >= 5 && portals >= with,
+            "{with} scenes with {portals} portals"
+        );
+    }
+
     #[test]
     fn seeds_validate_light_and_see_geometry() {
         let mut enclosures = std::collections::BTreeSet::new();

@@ -9,7 +9,7 @@ use serde::Deserialize;
 use super::{file_err, load_environment, load_gltf, scene_err};
 use crate::error::Result;
 use crate::render::camera::{Camera, CameraPathSpec};
-use crate::render::scene::Scene;
+use crate::render::scene::{Portal, Scene};
 
 #[derive(Debug, Deserialize)]
 struct Sidecar {
@@ -27,6 +27,18 @@ struct EnvSpec {
     to_world: Option<[[f32; 4]; 4]>,
     rotation_y_deg: Option<f32>,
     mapping: Option<String>,
+    portals: Option<Vec<PortalSpec>>,
+}
+
+/// Optional `environment.portals` of `scene.json` (an extension of the README schema): the
+/// openings the environment lights the scene through, each `{"corner": [x, y, z], "u":
+/// [..], "v": [..]}` in world space, seen from the side `u x v` points to
+/// ([`crate::render::scene::Portal`]).
+#[derive(Debug, Deserialize)]
+struct PortalSpec {
+    corner: [f32; 3],
+    u: [f32; 3],
+    v: [f32; 3],
 }
 
 #[derive(Debug, Deserialize)]
@@ -103,7 +115,26 @@ pub fn load_sidecar(path: &Path) -> Result<Scene> {
                 format!("environment scale {scale} must be finite and >= 0"),
             ));
         }
-        scene.environment = Some(load_environment(&dir.join(&e.file), scale, to_world)?);
+        let mut env = load_environment(&dir.join(&e.file), scale, to_world)?;
+        for (k, q) in e.portals.iter().flatten().enumerate() {
+            let portal = Portal {
+                corner: Vec3::from(q.corner),
+                u: Vec3::from(q.u),
+                v: Vec3::from(q.v),
+            };
+            let area = portal.area();
+            if !(area.is_finite() && area > 0.0 && portal.corner.is_finite()) {
+                return Err(scene_err(
+                    path,
+                    format!(
+                        "environment.portals[{k}] must have finite values and edges u, v that span \
+                         an area (area {area})"
+                    ),
+                ));
+            }
+            env.portals.push(portal);
+        }
+        scene.environment = Some(env);
     }
     if let Some(c) = &side.camera {
         scene.camera = Camera {

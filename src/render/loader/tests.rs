@@ -371,5 +371,44 @@ fn sidecar_environment_and_camera() {
     // World -z maps to map +x (rotated): u = atan2(1, 0) / 2pi = 0.25 -> column 1.
     let c = e.radiance(Vec3::NEG_Z);
     assert_eq!(c, Vec3::new(1.0, 1.0, 1.0) * 2.0);
+    assert!(e.portals.is_empty());
+    std::fs::remove_dir_all(&d).ok();
+}
+
+/// `environment.portals` of scene.json: read in world space; degenerate or non-finite ones
+/// are errors naming the file and the portal.
+#[test]
+fn sidecar_portals() {
+    let d = tmp("portals");
+    let json = scene_with_environment(&d, "env.exr");
+    let img = image::Rgb32FImage::from_fn(4, 2, |_, _| image::Rgb([1.0, 1.0, 1.0]));
+    image::DynamicImage::ImageRgb32F(img)
+        .save(d.join("env.exr"))
+        .unwrap();
+    let with = |portals: &str| {
+        let text =
+            format!(r#"{{"gltf": "ok.gltf", "environment": {{"file": "env.exr", "portals": {portals}}}}}"#);
+        std::fs::write(&json, text).unwrap();
+        load_scene(json.to_str().unwrap())
+    };
+    let s = with(r#"[{"corner": [0, 1, -2], "u": [2, 0, 0], "v": [0, 1.5, 0]}]"#).unwrap();
+    let p = &s.environment.as_ref().unwrap().portals;
+    assert_eq!(p.len(), 1);
+    assert_eq!(p[0].corner, Vec3::new(0.0, 1.0, -2.0));
+    assert!((p[0].area() - 3.0).abs() < 1e-6);
+    for bad in [
+        r#"[{"corner": [0, 0, 0], "u": [1, 0, 0], "v": [2, 0, 0]}]"#,
+        r#"[{"corner": [0, 0, 0], "u": [1, 0, 0], "v": [0, 1, 0]}, {"corner": [0, 0, 0], "u": [0, 0, 0], "v": [0, 1, 0]}]"#,
+    ] {
+        let e = with(bad).unwrap_err().to_string();
+        assert!(
+            e.contains("scene.json") && e.contains("environment.portals["),
+            "{e}"
+        );
+    }
+    let e = with(r#"[{"corner": [0, 0], "u": [1, 0, 0], "v": [0, 1, 0]}]"#)
+        .unwrap_err()
+        .to_string();
+    assert!(e.contains("scene.json") && e.contains("malformed"), "{e}");
     std::fs::remove_dir_all(&d).ok();
 }
