@@ -7,7 +7,7 @@
 use glam::{Mat3, Quat, Vec2, Vec3, Vec4};
 
 use super::camera::Camera;
-use super::scene::{AlphaMode, Environment, Geometry, Material, Scene, Texture, Wrap};
+use super::scene::{AlphaMode, Environment, Geometry, Material, Portal, Scene, Texture, Wrap};
 use crate::error::{Error, Result};
 
 /// Names accepted after `builtin:`.
@@ -253,8 +253,8 @@ fn sky() -> Environment {
 }
 
 /// A 6 x 3 x 6 room with procedurally textured walls and floor (a normal-mapped brick wall
-/// with a window to the sky), a ceiling lamp, a table, a metal sphere, a glass pane and a
-/// cut-out (alpha-masked) leaf screen.
+/// with a window to the sky, its portal), a ceiling lamp, a table, a metal sphere, a smooth
+/// glass pane and a cut-out (alpha-masked) leaf screen.
 pub fn room() -> Scene {
     let camera = Camera {
         position: Vec3::new(1.2, 1.5, 2.6),
@@ -366,7 +366,7 @@ pub fn room() -> Scene {
     let metal = add_material(&mut s, Material::metal("gold", [0.97, 0.8, 0.32], 0.3));
     let glass = add_material(
         &mut s,
-        Material::glass("thin glass", [0.85, 0.95, 0.9], 0.05, 1.5, true),
+        Material::glass("thin glass", [0.85, 0.95, 0.9], 0.0, 1.5, true),
     );
     let leaf = add_material(
         &mut s,
@@ -466,7 +466,14 @@ pub fn room() -> Scene {
         Vec2::new(1.0, 1.5),
         leaf,
     );
-    s.environment = Some(sky());
+    // The sky lights the room through the window: its portal.
+    let mut env = sky();
+    env.portals.push(Portal {
+        corner: v(-1.5, 1.0, -3.0),
+        u: v(2.0, 0.0, 0.0),
+        v: v(0.0, 1.3, 0.0),
+    });
+    s.environment = Some(env);
     s
 }
 

@@ -36,9 +36,20 @@ pub(crate) const NO_TEX: u32 = u32::MAX;
 pub(crate) const MAT_DOUBLE_SIDED: u32 = 1;
 pub(crate) const MAT_THIN: u32 = 2;
 pub(crate) const MAT_ALPHA_MASK: u32 = 4;
+/// Smooth thin-walled transmission: light goes straight through (a specular event), so NEE
+/// shadow rays pass it, attenuated, and paths pass it without a scattering vertex
+/// ([`straight_through`]).
+pub(crate) const MAT_PASS: u32 = 8;
+/// Roughness alpha floor of the GGX lobes (`ALPHA_MIN` in bsdf.wgsl): smoother surfaces
+/// render as this one.
+pub(crate) const GGX_ALPHA_MIN: f32 = 0.002;
 pub(crate) const TRI_FLAG_ALPHA: u32 = 0x8000_0000;
 pub(crate) const TRI_FLAG_TANGENT_NEG: u32 = 0x4000_0000;
 pub(crate) const TRI_FLAG_HAS_TANGENT: u32 = 0x2000_0000;
+/// The triangle's material is [`MAT_PASS`].
+pub(crate) const TRI_FLAG_PASS: u32 = 0x1000_0000;
+/// Bit of `lights[0].w` (over the portal count) set when some triangle is [`MAT_PASS`].
+pub(crate) const LIGHTS_HAVE_PASS: u32 = 0x8000_0000;
 pub(crate) const TRI_MATERIAL_MASK: u32 = 0x00ff_ffff;
 /// Probability with which an environment light sample picks a point on a portal (when the
 /// environment has any) rather than a direction from the map.
@@ -85,6 +96,17 @@ impl std::fmt::Debug for PackedScene {
     }
 }
 
+/// Whether light goes straight through `m`: thin-walled transmission at the roughness floor
+/// (a roughness texture could lift it off the floor, so none may be bound). The GGX lobe
+/// there is so narrow that treating the transmission as a straight line changes the image
+/// by less than the lobe's width, and NEE can then see lights through it.
+pub(crate) fn straight_through(m: &super::scene::Material) -> bool {
+    m.thin
+        && m.transmission > 0.0
+        && m.roughness * m.roughness <= GGX_ALPHA_MIN
+        && m.metallic_roughness_texture.is_none()
+}
+
 /// Material table of `scene` in GPU layout.
 pub fn gpu_materials(scene: &Scene) -> Vec<GpuMaterial> {
     scene
@@ -97,6 +119,9 @@ pub fn gpu_materials(scene: &Scene) -> Vec<GpuMaterial> {
             }
             if m.thin {
                 flags |= MAT_THIN;
+            }
+            if straight_through(m) {
+                flags |= MAT_PASS;
             }
             let cutoff = match m.alpha {
                 AlphaMode::Opaque => 0.0,
@@ -249,6 +274,7 @@ impl PackedScene {
         // unnormalised normal e1 x e2, for the CPU twin's ray test), info.
         let mut tris: Vec<[f32; 4]> = Vec::with_capacity(4 * bvh.order.len());
         let mut lights: Vec<(u32, f64, f32)> = Vec::new(); // (slot, power, area)
+        let mut any_pass = false;
         for (slot, &orig) in bvh.order.iter().enumerate() {
             let idx = g.triangles[orig as usize];
             let [v0, v1, v2] = idx.map(|i| g.positions[i as usize]);
@@ -257,6 +283,10 @@ impl PackedScene {
             let mut info = mat & TRI_MATERIAL_MASK;
             if matches!(scene.materials[mat as usize].alpha, AlphaMode::Mask(_)) {
                 info |= TRI_FLAG_ALPHA;
+            }
+            if mats[mat as usize].extra[3].to_bits() & MAT_PASS != 0 {
+                info |= TRI_FLAG_PASS;
+                any_pass = true;
             }
             let tans = idx.map(|i| g.tangents[i as usize]);
             if tans.iter().all(|t| t.truncate().length_squared() > 0.0) {
@@ -302,7 +332,7 @@ impl PackedScene {
             f32::from_bits(lights.len() as u32),
             total as f32,
             env_probability,
-            f32::from_bits(portals.len() as u32),
+            f32::from_bits(portals.len() as u32 | if any_pass { LIGHTS_HAVE_PASS } else { 0 }),
         ]];
         let mut acc = 0.0f64;
         for (k, &(slot, power, area)) in lights.iter().enumerate() {

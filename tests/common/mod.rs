@@ -163,8 +163,17 @@ pub mod window_room {
         v: Vec3::new(0.0, 0.8, 0.0),
     };
 
-    /// The room, with or without the window as a portal.
-    pub fn scene(portals: bool) -> Scene {
+    /// A pane in the window, just inside: smooth thin glass, part diffuse (transmission
+    /// 0.6) and tinted, so that light both passes it straight through and scatters on it.
+    pub fn pane() -> Material {
+        Material {
+            transmission: 0.6,
+            ..Material::glass("pane", [0.9, 0.8, 0.7], 0.0, 1.5, true)
+        }
+    }
+
+    /// The room, with or without the window as a portal, and with a [`pane`] in it or not.
+    pub fn scene(portals: bool, paned: bool) -> Scene {
         let v = Vec3::new;
         let mut g = Geometry::default();
         let quad = |g: &mut Geometry, o: Vec3, a: Vec3, b: Vec3| g.push_quad([o, o + a, o + a + b, o + b], 0);
@@ -178,6 +187,11 @@ pub mod window_room {
         quad(&mut g, v(-1.0, 1.4, -1.0), v(2.0, 0.0, 0.0), v(0.0, 0.6, 0.0));
         quad(&mut g, v(-1.0, 0.6, -1.0), v(0.6, 0.0, 0.0), v(0.0, 0.8, 0.0));
         quad(&mut g, v(0.4, 0.6, -1.0), v(0.6, 0.0, 0.0), v(0.0, 0.8, 0.0));
+        if paned {
+            quad(&mut g, v(-0.4, 0.6, -0.98), v(0.8, 0.0, 0.0), v(0.0, 0.8, 0.0));
+            let n = g.triangles.len();
+            g.materials[n - 2..].fill(1);
+        }
         let (w, h) = (16u32, 8u32);
         let pixels = (0..w * h)
             .map(|i| {
@@ -200,12 +214,15 @@ pub mod window_room {
             portals: if portals { vec![WINDOW] } else { vec![] },
         };
         Scene {
-            name: format!("window room (portals: {portals})"),
+            name: format!("window room (portals: {portals}, pane: {paned})"),
             geometry: g,
-            materials: vec![Material {
-                double_sided: true,
-                ..Material::diffuse("walls", [0.7, 0.6, 0.5])
-            }],
+            materials: vec![
+                Material {
+                    double_sided: true,
+                    ..Material::diffuse("walls", [0.7, 0.6, 0.5])
+                },
+                pane(),
+            ],
             textures: vec![],
             environment: Some(environment),
             camera: Camera {

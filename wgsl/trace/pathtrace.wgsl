@@ -31,6 +31,42 @@ fn rand3(state: ptr<function, u32>) -> vec3<f32> {
     return vec3<f32>(a, b, c);
 }
 
+// Most surfaces passing light straight through that one path segment or shadow ray
+// crosses; beyond, the path ends and the shadow ray is blocked.
+const MAX_PASSES: u32 = 16u;
+
+// Transmittance (rgb) of the segment from o along unit d up to dist, and (w) the
+// probability that a path crosses it the same way: 0 where something opaque blocks it;
+// through MAT_PASS surfaces, the products of their transmittances and pass probabilities.
+fn transmittance(o: vec3<f32>, d: vec3<f32>, dist: f32, skip: u32) -> vec4<f32> {
+    if (occluded(o, d, dist, skip)) {
+        return vec4<f32>(0.0);
+    }
+    if (!has_pass()) {
+        return vec4<f32>(1.0);
+    }
+    var tr = vec4<f32>(1.0);
+    var org = o;
+    var left = dist;
+    var skip_prim = skip;
+    for (var k = 0u; k < MAX_PASSES; k++) {
+        let hit = traverse(org, d, left, false, skip_prim);
+        if (hit.prim == NO_HIT) {
+            return tr;
+        }
+        let s = surface_at(hit, d);
+        let pt = pass_through(s, -d);
+        if (!pt.ok) {
+            return vec4<f32>(0.0);
+        }
+        tr *= vec4<f32>(pt.t, pt.q);
+        org = offset_ray(s.p, -s.ng);
+        left -= hit.t;
+        skip_prim = hit.prim;
+    }
+    return vec4<f32>(0.0);
+}
+
 fn trace_path(o: vec3<f32>, d0: vec3<f32>, rng: ptr<function, u32>) -> PathResult {
     var res = PathResult(vec3<f32>(0.0), vec3<f32>(0.0));
     var ro = o;
@@ -44,7 +80,15 @@ fn trace_path(o: vec3<f32>, d0: vec3<f32>, rng: ptr<function, u32>) -> PathResul
     var sigma = vec3<f32>(0.0);
     let max_depth = p.mode.w;
     let lights_on = has_lights();
-    for (var depth = 1u; depth <= max_depth; depth++) {
+    // Distance from the previous vertex along rd (it grows where the path passes light
+    // straight through a surface), and how many such surfaces the path has passed.
+    var seg = 0.0;
+    var passes = 0u;
+    var depth = 1u;
+    loop {
+        if (depth > max_depth) {
+            break;
+        }
         let hit = traverse(ro, rd, BIG, false, skip);
         if (hit.prim == NO_HIT) {
             if (env_present()) {
@@ -59,18 +103,36 @@ fn trace_path(o: vec3<f32>, d0: vec3<f32>, rng: ptr<function, u32>) -> PathResul
         if (any(sigma > vec3<f32>(0.0))) {
             thr *= exp(-sigma * hit.t);
         }
+        seg += hit.t;
         let s = surface_at(hit, rd);
         if (any(s.emission > vec3<f32>(0.0))) {
             var w = 1.0;
             if (depth > 1u) {
-                w = mis_power(prev_pdf, tri_light_pdf(hit.prim, hit.t, dot(s.ng, -rd)));
+                w = mis_power(prev_pdf, tri_light_pdf(hit.prim, seg, dot(s.ng, -rd)));
             }
             res.radiance += thr * s.emission * w;
+        }
+        let wo = -rd;
+        let pt = pass_through(s, wo);
+        if (pt.ok) {
+            // Straight through (a specular event, not a vertex: depth, the previous vertex
+            // and its pdf stay, times the probability of passing), or scatter here.
+            if (rand(rng) < pt.q) {
+                passes++;
+                if (passes > MAX_PASSES) {
+                    break;
+                }
+                thr *= pt.t / pt.q;
+                prev_pdf *= pt.q;
+                ro = offset_ray(s.p, -s.ng);
+                skip = hit.prim;
+                continue;
+            }
+            thr /= 1.0 - pt.q;
         }
         if (depth >= max_depth) {
             break;
         }
-        let wo = -rd;
         // Next-event estimation.
         let ul = rand3(rng);
         if (lights_on) {
@@ -81,12 +143,14 @@ fn trace_path(o: vec3<f32>, d0: vec3<f32>, rng: ptr<function, u32>) -> PathResul
                     let side = select(-s.ng, s.ng, dot(ls.wi, s.ng) > 0.0);
                     let org = offset_ray(s.p, side);
                     let tmax = select(ls.dist * 0.9999, BIG, ls.dist >= BIG);
-                    let visible = !occluded(org, ls.wi, tmax, s.prim);
-                    if (visible) {
-                        let w = mis_power(ls.pdf, ev.w);
-                        res.radiance += thr * ev.rgb * ls.le * (w / ls.pdf);
+                    let tr = transmittance(org, ls.wi, tmax, s.prim);
+                    if (any(tr.rgb > vec3<f32>(0.0))) {
+                        // The BSDF route to the same light passes the same surfaces with
+                        // probability tr.w.
+                        let w = mis_power(ls.pdf, ev.w * tr.w);
+                        res.radiance += thr * ev.rgb * tr.rgb * ls.le * (w / ls.pdf);
                         if (depth == 1u) {
-                            res.shadow = ls.le;
+                            res.shadow = tr.rgb * ls.le;
                         }
                     }
                 }
@@ -100,6 +164,7 @@ fn trace_path(o: vec3<f32>, d0: vec3<f32>, rng: ptr<function, u32>) -> PathResul
         thr *= bs.weight;
         prev_pdf = bs.pdf;
         prev_p = s.p;
+        seg = 0.0;
         if (bs.transmitted && s.transmission > 0.0 && (s.flags & MAT_THIN) == 0u) {
             if (s.front && s.attenuation.w > 0.0) {
                 sigma = -log(clamp(s.attenuation.rgb, vec3<f32>(1.0e-6), vec3<f32>(1.0))) / s.attenuation.w;
@@ -120,6 +185,7 @@ fn trace_path(o: vec3<f32>, d0: vec3<f32>, rng: ptr<function, u32>) -> PathResul
         if (!finite3(thr)) {
             break;
         }
+        depth++;
     }
     if (!finite3(res.radiance)) {
         res.radiance = vec3<f32>(0.0);

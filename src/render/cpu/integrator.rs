@@ -4,10 +4,11 @@
 
 use glam::{Vec2, Vec3A as Vec3};
 
-use super::bsdf::{Lobes, bsdf_eval_with, bsdf_sample_with};
+use super::bsdf::{Lobes, bsdf_eval_with, bsdf_sample_with, pass_through};
 use super::common::{BIG, NO_HIT, Rng, finite3, max3, offset_ray, rng_seed};
 use super::lights::{
-    EnvInfo, env_light_pdf, env_radiance, env_select_prob, has_lights, mis_power, sample_light, tri_light_pdf,
+    EnvInfo, env_light_pdf, env_radiance, env_select_prob, has_lights, has_pass, mis_power, sample_light,
+    tri_light_pdf,
 };
 use super::material::surface_at;
 use super::traverse::{Hit, occluded, traverse};
@@ -80,6 +81,10 @@ pub(crate) fn trace_path(
     let mut prev_p = o;
     let mut sigma = Vec3::ZERO;
     let lights_on = has_lights(sc);
+    // Distance from the previous vertex along rd (it grows where the path passes light
+    // straight through a surface), and how many such surfaces the path has passed.
+    let mut seg = 0.0;
+    let mut passes = 0;
     let mut depth = 1;
     while depth <= max_depth {
         let hit = traverse(sc, ro, rd, BIG, false, skip, rays);
@@ -97,20 +102,37 @@ pub(crate) fn trace_path(
         if sigma.cmpgt(Vec3::ZERO).any() {
             thr *= (-sigma * hit.t).exp();
         }
+        seg += hit.t;
         let s = surface_at(sc, &hit, rd);
         if s.emission.cmpgt(Vec3::ZERO).any() {
             let w = if depth > 1 {
-                mis_power(prev_pdf, tri_light_pdf(sc, hit.prim, hit.t, s.ng.dot(-rd)))
+                mis_power(prev_pdf, tri_light_pdf(sc, hit.prim, seg, s.ng.dot(-rd)))
             } else {
                 1.0
             };
             res.radiance += thr * s.emission * w;
         }
+        let wo = -rd;
+        let lobes = Lobes::new(&s, wo);
+        if let Some((t, q)) = pass_through(&s, &lobes) {
+            // Straight through (a specular event, not a vertex: depth, the previous vertex
+            // and its pdf stay, times the probability of passing), or scatter here.
+            if rng.next() < q {
+                passes += 1;
+                if passes > MAX_PASSES {
+                    break;
+                }
+                thr *= t / q;
+                prev_pdf *= q;
+                ro = offset_ray(s.p, -s.ng);
+                skip = hit.prim;
+                continue;
+            }
+            thr /= 1.0 - q;
+        }
         if depth >= max_depth {
             break;
         }
-        let wo = -rd;
-        let lobes = Lobes::new(&s, wo);
         let ul = rng.next3();
         if lights_on && let Some(ls) = sample_light(sc, ei, s.p, ul) {
             let (ev, ev_pdf) = bsdf_eval_with(&s, &lobes, ls.wi);
@@ -118,11 +140,14 @@ pub(crate) fn trace_path(
                 let side = if ls.wi.dot(s.ng) > 0.0 { s.ng } else { -s.ng };
                 let org = offset_ray(s.p, side);
                 let tmax = if ls.dist >= BIG { BIG } else { ls.dist * 0.9999 };
-                if !occluded(sc, org, ls.wi, tmax, s.prim, rays) {
-                    let w = mis_power(ls.pdf, ev_pdf);
-                    res.radiance += thr * ev * ls.le * (w / ls.pdf);
+                let (tr, q) = transmittance(sc, org, ls.wi, tmax, s.prim, rays);
+                if tr.cmpgt(Vec3::ZERO).any() {
+                    // The BSDF route to the same light passes the same surfaces with
+                    // probability q.
+                    let w = mis_power(ls.pdf, ev_pdf * q);
+                    res.radiance += thr * ev * tr * ls.le * (w / ls.pdf);
                     if depth == 1 {
-                        res.shadow = ls.le;
+                        res.shadow = tr * ls.le;
                     }
                 }
             }
@@ -133,6 +158,7 @@ pub(crate) fn trace_path(
         thr *= bs.weight;
         prev_pdf = bs.pdf;
         prev_p = s.p;
+        seg = 0.0;
         if bs.transmitted && s.transmission > 0.0 && s.flags & MAT_THIN == 0 {
             sigma = if s.front && s.attenuation.w > 0.0 {
                 -Vec3::from_vec4(s.attenuation)
@@ -162,6 +188,41 @@ pub(crate) fn trace_path(
         res.radiance = Vec3::ZERO;
     }
     res
+}
+
+/// Most surfaces passing light straight through that one path segment or shadow ray
+/// crosses (WGSL `MAX_PASSES`); beyond, the path ends and the shadow ray is blocked.
+const MAX_PASSES: u32 = 16;
+
+/// Transmittance of the segment from `o` along unit `d` up to `dist` (WGSL
+/// `transmittance`), and the probability that a path crosses it the same way: 0 where
+/// something opaque blocks it; through surfaces that pass light straight through, the
+/// products of their transmittances and of their pass probabilities.
+fn transmittance(sc: &PackedScene, o: Vec3, d: Vec3, dist: f32, skip: u32, rays: &mut u64) -> (Vec3, f32) {
+    if occluded(sc, o, d, dist, skip, rays) {
+        return (Vec3::ZERO, 0.0);
+    }
+    if !has_pass(sc) {
+        return (Vec3::ONE, 1.0);
+    }
+    let (mut tr, mut q) = (Vec3::ONE, 1.0);
+    let (mut org, mut left, mut skip) = (o, dist, skip);
+    for _ in 0..MAX_PASSES {
+        let hit = traverse(sc, org, d, left, false, skip, rays);
+        if hit.prim == NO_HIT {
+            return (tr, q);
+        }
+        let s = surface_at(sc, &hit, d);
+        let Some((t, p)) = pass_through(&s, &Lobes::new(&s, -d)) else {
+            return (Vec3::ZERO, 0.0);
+        };
+        tr *= t;
+        q *= p;
+        org = offset_ray(s.p, -s.ng);
+        left -= hit.t;
+        skip = hit.prim;
+    }
+    (Vec3::ZERO, 0.0)
 }
 
 /// Mean of samples `first .. first + count` of pixel (x, y) (WGSL `pixel_samples`).

@@ -6,7 +6,7 @@ use glam::Vec3A as Vec3;
 
 use super::common::{BIG, PI, TWO_PI, luminance};
 use super::material::{interp_uv, material_emission, material_of, tri_info, tri_vec};
-use crate::render::packed::{ENV_HDR, PackedScene};
+use crate::render::packed::{ENV_HDR, LIGHTS_HAVE_PASS, PackedScene};
 
 #[inline]
 fn v3(v: [f32; 4]) -> Vec3 {
@@ -225,7 +225,13 @@ fn env_sample(sc: &PackedScene, ei: &EnvInfo, u: [f32; 2]) -> Option<LightSample
 
 #[inline]
 pub(crate) fn portal_count(sc: &PackedScene) -> u32 {
-    sc.lights[0][3].to_bits()
+    sc.lights[0][3].to_bits() & !LIGHTS_HAVE_PASS
+}
+
+/// Some triangle passes light straight through ([`crate::render::packed::MAT_PASS`]).
+#[inline]
+pub(crate) fn has_pass(sc: &PackedScene) -> bool {
+    sc.lights[0][3].to_bits() & LIGHTS_HAVE_PASS != 0
 }
 
 #[inline]

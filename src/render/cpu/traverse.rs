@@ -7,7 +7,7 @@ use obvhs::ray::{Ray, RayHit};
 
 use super::common::{BIG, NO_HIT};
 use super::material::alpha_passes;
-use crate::render::packed::{PackedScene, TRI_FLAG_ALPHA};
+use crate::render::packed::{PackedScene, TRI_FLAG_ALPHA, TRI_FLAG_PASS};
 
 /// A ray hit (WGSL `Hit`): `prim` is the BVH-order triangle, [`NO_HIT`] on a miss; `u`, `v`
 /// the barycentric weights of v1 and v2.
@@ -54,7 +54,8 @@ pub(crate) fn intersect_tri(
     (t >= tmin && t <= tmax).then_some((t, u, v))
 }
 
-/// Closest hit (or, with `any_hit`, any hit) along `o + t d` for `t` in `[0, tmax]`, ignoring
+/// Closest hit (or, with `any_hit`, any hit of a triangle that does not pass light straight
+/// through: what blocks a shadow ray) along `o + t d` for `t` in `[0, tmax]`, ignoring
 /// triangle `skip`. Counts one ray in `rays`.
 pub(crate) fn traverse(
     sc: &PackedScene,
@@ -91,6 +92,9 @@ pub(crate) fn traverse(
             return f32::INFINITY;
         }
         let info = sc.tris[4 * id + 3][3].to_bits();
+        if any_hit && info & TRI_FLAG_PASS != 0 {
+            return f32::INFINITY;
+        }
         if info & TRI_FLAG_ALPHA != 0 && !alpha_passes(sc, prim, u, v) {
             return f32::INFINITY;
         }
@@ -106,7 +110,8 @@ pub(crate) fn traverse(
     best
 }
 
-/// Whether anything blocks the segment from `o` along unit `d` up to `dist`.
+/// Whether anything opaque (anything but surfaces that pass light straight through) blocks
+/// the segment from `o` along unit `d` up to `dist`.
 #[inline]
 pub(crate) fn occluded(sc: &PackedScene, o: Vec3, d: Vec3, dist: f32, skip: u32, rays: &mut u64) -> bool {
     traverse(sc, o, d, dist, true, skip, rays).prim != NO_HIT

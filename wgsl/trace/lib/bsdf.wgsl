@@ -126,6 +126,12 @@ fn bsdf_eval(s: Surface, wo: vec3<f32>, wi: vec3<f32>) -> vec4<f32> {
     let w = lobe_weights(s);
     let q = strategy_probs(s, lo.z);
     let etas = glass_etas(s);
+    // Where light goes straight through (pass_through), the lobes given that it does not.
+    let passes_light = (s.flags & MAT_PASS) != 0u;
+    var fr_pass = 0.0;
+    if (passes_light) {
+        fr_pass = fresnel_dielectric(lo.z, etas.y / etas.x);
+    }
     var f = vec3<f32>(0.0);
     var pdf = 0.0;
     let reflect_side = dot(wi, s.ng) > 0.0;
@@ -140,11 +146,14 @@ fn bsdf_eval(s: Surface, wo: vec3<f32>, wi: vec3<f32>) -> vec4<f32> {
         f += w.y * (fd * spec + (1.0 - fd) * s.base * INV_PI * li.z);
         pdf += q.x * pdf_r + q.y * li.z * INV_PI;
         if (w.z > 0.0) {
-            let fr = fresnel_dielectric(oh, etas.y / etas.x);
+            var fr = fr_pass;
+            if (!passes_light) {
+                fr = fresnel_dielectric(oh, etas.y / etas.x);
+            }
             f += w.z * fr * spec;
             pdf += q.z * fr * pdf_r;
         }
-    } else if (!reflect_side && li.z < -1.0e-6 && w.z > 0.0) {
+    } else if (!reflect_side && li.z < -1.0e-6 && w.z > 0.0 && !passes_light) {
         if ((s.flags & MAT_THIN) != 0u) {
             // Straight-through transmission: the mirrored reflection lobe.
             let lr = vec3<f32>(li.x, li.y, -li.z);
@@ -171,7 +180,39 @@ fn bsdf_eval(s: Surface, wo: vec3<f32>, wi: vec3<f32>) -> vec4<f32> {
             }
         }
     }
+    if (passes_light) {
+        pdf /= max(1.0 - q.z * (1.0 - fr_pass), 1.0e-12);
+    }
     return vec4<f32>(f, pdf);
+}
+
+// Light going straight through a MAT_PASS surface towards -wo (a specular event, taken
+// before the vertex scatters): the transmittance t (the glass lobe's share of what the
+// Fresnel reflectance at wo lets through, tinted) and the probability q with which a path
+// passes (the glass strategy's share of the same).
+struct Pass {
+    t: vec3<f32>,
+    q: f32,
+    ok: bool,
+}
+
+fn pass_through(s: Surface, wo: vec3<f32>) -> Pass {
+    var out = Pass(vec3<f32>(0.0), 0.0, false);
+    if ((s.flags & MAT_PASS) == 0u || bsdf_black(s)) {
+        return out;
+    }
+    let lo = to_local(onb(s.ns), wo);
+    if (lo.z <= 1.0e-6) {
+        return out;
+    }
+    let w = lobe_weights(s);
+    let q = strategy_probs(s, lo.z);
+    let etas = glass_etas(s);
+    let fr = fresnel_dielectric(lo.z, etas.y / etas.x);
+    out.t = w.z * (1.0 - fr) * s.base;
+    out.q = q.z * (1.0 - fr);
+    out.ok = true;
+    return out;
 }
 
 struct BsdfSample {
@@ -194,19 +235,29 @@ fn bsdf_sample(s: Surface, wo: vec3<f32>, u: vec3<f32>) -> BsdfSample {
     }
     let a = ggx_alpha(s.roughness);
     let q = strategy_probs(s, lo.z);
+    let etas = glass_etas(s);
+    // Where the surface passes light, the strategies given that it does not: the glass
+    // strategy only reflects.
+    let passes_light = (s.flags & MAT_PASS) != 0u;
+    var scatter = 1.0;
+    if (passes_light) {
+        scatter = 1.0 - q.z * (1.0 - fresnel_dielectric(lo.z, etas.y / etas.x));
+    }
+    let uzs = u.z * scatter;
     var li: vec3<f32>;
-    if (u.z < q.x) {
+    if (uzs < q.x) {
         let h = sample_vndf(lo, a, u.xy);
         li = reflect(-lo, h);
-    } else if (u.z < q.x + q.y) {
+    } else if (uzs < q.x + q.y) {
         let r = sqrt(u.x);
         let phi = TWO_PI * u.y;
         li = vec3<f32>(r * cos(phi), r * sin(phi), sqrt(max(1.0 - u.x, 0.0)));
+    } else if (passes_light) {
+        li = reflect(-lo, sample_vndf(lo, a, u.xy));
     } else {
-        let uz = clamp((u.z - q.x - q.y) / max(q.z, 1.0e-12), 0.0, 1.0);
+        let uz = clamp((uzs - q.x - q.y) / max(q.z, 1.0e-12), 0.0, 1.0);
         let h = sample_vndf(lo, a, u.xy);
         let oh = dot(lo, h);
-        let etas = glass_etas(s);
         let fr = fresnel_dielectric(max(oh, 1.0e-6), etas.y / etas.x);
         let lr = reflect(-lo, h);
         if (uz < fr) {

@@ -101,7 +101,8 @@ fn intersect_node(ni: u32, o: vec3<f32>, inv_d: vec3<f32>, neg: vec3<bool>, oct_
     return hitmask;
 }
 
-// Closest hit (any_hit = false) or any hit (true) along o + t d, t in [0, tmax]. Triangle
+// Closest hit (any_hit = false) or any hit of a triangle that does not pass light straight
+// through (true: what blocks a shadow ray) along o + t d, t in [0, tmax]. Triangle
 // `skip` (the one the ray leaves from, or NO_HIT) is ignored; alpha-masked triangles are
 // tested against their material's alpha cutoff.
 fn traverse(o: vec3<f32>, d: vec3<f32>, tmax: f32, any_hit: bool, skip: u32) -> Hit {
@@ -129,6 +130,9 @@ fn traverse(o: vec3<f32>, d: vec3<f32>, tmax: f32, any_hit: bool, skip: u32) -> 
             let r = intersect_tri(prim, o, d, 0.0, hit.t);
             if (r.x < hit.t) {
                 let info = bitcast<u32>(tris[4u * prim + 3u].w);
+                if (any_hit && (info & TRI_FLAG_PASS) != 0u) {
+                    continue;
+                }
                 if ((info & TRI_FLAG_ALPHA) != 0u && !alpha_passes(prim, r.y, r.z)) {
                     continue;
                 }
@@ -176,7 +180,8 @@ fn traverse(o: vec3<f32>, d: vec3<f32>, tmax: f32, any_hit: bool, skip: u32) -> 
     return hit;
 }
 
-// Whether anything blocks the segment from o along unit d up to distance `dist`.
+// Whether anything opaque (anything but MAT_PASS surfaces) blocks the segment from o along
+// unit d up to distance `dist`.
 fn occluded(o: vec3<f32>, d: vec3<f32>, dist: f32, skip: u32) -> bool {
     return traverse(o, d, dist, true, skip).prim != NO_HIT;
 }

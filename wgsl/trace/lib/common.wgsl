@@ -27,11 +27,13 @@ const TRI_MATERIAL_MASK: u32 = 0x00ffffffu;
 const TRI_FLAG_ALPHA: u32 = 0x80000000u;        // the material is alpha-tested (MASK)
 const TRI_FLAG_TANGENT_NEG: u32 = 0x40000000u;  // bitangent sign of the vertex tangents is -1
 const TRI_FLAG_HAS_TANGENT: u32 = 0x20000000u;  // vertex tangents are present
+const TRI_FLAG_PASS: u32 = 0x10000000u;         // the material is MAT_PASS
 
 // Material.flags bits.
 const MAT_DOUBLE_SIDED: u32 = 1u;
 const MAT_THIN: u32 = 2u;        // thin-walled transmission (no KHR_materials_volume)
 const MAT_ALPHA_MASK: u32 = 4u;
+const MAT_PASS: u32 = 8u;        // smooth thin transmission: light goes straight through (bsdf.wgsl)
 
 // Mirrors `GpuMaterial` in src/render/gpu_scene.rs (96 bytes, checked by a test).
 struct Material {

@@ -1,7 +1,7 @@
 // Path tracer library: next-event estimation on emissive triangles and the environment.
 //
 // lights[0] = (count bits, total selection power, probability of choosing the environment,
-//     portal count bits)
+//     portal count bits | LIGHTS_HAVE_PASS)
 // lights[1 + k] = (BVH-order triangle bits, cdf (inclusive), pmf, area): emissive triangles,
 //     chosen in proportion to power = Material.emissive.w (luminance) x area.
 // lights[1 + count + 3 k ..] = the environment's portals (render::scene::Portal), picked by
@@ -112,8 +112,15 @@ fn search_row(u: f32, row: u32, w: u32, h: u32) -> u32 {
     return lo;
 }
 
+// Bit of lights[0].w (over the portal count) set when some triangle is MAT_PASS.
+const LIGHTS_HAVE_PASS: u32 = 0x80000000u;
+
 fn portal_count() -> u32 {
-    return bitcast<u32>(lights[0].w);
+    return bitcast<u32>(lights[0].w) & ~LIGHTS_HAVE_PASS;
+}
+
+fn has_pass() -> bool {
+    return (bitcast<u32>(lights[0].w) & LIGHTS_HAVE_PASS) != 0u;
 }
 
 fn portal_base() -> u32 {
