@@ -41,6 +41,7 @@ use glam::{Mat3, Quat, Vec2, Vec3, Vec4};
 use super::bvh::SceneBvh;
 use super::camera::{Camera, CameraPathSpec, SplitMix};
 use super::loader::{SceneOptions, load_environment, load_gltf};
+use super::packed::straight_through;
 use super::scene::{AlphaMode, Environment, Geometry, Material, Portal, Scene, Texture, Wrap, luminance};
 use crate::error::{Error, Result};
 
@@ -1627,9 +1628,13 @@ impl<'a> Builder<'a> {
             let corner = o + u * s0 + v * t0;
             let (du, dv) = (u * (s1 - s0), v * (t1 - t0));
             let paned = glass.is_some() && t0 > 0.0;
-            if !paned && let Some(env) = self.scene.environment.as_mut() {
-                // An open window lets the environment in: sample it through the opening.
-                // (Behind a pane the shadow rays would end on the glass.)
+            // Shadow rays pass smooth thin panes (straight through), not rough ones.
+            let clear = glass.is_none_or(|m| straight_through(&self.scene.materials[m as usize]));
+            if (!paned || clear)
+                && let Some(env) = self.scene.environment.as_mut()
+            {
+                // An open or clear window lets the environment in: sample it through the
+                // opening.
                 env.portals.push(Portal { corner, u: du, v: dv });
             }
             if let Some(m) = glass
@@ -3201,13 +3206,13 @@ mod tests {
         PropLibrary::default()
     }
 
-    /// The environment's portals are the open windows: from just inside a portal, a ray out
-    /// through it meets nothing near the wall (no pane, no wall), and the camera, in the
-    /// room, is on its inner side. Paned windows are not portals.
+    /// The environment's portals are the open windows and those with smooth panes: from just
+    /// inside a portal, a ray out through it meets nothing near the wall but such a pane
+    /// (no rough pane, no wall), and the camera, in the room, is on its inner side.
     #[test]
     fn portals_are_open_windows() {
         let mut lib = no_props();
-        let (mut with, mut portals) = (0, 0);
+        let (mut with, mut portals, mut panes) = (0, 0, 0);
         for seed in 0..48u64 {
             let s = generate_with(seed, &mut lib).unwrap().scene;
             let Some(e) = &s.environment else { continue };
@@ -3221,10 +3226,18 @@ mod tests {
                 let n = q.u.cross(q.v).normalize();
                 for (a, b) in [(0.5, 0.5), (0.2, 0.3), (0.8, 0.7)] {
                     let p = q.corner + a * q.u + b * q.v + 0.1 * n;
-                    assert!(
-                        bvh.intersect(p, -n, 0.3).is_none(),
-                        "seed {seed}: portal {q:?} is blocked at ({a}, {b})"
-                    );
+                    let blocker = bvh.intersect(p, -n, 0.3).map(|(tri, _)| {
+                        let m = s.geometry.materials[bvh.order[tri as usize] as usize];
+                        &s.materials[m as usize]
+                    });
+                    if let Some(m) = blocker {
+                        assert!(
+                            straight_through(m),
+                            "seed {seed}: portal {q:?} is blocked at ({a}, {b}) by {}",
+                            m.name
+                        );
+                        panes += 1;
+                    }
                 }
                 assert!(
                     (s.camera.position - q.corner).dot(n) > 0.0,
