@@ -165,6 +165,98 @@ fn gpu_traversal_matches_obvhs_cpu() {
     );
 }
 
+/// The closest hit of every triangle of `scene` tested one by one (Moeller-Trumbore in f64):
+/// the independent expectation of the BVH traversals.
+fn brute_force_hit(scene: &Scene, o: Vec3, d: Vec3, tmax: f32) -> Option<f32> {
+    let g = &scene.geometry;
+    let (o, d) = (o.as_dvec3(), d.as_dvec3());
+    let mut best: Option<f64> = None;
+    for t in &g.triangles {
+        let [a, b, c] = t.map(|i| g.positions[i as usize].as_dvec3());
+        let (e1, e2) = (b - a, c - a);
+        let p = d.cross(e2);
+        let det = e1.dot(p);
+        if det.abs() < 1e-12 {
+            continue;
+        }
+        let s = o - a;
+        let u = s.dot(p) / det;
+        let q = s.cross(e1);
+        let v = d.dot(q) / det;
+        let th = e2.dot(q) / det;
+        if u >= 0.0 && v >= 0.0 && u + v <= 1.0 && th > 0.0 && th <= tmax as f64 {
+            best = Some(best.map_or(th, |b: f64| b.min(th)));
+        }
+    }
+    best.map(|t| t as f32)
+}
+
+/// Axis-parallel rays whose directions hold negative zeros (`-Vec3::Z` is (-0, -0, -1)) hit
+/// what brute force hits, on the GPU and in the CPU BVH. Both traversals once took the
+/// reciprocal's sign from the sign bit of -0.0 but the ray's octant from `d < 0`, and then
+/// missed every box whose slab held the ray: a ray straight down onto a floor went through.
+#[test]
+fn signed_zero_directions_hit_what_brute_force_hits() {
+    let g = gpu();
+    let mut rng = StdRng::seed_from_u64(7);
+    let scene = random_mesh(&mut rng, 2);
+    let gs = GpuScene::new(&g, &scene).unwrap();
+    let dirs = [
+        -Vec3::X,
+        -Vec3::Y,
+        -Vec3::Z,
+        Vec3::X,
+        Vec3::Y,
+        Vec3::Z,
+        Vec3::new(-0.0, 0.0, 1.0),
+        Vec3::new(0.0, -0.0, -1.0),
+    ];
+    let mut rays = Vec::new();
+    for (k, &d) in dirs.iter().enumerate() {
+        for _ in 0..200 {
+            // Off the quads' edges and diagonals, above, below or among them.
+            let (i, j) = (rng.random_range(-10..10), rng.random_range(-10..10));
+            let z = [-3.0, 2.5, 8.0][rng.random_range(0..3)];
+            let o = Vec3::new(i as f32 + 0.37, j as f32 + 0.61, z);
+            let o = if k % 3 == 2 || k >= 6 {
+                o
+            } else {
+                in_cube(&mut rng, 8.0)
+            };
+            rays.push((o, d, f32::INFINITY));
+        }
+    }
+    let gpu_hits = query_rays(&g, &gs, &rays, false).unwrap();
+    let gpu_any = query_rays(&g, &gs, &rays, true).unwrap();
+    let mut hits = 0;
+    for (i, (&(o, d, tmax), gh)) in rays.iter().zip(&gpu_hits).enumerate() {
+        let want = brute_force_hit(&scene, o, d, tmax);
+        let cpu = gs.bvh.intersect(o, d, tmax).map(|h| h.1);
+        for (what, got) in [("GPU", gh.map(|h| h.1)), ("CPU BVH", cpu)] {
+            match (want, got) {
+                (None, None) => {}
+                (Some(a), Some(b)) => assert!(
+                    (a - b).abs() <= 1e-4 * a.max(1.0),
+                    "{what} ray {i} {o} {d:?}: t {b} vs {a}"
+                ),
+                _ => panic!("{what} ray {i} from {o} along {d:?}: {got:?}, brute force {want:?}"),
+            }
+        }
+        assert_eq!(
+            gpu_any[i].is_some(),
+            want.is_some(),
+            "GPU any-hit ray {i} along {d:?}"
+        );
+        assert_eq!(
+            gs.bvh.occluded(o, d, tmax),
+            want.is_some(),
+            "CPU occluded ray {i} along {d:?}"
+        );
+        hits += want.is_some() as usize;
+    }
+    assert!(hits > rays.len() / 5, "{hits} of {} rays hit", rays.len());
+}
+
 fn far_of(scene: &Scene) -> f32 {
     scene.far_distance([&scene.camera.position])
 }

@@ -142,7 +142,7 @@ impl SceneBvh {
 
     /// Closest hit on the CPU (obvhs traversal, `Triangle::intersect`): `(BVH slot, t)`.
     pub fn intersect(&self, origin: Vec3, dir: Vec3, tmax: f32) -> Option<(u32, f32)> {
-        let ray = Ray::new(origin.into(), dir.into(), 0.0, tmax);
+        let ray = ray(origin.into(), dir.into(), tmax);
         let mut hit = RayHit::none();
         if self
             .bvh
@@ -156,11 +156,21 @@ impl SceneBvh {
 
     /// Whether anything is hit within `tmax` on the CPU.
     pub fn occluded(&self, origin: Vec3, dir: Vec3, tmax: f32) -> bool {
-        let ray = Ray::new(origin.into(), dir.into(), 0.0, tmax);
+        let ray = ray(origin.into(), dir.into(), tmax);
         !self
             .bvh
             .ray_traverse_miss(ray, |r, id| self.triangles[id].intersect(r))
     }
+}
+
+/// The obvhs ray from `origin` along `dir` for `t` in `[0, tmax]`, with `dir`'s negative
+/// zeros made positive: obvhs takes the ray's octant from `d < 0` but a zero component's
+/// reciprocal from its sign bit, and a ray with a -0.0 component then misses every box whose
+/// slab holds it (`-Vec3::Z` straight down through a floor). The WGSL traversal's `safe_rcp`
+/// reads such a zero as +0.0 likewise.
+#[inline]
+pub(crate) fn ray(origin: glam::Vec3A, dir: glam::Vec3A, tmax: f32) -> Ray {
+    Ray::new(origin, dir + glam::Vec3A::ZERO, 0.0, tmax)
 }
 
 #[cfg(test)]

@@ -3227,12 +3227,8 @@ mod tests {
                 let n = q.u.cross(q.v).normalize();
                 let mut open = 0;
                 for (a, b) in [(0.5, 0.5), (0.2, 0.3), (0.8, 0.7)] {
-                    // Both ways through: obvhs can miss a flat box along an axis-parallel ray from
-                    // one side.
                     let p = q.corner + a * q.u + b * q.v;
-                    let hit = bvh
-                        .intersect(p + 0.1 * n, -n, 0.2)
-                        .or_else(|| bvh.intersect(p - 0.1 * n, n, 0.2));
+                    let hit = bvh.intersect(p + 0.1 * n, -n, 0.2);
                     let Some((tri, _)) = hit else {
                         open += 1;
                         continue;

@@ -77,7 +77,7 @@ pub(crate) fn traverse(
     if bvh.nodes.is_empty() {
         return best;
     }
-    let ray = Ray::new(o, d, 0.0, best.t);
+    let ray = crate::render::bvh::ray(o, d, best.t);
     // The candidate test: the GPU's triangle test, then the skip and alpha rules. Passed by
     // value so that obvhs's traversal inlines it.
     let test = |r: &Ray, id: usize, best: &mut Hit| -> f32 {

@@ -21,10 +21,13 @@ struct Hit {
 }
 
 fn safe_rcp(x: f32) -> f32 {
-    // As obvhs's `safe_inverse`: tiny components become +-1/eps, keeping the sign of zero.
+    // As obvhs's `safe_inverse`: tiny components become +-1/eps; the sign is that of the
+    // ray's octant (`d < 0` in traverse), so -0.0 counts as +0.0. (Taking it from the sign
+    // bit made a ray with a -0.0 component miss every box whose slab held it; the CPU twin
+    // gives obvhs directions without negative zeros, render::bvh::ray.)
     let eps = 1.1920929e-7;
     if (abs(x) <= eps) {
-        return select(1.0, -1.0, (bitcast<u32>(x) & 0x80000000u) != 0u) / eps;
+        return select(1.0, -1.0, x < 0.0) / eps;
     }
     return 1.0 / x;
 }
