@@ -366,3 +366,74 @@ fn assert_same_image_less_noise(better: &Scene, plain: &Scene, spp: u32, gain_db
     eprintln!("PSNR between halves: better {hw:.2} dB, plain {ho:.2} dB");
     assert!(hw >= ho + gain_db, "halves: {hw:.2} dB against {ho:.2} dB");
 }
+
+/// A reference extended from `spp` to `2 spp` samples holds the halves of a `2 spp` render
+/// (CPU twin and WGSL tracer), and `reference_to_noise` doubles until the halves' PSNR
+/// reaches its target, never past the cap, and not once more than needed.
+#[test]
+fn references_extend_to_a_noise_target() {
+    use subpixel::render::backend::{Backend, FrameRenderer};
+    let scene = common::window_room::scene(false, false);
+    let (w, h) = (16u32, 12u32);
+    let s = settings(&scene, Mode::Quarter, 1, 3);
+    let close = |what: &str, a: &subpixel::nn::HostTensor, b: &subpixel::nn::HostTensor, tol: f32| {
+        for (x, y) in a.data.iter().zip(&b.data) {
+            assert!((x - y).abs() <= tol * (1.0 + y.abs()), "{what}: {x} vs {y}");
+        }
+    };
+    for backend in [Backend::Cpu, Backend::Gpu] {
+        let g = gpu();
+        let mut r = FrameRenderer::new(&scene, backend, Some(&g), w, h).unwrap();
+        let direct = r.reference(&s, 32).unwrap();
+        let base = r.reference(&s, 16).unwrap();
+        let extended = match &mut r {
+            FrameRenderer::Cpu { scene, tracer } => tracer.extend_reference(scene, &s, &base, 16).unwrap(),
+            FrameRenderer::Gpu(gr) => {
+                let out = gr.reference.as_ref().unwrap();
+                gr.tracer.extend_reference(&gr.scene, &s, 16, out).unwrap()
+            }
+        };
+        let name = backend.name();
+        close(
+            &format!("{name} first half"),
+            &extended.first,
+            &direct.first,
+            1e-4,
+        );
+        close(
+            &format!("{name} second half"),
+            &extended.second,
+            &direct.second,
+            1e-4,
+        );
+        // Under a target: the count where the halves first reach it, or the cap.
+        let psnr_at = |r: &mut FrameRenderer, n: u32| {
+            let h = r.reference(&s, n).unwrap();
+            subpixel::metrics::psnr(&h.first, &h.second)
+        };
+        let (p8, p32) = (psnr_at(&mut r, 8), psnr_at(&mut r, 32));
+        let target = 0.5 * (p8 + p32);
+        let (got, n) = r.reference_to_noise(&s, 8, target, 256).unwrap();
+        let p = subpixel::metrics::psnr(&got.first, &got.second);
+        eprintln!("{name}: 8 spp {p8:.2} dB, 32 spp {p32:.2} dB; target {target:.2}: {n} spp, {p:.2} dB");
+        assert!(
+            p >= target && n > 8 && n <= 32,
+            "{name}: {n} spp, {p:.2} dB for {target:.2}"
+        );
+        assert!(
+            psnr_at(&mut r, n / 2) < target,
+            "{name}: {n} spp where {} reached the target",
+            n / 2
+        );
+        close(
+            &format!("{name} target reference"),
+            &got.mean(n),
+            &r.reference(&s, n).unwrap().mean(n),
+            1e-4,
+        );
+        let (_, capped) = r.reference_to_noise(&s, 8, 200.0, 64).unwrap();
+        assert_eq!(capped, 64, "{name}: an unreachable target stops at the cap");
+        let (_, easy) = r.reference_to_noise(&s, 8, 1.0, 64).unwrap();
+        assert_eq!(easy, 8, "{name}: a target already met renders the base count");
+    }
+}

@@ -589,6 +589,62 @@ fn textured_room_renders() {
     assert!(mean(f.color.data.iter().copied()) > 0.01);
 }
 
+/// `subpixel render --reference-noise-target`: each frame's reference takes the samples its
+/// halves need (recorded per frame), up to the cap; the recorded noise of the frames that
+/// stopped short of the cap reaches the target; an odd base count is refused.
+#[test]
+fn render_command_meets_a_reference_noise_target() {
+    use subpixel::cli::render::{RenderArgs, render_command};
+    use subpixel::render::Backend;
+    let out = std::env::temp_dir().join(format!("subpixel-render-noise-{}", std::process::id()));
+    std::fs::remove_dir_all(&out).ok();
+    let mut args = RenderArgs {
+        scene: "builtin:room".into(),
+        mode: Mode::Quarter,
+        spp: 1,
+        frames: 3,
+        first_frame: 0,
+        width: Some(12),
+        height: Some(10),
+        max_depth: 4,
+        seed: 2,
+        path: Some("orbit".parse().unwrap()),
+        reference_spp: Some(7),
+        reference_noise_target: Some(24.0),
+        reference_spp_max: Some(112),
+        png: false,
+        resume: false,
+        backend: Backend::Cpu,
+        full_spp: false,
+        background: None,
+        props: Vec::new(),
+        fallback_path: None,
+        sequence_json: None,
+        out: out.clone(),
+    };
+    let e = render_command(&args).unwrap_err().to_string();
+    assert!(e.contains("even --reference-spp"), "{e}");
+    args.reference_spp = Some(8);
+    args.reference_spp_max = Some(128);
+    render_command(&args).unwrap();
+    let seq: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(out.join("sequence.json")).unwrap()).unwrap();
+    let per_frame = seq["reference_spp_per_frame"]
+        .as_object()
+        .expect("per-frame samples");
+    assert_eq!(per_frame.len(), 3, "{seq}");
+    let mut doubled = 0;
+    for (frame, n) in per_frame {
+        let n = n.as_u64().unwrap();
+        assert!([8, 16, 32, 64, 128].contains(&n), "{frame}: {n} spp");
+        let noise = seq["reference_noise"]["per_frame"][frame].as_f64().unwrap();
+        assert!(noise >= 24.0 || n == 128, "{frame}: {noise:.2} dB at {n} spp");
+        doubled += (n > 8) as u32;
+    }
+    assert!(doubled > 0, "no frame needed more samples: {seq}");
+    std::fs::remove_dir_all(&out).ok();
+}
+
 /// `subpixel render` writes readable EXR frames with every channel on both backends, with
 /// the reference's noise measured from its halves; resuming with other parameters is refused.
 #[test]
@@ -614,6 +670,8 @@ fn render_command_writes_exr_frames() {
             seed: 5,
             path: Some("orbit".parse().unwrap()),
             reference_spp: Some(8),
+            reference_noise_target: None,
+            reference_spp_max: None,
             png: true,
             resume: false,
             backend,

@@ -40,6 +40,14 @@ pub(super) struct DatasetArgs {
     /// Samples per pixel of the reference.
     #[arg(long, default_value_t = 1024)]
     reference_spp: u32,
+    /// Double each reference's samples until the PSNR between its halves reaches DB, up to
+    /// `--reference-spp-max` (as for `render`).
+    #[arg(long, value_name = "DB")]
+    reference_noise_target: Option<f64>,
+    /// Most samples a reference may take under `--reference-noise-target` (default: 16
+    /// times `--reference-spp`).
+    #[arg(long, value_name = "SPP", requires = "reference_noise_target")]
+    reference_spp_max: Option<u32>,
     /// Also store each frame's directly seen environment (`background`, `coverage`) from
     /// N x N lookups per pixel; frames already rendered without it get it added.
     #[arg(long, value_name = "N", value_parser = clap::value_parser!(u32).range(1..))]
@@ -167,6 +175,8 @@ pub(super) fn run(a: &DatasetArgs) -> Result<()> {
             path: None,
             fallback_path: Some("flythrough".parse().expect("known path")),
             reference_spp: Some(a.reference_spp),
+            reference_noise_target: a.reference_noise_target,
+            reference_spp_max: a.reference_spp_max,
             png: false,
             resume: true,
             backend: a.backend,

@@ -56,6 +56,16 @@ pub struct RenderArgs {
     /// Also render an N-spp reference of every frame into the `reference` channels.
     #[arg(long)]
     pub reference_spp: Option<u32>,
+    /// Double each reference's samples until the PSNR between its halves (the recorded
+    /// `reference_noise`) reaches DB, up to `--reference-spp-max`; the samples each frame
+    /// took go to `sequence.json` (`reference_spp_per_frame`). Needs an even
+    /// `--reference-spp`.
+    #[arg(long, value_name = "DB", requires = "reference_spp")]
+    pub reference_noise_target: Option<f64>,
+    /// Most samples a reference may take under `--reference-noise-target` (default: 16
+    /// times `--reference-spp`).
+    #[arg(long, value_name = "SPP", requires = "reference_noise_target")]
+    pub reference_spp_max: Option<u32>,
     /// Also write a tonemapped PNG preview of the colour of every frame.
     #[arg(long)]
     pub png: bool,
@@ -126,6 +136,7 @@ const SEQUENCE_INFO_KEYS: &[&str] = &[
     "first_frame",
     "backend",
     "reference_noise",
+    "reference_spp_per_frame",
     // a resume with `--background` adds it to the frames already there
     "background_lookups",
 ];
@@ -143,6 +154,14 @@ pub fn render_command(args: &RenderArgs) -> Result<()> {
     }
     if args.reference_spp == Some(0) {
         bail!("--reference-spp must be at least 1");
+    }
+    if let Some(db) = args.reference_noise_target {
+        if !db.is_finite() || db <= 0.0 {
+            bail!("--reference-noise-target must be a positive number of dB, not {db}");
+        }
+        if args.reference_spp.is_some_and(|n| n % 2 != 0) {
+            bail!("--reference-noise-target needs an even --reference-spp (its halves are then equal)");
+        }
     }
     if args.max_depth == 0 {
         bail!("--max-depth must be at least 1 (1 = emitters seen directly)");
@@ -206,6 +225,8 @@ pub fn render_command(args: &RenderArgs) -> Result<()> {
     );
     let (mut rays, mut samples, mut render_secs) = (0u64, 0u64, 0f64);
     let mut skipped = 0;
+    // Samples of each reference rendered by this run (under a noise target they differ).
+    let mut reference_spp = serde_json::Map::new();
     for k in 0..args.frames {
         let f = args.first_frame + k;
         let file = args.out.join(format!("frame_{f:04}.exr"));
@@ -233,9 +254,16 @@ pub fn render_command(args: &RenderArgs) -> Result<()> {
             ..Default::default()
         };
         if let Some(spp) = args.reference_spp {
-            let r = renderer.reference(&settings, spp)?;
+            let (r, spp) = match args.reference_noise_target {
+                Some(db) => {
+                    let max = args.reference_spp_max.unwrap_or(spp.saturating_mul(16));
+                    renderer.reference_to_noise(&settings, spp, db, max)?
+                }
+                None => (renderer.reference(&settings, spp)?, spp),
+            };
             rays += r.rays;
             samples += w as u64 * h as u64 * spp as u64;
+            reference_spp.insert(format!("frame_{f:04}"), serde_json::json!(spp));
             host.reference = Some(r.mean(spp));
             host.reference_half = Some(r.first);
         }
@@ -272,7 +300,7 @@ pub fn render_command(args: &RenderArgs) -> Result<()> {
     }
     bar.finish();
     if args.reference_spp.is_some() {
-        update_reference_noise(&args.out)?;
+        update_reference_noise(&args.out, args.reference_noise_target.map(|_| reference_spp))?;
     }
     if skipped > 0 {
         println!("skipped {skipped} frame(s) already in {}", args.out.display());
@@ -347,8 +375,13 @@ fn add_background(file: &Path, packed: &PackedScene, settings: &FrameSettings) -
 
 /// PSNR (tonemapped, DESIGN §7) between the two halves of each reference in `dir`, from
 /// the `reference` and `reference_half` channels of its frames, written into
-/// `sequence.json` as `reference_noise` (per frame, mean and minimum).
-pub fn update_reference_noise(dir: &Path) -> Result<()> {
+/// `sequence.json` as `reference_noise` (per frame, mean and minimum). `frame_spp` (frame
+/// name -> samples, from a render under a noise target) is merged into its
+/// `reference_spp_per_frame`.
+pub fn update_reference_noise(
+    dir: &Path,
+    frame_spp: Option<serde_json::Map<String, serde_json::Value>>,
+) -> Result<()> {
     let json_path = dir.join("sequence.json");
     let Ok(text) = std::fs::read_to_string(&json_path) else {
         return Ok(()); // a shard's own sequence_NNNN.json: nothing shared to update
@@ -383,6 +416,14 @@ pub fn update_reference_noise(dir: &Path) -> Result<()> {
     let finite: Vec<f64> = values.iter().copied().filter(|v| v.is_finite()).collect();
     let mean = finite.iter().sum::<f64>() / finite.len().max(1) as f64;
     let min = values.iter().copied().fold(f64::INFINITY, f64::min);
+    if let (Some(frame_spp), Some(o)) = (frame_spp, json.as_object_mut()) {
+        let entry = o
+            .entry("reference_spp_per_frame")
+            .or_insert_with(|| serde_json::json!({}));
+        if let Some(m) = entry.as_object_mut() {
+            m.extend(frame_spp);
+        }
+    }
     if let Some(o) = json.as_object_mut() {
         o.insert(
             "reference_noise".into(),
@@ -418,6 +459,8 @@ fn write_sequence_json(
         "seed": args.seed,
         "spp": if args.mode == Mode::Reference { Some(args.spp) } else { None },
         "reference_spp": args.reference_spp,
+        "reference_noise_target": args.reference_noise_target,
+        "reference_spp_max": args.reference_noise_target.map(|_| args.reference_spp_max.unwrap_or(args.reference_spp.unwrap_or(0).saturating_mul(16))),
         "resolution": [w, h],
         "frames": args.frames,
         "first_frame": args.first_frame,
@@ -466,8 +509,10 @@ fn write_sequence_json(
                 }
             }
         }
-        if let Some(noise) = old.get("reference_noise") {
-            new.insert("reference_noise".into(), noise.clone());
+        for key in ["reference_noise", "reference_spp_per_frame"] {
+            if let Some(v) = old.get(key) {
+                new.insert(key.into(), v.clone());
+            }
         }
     }
     let tmp = p.with_extension("json.partial");

@@ -154,6 +154,37 @@ impl FrameRenderer {
             FrameRenderer::Cpu { scene, tracer } => tracer.render_reference(scene, s, spp),
         }
     }
+
+    /// An `spp`-sample reference of frame `s` whose sample count doubles until the PSNR
+    /// between its halves (tonemapped, as `reference_noise`) reaches `target_db` or the
+    /// count would exceed `max_spp`; returns it with its sample count. Each doubling traces
+    /// as many samples as all before, and the halves stay those of one render of that many.
+    pub fn reference_to_noise(
+        &mut self,
+        s: &FrameSettings,
+        spp: u32,
+        target_db: f64,
+        max_spp: u32,
+    ) -> Result<(ReferenceHalves, u32)> {
+        let mut n = spp.max(1);
+        let mut r = self.reference(s, n)?;
+        let mut rays = r.rays;
+        // A NaN PSNR (no samples differ in a way it can measure) counts as not reached.
+        let reached = |r: &ReferenceHalves| crate::metrics::psnr(&r.first, &r.second) >= target_db;
+        while n.saturating_mul(2) <= max_spp && !reached(&r) {
+            r = match self {
+                FrameRenderer::Gpu(g) => {
+                    let out = g.reference.as_ref().expect("made by reference()");
+                    g.tracer.extend_reference(&g.scene, s, n, out)?
+                }
+                FrameRenderer::Cpu { scene, tracer } => tracer.extend_reference(scene, s, &r, n)?,
+            };
+            rays += r.rays;
+            n *= 2;
+        }
+        r.rays = rays;
+        Ok((r, n))
+    }
 }
 
 #[cfg(test)]

@@ -493,6 +493,39 @@ impl Tracer {
         Ok(ReferenceHalves { first, second, rays })
     }
 
+    /// The `2 spp`-sample reference of frame `s` from its `spp`-sample one, which `out` holds
+    /// ([`Tracer::render_reference_halves`] or an earlier extension): samples `spp .. 2 spp`
+    /// are added to `out` in place; the halves returned are samples `0 .. spp` and
+    /// `spp .. 2 spp`, as a `2 spp` render's.
+    pub fn extend_reference(
+        &mut self,
+        scene: &GpuScene,
+        s: &FrameSettings,
+        spp: u32,
+        out: &Tensor,
+    ) -> Result<ReferenceHalves> {
+        let spp = spp.max(1);
+        let first = channels(&out.read(&self.gpu)?, &[0, 1, 2]);
+        let rs = FrameSettings {
+            mode: Mode::Reference,
+            seed: s.seed ^ REFERENCE_SEED_XOR,
+            ..*s
+        };
+        let Some((shadow, _)) = self.scratch.as_ref() else {
+            return Err(Error::shape(
+                "extend_reference",
+                "no reference to extend: render_reference_halves first",
+            ));
+        };
+        let rays = self.accumulate(scene, &rs, spp, spp, out, shadow)?;
+        // full = (first + second) / 2.
+        let mut second = channels(&out.read(&self.gpu)?, &[0, 1, 2]);
+        for (o, f) in second.data.iter_mut().zip(&first.data) {
+            *o = 2.0 * *o - f;
+        }
+        Ok(ReferenceHalves { first, second, rays })
+    }
+
     /// Adds samples `start .. start + spp` to `color` (which holds the mean of the `start`
     /// samples before them).
     fn accumulate(

@@ -348,4 +348,24 @@ impl CpuTracer {
             rays: r1 + r2,
         })
     }
+
+    /// The `2 spp`-sample reference of frame `s` from its `spp`-sample one `r`
+    /// ([`CpuTracer::render_reference`] or an earlier extension): the first half is `r`'s
+    /// mean (samples `0 .. spp`), the second is traced (samples `spp .. 2 spp`), so the halves
+    /// are those a `2 spp` render would have.
+    pub fn extend_reference(
+        &self,
+        scene: &PackedScene,
+        s: &FrameSettings,
+        r: &ReferenceHalves,
+        spp: u32,
+    ) -> Result<ReferenceHalves> {
+        let spp = spp.max(1);
+        let (second, rays) = self.radiance(scene, s, s.seed ^ REFERENCE_SEED_XOR, spp, spp);
+        Ok(ReferenceHalves {
+            first: r.mean(spp),
+            second,
+            rays,
+        })
+    }
 }
