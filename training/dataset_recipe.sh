@@ -39,7 +39,10 @@
 # pixel, `subpixel dataset --background`; re-running the recipe with it adds the channels to
 # the frames already rendered), FRAMES (default 8), SHARD=K/N (this machine renders the sequences whose hash is K mod N;
 # run the same command with 0/N .. N-1/N on N machines and merge the OUT folders), PROCEDURAL=0 (skip procedural
-# scenes, e.g. before they exist). Finished frames are skipped, so re-running continues;
+# scenes, e.g. before they exist), NOISE_TARGET=DB (each reference doubles its samples until
+# the PSNR between its halves reaches DB, `subpixel dataset --reference-noise-target`; up to
+# SPP_MAX, default 16 x its base count: about 12x the samples on average for 40 dB on val,
+# training/README.md, so meant for a GPU). Finished frames are skipped, so re-running continues;
 # each frame is written atomically. A build for the machine's own CPU renders 5-8 % faster
 # still (CARGO_TARGET_DIR=~/work-data/target-native RUSTFLAGS="-C target-cpu=native" cargo
 # build --profile dist, then SUBPIXEL=~/work-data/target-native/dist/subpixel), but its
@@ -99,7 +102,9 @@ render() {
   echo "== $(date -u +%FT%TZ) $split $scene sequence $k"
   "$bin" dataset --scene "$scene" --split "$split" --first-sequence "$k" --sequences "$((k + 1))" \
     --frames "$frames" --width "$size" --height "$size" --reference-spp "$rspp" --backend "${BACKEND:-cpu}" \
-    ${BACKGROUND:+--background "$BACKGROUND"} --out "$out" "$@"
+    ${BACKGROUND:+--background "$BACKGROUND"} \
+    ${NOISE_TARGET:+--reference-noise-target "$NOISE_TARGET"} ${SPP_MAX:+--reference-spp-max "$SPP_MAX"} \
+    --out "$out" "$@"
 }
 proc() { echo "builtin:procedural:$1"; }
 
