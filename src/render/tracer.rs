@@ -426,22 +426,13 @@ impl Tracer {
         spp: u32,
         out: &Tensor,
     ) -> Result<u64> {
-        if (out.width, out.height) != (self.width(), self.height()) || out.channels != 4 {
-            return Err(Error::shape(
-                "render_reference",
-                format!("output must be {}x{}x4", self.width(), self.height()),
-            ));
-        }
+        self.check_reference_out("render_reference", out)?;
         if self.scratch.is_none() {
             let t = Tensor::new(&self.gpu, "trace.scratch_shadow", self.width(), self.height(), 4)?;
             let c = Tensor::new(&self.gpu, "trace.scratch_color", 1, 1, 4)?;
             self.scratch = Some((t, c));
         }
-        let s = FrameSettings {
-            mode: Mode::Reference,
-            seed: s.seed ^ REFERENCE_SEED_XOR,
-            ..*s
-        };
+        let s = reference_settings(s);
         let (shadow, _) = self.scratch.as_ref().expect("created above");
         self.accumulate(scene, &s, 0, spp, out, shadow)
     }
@@ -467,11 +458,7 @@ impl Tracer {
             self.render_reference(scene, s, 1, out)?;
         }
         // Continue the same accumulation (samples half .. spp) in place.
-        let rs = FrameSettings {
-            mode: Mode::Reference,
-            seed: s.seed ^ REFERENCE_SEED_XOR,
-            ..*s
-        };
+        let rs = reference_settings(s);
         let (shadow, _) = self.scratch.as_ref().expect("created by render_reference");
         if half > 0 {
             rays += self.accumulate(scene, &rs, half, spp - half, out, shadow)?;
@@ -504,13 +491,10 @@ impl Tracer {
         spp: u32,
         out: &Tensor,
     ) -> Result<ReferenceHalves> {
+        self.check_reference_out("extend_reference", out)?;
         let spp = spp.max(1);
         let first = channels(&out.read(&self.gpu)?, &[0, 1, 2]);
-        let rs = FrameSettings {
-            mode: Mode::Reference,
-            seed: s.seed ^ REFERENCE_SEED_XOR,
-            ..*s
-        };
+        let rs = reference_settings(s);
         let Some((shadow, _)) = self.scratch.as_ref() else {
             return Err(Error::shape(
                 "extend_reference",
@@ -524,6 +508,17 @@ impl Tracer {
             *o = 2.0 * *o - f;
         }
         Ok(ReferenceHalves { first, second, rays })
+    }
+
+    /// `out` is a reference target of this tracer's size (4 channels).
+    fn check_reference_out(&self, what: &str, out: &Tensor) -> Result<()> {
+        if (out.width, out.height) != (self.width(), self.height()) || out.channels != 4 {
+            return Err(Error::shape(
+                what,
+                format!("output must be {}x{}x4", self.width(), self.height()),
+            ));
+        }
+        Ok(())
     }
 
     /// Adds samples `start .. start + spp` to `color` (which holds the mean of the `start`
@@ -571,6 +566,16 @@ impl Tracer {
         let bytes = self.gpu.read_buffer(&self.counters, 0, 16)?;
         let c: &[u32] = bytemuck::cast_slice(&bytes);
         Ok(c[0] as u64)
+    }
+}
+
+/// The settings of frame `s`'s reference: reference mode, with the reference's own seed
+/// (independent of the frame's samples).
+fn reference_settings(s: &FrameSettings) -> FrameSettings {
+    FrameSettings {
+        mode: Mode::Reference,
+        seed: s.seed ^ REFERENCE_SEED_XOR,
+        ..*s
     }
 }
 
