@@ -589,6 +589,38 @@ fn textured_room_renders() {
     assert!(mean(f.color.data.iter().copied()) > 0.01);
 }
 
+/// The `subpixel render` arguments of the CLI tests: builtin:cornell-empty, 2 quarter frames
+/// of 9x7 along an orbit, an 8-spp reference, PNG previews and 1-spp frames, into `out`.
+fn cli_render_args(
+    backend: subpixel::render::Backend,
+    out: std::path::PathBuf,
+) -> subpixel::cli::render::RenderArgs {
+    subpixel::cli::render::RenderArgs {
+        scene: "builtin:cornell-empty".into(),
+        mode: Mode::Quarter,
+        spp: 1,
+        frames: 2,
+        first_frame: 0,
+        width: Some(9),
+        height: Some(7),
+        max_depth: 3,
+        seed: 5,
+        path: Some("orbit".parse().unwrap()),
+        reference_spp: Some(8),
+        reference_noise_target: None,
+        reference_spp_max: None,
+        png: true,
+        resume: false,
+        backend,
+        full_spp: true,
+        background: None,
+        props: Vec::new(),
+        fallback_path: None,
+        sequence_json: None,
+        out,
+    }
+}
+
 /// `subpixel render --reference-noise-target`: each frame's reference takes the samples its
 /// halves need (recorded per frame), up to the cap; the recorded noise of the frames that
 /// stopped short of the cap reaches the target; an odd base count is refused.
@@ -600,27 +632,17 @@ fn render_command_meets_a_reference_noise_target() {
     std::fs::remove_dir_all(&out).ok();
     let mut args = RenderArgs {
         scene: "builtin:room".into(),
-        mode: Mode::Quarter,
-        spp: 1,
         frames: 3,
-        first_frame: 0,
         width: Some(12),
         height: Some(10),
         max_depth: 4,
         seed: 2,
-        path: Some("orbit".parse().unwrap()),
         reference_spp: Some(7),
         reference_noise_target: Some(24.0),
         reference_spp_max: Some(112),
         png: false,
-        resume: false,
-        backend: Backend::Cpu,
         full_spp: false,
-        background: None,
-        props: Vec::new(),
-        fallback_path: None,
-        sequence_json: None,
-        out: out.clone(),
+        ..cli_render_args(Backend::Cpu, out.clone())
     };
     let e = render_command(&args).unwrap_err().to_string();
     assert!(e.contains("even --reference-spp"), "{e}");
@@ -649,7 +671,7 @@ fn render_command_meets_a_reference_noise_target() {
 /// the reference's noise measured from its halves; resuming with other parameters is refused.
 #[test]
 fn render_command_writes_exr_frames() {
-    use subpixel::cli::render::{RenderArgs, render_command};
+    use subpixel::cli::render::render_command;
     use subpixel::render::Backend;
     for backend in [Backend::Gpu, Backend::Cpu] {
         let out = std::env::temp_dir().join(format!(
@@ -658,30 +680,7 @@ fn render_command_writes_exr_frames() {
             std::process::id()
         ));
         std::fs::remove_dir_all(&out).ok();
-        let mut args = RenderArgs {
-            scene: "builtin:cornell-empty".into(),
-            mode: Mode::Quarter,
-            spp: 1,
-            frames: 2,
-            first_frame: 0,
-            width: Some(9),
-            height: Some(7),
-            max_depth: 3,
-            seed: 5,
-            path: Some("orbit".parse().unwrap()),
-            reference_spp: Some(8),
-            reference_noise_target: None,
-            reference_spp_max: None,
-            png: true,
-            resume: false,
-            backend,
-            full_spp: true,
-            background: None,
-            props: Vec::new(),
-            fallback_path: None,
-            sequence_json: None,
-            out: out.clone(),
-        };
+        let mut args = cli_render_args(backend, out.clone());
         render_command(&args).unwrap();
         for f in 0..2 {
             let frame = subpixel::io::exr::read_frame(&out.join(format!("frame_{f:04}.exr"))).unwrap();

@@ -449,35 +449,20 @@ impl Tracer {
     ) -> Result<ReferenceHalves> {
         let spp = spp.max(1);
         let half = spp / 2;
-        let mut rays = 0;
-        let mut first = None;
-        if half > 0 {
-            rays += self.render_reference(scene, s, half, out)?;
-            first = Some(channels(&out.read(&self.gpu)?, &[0, 1, 2]));
-        } else {
-            self.render_reference(scene, s, 1, out)?;
-        }
-        // Continue the same accumulation (samples half .. spp) in place.
-        let rs = reference_settings(s);
-        let (shadow, _) = self.scratch.as_ref().expect("created by render_reference");
-        if half > 0 {
-            rays += self.accumulate(scene, &rs, half, spp - half, out, shadow)?;
-        }
-        let full = channels(&out.read(&self.gpu)?, &[0, 1, 2]);
-        let Some(first) = first else {
+        if half == 0 {
+            let rays = self.render_reference(scene, s, 1, out)?;
+            let full = channels(&out.read(&self.gpu)?, &[0, 1, 2]);
             return Ok(ReferenceHalves {
                 first: full.clone(),
                 second: full,
                 rays,
             });
-        };
-        // full = (half * first + (spp - half) * second) / spp.
-        let (a, b) = (half as f32, (spp - half) as f32);
-        let mut second = full;
-        for (o, f) in second.data.iter_mut().zip(&first.data) {
-            *o = (spp as f32 * *o - a * f) / b;
         }
-        Ok(ReferenceHalves { first, second, rays })
+        let rays = self.render_reference(scene, s, half, out)?;
+        // Continue the same accumulation (samples half .. spp) in place.
+        let mut r = self.continue_reference(scene, s, half, spp - half, out)?;
+        r.rays += rays;
+        Ok(r)
     }
 
     /// The `2 spp`-sample reference of frame `s` from its `spp`-sample one, which `out` holds
@@ -493,19 +478,33 @@ impl Tracer {
     ) -> Result<ReferenceHalves> {
         self.check_reference_out("extend_reference", out)?;
         let spp = spp.max(1);
+        self.continue_reference(scene, s, spp, spp, out)
+    }
+
+    /// Adds samples `start .. start + count` of frame `s`'s reference to `out`, which holds
+    /// the mean of the `start` before them, and returns the two parts as halves: `first`
+    /// the mean before, `second` the mean of the samples added.
+    fn continue_reference(
+        &mut self,
+        scene: &GpuScene,
+        s: &FrameSettings,
+        start: u32,
+        count: u32,
+        out: &Tensor,
+    ) -> Result<ReferenceHalves> {
         let first = channels(&out.read(&self.gpu)?, &[0, 1, 2]);
-        let rs = reference_settings(s);
         let Some((shadow, _)) = self.scratch.as_ref() else {
             return Err(Error::shape(
                 "extend_reference",
                 "no reference to extend: render_reference_halves first",
             ));
         };
-        let rays = self.accumulate(scene, &rs, spp, spp, out, shadow)?;
-        // full = (first + second) / 2.
+        let rays = self.accumulate(scene, &reference_settings(s), start, count, out, shadow)?;
+        // full = (start * first + count * second) / (start + count).
+        let (a, b, n) = (start as f32, count as f32, (start + count) as f32);
         let mut second = channels(&out.read(&self.gpu)?, &[0, 1, 2]);
         for (o, f) in second.data.iter_mut().zip(&first.data) {
-            *o = 2.0 * *o - f;
+            *o = (n * *o - a * f) / b;
         }
         Ok(ReferenceHalves { first, second, rays })
     }
