@@ -85,6 +85,7 @@ fn scene_command_summarises_and_previews() {
         "materials:",
         "lights:",
         "environment:",
+        "portal(s)",
         "camera path:",
         "preview:",
     ] {
