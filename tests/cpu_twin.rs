@@ -9,7 +9,7 @@ mod common;
 
 use common::twin::{
     assert_backgrounds_match, assert_references_agree, assert_same_seed_frames_match, cpu_frame, gpu_frame,
-    packed, settings,
+    packed, pooled_means, pooled_psnr, settings,
 };
 use common::{furnace, gpu};
 use subpixel::frame::HostFrame;
@@ -333,22 +333,14 @@ fn assert_same_image_less_noise(better: &Scene, plain: &Scene, spp: u32, gain_db
             }
         }
     }
-    let pooled =
-        |v: &[f64]| -10.0 * (v.iter().map(|p| 10f64.powf(-p / 10.0)).sum::<f64>() / v.len() as f64).log10();
-    let (same, mixed) = (pooled(&same), pooled(&mixed));
+    let (same, mixed) = (pooled_psnr(same), pooled_psnr(mixed));
     eprintln!("PSNR plain-plain {same:.2} dB, better-plain {mixed:.2} dB");
     assert!(
         mixed >= same - 0.5,
         "the images differ: {mixed:.2} vs {same:.2} dB"
     );
     let mean = |v: &[subpixel::render::ReferenceHalves]| {
-        let m: Vec<Vec<f64>> = v
-            .iter()
-            .map(|r| common::twin::channel_means(&r.mean(spp)))
-            .collect();
-        (0..3)
-            .map(|c| m.iter().map(|x| x[c]).sum::<f64>() / m.len() as f64)
-            .collect::<Vec<_>>()
+        pooled_means(&v.iter().map(|r| r.mean(spp)).collect::<Vec<_>>())
     };
     let (mw, mo) = (mean(&with), mean(&without));
     for c in 0..3 {
@@ -356,11 +348,7 @@ fn assert_same_image_less_noise(better: &Scene, plain: &Scene, spp: u32, gain_db
         assert!(rel < 0.015, "channel {c}: mean {} against {}", mw[c], mo[c]);
     }
     let halves = |v: &[subpixel::render::ReferenceHalves]| {
-        pooled(
-            &v.iter()
-                .map(|r| subpixel::metrics::psnr(&r.first, &r.second))
-                .collect::<Vec<_>>(),
-        )
+        pooled_psnr(v.iter().map(|r| subpixel::metrics::psnr(&r.first, &r.second)))
     };
     let (hw, ho) = (halves(&with), halves(&without));
     eprintln!("PSNR between halves: better {hw:.2} dB, plain {ho:.2} dB");

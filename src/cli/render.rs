@@ -130,6 +130,17 @@ fn spec_name(s: &CameraPathSpec) -> &'static str {
     }
 }
 
+impl RenderArgs {
+    /// Most samples a reference may take under `--reference-noise-target`: its
+    /// `--reference-spp-max`, by default 16 times `--reference-spp`; `None` without a target
+    /// or a reference.
+    pub fn reference_spp_cap(&self) -> Option<u32> {
+        self.reference_noise_target?;
+        let spp = self.reference_spp?;
+        Some(self.reference_spp_max.unwrap_or(spp.saturating_mul(16)))
+    }
+}
+
 /// Keys of `sequence.json` that describe how frames were made without changing what they
 /// hold: a resumed render may differ in them.
 const SEQUENCE_INFO_KEYS: &[&str] = &[
@@ -256,7 +267,7 @@ pub fn render_command(args: &RenderArgs) -> Result<()> {
         if let Some(spp) = args.reference_spp {
             let (r, spp) = match args.reference_noise_target {
                 Some(db) => {
-                    let max = args.reference_spp_max.unwrap_or(spp.saturating_mul(16));
+                    let max = args.reference_spp_cap().unwrap_or(spp);
                     renderer.reference_to_noise(&settings, spp, db, max)?
                 }
                 None => (renderer.reference(&settings, spp)?, spp),
@@ -460,7 +471,7 @@ fn write_sequence_json(
         "spp": if args.mode == Mode::Reference { Some(args.spp) } else { None },
         "reference_spp": args.reference_spp,
         "reference_noise_target": args.reference_noise_target,
-        "reference_spp_max": args.reference_noise_target.map(|_| args.reference_spp_max.unwrap_or(args.reference_spp.unwrap_or(0).saturating_mul(16))),
+        "reference_spp_max": args.reference_spp_cap(),
         "resolution": [w, h],
         "frames": args.frames,
         "first_frame": args.first_frame,

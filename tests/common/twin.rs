@@ -234,6 +234,24 @@ pub fn assert_backgrounds_match(what: &str, g: &Background, c: &Background, n: u
     );
 }
 
+/// PSNR from the mean MSE of several PSNRs (one pair's PSNR is itself noisy).
+pub fn pooled_psnr(psnrs: impl IntoIterator<Item = f64>) -> f64 {
+    let (mut sum, mut n) = (0.0, 0usize);
+    for p in psnrs {
+        sum += 10f64.powf(-p / 10.0);
+        n += 1;
+    }
+    -10.0 * (sum / n as f64).log10()
+}
+
+/// Per-channel means (RGB) of images, averaged over the images.
+pub fn pooled_means(images: &[HostTensor]) -> Vec<f64> {
+    let m: Vec<Vec<f64>> = images.iter().map(channel_means).collect();
+    (0..3)
+        .map(|k| m.iter().map(|v| v[k]).sum::<f64>() / m.len() as f64)
+        .collect()
+}
+
 /// G-buffers agree to float tolerance; with the same seed nearly every traced pixel follows
 /// the same path on both backends (quarter and full frames, `w x h`); so do the
 /// backgrounds (2 x 2 rays per pixel, [`assert_backgrounds_match`]).
@@ -302,14 +320,8 @@ pub fn assert_references_agree(scene: &Scene, w: u32, h: u32, spp: u32) {
         .iter()
         .map(|&k| cpu_frame(&p, w, h, &settings(scene, Mode::Reference, spp, k)).color)
         .collect();
-    // PSNR from the mean MSE over pairs (one pair's PSNR is itself noisy).
     let pooled = |pairs: &[(&HostTensor, &HostTensor)]| {
-        let mse = pairs
-            .iter()
-            .map(|(a, b)| 10f64.powf(-subpixel::metrics::psnr(a, b) / 10.0))
-            .sum::<f64>()
-            / pairs.len() as f64;
-        -10.0 * mse.log10()
+        pooled_psnr(pairs.iter().map(|(a, b)| subpixel::metrics::psnr(a, b)))
     };
     let mut gg_pairs = Vec::new();
     let mut cg_pairs = Vec::new();
@@ -345,12 +357,6 @@ pub fn assert_references_agree(scene: &Scene, w: u32, h: u32, spp: u32) {
         "{}: CPU-GPU PSNR {cg:.2} dB vs GPU-GPU {gg:.2} dB",
         scene.name
     );
-    let pooled_means = |t: &[HostTensor]| {
-        let m: Vec<Vec<f64>> = t.iter().map(channel_means).collect();
-        (0..3)
-            .map(|k| m.iter().map(|v| v[k]).sum::<f64>() / m.len() as f64)
-            .collect::<Vec<f64>>()
-    };
     let (mg, mc) = (pooled_means(&g), pooled_means(&c));
     for k in 0..3 {
         let rel = (mg[k] - mc[k]).abs() / mc[k].abs().max(1e-6);

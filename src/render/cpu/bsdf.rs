@@ -138,9 +138,8 @@ pub(crate) struct Lobes {
     /// sampled here are the rest, given that it does not pass.
     pass: bool,
     /// With `pass`: the glass lobe's Fresnel reflectance at `wo` (the same one decides
-    /// between passing and reflecting), and the probability of scattering (not passing).
+    /// between passing and reflecting).
     fr_pass: f32,
-    scatter: f32,
 }
 
 impl Lobes {
@@ -172,7 +171,15 @@ impl Lobes {
             black,
             pass,
             fr_pass,
-            scatter: if pass { 1.0 - q.z * (1.0 - fr_pass) } else { 1.0 },
+        }
+    }
+
+    /// The probability that the vertex scatters (1 where the surface does not pass light).
+    fn scatter(&self) -> f32 {
+        if self.pass {
+            1.0 - self.q.z * (1.0 - self.fr_pass)
+        } else {
+            1.0
         }
     }
 }
@@ -248,7 +255,7 @@ pub(crate) fn bsdf_eval_with(s: &Surface, l: &Lobes, wi: Vec3) -> (Vec3, f32) {
         }
     }
     if l.pass {
-        pdf /= l.scatter.max(1.0e-12);
+        pdf /= l.scatter().max(1.0e-12);
     }
     (f, pdf)
 }
@@ -278,7 +285,7 @@ pub(crate) fn bsdf_sample_with(s: &Surface, l: &Lobes, u: Vec3) -> Option<BsdfSa
     let (lo, q, a) = (l.lo, l.q, l.a);
     // Where the surface passes light, the strategies given that it does not: the glass
     // strategy only reflects.
-    let uz = u.z * l.scatter;
+    let uz = u.z * l.scatter();
     let li = if uz < q.x {
         let h = sample_vndf(lo, a, Vec2::new(u.x, u.y));
         reflect(-lo, h)

@@ -110,6 +110,13 @@ fn strategy_probs(s: Surface, cos_o: f32) -> vec3<f32> {
     return q / sum;
 }
 
+// The Fresnel reflectance at cos_o that decides between passing a MAT_PASS surface and
+// reflecting off it (and weighs both).
+fn pass_fresnel(s: Surface, cos_o: f32) -> f32 {
+    let etas = glass_etas(s);
+    return fresnel_dielectric(cos_o, etas.y / etas.x);
+}
+
 // f(wo, wi) |cos(n, wi)| in rgb and the sampling pdf (solid angle) of wi in w.
 fn bsdf_eval(s: Surface, wo: vec3<f32>, wi: vec3<f32>) -> vec4<f32> {
     if (bsdf_black(s)) {
@@ -130,7 +137,7 @@ fn bsdf_eval(s: Surface, wo: vec3<f32>, wi: vec3<f32>) -> vec4<f32> {
     let passes_light = (s.flags & MAT_PASS) != 0u;
     var fr_pass = 0.0;
     if (passes_light) {
-        fr_pass = fresnel_dielectric(lo.z, etas.y / etas.x);
+        fr_pass = pass_fresnel(s, lo.z);
     }
     var f = vec3<f32>(0.0);
     var pdf = 0.0;
@@ -207,8 +214,7 @@ fn pass_through(s: Surface, wo: vec3<f32>) -> Pass {
     }
     let w = lobe_weights(s);
     let q = strategy_probs(s, lo.z);
-    let etas = glass_etas(s);
-    let fr = fresnel_dielectric(lo.z, etas.y / etas.x);
+    let fr = pass_fresnel(s, lo.z);
     out.t = w.z * (1.0 - fr) * s.base;
     out.q = q.z * (1.0 - fr);
     out.ok = true;
@@ -241,7 +247,7 @@ fn bsdf_sample(s: Surface, wo: vec3<f32>, u: vec3<f32>) -> BsdfSample {
     let passes_light = (s.flags & MAT_PASS) != 0u;
     var scatter = 1.0;
     if (passes_light) {
-        scatter = 1.0 - q.z * (1.0 - fresnel_dielectric(lo.z, etas.y / etas.x));
+        scatter = 1.0 - q.z * (1.0 - pass_fresnel(s, lo.z));
     }
     let uzs = u.z * scatter;
     var li: vec3<f32>;
