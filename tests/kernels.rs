@@ -5,8 +5,22 @@ mod common;
 
 use common::*;
 use subpixel::gpu::Grid;
+use subpixel::nn::conv::COOP_TOLERANCE;
 use subpixel::nn::ops::{self, Activation, Conv3x3, ConvKernel, PoolMode, TfaBlend, UpsampleMode};
 use subpixel::nn::{DType, HostTensor, Tensor, reference};
+
+/// The tolerance of `kernel` against the f64 CPU reference `want`: `exact` for the f32
+/// kernels; for the cooperative-matrix kernel (f16 operands), [`COOP_TOLERANCE`] of the
+/// reference's largest magnitude.
+fn kernel_tol(kernel: ConvKernel, want: &HostTensor, exact: Tol) -> Tol {
+    match kernel {
+        ConvKernel::Coop { .. } => Tol {
+            abs: COOP_TOLERANCE * want.data.iter().fold(1.0f32, |m, v| m.max(v.abs())),
+            rel: 0.0,
+        },
+        _ => exact,
+    }
+}
 
 /// Asserts GPU tensor `t` matches `want` within `tol` (see [`assert_close`]).
 fn assert_tensor(case: &str, t: &Tensor, want: &HostTensor, tol: Tol) {
@@ -116,10 +130,13 @@ fn conv3x3_every_autotuner_candidate_matches_reference() {
             // (each part of a chunked dispatch binds the whole input and output)
             let parts = d.parts() as u64;
             assert_eq!(d.bytes_written, parts * out.bytes(), "{kernel}");
-            // Weights: the generic kernel's storage copy, or one 64 KiB uniform array per part.
+            // Weights: the generic kernel's storage copy, one 64 KiB uniform array per part,
+            // or the cooperative kernel's f16 copy (16-channel blocks, outputs padded to 32).
             let padded = |c: u32| c.div_ceil(4) as u64 * 4;
             let cin_p: u64 = split.iter().map(|&c| padded(c)).sum();
-            let weights = (9 * cin_p * padded(cout) * 4).max(parts * 65536);
+            let blocks: u64 = split.iter().map(|&c| c.div_ceil(16) as u64).sum();
+            let coop = 9 * blocks * 16 * (cout.div_ceil(32) as u64 * 32) * 2;
+            let weights = (9 * cin_p * padded(cout) * 4).max(parts * 65536).max(coop);
             assert!(
                 d.bytes_read > parts * inputs && d.bytes_read <= parts * (inputs + 1024) + weights,
                 "{kernel}: {}",
@@ -131,7 +148,7 @@ fn conv3x3_every_autotuner_candidate_matches_reference() {
                 &format!("conv3x3 {kernel} {split:?}->{cout} {w}x{h}"),
                 &got,
                 &want,
-                REDUCTION,
+                kernel_tol(kernel, &want, REDUCTION),
             );
             tried += 1;
         }
@@ -186,7 +203,15 @@ fn conv3x3_resamples_inputs_on_load() {
             let d = conv.bind_with(&g, kernel, &[&gd, &gs], &out).unwrap();
             ops::run(&g, &[&d]).unwrap();
             let case = format!("conv3x3 {kernel} reading {}", fetch.name());
-            assert_tensor(&case, &out, &want, REDUCTION);
+            assert_tensor(&case, &out, &want, kernel_tol(kernel, &want, REDUCTION));
+            // The autotuner's output check (its own inputs, the CPU resampling) agrees.
+            let e = conv.output_error(&g, kernel, 13, 7, &[]).unwrap();
+            let bound = if matches!(kernel, ConvKernel::Coop { .. }) {
+                COOP_TOLERANCE
+            } else {
+                1e-5
+            };
+            assert!(e <= bound, "{case}: output check error {e:e}");
             tried += 1;
         }
         // The input at the layer's size instead of the stored size.
@@ -261,7 +286,12 @@ fn conv3x3_and_pooling_with_f16_storage_match_reference() {
     let want = reference::conv3x3(&hin, &weight, &bias, cout, act);
     let mut tried = 0;
     let kernels = conv.candidates(&g);
-    assert_eq!(kernels.len(), 1 + ConvKernel::blocked_tilings().len());
+    let coop = if g.has_coop_matrix() {
+        ConvKernel::coop_tilings().len()
+    } else {
+        0
+    };
+    assert_eq!(kernels.len(), 1 + ConvKernel::blocked_tilings().len() + coop);
     for &kernel in &kernels {
         let outputs: &[DType] = if kernel == ConvKernel::Generic || kernel.to_string() == "px4-cob2" {
             &[DType::F16, DType::F32]
@@ -275,8 +305,8 @@ fn conv3x3_and_pooling_with_f16_storage_match_reference() {
             assert_eq!(d.bytes_written, d.parts() as u64 * out.bytes(), "{kernel}");
             ops::run(&g, &[&d]).unwrap();
             let (expect, tol) = match out_dtype {
-                DType::F16 => (to_f16(&want), F16_OUT),
-                DType::F32 => (want.clone(), REDUCTION),
+                DType::F16 => (to_f16(&want), kernel_tol(kernel, &want, F16_OUT)),
+                DType::F32 => (want.clone(), kernel_tol(kernel, &want, REDUCTION)),
             };
             assert_tensor(
                 &format!("conv3x3 {kernel} f16/f32 inputs -> {}", out_dtype.name()),
@@ -363,6 +393,34 @@ fn conv3x3_too_large_for_uniform_weights_falls_back_to_generic() {
         .to_string();
     assert!(
         e.contains("wide") && e.contains("px4-cob1") && e.contains("4096"),
+        "{e}"
+    );
+}
+
+/// Issue 14: the cooperative-matrix kernel on a device without cooperative matrices (every
+/// CPU driver, and any device unless `SUBPIXEL_COOP_MATRIX=1`) is never a candidate, and
+/// asking for it is an error that names the layer and how to opt in.
+#[test]
+fn conv3x3_coop_without_cooperative_matrices_is_a_named_error() {
+    let g = gpu();
+    if g.has_coop_matrix() {
+        eprintln!("skipped: {} has cooperative matrices", g.describe());
+        return;
+    }
+    let mut conv = Conv3x3::new(&g, "tc", &[0.5; 27], &[0.0], &[3], 1, Activation::None).unwrap();
+    assert!(
+        conv.candidates(&g)
+            .iter()
+            .all(|k| !matches!(k, ConvKernel::Coop { .. })),
+        "{:?}",
+        conv.candidates(&g)
+    );
+    let e = conv
+        .set_kernel(&g, ConvKernel::Coop { mt: 1, nt: 1 })
+        .unwrap_err()
+        .to_string();
+    assert!(
+        e.contains("'tc'") && e.contains("coop-m1-n1") && e.contains("SUBPIXEL_COOP_MATRIX=1"),
         "{e}"
     );
 }

@@ -46,6 +46,29 @@ pub struct GpuOptions {
     pub adapter_name: Option<String>,
     /// Backends to consider; falls back to `WGPU_BACKEND`, then all.
     pub backends: Option<wgpu::Backends>,
+    /// Whether to enable wgpu's experimental cooperative matrices (tensor cores) where the
+    /// adapter has the 16x16x16 f16 x f16 + f32 configuration the `nn/conv3x3_coop` kernel
+    /// uses; falls back to `SUBPIXEL_COOP_MATRIX` (`1` enables), then off. Experimental in
+    /// wgpu 30: opt-in, and the autotuner checks the kernel's output before it times it.
+    pub cooperative_matrix: Option<bool>,
+}
+
+/// Whether `SUBPIXEL_COOP_MATRIX` asks for cooperative matrices.
+fn coop_from_env() -> bool {
+    std::env::var("SUBPIXEL_COOP_MATRIX").is_ok_and(|v| v.trim() == "1")
+}
+
+/// Whether `adapter` offers the cooperative-matrix configuration `nn/conv3x3_coop` uses:
+/// 16x16x16, f16 A and B, f32 accumulator, at subgroup scope (what wgpu reports), and f16
+/// shaders.
+pub fn adapter_has_coop_f16(adapter: &wgpu::Adapter) -> bool {
+    let features = adapter.features();
+    features.contains(wgpu::Features::EXPERIMENTAL_COOPERATIVE_MATRIX | wgpu::Features::SHADER_F16)
+        && adapter.cooperative_matrix_properties().iter().any(|p| {
+            (p.m_size, p.n_size, p.k_size) == (16, 16, 16)
+                && p.ab_type == wgpu::CooperativeScalarType::F16
+                && p.cr_type == wgpu::CooperativeScalarType::F32
+        })
 }
 
 /// A wgpu device with the crate's kernel registry.
@@ -104,7 +127,8 @@ impl Gpu {
             let instance = wgpu::Instance::new(desc);
             match Self::pick_adapter(&instance, set, opts).await {
                 Ok(adapter) => {
-                    let mut gpu = Self::from_adapter(&adapter).await?;
+                    let coop = opts.cooperative_matrix.unwrap_or_else(coop_from_env);
+                    let mut gpu = Self::from_adapter_with(&adapter, coop).await?;
                     gpu.origin = Some((instance, adapter));
                     return Ok(gpu);
                 }
@@ -165,16 +189,41 @@ impl Gpu {
         })
     }
 
-    /// Creates the device on a chosen adapter.
+    /// Creates the device on a chosen adapter (cooperative matrices as
+    /// `SUBPIXEL_COOP_MATRIX` says, see [`GpuOptions::cooperative_matrix`]).
     pub async fn from_adapter(adapter: &wgpu::Adapter) -> Result<Self> {
+        Self::from_adapter_with(adapter, coop_from_env()).await
+    }
+
+    /// [`Gpu::from_adapter`], with wgpu's experimental cooperative matrices enabled when
+    /// `cooperative_matrix` is set and the adapter has the configuration the crate uses
+    /// ([`adapter_has_coop_f16`]).
+    pub async fn from_adapter_with(adapter: &wgpu::Adapter, cooperative_matrix: bool) -> Result<Self> {
         let info = adapter.get_info();
-        let features = adapter.features() & WANTED_FEATURES;
+        let mut features = adapter.features() & WANTED_FEATURES;
+        let coop = cooperative_matrix && adapter_has_coop_f16(adapter);
+        let experimental_features = if coop {
+            features |= wgpu::Features::EXPERIMENTAL_COOPERATIVE_MATRIX;
+            // SAFETY: wgpu's experimental features may hold bugs (its contract for this
+            // token). The crate uses this one only in `nn/conv3x3_coop`, whose output the
+            // autotuner compares with the CPU reference before choosing it, and only when
+            // the caller opted in.
+            unsafe { wgpu::ExperimentalFeatures::enabled() }
+        } else {
+            wgpu::ExperimentalFeatures::disabled()
+        };
+        if cooperative_matrix && !coop {
+            log::info!(
+                "{}: no 16x16x16 f16 cooperative matrices with f32 sums; the tensor-core convolution is off",
+                info.name
+            );
+        }
         let (device, queue) = adapter
             .request_device(&wgpu::DeviceDescriptor {
                 label: Some("subpixel.device"),
                 required_features: features,
                 required_limits: adapter.limits(),
-                experimental_features: wgpu::ExperimentalFeatures::disabled(),
+                experimental_features,
                 memory_hints: wgpu::MemoryHints::Performance,
                 trace: wgpu::Trace::Off,
             })
@@ -200,6 +249,14 @@ impl Gpu {
     /// Broad class of the adapter.
     pub fn kind(&self) -> AdapterKind {
         self.info.device_type.into()
+    }
+
+    /// Whether the device can run `nn/conv3x3_coop`: created with wgpu's experimental
+    /// cooperative matrices and f16 shaders (for a wrapped device, the caller's choice of
+    /// features; the adapter's matrix configurations are then unknown, and the
+    /// autotuner's output check is what guards them).
+    pub fn has_coop_matrix(&self) -> bool {
+        self.has(wgpu::Features::EXPERIMENTAL_COOPERATIVE_MATRIX | wgpu::Features::SHADER_F16)
     }
 
     /// Whether the device was created with `feature`.

@@ -141,6 +141,7 @@ impl ParamsBinding {
 pub const KERNELS: &[KernelSource] = &[
     kernel!("nn/conv3x3", ["nn/lib/storage", "nn/lib/fetch"]),
     kernel!("nn/conv3x3_blocked", ["nn/lib/storage", "nn/lib/fetch"]),
+    kernel!("nn/conv3x3_coop", ["nn/lib/storage", "nn/lib/fetch"]),
     kernel!("nn/resample2x", ["nn/lib/storage", "nn/lib/fetch"]),
     kernel!("nn/tfa_blend", ["nn/lib/grid"]),
     kernel!("nn/warp", ["nn/lib/grid"]),
@@ -854,6 +855,64 @@ mod tests {
                 validate_wgsl(name, &src).unwrap_or_else(|e| panic!("{name} {flag}: {e}"));
             }
         }
+    }
+
+    /// Every expansion of the cooperative-matrix convolution the autotuner may pick (each
+    /// tiling, 1 to 4 inputs, f32 and f16 storage, both parameter bindings) validates with
+    /// naga and translates to SPIR-V that declares the cooperative-matrix capability: what
+    /// this machine can check of a kernel that only runs on an adapter with tensor cores.
+    #[test]
+    fn every_coop_expansion_translates_to_spirv() {
+        let k = kernel_source("nn/conv3x3_coop").unwrap();
+        let mut n = 0;
+        for kernel in crate::nn::conv::ConvKernel::coop_tilings() {
+            let crate::nn::conv::ConvKernel::Coop { mt, nt } = kernel else {
+                unreachable!()
+            };
+            for inputs in 1..=4 {
+                for params in [ParamsBinding::Uniform, ParamsBinding::Storage] {
+                    for f16 in [0, 1] {
+                        let src = k
+                            .wgsl(
+                                params,
+                                &[
+                                    ("N_IN", inputs),
+                                    ("MT", mt),
+                                    ("NT", nt),
+                                    ("F16_IN0", f16),
+                                    ("F16_OUT", f16),
+                                ],
+                            )
+                            .unwrap();
+                        let case = format!("{kernel} x{inputs} f16 {f16} {params:?}");
+                        let (module, info) =
+                            validate_wgsl_info(k.name, &src).unwrap_or_else(|e| panic!("{case}: {e}"));
+                        let constants = naga::back::PipelineConstants::default();
+                        let (module, info) = naga::back::pipeline_constants::process_overrides(
+                            &module, &info, None, &constants,
+                        )
+                        .unwrap_or_else(|e| panic!("{case}: {e}"));
+                        let options = naga::back::spv::Options {
+                            lang_version: (1, 5),
+                            ..Default::default()
+                        };
+                        let words = naga::back::spv::write_vec(&module, &info, &options, None)
+                            .unwrap_or_else(|e| panic!("{case}: {e}"));
+                        if let Ok(dir) = std::env::var("SUBPIXEL_DUMP_SPIRV") {
+                            let path = format!("{dir}/coop-m{mt}-n{nt}-x{inputs}-f16{f16}-{params:?}.spv");
+                            std::fs::write(path, bytemuck::cast_slice::<u32, u8>(&words)).unwrap();
+                        }
+                        // OpCapability (17, one operand) CooperativeMatrixKHR (6022).
+                        assert!(
+                            words.windows(2).any(|w| w == [(2 << 16) | 17, 6022]),
+                            "{case}: no CooperativeMatrixKHR capability"
+                        );
+                        n += 1;
+                    }
+                }
+            }
+        }
+        assert_eq!(n, 96);
     }
 
     /// Every `.wgsl` file under `wgsl/` is registered, so none escapes validation.

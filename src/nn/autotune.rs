@@ -25,7 +25,7 @@ use std::hash::{Hash, Hasher};
 use std::path::PathBuf;
 use std::sync::{Mutex, OnceLock};
 
-use super::conv::{Conv3x3, ConvKernel};
+use super::conv::{COOP_TOLERANCE, Conv3x3, ConvKernel};
 use super::ops::Fetch;
 use super::tensor::tensor_bytes;
 use super::{DType, HostTensor, Tensor};
@@ -51,6 +51,9 @@ pub const TUNE_MAX_SIDE_CPU: u32 = 128;
 pub const TUNE_MAX_SIDE_GPU: u32 = 2048;
 /// Timed runs per candidate (after one warm-up run); the median is compared.
 pub const TUNE_ITERATIONS: u32 = 3;
+/// The size at which the autotuner checks the cooperative-matrix kernel's output against
+/// the CPU reference before timing it: two pixel tiles of 16 and a partial one, a few rows.
+pub const COOP_CHECK_SIZE: (u32, u32) = (37, 5);
 
 /// How convolution layers pick their kernel.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
@@ -368,7 +371,28 @@ pub fn measure(
     let mut candidates = Vec::new();
     let mut gpu_timestamps = true;
     for (kernel, dispatch) in bound {
-        let timed = dispatch.and_then(|d| time_dispatch(gpu, &d, warmup, iterations));
+        // The cooperative-matrix kernel runs on experimental driver paths: its output is
+        // checked against the CPU reference (at a small size with partial tiles) first.
+        let checked = match kernel {
+            ConvKernel::Coop { .. } => conv
+                .output_error(gpu, kernel, COOP_CHECK_SIZE.0, COOP_CHECK_SIZE.1, &storage.inputs)
+                .and_then(|e| {
+                    if e <= COOP_TOLERANCE {
+                        Ok(())
+                    } else {
+                        Err(Error::Kernel {
+                            kernel: "nn/conv3x3_coop".into(),
+                            message: format!(
+                                "{kernel} disagrees with the CPU reference by {e:.2e} of the output's range (tolerance {COOP_TOLERANCE:.0e})"
+                            ),
+                        })
+                    }
+                }),
+            _ => Ok(()),
+        };
+        let timed = checked
+            .and(dispatch)
+            .and_then(|d| time_dispatch(gpu, &d, warmup, iterations));
         match timed {
             Ok((stats, timestamps)) => {
                 gpu_timestamps &= timestamps;

@@ -8,11 +8,16 @@
 //!   output vec4s per invocation, shapes and activation as override constants (one
 //!   pipeline per layer shape), weights in a 64 KiB uniform buffer. Runs layers whose
 //!   packed weights fit it ([`Conv3x3::candidates`]).
+//! - `nn/conv3x3_coop` ([`ConvKernel::Coop`]): an implicit matrix product on cooperative
+//!   matrices (tensor cores), one subgroup per `mt * 16` pixels times `nt * 16` output
+//!   channels, f16 operands and f32 sums, weights as f16 in a storage buffer. Only on a
+//!   device with wgpu's experimental cooperative matrices ([`Gpu::has_coop_matrix`]).
 //!
-//! Both compute the same sums (in another order: taps by row, then inputs, then columns in
-//! the blocked kernel), so both agree with the CPU reference ([`super::reference::conv3x3`])
-//! to the same float tolerance; which one is fastest depends on the adapter, which is what
-//! [`super::autotune`] measures.
+//! The first two compute the same sums (in another order: taps by row, then inputs, then
+//! columns in the blocked kernel), so both agree with the CPU reference
+//! ([`super::reference::conv3x3`]) to the same float tolerance; the cooperative kernel
+//! rounds its operands to f16 and agrees within [`COOP_TOLERANCE`]. Which one is fastest
+//! depends on the adapter, which is what [`super::autotune`] measures.
 
 use std::collections::HashMap;
 use std::sync::Mutex;
@@ -57,6 +62,13 @@ pub const BLOCKED_MAX_WEIGHTS: u32 = 4096;
 pub const BLOCKED_MAX_ACC: u32 = 32;
 /// Most pixels per blocked invocation (`MAX_PX`).
 pub const BLOCKED_MAX_PX: u32 = 16;
+/// Largest error of the cooperative-matrix kernel against the CPU reference, relative to
+/// the reference output's largest magnitude: its operands are rounded to f16 (11-bit
+/// significands; a sum of n products then errs by about sqrt(n) * 2^-11 of the terms'
+/// scale), its sums are f32.
+pub const COOP_TOLERANCE: f32 = 4e-3;
+/// Pixels (rows of the matrix product) and channels of one cooperative-matrix tile.
+const COOP_TILE: u32 = 16;
 
 /// Which kernel runs a [`Conv3x3`], and with which tiling.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, serde::Serialize, serde::Deserialize)]
@@ -71,6 +83,14 @@ pub enum ConvKernel {
         /// Output vec4s (4 channels each) per invocation (1..=32, `px * cob <= 32`).
         cob: u32,
     },
+    /// `nn/conv3x3_coop`: one subgroup per `mt` 16-pixel tiles of a row times `nt`
+    /// 16-channel output tiles, on cooperative matrices.
+    Coop {
+        /// 16-pixel tiles per subgroup (1, 2 or 4).
+        mt: u32,
+        /// 16-channel output tiles per subgroup (1 or 2).
+        nt: u32,
+    },
 }
 
 impl std::fmt::Display for ConvKernel {
@@ -78,21 +98,32 @@ impl std::fmt::Display for ConvKernel {
         match self {
             ConvKernel::Generic => write!(f, "generic"),
             ConvKernel::Blocked { px, cob } => write!(f, "px{px}-cob{cob}"),
+            ConvKernel::Coop { mt, nt } => write!(f, "coop-m{mt}-n{nt}"),
         }
     }
 }
 
 impl std::str::FromStr for ConvKernel {
     type Err = Error;
-    /// Parses `generic` or `pxP-cobC` (as [`ConvKernel`]'s `Display` writes them).
+    /// Parses `generic`, `pxP-cobC` or `coop-mM-nN` (as [`ConvKernel`]'s `Display` writes
+    /// them).
     fn from_str(s: &str) -> Result<Self> {
         let bad = || {
             Error::Invalid(format!(
-                "conv kernel '{s}': expected 'generic' or 'pxP-cobC' (e.g. px4-cob2)"
+                "conv kernel '{s}': expected 'generic', 'pxP-cobC' (e.g. px4-cob2) or 'coop-mM-nN' (e.g. coop-m2-n2)"
             ))
         };
         if s == "generic" {
             return Ok(ConvKernel::Generic);
+        }
+        if let Some(rest) = s.strip_prefix("coop-") {
+            let (a, b) = rest.split_once('-').ok_or_else(bad)?;
+            let mt = a.strip_prefix('m').and_then(|v| v.parse().ok()).ok_or_else(bad)?;
+            let nt = b.strip_prefix('n').and_then(|v| v.parse().ok()).ok_or_else(bad)?;
+            let k = ConvKernel::Coop { mt, nt };
+            k.check_tiling()
+                .map_err(|m| Error::Invalid(format!("conv kernel '{s}': {m}")))?;
+            return Ok(k);
         }
         let (a, b) = s.split_once('-').ok_or_else(bad)?;
         let px = a
@@ -126,13 +157,32 @@ impl ConvKernel {
         v
     }
 
-    fn check_tiling(&self) -> std::result::Result<(), String> {
-        if let ConvKernel::Blocked { px, cob } = *self {
-            if px == 0 || cob == 0 || px > BLOCKED_MAX_PX || px * cob > BLOCKED_MAX_ACC {
-                return Err(format!(
-                    "px and cob must be >= 1, px <= {BLOCKED_MAX_PX} and px * cob <= {BLOCKED_MAX_ACC}"
-                ));
+    /// The cooperative-matrix tilings the autotuner tries where the device has them.
+    pub fn coop_tilings() -> Vec<ConvKernel> {
+        let mut v = Vec::new();
+        for mt in [1, 2, 4] {
+            for nt in [1, 2] {
+                v.push(ConvKernel::Coop { mt, nt });
             }
+        }
+        v
+    }
+
+    fn check_tiling(&self) -> std::result::Result<(), String> {
+        match *self {
+            ConvKernel::Blocked { px, cob } => {
+                if px == 0 || cob == 0 || px > BLOCKED_MAX_PX || px * cob > BLOCKED_MAX_ACC {
+                    return Err(format!(
+                        "px and cob must be >= 1, px <= {BLOCKED_MAX_PX} and px * cob <= {BLOCKED_MAX_ACC}"
+                    ));
+                }
+            }
+            ConvKernel::Coop { mt, nt } => {
+                if ![1, 2, 4].contains(&mt) || ![1, 2].contains(&nt) {
+                    return Err("mt must be 1, 2 or 4 and nt 1 or 2".into());
+                }
+            }
+            ConvKernel::Generic => {}
         }
         Ok(())
     }
@@ -162,6 +212,8 @@ pub struct Conv3x3 {
     /// Uniform weight buffers of the blocked kernel, by output block `cob` (the packing's
     /// output stride depends on it).
     blocked: Mutex<HashMap<u32, Vec<wgpu::Buffer>>>,
+    /// f16 weight buffers of the cooperative-matrix kernel, by output tiles `nt`.
+    coop: Mutex<HashMap<u32, wgpu::Buffer>>,
 }
 
 impl Conv3x3 {
@@ -197,6 +249,7 @@ impl Conv3x3 {
             kernel: ConvKernel::Generic,
             fetch: vec![Fetch::Direct; input_channels.len()],
             blocked: Mutex::new(HashMap::new()),
+            coop: Mutex::new(HashMap::new()),
         })
     }
 
@@ -275,6 +328,110 @@ impl Conv3x3 {
         Ok((packed, b))
     }
 
+    /// Packs OIHW `weight` for `nn/conv3x3_coop`: `[block][tap][ci (16)][co (co_pad)]`, where
+    /// the blocks are each input's channels in groups of 16 (the last one zero-padded) in
+    /// input order, and output channels at or beyond `cout` are zero. As f32; the kernel
+    /// reads them as f16.
+    pub fn pack_coop(weight: &[f32], input_channels: &[u32], cout: u32, co_pad: u32) -> Vec<f32> {
+        let cin: u32 = input_channels.iter().sum();
+        let blocks: u32 = input_channels.iter().map(|&c| c.div_ceil(COOP_TILE)).sum();
+        let mut packed = vec![0.0f32; (blocks * 9 * COOP_TILE * co_pad) as usize];
+        let (mut base_logical, mut base_block) = (0, 0);
+        for &c in input_channels {
+            for ci in 0..c {
+                let li = base_logical + ci;
+                let blk = base_block + ci / COOP_TILE;
+                for co in 0..cout {
+                    for tap in 0..9 {
+                        let idx = ((blk * 9 + tap) * COOP_TILE + ci % COOP_TILE) * co_pad + co;
+                        packed[idx as usize] = weight[((co * cin + li) * 9 + tap) as usize];
+                    }
+                }
+            }
+            base_logical += c;
+            base_block += c.div_ceil(COOP_TILE);
+        }
+        packed
+    }
+
+    /// Output channels of the cooperative kernel's packed weights with `nt` output tiles
+    /// per subgroup: `cout` rounded up to a multiple of `nt * 16`.
+    fn coop_co_pad(&self, nt: u32) -> u32 {
+        self.cout.div_ceil(nt * COOP_TILE) * nt * COOP_TILE
+    }
+
+    /// The cooperative kernel's f16 weights for `nt` output tiles per subgroup, uploaded on
+    /// first use.
+    fn coop_buffer(&self, gpu: &Gpu, nt: u32) -> wgpu::Buffer {
+        let mut cache = self.coop.lock().unwrap();
+        cache
+            .entry(nt)
+            .or_insert_with(|| {
+                let packed = Self::pack_coop(
+                    &self.weight,
+                    &self.input_channels,
+                    self.cout,
+                    self.coop_co_pad(nt),
+                );
+                let half: Vec<half::f16> = packed.iter().map(|&v| half::f16::from_f32(v)).collect();
+                use wgpu::util::DeviceExt;
+                gpu.device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
+                    label: Some(&format!("subpixel.{}.weight.coop-n{nt}", self.name)),
+                    contents: bytemuck::cast_slice(&half),
+                    usage: wgpu::BufferUsages::STORAGE,
+                })
+            })
+            .clone()
+    }
+
+    /// Runs `kernel` on this layer at `w x h` (its fetch modes; inputs stored as `dtypes`,
+    /// deterministic pseudo-random values in [-1, 1]) and returns its largest error against
+    /// the CPU reference ([`super::reference::conv3x3`] after the CPU resampling of each
+    /// input), relative to the reference's largest magnitude (at least 1). Non-finite
+    /// outputs count as infinitely wrong. The autotuner runs it on kernels whose arithmetic
+    /// the crate cannot check on every adapter before use (the cooperative-matrix kernel).
+    pub fn output_error(
+        &self,
+        gpu: &Gpu,
+        kernel: ConvKernel,
+        w: u32,
+        h: u32,
+        dtypes: &[super::DType],
+    ) -> Result<f32> {
+        use super::ops::run;
+        use super::reference::{self, HostTensor};
+        let mut stored = Vec::new();
+        let mut seen = Vec::new();
+        for (i, (&c, &fetch)) in self.input_channels.iter().zip(&self.fetch).enumerate() {
+            let (sw, sh) = fetch.stored_size(w, h);
+            let host = HostTensor::from_fn(sw, sh, c, |x, y, ch| {
+                let v = (x * 37 + y * 101 + ch * 13 + i as u32 * 7) % 97;
+                v as f32 / 48.0 - 1.0
+            });
+            let dtype = dtypes.get(i).copied().unwrap_or(super::DType::F32);
+            let t = super::Tensor::from_host_typed(gpu, "check.in", &host, dtype)?;
+            // What the kernel reads: the stored values (f16-rounded when so stored).
+            let host = t.read(gpu)?;
+            seen.push(match fetch {
+                Fetch::Direct => host.clone(),
+                Fetch::Pool(mode) => reference::pool2x2(&host, mode),
+                Fetch::Upsample(mode) => reference::upsample2x(&host, mode, w, h),
+            });
+            stored.push(t);
+        }
+        let out = super::Tensor::new(gpu, "check.out", w, h, self.cout)?;
+        let refs: Vec<&super::Tensor> = stored.iter().collect();
+        run(gpu, &[&self.bind_with(gpu, kernel, &refs, &out)?])?;
+        let got = out.read(gpu)?;
+        let hin: Vec<&HostTensor> = seen.iter().collect();
+        let want = reference::conv3x3(&hin, &self.weight, &self.bias_host, self.cout, self.act);
+        let scale = want.data.iter().fold(1.0f32, |m, v| m.max(v.abs()));
+        Ok(got.data.iter().zip(&want.data).fold(0.0f32, |m, (g, r)| {
+            let e = (g - r).abs() / scale;
+            if e.is_finite() { m.max(e) } else { f32::INFINITY }
+        }))
+    }
+
     /// FLOPs per output pixel (multiply and add counted separately).
     pub fn flops_per_pixel(&self) -> u64 {
         18 * self.input_channels.iter().sum::<u32>() as u64 * self.cout as u64
@@ -307,6 +464,19 @@ impl Conv3x3 {
 
     /// Why `kernel` cannot run this layer on `gpu`, or `None` when it can.
     pub fn unsupported(&self, gpu: &Gpu, kernel: ConvKernel) -> Option<String> {
+        if let ConvKernel::Coop { .. } = kernel {
+            if let Err(m) = kernel.check_tiling() {
+                return Some(m);
+            }
+            if !gpu.has_coop_matrix() {
+                return Some(
+                    "the device has no cooperative matrices (wgpu's EXPERIMENTAL_COOPERATIVE_MATRIX \
+                     with SHADER_F16; opt in with SUBPIXEL_COOP_MATRIX=1 where the adapter has them)"
+                        .into(),
+                );
+            }
+            return None;
+        }
         let ConvKernel::Blocked { cob, .. } = kernel else {
             return None;
         };
@@ -333,11 +503,13 @@ impl Conv3x3 {
         None
     }
 
-    /// The kernels that can run this layer on `gpu`: [`ConvKernel::Generic`] and every
-    /// blocked tiling of [`ConvKernel::blocked_tilings`] that fits.
+    /// The kernels that can run this layer on `gpu`: [`ConvKernel::Generic`], every
+    /// blocked tiling of [`ConvKernel::blocked_tilings`] that fits, and the
+    /// cooperative-matrix tilings where the device has them.
     pub fn candidates(&self, gpu: &Gpu) -> Vec<ConvKernel> {
         std::iter::once(ConvKernel::Generic)
             .chain(ConvKernel::blocked_tilings())
+            .chain(ConvKernel::coop_tilings())
             .filter(|&k| self.unsupported(gpu, k).is_none())
             .collect()
     }
@@ -526,6 +698,40 @@ impl Conv3x3 {
                 let first = parts.next().expect("a supported layer has at least one chunk");
                 Ok(first.chain(parts))
             }
+            ConvKernel::Coop { mt, nt } => {
+                let params = BlockedParams {
+                    width: w,
+                    height: h,
+                    _pad: [0; 2],
+                    src,
+                };
+                let co_pad = self.coop_co_pad(nt);
+                let mut spec = Specialisation(storage.to_vec());
+                spec.0.extend([
+                    ("N_IN", inputs.len() as f64),
+                    ("CIN4_0", cin4[0] as f64),
+                    ("CIN4_1", cin4[1] as f64),
+                    ("CIN4_2", cin4[2] as f64),
+                    ("CIN4_3", cin4[3] as f64),
+                    ("COUT4", out.c4() as f64),
+                    ("CO_PAD", co_pad as f64),
+                    ("MT", mt as f64),
+                    ("NT", nt as f64),
+                    ("ACT", act as f64),
+                    ("SLOPE", slope as f64),
+                ]);
+                let weights = self.coop_buffer(gpu, nt);
+                bufs.extend([&weights, &self.bias, &out.buffer]);
+                // One subgroup of 32 invocations per tile of mt * 16 pixels and nt * 16
+                // output channels.
+                gpu.kernels.dispatch(
+                    "nn/conv3x3_coop",
+                    &spec,
+                    bytemuck::bytes_of(&params),
+                    &bufs,
+                    Grid::Invocations([w.div_ceil(mt * COOP_TILE) * 32, h, co_pad / (nt * COOP_TILE)]),
+                )
+            }
         }
     }
 
@@ -569,6 +775,7 @@ impl Conv3x3 {
 pub const PARAM_SIZES: &[(&str, usize)] = &[
     ("nn/conv3x3", std::mem::size_of::<ConvParams>()),
     ("nn/conv3x3_blocked", std::mem::size_of::<BlockedParams>()),
+    ("nn/conv3x3_coop", std::mem::size_of::<BlockedParams>()),
 ];
 
 #[cfg(test)]
@@ -577,12 +784,145 @@ mod tests {
 
     #[test]
     fn kernel_names_round_trip() {
-        for k in std::iter::once(ConvKernel::Generic).chain(ConvKernel::blocked_tilings()) {
+        for k in std::iter::once(ConvKernel::Generic)
+            .chain(ConvKernel::blocked_tilings())
+            .chain(ConvKernel::coop_tilings())
+        {
             assert_eq!(k.to_string().parse::<ConvKernel>().unwrap(), k);
         }
-        for bad in ["px0-cob1", "px8-cob8", "px32-cob1", "px4", "cob4-px4", "fast"] {
+        for bad in [
+            "px0-cob1",
+            "px8-cob8",
+            "px32-cob1",
+            "px4",
+            "cob4-px4",
+            "fast",
+            "coop-m3-n1",
+            "coop-m1-n4",
+            "coop-m1",
+        ] {
             let e = bad.parse::<ConvKernel>().unwrap_err().to_string();
             assert!(e.contains(bad), "{e}");
+        }
+    }
+
+    /// `nn/conv3x3_coop`'s arithmetic replayed on the CPU from [`Conv3x3::pack_coop`]'s
+    /// layout: per row tile of 16 pixels and output tile of 16 channels, the bias, then for
+    /// each input block of 16 channels the staged rows (zero outside the image and beyond
+    /// the input's channels) and per tap the 16x16 product of the f16-rounded pixel window
+    /// and weights, summed in f32. It matches the f64 CPU reference within
+    /// [`COOP_TOLERANCE`] on shapes with partial tiles, padded channels and several inputs,
+    /// which checks the packing and the kernel's indexing; what it cannot check is the
+    /// driver's matrix arithmetic, which the autotuner checks on the device
+    /// ([`Conv3x3::output_error`]).
+    #[test]
+    fn coop_packing_and_tiling_replayed_on_the_cpu_match_the_reference() {
+        use crate::nn::reference::{self, HostTensor};
+        let f16 = |v: f32| half::f16::from_f32(v.clamp(-65504.0, 65504.0)).to_f32();
+        type Shape = (&'static [u32], u32, (u32, u32), u32, u32);
+        let shapes: &[Shape] = &[
+            (&[15, 4, 15, 3], 16, (33, 5), 2, 1),
+            (&[32, 3], 28, (19, 4), 1, 2),
+            (&[8], 40, (40, 3), 4, 2),
+            (&[5], 3, (1, 3), 1, 1),
+        ];
+        for (i, &(split, cout, (w, h), mt, nt)) in shapes.iter().enumerate() {
+            let cin: u32 = split.iter().sum();
+            let mut seed = 12345u32 + i as u32;
+            let mut rnd = || {
+                seed = seed.wrapping_mul(1664525).wrapping_add(1013904223);
+                (seed >> 8) as f32 / (1u32 << 24) as f32 * 2.0 - 1.0
+            };
+            let inputs: Vec<HostTensor> = split
+                .iter()
+                .map(|&c| {
+                    let data: Vec<f32> = (0..w * h * c).map(|_| rnd()).collect();
+                    HostTensor::from_fn(w, h, c, |x, y, ch| data[((y * w + x) * c + ch) as usize])
+                })
+                .collect();
+            let weight: Vec<f32> = (0..cout * cin * 9).map(|_| rnd() * 0.5).collect();
+            let bias: Vec<f32> = (0..cout).map(|_| rnd() * 0.5).collect();
+            let co_pad = cout.div_ceil(nt * COOP_TILE) * nt * COOP_TILE;
+            let packed: Vec<f32> = Conv3x3::pack_coop(&weight, split, cout, co_pad)
+                .into_iter()
+                .map(f16)
+                .collect();
+            let mut got = HostTensor::zeros(w, h, cout);
+            for y in 0..h {
+                for x0 in (0..w).step_by((mt * COOP_TILE) as usize) {
+                    for co_tile in 0..co_pad / COOP_TILE {
+                        for m in 0..mt {
+                            // acc[r][c]: pixel x0 + 16m + r, output channel 16 co_tile + c.
+                            let mut acc = [[0.0f32; 16]; 16];
+                            for (c, col) in (0..16).zip(0..) {
+                                let co = co_tile * 16 + c;
+                                let b = if co < cout { bias[co as usize] } else { 0.0 };
+                                acc.iter_mut().for_each(|row| row[col] = b);
+                            }
+                            let mut blk = 0;
+                            for (k, inp) in inputs.iter().enumerate() {
+                                for b in 0..split[k].div_ceil(16) {
+                                    // staged[row][px][ch], px = x - x0 + 1.
+                                    let row_px = mt * 16 + 2;
+                                    let staged = |row: u32, px: u32, ch: u32| {
+                                        let (xx, yy) = (x0 as i32 + px as i32 - 1, y as i32 + row as i32 - 1);
+                                        let ci = b * 16 + ch;
+                                        if xx < 0
+                                            || yy < 0
+                                            || xx >= w as i32
+                                            || yy >= h as i32
+                                            || ci >= split[k]
+                                        {
+                                            0.0
+                                        } else {
+                                            f16(inp.at(xx as u32, yy as u32, ci))
+                                        }
+                                    };
+                                    for tap in 0..9u32 {
+                                        let (ty, tx) = (tap / 3, tap % 3);
+                                        for (r, acc_row) in acc.iter_mut().enumerate() {
+                                            let px = m * 16 + tx + r as u32;
+                                            assert!(px < row_px);
+                                            for (c, a) in acc_row.iter_mut().enumerate() {
+                                                for kk in 0..16 {
+                                                    let wi = ((blk * 9 + tap) * 16 + kk) * co_pad
+                                                        + co_tile * 16
+                                                        + c as u32;
+                                                    *a += staged(ty, px, kk) * packed[wi as usize];
+                                                }
+                                            }
+                                        }
+                                    }
+                                    blk += 1;
+                                }
+                            }
+                            for (r, acc_row) in acc.iter().enumerate() {
+                                let x = x0 + m * 16 + r as u32;
+                                for (c, &a) in acc_row.iter().enumerate() {
+                                    let co = co_tile * 16 + c as u32;
+                                    if x < w && co < cout {
+                                        got.set(x, y, co, a);
+                                    }
+                                }
+                            }
+                        }
+                    }
+                }
+            }
+            let hin: Vec<&HostTensor> = inputs.iter().collect();
+            let want = reference::conv3x3(&hin, &weight, &bias, cout, Activation::None);
+            let scale = want.data.iter().fold(1.0f32, |m, v| m.max(v.abs()));
+            let err = got
+                .data
+                .iter()
+                .zip(&want.data)
+                .fold(0.0f32, |m, (g, r)| m.max((g - r).abs() / scale));
+            assert!(
+                err <= COOP_TOLERANCE,
+                "{split:?}->{cout} {w}x{h} m{mt} n{nt}: error {err:e}"
+            );
+            // And the rounding is real: f16 operands are not f32 ones.
+            assert!(err > 1e-6, "{split:?}->{cout}: error {err:e}");
         }
     }
 

@@ -1,0 +1,148 @@
+// 3x3 convolution on cooperative matrices (tensor cores; issue 14): the same operation as
+// nn/conv3x3 (stride 1, zero padding, bias, activation, up to 4 NHWC inputs read as if
+// concatenated along channels, output kept finite) as an implicit matrix product, with f16
+// operands and f32 sums. Needs wgpu's EXPERIMENTAL_COOPERATIVE_MATRIX with 16x16x16 f16 x
+// f16 + f32 matrices at subgroup scope, and SHADER_F16.
+// - One workgroup is one subgroup of 32 invocations. It computes a tile of MT * 16
+//   horizontally adjacent pixels of one row times NT * 16 output channels, in MT * NT
+//   16x16 f32 accumulators (named: unrolled by the registry's template expansion).
+// - The sum runs over input blocks of 16 channels (each input's channels are padded to a
+//   multiple of 16 on their own) and the 9 taps. Per block, the subgroup stages the rows
+//   y-1..y+1 of the tile's pixels and their two neighbours (zero outside the image and
+//   beyond the input's channels) in workgroup memory as f16, read through nn/lib/fetch
+//   (so inputs may be resampled 2x on load); per tap, A is a 16 pixel x 16 channel window
+//   of that tile and B the tap's 16 x 16 weights.
+// - Weights: a storage array of f16 packed by nn::conv as
+//   [block over the inputs][tap (9)][ci (16)][co (CO_PAD)], zero beyond the layer's
+//   channels; CO_PAD is the output channels rounded up to a multiple of NT * 16.
+// - The accumulators start as the bias (a 16x16 tile of it staged in workgroup memory);
+//   the epilogue stores each accumulator to workgroup memory, then the invocations apply
+//   the activation and write the output tensor's vec4s (f32 or f16, nn/lib/storage).
+// Every coopLoad/coopStore address and stride is a multiple of 16 bytes, as Vulkan asks.
+// The grid: x over groups of MT * 16 pixels (32 invocations each), y over rows, z over
+// groups of NT output tiles.
+//
+//#param N_IN 4
+//#param MT 1
+//#param NT 1
+
+enable f16;
+enable wgpu_cooperative_matrix;
+
+override CIN4_0: u32 = 1u;  // padded channels / 4 of each input (inputs N_IN.. unused)
+override CIN4_1: u32 = 1u;
+override CIN4_2: u32 = 1u;
+override CIN4_3: u32 = 1u;
+override COUT4: u32 = 1u;   // padded output channels / 4 (the output tensor's stride)
+override CO_PAD: u32 = 16u; // output channels of the packed weights (a multiple of NT * 16)
+override ACT: u32 = 0u;     // 0 none, 1 relu, 2 leaky relu
+override SLOPE: f32 = 0.0;  // leaky relu slope
+
+struct Params {
+    width: u32,
+    height: u32,
+    _pad0: u32,
+    _pad1: u32,
+    src: array<vec4<u32>, 4>, // xy: the stored size of each input
+}
+
+// Pixels of the staged rows: the tile and one neighbour on each side.
+const ROW: u32 = {MT}u * 16u + 2u;
+const F16_MAX: f32 = 65504.0;
+
+@group(0) @binding(0) var<uniform> p: Params;
+//#repeat k N_IN
+@group(0) @binding({k+1}) var<storage, read> in{k}: array<In{k}>;
+//#end
+@group(0) @binding({N_IN+1}) var<storage, read> weights: array<f16>;
+@group(0) @binding({N_IN+2}) var<storage, read> bias: array<vec4<f32>>;
+@group(0) @binding({N_IN+3}) var<storage, read_write> out: array<Out>;
+
+// A 16x16 f32 tile: the bias the accumulators start from, then each accumulator's sums.
+var<workgroup> ctile: array<f32, 256>;
+// The staged input block: [row (3)][pixel (ROW)][channel (16)].
+var<workgroup> xtile: array<f16, 3u * ROW * 16u>;
+
+@compute @workgroup_size(32, 1, 1)
+fn main(@builtin(workgroup_id) wid: vec3<u32>, @builtin(local_invocation_index) lane: u32) {
+    let x0 = wid.x * {MT}u * 16u;
+    let y = wid.y;
+    let co_tile0 = wid.z * {NT}u;
+    // No early return: the matrix operations need every invocation of the subgroup in
+    // uniform control flow. The grid has no workgroup wholly outside the image; stores
+    // check their pixel.
+    // The accumulators start as the bias of their output tile.
+    //#repeat n NT
+    for (var e = lane; e < 256u; e += 32u) {
+        let co = (co_tile0 + {n}u) * 16u + (e % 16u);
+        ctile[e] = select(0.0, bias[min(co / 4u, COUT4 - 1u)][co % 4u], co < COUT4 * 4u);
+    }
+    workgroupBarrier();
+    //#repeat m MT
+    var acc{m}_{n} = coopLoadT<coop_mat16x16<f32, C>>(&ctile[0], 16u);
+    //#end
+    workgroupBarrier();
+    //#end
+    var blk = 0u; // block index over all inputs
+    //#repeat k N_IN
+    for (var b = 0u; b < (CIN4_{k} + 3u) / 4u; b++) {
+        // Stage rows y-1..y+1, pixels x0-1..x0+MT*16, channels 16b..16b+15 of input {k}.
+        workgroupBarrier();
+        for (var e = lane; e < 3u * ROW * 4u; e += 32u) {
+            let row = e / (ROW * 4u);
+            let px = (e / 4u) % ROW;
+            let c4 = e % 4u;
+            let xx = i32(x0 + px) - 1;
+            let yy = i32(y + row) - 1;
+            let ci = b * 4u + c4;
+            var v = vec4<f32>(0.0);
+            if (xx >= 0 && xx < i32(p.width) && yy >= 0 && yy < i32(p.height) && ci < CIN4_{k}) {
+                v = clamp(load{k}(u32(xx), u32(yy), CIN4_{k}, ci), vec4<f32>(-F16_MAX), vec4<f32>(F16_MAX));
+            }
+            let i = (row * ROW + px) * 16u + c4 * 4u;
+            xtile[i] = f16(v.x);
+            xtile[i + 1u] = f16(v.y);
+            xtile[i + 2u] = f16(v.z);
+            xtile[i + 3u] = f16(v.w);
+        }
+        workgroupBarrier();
+        for (var tap = 0u; tap < 9u; tap++) {
+            let ty = tap / 3u;
+            let tx = tap % 3u;
+            let wbase = ((blk * 9u + tap) * 16u) * CO_PAD + co_tile0 * 16u;
+            //#repeat n NT
+            let b{n} = coopLoadT<coop_mat16x16<f16, B>>(&weights[wbase + {n}u * 16u], CO_PAD);
+            //#end
+            //#repeat m MT
+            let a{m} = coopLoadT<coop_mat16x16<f16, A>>(&xtile[(ty * ROW + {m}u * 16u + tx) * 16u], 16u);
+            //#repeat n NT
+            acc{m}_{n} = coopMultiplyAdd(a{m}, b{n}, acc{m}_{n});
+            //#end
+            //#end
+        }
+        blk += 1u;
+    }
+    //#end
+    // Epilogue: each accumulator through workgroup memory to the output's vec4s.
+    //#repeat m MT
+    //#repeat n NT
+    workgroupBarrier();
+    coopStoreT(acc{m}_{n}, &ctile[0], 16u);
+    workgroupBarrier();
+    for (var e = lane; e < 64u; e += 32u) {
+        let x = x0 + {m}u * 16u + e / 4u;
+        let co4 = (co_tile0 + {n}u) * 4u + e % 4u;
+        if (x < p.width && y < p.height && co4 < COUT4) {
+            let i = (e / 4u) * 16u + (e % 4u) * 4u;
+            var r = vec4<f32>(ctile[i], ctile[i + 1u], ctile[i + 2u], ctile[i + 3u]);
+            if (ACT == 1u) {
+                r = max(r, vec4<f32>(0.0));
+            } else if (ACT == 2u) {
+                r = select(r * SLOPE, r, r >= vec4<f32>(0.0));
+            }
+            out[(y * p.width + x) * COUT4 + co4] = to_out(r);
+        }
+    }
+    //#end
+    //#end
+}
