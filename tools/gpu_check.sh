@@ -51,6 +51,13 @@ cat "$OUT/gpu.txt"
 # The first Denoiser::new at a size tunes every layer shape (about 70 s on an H100 at 1080p,
 # more with `auto`, which tunes f16 too); later steps at 1080p reuse the cache.
 step denoise_f32 200 "$BIN/subpixel" bench denoise --width 1920 --height 1080 --precision f32
+# Tensor cores (nn/conv3x3_coop, opt-in, unmeasured before this call): its parity tests, every
+# conv candidate with its error against the CPU reference, then the network with them in
+# the autotuner's choice (its own cache), f16 activations where faster.
+step coop_test 120 env SUBPIXEL_COOP_MATRIX=1 "$BIN/kernels" --test-threads 4 conv3x3
+step coop_kernels 90 env SUBPIXEL_COOP_MATRIX=1 "$BIN/subpixel" bench kernels --width 1920 --height 1080 --channels 32
+step coop_denoise 240 env SUBPIXEL_COOP_MATRIX=1 SUBPIXEL_CACHE_DIR="$OUT/cache-coop" "$BIN/subpixel" bench denoise \
+  --width 1920 --height 1080 --precision auto
 step denoise_auto_json 200 "$BIN/subpixel" bench denoise --width 1920 --height 1080 --precision auto --json
 step kernels 90 "$BIN/subpixel" bench kernels --width 1920 --height 1080 --channels 32
 step frame 90 "$BIN/subpixel" bench frame --sizes 1920x1080

@@ -288,9 +288,17 @@ pub fn table(b: &DenoiseBench) -> String {
             .join(", ")
     );
     s += &format!(
-        "\nroofline model on {} ({:.1} TFLOP/s FP32, {:.0} GB/s, {} us per pass) at {}x{}, {} passes per frame, {} activations:\n",
+        "\nroofline model on {} ({:.1} TFLOP/s FP32{}, {:.0} GB/s, {} us per pass) at {}x{}, {} passes per frame, {} activations:\n",
         b.model.name,
         b.model.peak_gflops * 1e-3,
+        if b.model.tensor_cores {
+            format!(
+                "; convolutions on tensor cores at {:.1} TFLOP/s f16 with f32 sums",
+                b.model.tensor_gflops * 1e-3
+            )
+        } else {
+            String::new()
+        },
         b.model.bandwidth_gbs,
         b.model.pass_us,
         b.width,

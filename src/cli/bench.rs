@@ -104,6 +104,10 @@ pub(super) struct DenoiseBenchArgs {
     /// 1920x1080 on a machine without that GPU.
     #[arg(long)]
     model_only: bool,
+    /// Model the convolutions on tensor cores (the cooperative-matrix kernel: dense f16
+    /// with f32 sums) instead of the FP32 peak.
+    #[arg(long)]
+    tensor_cores: bool,
 }
 
 pub(super) fn run(what: Option<BenchCommand>) -> Result<()> {
@@ -213,7 +217,7 @@ pub(super) fn run(what: Option<BenchCommand>) -> Result<()> {
         BenchCommand::Denoise(a) => {
             let (dw, dh, df) = if cpu { (128, 128, 5) } else { (1920, 1080, 100) };
             let weights = super::weights_or_random(a.run.weights.as_deref())?;
-            let model = crate::bench::roofline::GpuModel::preset(&a.model)?;
+            let model = crate::bench::roofline::GpuModel::preset(&a.model)?.with_tensor_cores(a.tensor_cores);
             let frames = if a.model_only {
                 0
             } else {

@@ -250,6 +250,7 @@ impl Denoiser {
                     flops: 0,
                     bytes_read: d.bytes_read,
                     bytes_written: d.bytes_written,
+                    matrix: false,
                 });
             }
         }
@@ -260,6 +261,7 @@ impl Denoiser {
             flops: 0,
             bytes_read: self.net.output().bytes() + if background { px } else { 0 },
             bytes_written: px,
+            matrix: false,
         });
         out
     }

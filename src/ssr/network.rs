@@ -510,6 +510,7 @@ impl Network {
                     flops,
                     bytes_read: d.bytes_read,
                     bytes_written: d.bytes_written,
+                    matrix: matches!(s.op, Op::Conv(_)),
                 }
             })
             .collect()
@@ -529,4 +530,7 @@ pub struct StepCost {
     pub bytes_read: u64,
     /// Bytes it writes.
     pub bytes_written: u64,
+    /// Whether its FLOPs are a matrix product a tensor-core kernel can run (the
+    /// convolutions).
+    pub matrix: bool,
 }
