@@ -210,8 +210,9 @@ pub fn conv_choice(gpu: &Gpu, o: &KernelBenchOptions) -> Result<(ConvKernel, boo
 
 /// Formats the rows as a table.
 pub fn table(rows: &[KernelTiming]) -> String {
+    let width = rows.iter().map(|r| r.name.len()).max().unwrap_or(0).max(34);
     let mut s = format!(
-        "{:<34} {:>10} {:>10} {:>10} {:>11} {:>9}\n",
+        "{:<width$} {:>10} {:>10} {:>10} {:>11} {:>9}\n",
         "kernel", "median ms", "p95 ms", "GB/s", "GFLOP/s", "% peak"
     );
     for r in rows {
@@ -225,7 +226,7 @@ pub fn table(rows: &[KernelTiming]) -> String {
             .map(|f| format!("{:.1}", 100.0 * f))
             .unwrap_or_else(|| "-".into());
         s += &format!(
-            "{:<34} {:>10.4} {:>10.4} {:>10.1} {:>11} {:>9}\n",
+            "{:<width$} {:>10.4} {:>10.4} {:>10.1} {:>11} {:>9}\n",
             r.name, r.stats.median_ms, r.stats.p95_ms, r.gb_per_s, gf, pk
         );
     }

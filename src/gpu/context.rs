@@ -58,17 +58,23 @@ fn coop_from_env() -> bool {
     std::env::var("SUBPIXEL_COOP_MATRIX").is_ok_and(|v| v.trim() == "1")
 }
 
-/// Whether `adapter` offers the cooperative-matrix configuration `nn/conv3x3_coop` uses:
-/// 16x16x16, f16 A and B, f32 accumulator, at subgroup scope (what wgpu reports), and f16
+/// The matrix size `nn/conv3x3_coop` would use on `adapter`: 16 where it offers 16x16x16
+/// cooperative matrices with f16 A and B and an f32 accumulator at subgroup scope (what
+/// wgpu reports), else 8 for 8x8x8 (Mesa's lavapipe); `None` without either, or without f16
 /// shaders.
-pub fn adapter_has_coop_f16(adapter: &wgpu::Adapter) -> bool {
+pub fn adapter_coop_tile(adapter: &wgpu::Adapter) -> Option<u32> {
     let features = adapter.features();
-    features.contains(wgpu::Features::EXPERIMENTAL_COOPERATIVE_MATRIX | wgpu::Features::SHADER_F16)
-        && adapter.cooperative_matrix_properties().iter().any(|p| {
-            (p.m_size, p.n_size, p.k_size) == (16, 16, 16)
+    if !features.contains(wgpu::Features::EXPERIMENTAL_COOPERATIVE_MATRIX | wgpu::Features::SHADER_F16) {
+        return None;
+    }
+    let props = adapter.cooperative_matrix_properties();
+    [16, 8].into_iter().find(|&t| {
+        props.iter().any(|p| {
+            (p.m_size, p.n_size, p.k_size) == (t, t, t)
                 && p.ab_type == wgpu::CooperativeScalarType::F16
                 && p.cr_type == wgpu::CooperativeScalarType::F32
         })
+    })
 }
 
 /// A wgpu device with the crate's kernel registry.
@@ -88,6 +94,11 @@ pub struct Gpu {
     /// The instance and adapter the device came from, when the crate created it (a
     /// window needs them to create and configure its surface); `None` for a wrapped device.
     pub origin: Option<(wgpu::Instance, wgpu::Adapter)>,
+    /// The cooperative-matrix size (16 or 8) of `nn/conv3x3_coop` where the device has
+    /// wgpu's experimental cooperative matrices and f16 shaders ([`adapter_coop_tile`]; 16
+    /// for a wrapped device, whose adapter's configurations are unknown: the autotuner's
+    /// output check guards it), else `None`.
+    pub coop_tile: Option<u32>,
 }
 
 impl std::fmt::Debug for Gpu {
@@ -197,11 +208,16 @@ impl Gpu {
 
     /// [`Gpu::from_adapter`], with wgpu's experimental cooperative matrices enabled when
     /// `cooperative_matrix` is set and the adapter has the configuration the crate uses
-    /// ([`adapter_has_coop_f16`]).
+    /// ([`adapter_coop_tile`]).
     pub async fn from_adapter_with(adapter: &wgpu::Adapter, cooperative_matrix: bool) -> Result<Self> {
         let info = adapter.get_info();
         let mut features = adapter.features() & WANTED_FEATURES;
-        let coop = cooperative_matrix && adapter_has_coop_f16(adapter);
+        let tile = if cooperative_matrix {
+            adapter_coop_tile(adapter)
+        } else {
+            None
+        };
+        let coop = tile.is_some();
         let experimental_features = if coop {
             features |= wgpu::Features::EXPERIMENTAL_COOPERATIVE_MATRIX;
             // SAFETY: wgpu's experimental features may hold bugs (its contract for this
@@ -214,7 +230,7 @@ impl Gpu {
         };
         if cooperative_matrix && !coop {
             log::info!(
-                "{}: no 16x16x16 f16 cooperative matrices with f32 sums; the tensor-core convolution is off",
+                "{}: no 16x16x16 or 8x8x8 f16 cooperative matrices with f32 sums; the tensor-core convolution is off",
                 info.name
             );
         }
@@ -232,7 +248,11 @@ impl Gpu {
                 adapter: info.name.clone(),
                 source,
             })?;
-        Ok(Self::from_device(&device, &queue, info))
+        let mut gpu = Self::from_device(&device, &queue, info);
+        if gpu.coop_tile.is_some() {
+            gpu.coop_tile = tile;
+        }
+        Ok(gpu)
     }
 
     /// Wraps a device the caller already owns (the embedding route).
@@ -243,6 +263,10 @@ impl Gpu {
             kernels: Arc::new(KernelRegistry::new(device, ParamsBinding::for_adapter(&info))),
             info,
             origin: None,
+            coop_tile: device
+                .features()
+                .contains(wgpu::Features::EXPERIMENTAL_COOPERATIVE_MATRIX | wgpu::Features::SHADER_F16)
+                .then_some(16),
         }
     }
 
@@ -256,7 +280,7 @@ impl Gpu {
     /// features; the adapter's matrix configurations are then unknown, and the
     /// autotuner's output check is what guards them).
     pub fn has_coop_matrix(&self) -> bool {
-        self.has(wgpu::Features::EXPERIMENTAL_COOPERATIVE_MATRIX | wgpu::Features::SHADER_F16)
+        self.coop_tile.is_some()
     }
 
     /// Whether the device was created with `feature`.

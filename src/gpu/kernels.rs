@@ -858,7 +858,8 @@ mod tests {
     }
 
     /// Every expansion of the cooperative-matrix convolution the autotuner may pick (each
-    /// tiling, 1 to 4 inputs, f32 and f16 storage, both parameter bindings) validates with
+    /// tiling, 1 to 4 inputs, f32 and f16 storage, both parameter bindings, 16x16 and 8x8
+    /// matrices, subgroups of 32 and 8) validates with
     /// naga and translates to SPIR-V that declares the cooperative-matrix capability: what
     /// this machine can check of a kernel that only runs on an adapter with tensor cores.
     #[test]
@@ -879,6 +880,8 @@ mod tests {
                                     ("N_IN", inputs),
                                     ("MT", mt),
                                     ("NT", nt),
+                                    ("SG", if f16 == 0 { 32 } else { 8 }),
+                                    ("T", if (inputs + f16) % 2 == 0 { 16 } else { 8 }),
                                     ("F16_IN0", f16),
                                     ("F16_OUT", f16),
                                 ],

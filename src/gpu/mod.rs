@@ -8,7 +8,7 @@ mod profiler;
 pub mod template;
 
 pub use bound::Bound;
-pub use context::{AdapterKind, Gpu, GpuOptions};
+pub use context::{AdapterKind, Gpu, GpuOptions, adapter_coop_tile};
 pub use kernels::{
     Dispatch, Grid, KERNELS, KernelNeeds, KernelRegistry, KernelSource, ParamsBinding, Specialisation,
     check_limits, kernel_needs, kernel_source, libraries, validate_wgsl,

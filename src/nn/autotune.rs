@@ -283,8 +283,11 @@ pub fn key(gpu: &Gpu, conv: &Conv3x3, w: u32, h: u32, storage: &LayerStorage) ->
         let names: Vec<&str> = conv.fetch().iter().map(|f| f.name()).collect();
         format!(" read {}", names.join(","))
     };
+    // With cooperative matrices the candidates differ (keys without them are those of
+    // earlier versions).
+    let coop = gpu.coop_tile.map(|t| format!(" coop{t}")).unwrap_or_default();
     format!(
-        "{} | {:?} | {} {} | {} | conv3x3 {:?}->{} {:?} at {w}x{h}{storage}{fetch}",
+        "{} | {:?} | {} {} | {} | conv3x3 {:?}->{} {:?} at {w}x{h}{storage}{fetch}{coop}",
         gpu.info.name,
         gpu.info.backend,
         gpu.info.driver,

@@ -9,9 +9,10 @@
 //!   pipeline per layer shape), weights in a 64 KiB uniform buffer. Runs layers whose
 //!   packed weights fit it ([`Conv3x3::candidates`]).
 //! - `nn/conv3x3_coop` ([`ConvKernel::Coop`]): an implicit matrix product on cooperative
-//!   matrices (tensor cores), one subgroup per `mt * 16` pixels times `nt * 16` output
-//!   channels, f16 operands and f32 sums, weights as f16 in a storage buffer. Only on a
-//!   device with wgpu's experimental cooperative matrices ([`Gpu::has_coop_matrix`]).
+//!   matrices (tensor cores), T x T matrices (16, or 8 where the adapter has only those),
+//!   one subgroup per `mt * T` pixels times `nt * T` output channels, f16 operands and f32
+//!   sums, weights as f16 in a storage buffer. Only on a device with wgpu's experimental
+//!   cooperative matrices ([`Gpu::has_coop_matrix`]).
 //!
 //! The first two compute the same sums (in another order: taps by row, then inputs, then
 //! columns in the blocked kernel), so both agree with the CPU reference
@@ -67,8 +68,13 @@ pub const BLOCKED_MAX_PX: u32 = 16;
 /// significands; a sum of n products then errs by about sqrt(n) * 2^-11 of the terms'
 /// scale), its sums are f32.
 pub const COOP_TOLERANCE: f32 = 4e-3;
-/// Pixels (rows of the matrix product) and channels of one cooperative-matrix tile.
-const COOP_TILE: u32 = 16;
+
+/// The workgroup size of `nn/conv3x3_coop` on `gpu`: one subgroup, the adapter's largest
+/// (where subgroups may be smaller, a workgroup holds several that repeat the same matrix
+/// work: slower, not wrong, and the autotuner times it like any other).
+fn coop_subgroup(gpu: &Gpu) -> u32 {
+    gpu.info.subgroup_max_size.clamp(4, 128)
+}
 
 /// Which kernel runs a [`Conv3x3`], and with which tiling.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, serde::Serialize, serde::Deserialize)]
@@ -83,12 +89,12 @@ pub enum ConvKernel {
         /// Output vec4s (4 channels each) per invocation (1..=32, `px * cob <= 32`).
         cob: u32,
     },
-    /// `nn/conv3x3_coop`: one subgroup per `mt` 16-pixel tiles of a row times `nt`
-    /// 16-channel output tiles, on cooperative matrices.
+    /// `nn/conv3x3_coop`: one subgroup per `mt` tiles of T pixels of a row times `nt`
+    /// output tiles of T channels, on T x T cooperative matrices ([`Gpu::coop_tile`]).
     Coop {
-        /// 16-pixel tiles per subgroup (1, 2 or 4).
+        /// Pixel tiles per subgroup (1, 2 or 4).
         mt: u32,
-        /// 16-channel output tiles per subgroup (1 or 2).
+        /// Output-channel tiles per subgroup (1 or 2).
         nt: u32,
     },
 }
@@ -212,8 +218,9 @@ pub struct Conv3x3 {
     /// Uniform weight buffers of the blocked kernel, by output block `cob` (the packing's
     /// output stride depends on it).
     blocked: Mutex<HashMap<u32, Vec<wgpu::Buffer>>>,
-    /// f16 weight buffers of the cooperative-matrix kernel, by output tiles `nt`.
-    coop: Mutex<HashMap<u32, wgpu::Buffer>>,
+    /// f16 weight buffers of the cooperative-matrix kernel, by output tiles `nt` and matrix
+    /// size.
+    coop: Mutex<HashMap<(u32, u32), wgpu::Buffer>>,
 }
 
 impl Conv3x3 {
@@ -328,55 +335,51 @@ impl Conv3x3 {
         Ok((packed, b))
     }
 
-    /// Packs OIHW `weight` for `nn/conv3x3_coop`: `[block][tap][ci (16)][co (co_pad)]`, where
-    /// the blocks are each input's channels in groups of 16 (the last one zero-padded) in
-    /// input order, and output channels at or beyond `cout` are zero. As f32; the kernel
-    /// reads them as f16.
-    pub fn pack_coop(weight: &[f32], input_channels: &[u32], cout: u32, co_pad: u32) -> Vec<f32> {
+    /// Packs OIHW `weight` for `nn/conv3x3_coop` with `tile x tile` matrices:
+    /// `[block][tap][ci (tile)][co (co_pad)]`, where the blocks are each input's channels in
+    /// groups of `tile` (the last one zero-padded) in input order, and output channels at or
+    /// beyond `cout` are zero. As f32; the kernel reads them as f16.
+    pub fn pack_coop(weight: &[f32], input_channels: &[u32], cout: u32, tile: u32, co_pad: u32) -> Vec<f32> {
         let cin: u32 = input_channels.iter().sum();
-        let blocks: u32 = input_channels.iter().map(|&c| c.div_ceil(COOP_TILE)).sum();
-        let mut packed = vec![0.0f32; (blocks * 9 * COOP_TILE * co_pad) as usize];
+        let blocks: u32 = input_channels.iter().map(|&c| c.div_ceil(tile)).sum();
+        let mut packed = vec![0.0f32; (blocks * 9 * tile * co_pad) as usize];
         let (mut base_logical, mut base_block) = (0, 0);
         for &c in input_channels {
             for ci in 0..c {
                 let li = base_logical + ci;
-                let blk = base_block + ci / COOP_TILE;
+                let blk = base_block + ci / tile;
                 for co in 0..cout {
                     for tap in 0..9 {
-                        let idx = ((blk * 9 + tap) * COOP_TILE + ci % COOP_TILE) * co_pad + co;
+                        let idx = ((blk * 9 + tap) * tile + ci % tile) * co_pad + co;
                         packed[idx as usize] = weight[((co * cin + li) * 9 + tap) as usize];
                     }
                 }
             }
             base_logical += c;
-            base_block += c.div_ceil(COOP_TILE);
+            base_block += c.div_ceil(tile);
         }
         packed
     }
 
-    /// Output channels of the cooperative kernel's packed weights with `nt` output tiles
-    /// per subgroup: `cout` rounded up to a multiple of `nt * 16`.
-    fn coop_co_pad(&self, nt: u32) -> u32 {
-        self.cout.div_ceil(nt * COOP_TILE) * nt * COOP_TILE
+    /// Output channels of the cooperative kernel's packed weights with `nt` output tiles of
+    /// `tile` channels per subgroup: `cout` rounded up to a multiple of `nt * tile`.
+    fn coop_co_pad(&self, nt: u32, tile: u32) -> u32 {
+        self.cout.div_ceil(nt * tile) * nt * tile
     }
 
-    /// The cooperative kernel's f16 weights for `nt` output tiles per subgroup, uploaded on
-    /// first use.
-    fn coop_buffer(&self, gpu: &Gpu, nt: u32) -> wgpu::Buffer {
+    /// The cooperative kernel's f16 weights for `nt` output tiles of `tile` channels per
+    /// subgroup, uploaded on first use.
+    fn coop_buffer(&self, gpu: &Gpu, nt: u32, tile: u32) -> wgpu::Buffer {
         let mut cache = self.coop.lock().unwrap();
         cache
-            .entry(nt)
+            .entry((nt, tile))
             .or_insert_with(|| {
-                let packed = Self::pack_coop(
-                    &self.weight,
-                    &self.input_channels,
-                    self.cout,
-                    self.coop_co_pad(nt),
-                );
+                let co_pad = self.coop_co_pad(nt, tile);
+                let packed = Self::pack_coop(&self.weight, &self.input_channels, self.cout, tile, co_pad);
                 let half: Vec<half::f16> = packed.iter().map(|&v| half::f16::from_f32(v)).collect();
                 use wgpu::util::DeviceExt;
                 gpu.device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
-                    label: Some(&format!("subpixel.{}.weight.coop-n{nt}", self.name)),
+                    label: Some(&format!("subpixel.{}.weight.coop-n{nt}-t{tile}", self.name)),
                     contents: bytemuck::cast_slice(&half),
                     usage: wgpu::BufferUsages::STORAGE,
                 })
@@ -705,7 +708,8 @@ impl Conv3x3 {
                     _pad: [0; 2],
                     src,
                 };
-                let co_pad = self.coop_co_pad(nt);
+                let tile = gpu.coop_tile.unwrap_or(16);
+                let co_pad = self.coop_co_pad(nt, tile);
                 let mut spec = Specialisation(storage.to_vec());
                 spec.0.extend([
                     ("N_IN", inputs.len() as f64),
@@ -717,19 +721,24 @@ impl Conv3x3 {
                     ("CO_PAD", co_pad as f64),
                     ("MT", mt as f64),
                     ("NT", nt as f64),
+                    ("SG", coop_subgroup(gpu) as f64),
+                    ("T", tile as f64),
                     ("ACT", act as f64),
                     ("SLOPE", slope as f64),
                 ]);
-                let weights = self.coop_buffer(gpu, nt);
+                let weights = self.coop_buffer(gpu, nt, tile);
                 bufs.extend([&weights, &self.bias, &out.buffer]);
-                // One subgroup of 32 invocations per tile of mt * 16 pixels and nt * 16
-                // output channels.
+                // One subgroup per tile of mt * T pixels and nt * T output channels.
                 gpu.kernels.dispatch(
                     "nn/conv3x3_coop",
                     &spec,
                     bytemuck::bytes_of(&params),
                     &bufs,
-                    Grid::Invocations([w.div_ceil(mt * COOP_TILE) * 32, h, co_pad / (nt * COOP_TILE)]),
+                    Grid::Invocations([
+                        w.div_ceil(mt * tile) * coop_subgroup(gpu),
+                        h,
+                        co_pad / (nt * tile),
+                    ]),
                 )
             }
         }
@@ -827,102 +836,105 @@ mod tests {
             (&[5], 3, (1, 3), 1, 1),
         ];
         for (i, &(split, cout, (w, h), mt, nt)) in shapes.iter().enumerate() {
-            let cin: u32 = split.iter().sum();
-            let mut seed = 12345u32 + i as u32;
-            let mut rnd = || {
-                seed = seed.wrapping_mul(1664525).wrapping_add(1013904223);
-                (seed >> 8) as f32 / (1u32 << 24) as f32 * 2.0 - 1.0
-            };
-            let inputs: Vec<HostTensor> = split
-                .iter()
-                .map(|&c| {
-                    let data: Vec<f32> = (0..w * h * c).map(|_| rnd()).collect();
-                    HostTensor::from_fn(w, h, c, |x, y, ch| data[((y * w + x) * c + ch) as usize])
-                })
-                .collect();
-            let weight: Vec<f32> = (0..cout * cin * 9).map(|_| rnd() * 0.5).collect();
-            let bias: Vec<f32> = (0..cout).map(|_| rnd() * 0.5).collect();
-            let co_pad = cout.div_ceil(nt * COOP_TILE) * nt * COOP_TILE;
-            let packed: Vec<f32> = Conv3x3::pack_coop(&weight, split, cout, co_pad)
-                .into_iter()
-                .map(f16)
-                .collect();
-            let mut got = HostTensor::zeros(w, h, cout);
-            for y in 0..h {
-                for x0 in (0..w).step_by((mt * COOP_TILE) as usize) {
-                    for co_tile in 0..co_pad / COOP_TILE {
-                        for m in 0..mt {
-                            // acc[r][c]: pixel x0 + 16m + r, output channel 16 co_tile + c.
-                            let mut acc = [[0.0f32; 16]; 16];
-                            for (c, col) in (0..16).zip(0..) {
-                                let co = co_tile * 16 + c;
-                                let b = if co < cout { bias[co as usize] } else { 0.0 };
-                                acc.iter_mut().for_each(|row| row[col] = b);
-                            }
-                            let mut blk = 0;
-                            for (k, inp) in inputs.iter().enumerate() {
-                                for b in 0..split[k].div_ceil(16) {
-                                    // staged[row][px][ch], px = x - x0 + 1.
-                                    let row_px = mt * 16 + 2;
-                                    let staged = |row: u32, px: u32, ch: u32| {
-                                        let (xx, yy) = (x0 as i32 + px as i32 - 1, y as i32 + row as i32 - 1);
-                                        let ci = b * 16 + ch;
-                                        if xx < 0
-                                            || yy < 0
-                                            || xx >= w as i32
-                                            || yy >= h as i32
-                                            || ci >= split[k]
-                                        {
-                                            0.0
-                                        } else {
-                                            f16(inp.at(xx as u32, yy as u32, ci))
-                                        }
-                                    };
-                                    for tap in 0..9u32 {
-                                        let (ty, tx) = (tap / 3, tap % 3);
-                                        for (r, acc_row) in acc.iter_mut().enumerate() {
-                                            let px = m * 16 + tx + r as u32;
-                                            assert!(px < row_px);
-                                            for (c, a) in acc_row.iter_mut().enumerate() {
-                                                for kk in 0..16 {
-                                                    let wi = ((blk * 9 + tap) * 16 + kk) * co_pad
-                                                        + co_tile * 16
-                                                        + c as u32;
-                                                    *a += staged(ty, px, kk) * packed[wi as usize];
+            for tile in [16u32, 8] {
+                let cin: u32 = split.iter().sum();
+                let mut seed = 12345u32 + i as u32;
+                let mut rnd = || {
+                    seed = seed.wrapping_mul(1664525).wrapping_add(1013904223);
+                    (seed >> 8) as f32 / (1u32 << 24) as f32 * 2.0 - 1.0
+                };
+                let inputs: Vec<HostTensor> = split
+                    .iter()
+                    .map(|&c| {
+                        let data: Vec<f32> = (0..w * h * c).map(|_| rnd()).collect();
+                        HostTensor::from_fn(w, h, c, |x, y, ch| data[((y * w + x) * c + ch) as usize])
+                    })
+                    .collect();
+                let weight: Vec<f32> = (0..cout * cin * 9).map(|_| rnd() * 0.5).collect();
+                let bias: Vec<f32> = (0..cout).map(|_| rnd() * 0.5).collect();
+                let co_pad = cout.div_ceil(nt * tile) * nt * tile;
+                let packed: Vec<f32> = Conv3x3::pack_coop(&weight, split, cout, tile, co_pad)
+                    .into_iter()
+                    .map(f16)
+                    .collect();
+                let mut got = HostTensor::zeros(w, h, cout);
+                for y in 0..h {
+                    for x0 in (0..w).step_by((mt * tile) as usize) {
+                        for co_tile in 0..co_pad / tile {
+                            for m in 0..mt {
+                                // acc[r][c]: pixel x0 + tile m + r, output channel tile co_tile + c.
+                                let mut acc = vec![vec![0.0f32; tile as usize]; tile as usize];
+                                for (c, col) in (0..tile).zip(0..) {
+                                    let co = co_tile * tile + c;
+                                    let b = if co < cout { bias[co as usize] } else { 0.0 };
+                                    acc.iter_mut().for_each(|row| row[col] = b);
+                                }
+                                let mut blk = 0;
+                                for (k, inp) in inputs.iter().enumerate() {
+                                    for b in 0..split[k].div_ceil(tile) {
+                                        // staged[row][px][ch], px = x - x0 + 1.
+                                        let row_px = mt * tile + 2;
+                                        let staged = |row: u32, px: u32, ch: u32| {
+                                            let (xx, yy) =
+                                                (x0 as i32 + px as i32 - 1, y as i32 + row as i32 - 1);
+                                            let ci = b * tile + ch;
+                                            if xx < 0
+                                                || yy < 0
+                                                || xx >= w as i32
+                                                || yy >= h as i32
+                                                || ci >= split[k]
+                                            {
+                                                0.0
+                                            } else {
+                                                f16(inp.at(xx as u32, yy as u32, ci))
+                                            }
+                                        };
+                                        for tap in 0..9u32 {
+                                            let (ty, tx) = (tap / 3, tap % 3);
+                                            for (r, acc_row) in acc.iter_mut().enumerate() {
+                                                let px = m * tile + tx + r as u32;
+                                                assert!(px < row_px);
+                                                for (c, a) in acc_row.iter_mut().enumerate() {
+                                                    for kk in 0..tile {
+                                                        let wi = ((blk * 9 + tap) * tile + kk) * co_pad
+                                                            + co_tile * tile
+                                                            + c as u32;
+                                                        *a += staged(ty, px, kk) * packed[wi as usize];
+                                                    }
                                                 }
                                             }
                                         }
+                                        blk += 1;
                                     }
-                                    blk += 1;
                                 }
-                            }
-                            for (r, acc_row) in acc.iter().enumerate() {
-                                let x = x0 + m * 16 + r as u32;
-                                for (c, &a) in acc_row.iter().enumerate() {
-                                    let co = co_tile * 16 + c as u32;
-                                    if x < w && co < cout {
-                                        got.set(x, y, co, a);
+                                for (r, acc_row) in acc.iter().enumerate() {
+                                    let x = x0 + m * tile + r as u32;
+                                    for (c, &a) in acc_row.iter().enumerate() {
+                                        let co = co_tile * tile + c as u32;
+                                        if x < w && co < cout {
+                                            got.set(x, y, co, a);
+                                        }
                                     }
                                 }
                             }
                         }
                     }
                 }
+                let hin: Vec<&HostTensor> = inputs.iter().collect();
+                let want = reference::conv3x3(&hin, &weight, &bias, cout, Activation::None);
+                let scale = want.data.iter().fold(1.0f32, |m, v| m.max(v.abs()));
+                let err = got
+                    .data
+                    .iter()
+                    .zip(&want.data)
+                    .fold(0.0f32, |m, (g, r)| m.max((g - r).abs() / scale));
+                assert!(
+                    err <= COOP_TOLERANCE,
+                    "{split:?}->{cout} {w}x{h} m{mt} n{nt} t{tile}: error {err:e}"
+                );
+                // And the rounding is real: f16 operands are not f32 ones.
+                assert!(err > 1e-6, "{split:?}->{cout}: error {err:e}");
             }
-            let hin: Vec<&HostTensor> = inputs.iter().collect();
-            let want = reference::conv3x3(&hin, &weight, &bias, cout, Activation::None);
-            let scale = want.data.iter().fold(1.0f32, |m, v| m.max(v.abs()));
-            let err = got
-                .data
-                .iter()
-                .zip(&want.data)
-                .fold(0.0f32, |m, (g, r)| m.max((g - r).abs() / scale));
-            assert!(
-                err <= COOP_TOLERANCE,
-                "{split:?}->{cout} {w}x{h} m{mt} n{nt}: error {err:e}"
-            );
-            // And the rounding is real: f16 operands are not f32 ones.
-            assert!(err > 1e-6, "{split:?}->{cout}: error {err:e}");
         }
     }
 

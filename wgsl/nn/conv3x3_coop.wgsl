@@ -1,30 +1,34 @@
 // 3x3 convolution on cooperative matrices (tensor cores; issue 14): the same operation as
 // nn/conv3x3 (stride 1, zero padding, bias, activation, up to 4 NHWC inputs read as if
 // concatenated along channels, output kept finite) as an implicit matrix product, with f16
-// operands and f32 sums. Needs wgpu's EXPERIMENTAL_COOPERATIVE_MATRIX with 16x16x16 f16 x
-// f16 + f32 matrices at subgroup scope, and SHADER_F16.
-// - One workgroup is one subgroup of 32 invocations. It computes a tile of MT * 16
-//   horizontally adjacent pixels of one row times NT * 16 output channels, in MT * NT
-//   16x16 f32 accumulators (named: unrolled by the registry's template expansion).
-// - The sum runs over input blocks of 16 channels (each input's channels are padded to a
-//   multiple of 16 on their own) and the 9 taps. Per block, the subgroup stages the rows
+// operands and f32 sums, on T x T matrices (T = 16, or 8 where the adapter has no 16x16x16
+// f16 x f16 + f32 configuration at subgroup scope). Needs wgpu's
+// EXPERIMENTAL_COOPERATIVE_MATRIX and SHADER_F16.
+// - One workgroup is one subgroup (SG invocations, the adapter's subgroup size: 32 on
+//   NVIDIA, 8 on lavapipe). It computes a tile of MT * T
+//   horizontally adjacent pixels of one row times NT * T output channels, in MT * NT
+//   T x T f32 accumulators (named: unrolled by the registry's template expansion).
+// - The sum runs over input blocks of T channels (each input's channels are padded to a
+//   multiple of T on their own) and the 9 taps. Per block, the subgroup stages the rows
 //   y-1..y+1 of the tile's pixels and their two neighbours (zero outside the image and
 //   beyond the input's channels) in workgroup memory as f16, read through nn/lib/fetch
-//   (so inputs may be resampled 2x on load); per tap, A is a 16 pixel x 16 channel window
-//   of that tile and B the tap's 16 x 16 weights.
+//   (so inputs may be resampled 2x on load); per tap, A is a T pixel x T channel window
+//   of that tile and B the tap's T x T weights.
 // - Weights: a storage array of f16 packed by nn::conv as
-//   [block over the inputs][tap (9)][ci (16)][co (CO_PAD)], zero beyond the layer's
-//   channels; CO_PAD is the output channels rounded up to a multiple of NT * 16.
-// - The accumulators start as the bias (a 16x16 tile of it staged in workgroup memory);
+//   [block over the inputs][tap (9)][ci (T)][co (CO_PAD)], zero beyond the layer's
+//   channels; CO_PAD is the output channels rounded up to a multiple of NT * T.
+// - The accumulators start as the bias (a T x T tile of it staged in workgroup memory);
 //   the epilogue stores each accumulator to workgroup memory, then the invocations apply
 //   the activation and write the output tensor's vec4s (f32 or f16, nn/lib/storage).
 // Every coopLoad/coopStore address and stride is a multiple of 16 bytes, as Vulkan asks.
-// The grid: x over groups of MT * 16 pixels (32 invocations each), y over rows, z over
+// The grid: x over groups of MT * T pixels (SG invocations each), y over rows, z over
 // groups of NT output tiles.
 //
 //#param N_IN 4
 //#param MT 1
 //#param NT 1
+//#param SG 32
+//#param T 16
 
 enable f16;
 enable wgpu_cooperative_matrix;
@@ -34,7 +38,7 @@ override CIN4_1: u32 = 1u;
 override CIN4_2: u32 = 1u;
 override CIN4_3: u32 = 1u;
 override COUT4: u32 = 1u;   // padded output channels / 4 (the output tensor's stride)
-override CO_PAD: u32 = 16u; // output channels of the packed weights (a multiple of NT * 16)
+override CO_PAD: u32 = 16u; // output channels of the packed weights (a multiple of NT * T)
 override ACT: u32 = 0u;     // 0 none, 1 relu, 2 leaky relu
 override SLOPE: f32 = 0.0;  // leaky relu slope
 
@@ -47,7 +51,9 @@ struct Params {
 }
 
 // Pixels of the staged rows: the tile and one neighbour on each side.
-const ROW: u32 = {MT}u * 16u + 2u;
+const ROW: u32 = {MT}u * {T}u + 2u;
+// vec4s of channels per block.
+const C4: u32 = {T}u / 4u;
 const F16_MAX: f32 = 65504.0;
 
 @group(0) @binding(0) var<uniform> p: Params;
@@ -58,14 +64,14 @@ const F16_MAX: f32 = 65504.0;
 @group(0) @binding({N_IN+2}) var<storage, read> bias: array<vec4<f32>>;
 @group(0) @binding({N_IN+3}) var<storage, read_write> out: array<Out>;
 
-// A 16x16 f32 tile: the bias the accumulators start from, then each accumulator's sums.
-var<workgroup> ctile: array<f32, 256>;
-// The staged input block: [row (3)][pixel (ROW)][channel (16)].
-var<workgroup> xtile: array<f16, 3u * ROW * 16u>;
+// A T x T f32 tile: the bias the accumulators start from, then each accumulator's sums.
+var<workgroup> ctile: array<f32, {T}u * {T}u>;
+// The staged input block: [row (3)][pixel (ROW)][channel (T)].
+var<workgroup> xtile: array<f16, 3u * ROW * {T}u>;
 
-@compute @workgroup_size(32, 1, 1)
+@compute @workgroup_size({SG}, 1, 1)
 fn main(@builtin(workgroup_id) wid: vec3<u32>, @builtin(local_invocation_index) lane: u32) {
-    let x0 = wid.x * {MT}u * 16u;
+    let x0 = wid.x * {MT}u * {T}u;
     let y = wid.y;
     let co_tile0 = wid.z * {NT}u;
     // No early return: the matrix operations need every invocation of the subgroup in
@@ -73,33 +79,33 @@ fn main(@builtin(workgroup_id) wid: vec3<u32>, @builtin(local_invocation_index) 
     // check their pixel.
     // The accumulators start as the bias of their output tile.
     //#repeat n NT
-    for (var e = lane; e < 256u; e += 32u) {
-        let co = (co_tile0 + {n}u) * 16u + (e % 16u);
+    for (var e = lane; e < {T}u * {T}u; e += {SG}u) {
+        let co = (co_tile0 + {n}u) * {T}u + (e % {T}u);
         ctile[e] = select(0.0, bias[min(co / 4u, COUT4 - 1u)][co % 4u], co < COUT4 * 4u);
     }
     workgroupBarrier();
     //#repeat m MT
-    var acc{m}_{n} = coopLoadT<coop_mat16x16<f32, C>>(&ctile[0], 16u);
+    var acc{m}_{n} = coopLoadT<coop_mat{T}x{T}<f32, C>>(&ctile[0], {T}u);
     //#end
     workgroupBarrier();
     //#end
     var blk = 0u; // block index over all inputs
     //#repeat k N_IN
-    for (var b = 0u; b < (CIN4_{k} + 3u) / 4u; b++) {
-        // Stage rows y-1..y+1, pixels x0-1..x0+MT*16, channels 16b..16b+15 of input {k}.
+    for (var b = 0u; b < (CIN4_{k} + C4 - 1u) / C4; b++) {
+        // Stage rows y-1..y+1, pixels x0-1..x0+MT*T, channels T*b..T*b+T-1 of input {k}.
         workgroupBarrier();
-        for (var e = lane; e < 3u * ROW * 4u; e += 32u) {
-            let row = e / (ROW * 4u);
-            let px = (e / 4u) % ROW;
-            let c4 = e % 4u;
+        for (var e = lane; e < 3u * ROW * C4; e += {SG}u) {
+            let row = e / (ROW * C4);
+            let px = (e / C4) % ROW;
+            let c4 = e % C4;
             let xx = i32(x0 + px) - 1;
             let yy = i32(y + row) - 1;
-            let ci = b * 4u + c4;
+            let ci = b * C4 + c4;
             var v = vec4<f32>(0.0);
             if (xx >= 0 && xx < i32(p.width) && yy >= 0 && yy < i32(p.height) && ci < CIN4_{k}) {
                 v = clamp(load{k}(u32(xx), u32(yy), CIN4_{k}, ci), vec4<f32>(-F16_MAX), vec4<f32>(F16_MAX));
             }
-            let i = (row * ROW + px) * 16u + c4 * 4u;
+            let i = (row * ROW + px) * {T}u + c4 * 4u;
             xtile[i] = f16(v.x);
             xtile[i + 1u] = f16(v.y);
             xtile[i + 2u] = f16(v.z);
@@ -109,12 +115,12 @@ fn main(@builtin(workgroup_id) wid: vec3<u32>, @builtin(local_invocation_index) 
         for (var tap = 0u; tap < 9u; tap++) {
             let ty = tap / 3u;
             let tx = tap % 3u;
-            let wbase = ((blk * 9u + tap) * 16u) * CO_PAD + co_tile0 * 16u;
+            let wbase = ((blk * 9u + tap) * {T}u) * CO_PAD + co_tile0 * {T}u;
             //#repeat n NT
-            let b{n} = coopLoadT<coop_mat16x16<f16, B>>(&weights[wbase + {n}u * 16u], CO_PAD);
+            let b{n} = coopLoadT<coop_mat{T}x{T}<f16, B>>(&weights[wbase + {n}u * {T}u], CO_PAD);
             //#end
             //#repeat m MT
-            let a{m} = coopLoadT<coop_mat16x16<f16, A>>(&xtile[(ty * ROW + {m}u * 16u + tx) * 16u], 16u);
+            let a{m} = coopLoadT<coop_mat{T}x{T}<f16, A>>(&xtile[(ty * ROW + {m}u * {T}u + tx) * {T}u], {T}u);
             //#repeat n NT
             acc{m}_{n} = coopMultiplyAdd(a{m}, b{n}, acc{m}_{n});
             //#end
@@ -127,13 +133,13 @@ fn main(@builtin(workgroup_id) wid: vec3<u32>, @builtin(local_invocation_index) 
     //#repeat m MT
     //#repeat n NT
     workgroupBarrier();
-    coopStoreT(acc{m}_{n}, &ctile[0], 16u);
+    coopStoreT(acc{m}_{n}, &ctile[0], {T}u);
     workgroupBarrier();
-    for (var e = lane; e < 64u; e += 32u) {
-        let x = x0 + {m}u * 16u + e / 4u;
-        let co4 = (co_tile0 + {n}u) * 4u + e % 4u;
+    for (var e = lane; e < {T}u * C4; e += {SG}u) {
+        let x = x0 + {m}u * {T}u + e / C4;
+        let co4 = (co_tile0 + {n}u) * C4 + e % C4;
         if (x < p.width && y < p.height && co4 < COUT4) {
-            let i = (e / 4u) * 16u + (e % 4u) * 4u;
+            let i = (e / C4) * {T}u + (e % C4) * 4u;
             var r = vec4<f32>(ctile[i], ctile[i + 1u], ctile[i + 2u], ctile[i + 3u]);
             if (ACT == 1u) {
                 r = max(r, vec4<f32>(0.0));
