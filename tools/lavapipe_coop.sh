@@ -10,7 +10,8 @@
 # need from Debian trixie (about 100 MB of packages; nothing is installed system-wide) into
 # $SUBPIXEL_MESA_DIR (default ~/.cache/subpixel/mesa-coop); later calls reuse it. COMMAND
 # then runs under trixie's dynamic loader and libraries with VK_DRIVER_FILES pointing at
-# that lavapipe, SUBPIXEL_COOP_MATRIX=1 and SUBPIXEL_EXPECT_COOP=1 (tests/kernels.rs then
+# that lavapipe, SUBPIXEL_COOP_MATRIX=1 (unless set to 0: Mesa 26's lavapipe without the
+# tensor-core kernel, e.g. for timings) and SUBPIXEL_EXPECT_COOP=1 (tests/kernels.rs then
 # fails if the device came up without cooperative matrices instead of skipping them). It
 # must be a dynamically linked binary (a Rust test or the `subpixel` binary), not a shell
 # script. Exits 3, with the reason, when the packages cannot be fetched, so that callers can
@@ -77,7 +78,9 @@ if [ ! -f "$dir/ready" ]; then
     exit 3
   fi
 fi
-export VK_DRIVER_FILES="$dir/lvp.json" VK_ICD_FILENAMES="$dir/lvp.json" SUBPIXEL_COOP_MATRIX=1 SUBPIXEL_EXPECT_COOP=1
+export VK_DRIVER_FILES="$dir/lvp.json" VK_ICD_FILENAMES="$dir/lvp.json"
+export SUBPIXEL_COOP_MATRIX="${SUBPIXEL_COOP_MATRIX:-1}"
+export SUBPIXEL_EXPECT_COOP="$SUBPIXEL_COOP_MATRIX"
 cmd=$(command -v "$1" || true)
 [ -n "$cmd" ] || { echo "lavapipe_coop.sh: no such command: $1" >&2; exit 2; }
 shift
