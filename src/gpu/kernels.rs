@@ -140,8 +140,14 @@ impl ParamsBinding {
 /// Every WGSL kernel of the crate.
 pub const KERNELS: &[KernelSource] = &[
     kernel!("nn/conv3x3", ["nn/lib/storage", "nn/lib/fetch"]),
-    kernel!("nn/conv3x3_blocked", ["nn/lib/storage", "nn/lib/fetch"]),
-    kernel!("nn/conv3x3_coop", ["nn/lib/storage", "nn/lib/fetch"]),
+    kernel!(
+        "nn/conv3x3_blocked",
+        ["nn/lib/storage", "nn/lib/conv_shape", "nn/lib/fetch"]
+    ),
+    kernel!(
+        "nn/conv3x3_coop",
+        ["nn/lib/storage", "nn/lib/conv_shape", "nn/lib/fetch"]
+    ),
     kernel!("nn/resample2x", ["nn/lib/storage", "nn/lib/fetch"]),
     kernel!("nn/tfa_blend", ["nn/lib/grid"]),
     kernel!("nn/warp", ["nn/lib/grid"]),

@@ -46,9 +46,10 @@ struct ConvParams {
     src: [[u32; 4]; 4],
 }
 
+/// The parameter block of the specialised kernels (`Params` of nn/lib/conv_shape).
 #[repr(C)]
 #[derive(Clone, Copy, Pod, Zeroable)]
-struct BlockedParams {
+struct ShapedParams {
     width: u32,
     height: u32,
     _pad: [u32; 2],
@@ -634,6 +635,28 @@ impl Conv3x3 {
             ("FETCH2", fetch(2)),
             ("FETCH3", fetch(3)),
         ];
+        // What the specialised kernels (blocked, cooperative) share: the storage, the shapes
+        // and activation as override constants (nn/lib/conv_shape), and the parameters.
+        let shaped = || {
+            let mut spec = Specialisation(storage.to_vec());
+            spec.0.extend([
+                ("N_IN", inputs.len() as f64),
+                ("CIN4_0", cin4[0] as f64),
+                ("CIN4_1", cin4[1] as f64),
+                ("CIN4_2", cin4[2] as f64),
+                ("CIN4_3", cin4[3] as f64),
+                ("COUT4", out.c4() as f64),
+                ("ACT", act as f64),
+                ("SLOPE", slope as f64),
+            ]);
+            spec
+        };
+        let shaped_params = ShapedParams {
+            width: w,
+            height: h,
+            _pad: [0; 2],
+            src,
+        };
         match kernel {
             ConvKernel::Generic => {
                 let params = ConvParams {
@@ -662,37 +685,23 @@ impl Conv3x3 {
                 )
             }
             ConvKernel::Blocked { px, cob } => {
-                let params = BlockedParams {
-                    width: w,
-                    height: h,
-                    _pad: [0; 2],
-                    src,
-                };
                 let chunks = self.blocked_chunks(cob);
                 let weights = self.blocked_buffers(gpu, cob)?;
                 let mut parts = Vec::with_capacity(chunks.len());
                 for (&(base, count), weights) in chunks.iter().zip(&weights) {
-                    let mut spec = Specialisation(storage.to_vec());
+                    let mut spec = shaped();
                     spec.0.extend([
-                        ("N_IN", inputs.len() as f64),
-                        ("CIN4_0", cin4[0] as f64),
-                        ("CIN4_1", cin4[1] as f64),
-                        ("CIN4_2", cin4[2] as f64),
-                        ("CIN4_3", cin4[3] as f64),
-                        ("COUT4", out.c4() as f64),
                         ("CO_BASE", base as f64),
                         ("CO_COUNT", count as f64),
                         ("PX", px as f64),
                         ("COB", cob as f64),
-                        ("ACT", act as f64),
-                        ("SLOPE", slope as f64),
                     ]);
                     let mut b = bufs.clone();
                     b.extend([weights, &self.bias, &out.buffer]);
                     parts.push(gpu.kernels.dispatch(
                         "nn/conv3x3_blocked",
                         &spec,
-                        bytemuck::bytes_of(&params),
+                        bytemuck::bytes_of(&shaped_params),
                         &b,
                         Grid::Invocations([w.div_ceil(px), h, count.div_ceil(cob)]),
                     )?);
@@ -702,29 +711,15 @@ impl Conv3x3 {
                 Ok(first.chain(parts))
             }
             ConvKernel::Coop { mt, nt } => {
-                let params = BlockedParams {
-                    width: w,
-                    height: h,
-                    _pad: [0; 2],
-                    src,
-                };
                 let tile = gpu.coop_tile.unwrap_or(16);
                 let co_pad = self.coop_co_pad(nt, tile);
-                let mut spec = Specialisation(storage.to_vec());
+                let mut spec = shaped();
                 spec.0.extend([
-                    ("N_IN", inputs.len() as f64),
-                    ("CIN4_0", cin4[0] as f64),
-                    ("CIN4_1", cin4[1] as f64),
-                    ("CIN4_2", cin4[2] as f64),
-                    ("CIN4_3", cin4[3] as f64),
-                    ("COUT4", out.c4() as f64),
                     ("CO_PAD", co_pad as f64),
                     ("MT", mt as f64),
                     ("NT", nt as f64),
                     ("SG", coop_subgroup(gpu) as f64),
                     ("T", tile as f64),
-                    ("ACT", act as f64),
-                    ("SLOPE", slope as f64),
                 ]);
                 let weights = self.coop_buffer(gpu, nt, tile);
                 bufs.extend([&weights, &self.bias, &out.buffer]);
@@ -732,7 +727,7 @@ impl Conv3x3 {
                 gpu.kernels.dispatch(
                     "nn/conv3x3_coop",
                     &spec,
-                    bytemuck::bytes_of(&params),
+                    bytemuck::bytes_of(&shaped_params),
                     &bufs,
                     Grid::Invocations([
                         w.div_ceil(mt * tile) * coop_subgroup(gpu),
@@ -783,8 +778,8 @@ impl Conv3x3 {
 /// Size in bytes of each conv kernel's `Params` as the Rust side lays it out.
 pub const PARAM_SIZES: &[(&str, usize)] = &[
     ("nn/conv3x3", std::mem::size_of::<ConvParams>()),
-    ("nn/conv3x3_blocked", std::mem::size_of::<BlockedParams>()),
-    ("nn/conv3x3_coop", std::mem::size_of::<BlockedParams>()),
+    ("nn/conv3x3_blocked", std::mem::size_of::<ShapedParams>()),
+    ("nn/conv3x3_coop", std::mem::size_of::<ShapedParams>()),
 ];
 
 #[cfg(test)]

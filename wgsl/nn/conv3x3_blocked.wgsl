@@ -27,23 +27,9 @@
 //#param PX 1
 //#param COB 1
 
-override CIN4_0: u32 = 1u;  // padded channels / 4 of each input (inputs N_IN.. unused)
-override CIN4_1: u32 = 1u;
-override CIN4_2: u32 = 1u;
-override CIN4_3: u32 = 1u;
-override COUT4: u32 = 1u;   // padded output channels / 4 (the output tensor's stride)
+// The shape, activation and parameter block: nn/lib/conv_shape.
 override CO_BASE: u32 = 0u; // first output vec4 of this dispatch
 override CO_COUNT: u32 = 1u; // output vec4s of this dispatch (its weights)
-override ACT: u32 = 0u;     // 0 none, 1 relu, 2 leaky relu
-override SLOPE: f32 = 0.0;  // leaky relu slope
-
-struct Params {
-    width: u32,
-    height: u32,
-    _pad0: u32,
-    _pad1: u32,
-    src: array<vec4<u32>, 4>, // xy: the stored size of each input
-}
 
 const MAX_WEIGHTS: u32 = 4096u; // vec4s: 64 KiB, WebGPU's default uniform binding size
 
@@ -61,13 +47,7 @@ fn store(x: u32, y: u32, co4: u32, acc: vec4<f32>) {
     if (x >= p.width || co4 >= min(COUT4, CO_BASE + CO_COUNT)) {
         return;
     }
-    var r = acc;
-    if (ACT == 1u) {
-        r = max(r, vec4<f32>(0.0));
-    } else if (ACT == 2u) {
-        r = select(r * SLOPE, r, r >= vec4<f32>(0.0));
-    }
-    out[(y * p.width + x) * COUT4 + co4] = to_out(r);
+    out[(y * p.width + x) * COUT4 + co4] = to_out(activate(acc));
 }
 
 @compute @workgroup_size(8, 8, 1)

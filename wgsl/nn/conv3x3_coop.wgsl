@@ -33,22 +33,8 @@
 enable f16;
 enable wgpu_cooperative_matrix;
 
-override CIN4_0: u32 = 1u;  // padded channels / 4 of each input (inputs N_IN.. unused)
-override CIN4_1: u32 = 1u;
-override CIN4_2: u32 = 1u;
-override CIN4_3: u32 = 1u;
-override COUT4: u32 = 1u;   // padded output channels / 4 (the output tensor's stride)
+// The shape, activation and parameter block: nn/lib/conv_shape.
 override CO_PAD: u32 = 16u; // output channels of the packed weights (a multiple of NT * T)
-override ACT: u32 = 0u;     // 0 none, 1 relu, 2 leaky relu
-override SLOPE: f32 = 0.0;  // leaky relu slope
-
-struct Params {
-    width: u32,
-    height: u32,
-    _pad0: u32,
-    _pad1: u32,
-    src: array<vec4<u32>, 4>, // xy: the stored size of each input
-}
 
 // Pixels of the staged rows: the tile and one neighbour on each side.
 const ROW: u32 = {MT}u * {T}u + 2u;
@@ -140,13 +126,8 @@ fn main(@builtin(workgroup_id) wid: vec3<u32>, @builtin(local_invocation_index) 
         let co4 = (co_tile0 + {n}u) * C4 + e % C4;
         if (x < p.width && y < p.height && co4 < COUT4) {
             let i = (e / C4) * {T}u + (e % C4) * 4u;
-            var r = vec4<f32>(ctile[i], ctile[i + 1u], ctile[i + 2u], ctile[i + 3u]);
-            if (ACT == 1u) {
-                r = max(r, vec4<f32>(0.0));
-            } else if (ACT == 2u) {
-                r = select(r * SLOPE, r, r >= vec4<f32>(0.0));
-            }
-            out[(y * p.width + x) * COUT4 + co4] = to_out(r);
+            let r = vec4<f32>(ctile[i], ctile[i + 1u], ctile[i + 2u], ctile[i + 3u]);
+            out[(y * p.width + x) * COUT4 + co4] = to_out(activate(r));
         }
     }
     //#end
