@@ -109,6 +109,12 @@ def parse_args(argv=None) -> argparse.Namespace:
         "session) with a fresh optimizer",
     )
     ap.add_argument(
+        "--init-at", type=int, default=0, metavar="N",
+        help="with --init: begin at iteration N of the --iters run (the learning-rate schedule and the "
+        "sampled windows as if its first N iterations had run, e.g. to finish a run whose checkpoint was lost "
+        "from its last committed snapshot; Adam's moments start fresh)",
+    )
+    ap.add_argument(
         "--snapshot-every", type=int, default=0,
         help="also export RUN_DIR/snapshots/it_NNNNNNN.safetensors every N iterations (for learning curves; 0: off)",
     )
@@ -138,6 +144,10 @@ def parse_args(argv=None) -> argparse.Namespace:
         ap.error("--snapshot-every and --threads must not be negative")
     if args.init is not None and not os.path.isfile(args.init):
         ap.error(f"--init {args.init}: no such file")
+    if args.init_at and args.init is None:
+        ap.error("--init-at needs --init (the weights at that iteration)")
+    if not 0 <= args.init_at < args.iters:
+        ap.error(f"--init-at {args.init_at}: expected 0 <= N < --iters ({args.iters})")
     return args
 
 
@@ -179,6 +189,8 @@ def run_config(args: argparse.Namespace) -> dict:
         "lambdas": dict(args.lambdas),
         # Only present for runs started from weights (older checkpoints have no such key).
         **({"init": init_identity(args.init)} if args.init is not None else {}),
+        # Only present for runs begun part-way through their schedule (--init-at).
+        **({"init_at": args.init_at} if args.init_at else {}),
         # Only present when the loss sees the background (older checkpoints have no such key).
         **({"background": "loss"} if args.background == "loss" else {}),
         # Only present when sample thinning is on (older checkpoints have no such key).
@@ -544,8 +556,10 @@ def _train(args, config: dict, dd: Dist) -> dict:
             init_iterations = int(prov.get("campaign_iterations", prov.get("iterations", 0)) or 0)
         say(f"initialised from {args.init} ({init_iterations} iterations of training before this run)")
     opt = torch.optim.Adam(model.parameters(), lr=args.lr)
-    start, wall, history = 0, 0.0, []
+    start, wall, history = args.init_at, 0.0, []
+    fresh = True
     if args.resume and os.path.isfile(ckpt_path):
+        fresh = False
         ck = load_checkpoint(ckpt_path, config)
         model.load_state_dict(ck["model"])
         opt.load_state_dict(ck["optimizer"])
@@ -561,12 +575,14 @@ def _train(args, config: dict, dd: Dist) -> dict:
         say(f"note: --resume but no {ckpt_path}: starting from scratch")
     elif os.path.exists(ckpt_path):
         raise SystemExit(f"error: {ckpt_path} exists: pass --resume to continue it, or choose another --out")
-    if dd.main and start == 0:
+    if dd.main and fresh:
         with open(os.path.join(args.out, "run.json"), "w") as f:
             json.dump({"config": config, "args": vars(args)}, f, indent=2, sort_keys=True)
         if args.init is not None:
             # Where this run's iteration 0 sits in a campaign of runs continuing each other.
             _log(args.out, {"event": "init", "weights": args.init, "campaign_iterations": init_iterations})
+        if args.init_at:
+            say(f"beginning at iteration {start}/{args.iters} of the schedule (--init-at)")
 
     runner: nn.Module = SequenceRunner(model)
     if dd.enabled:
@@ -719,7 +735,8 @@ def _train(args, config: dict, dd: Dist) -> dict:
             "lr_schedule": "Adam; halved at 1/3 and 2/3 of the iterations",
             "losses": {"frame_weights": list(weights), "lambdas": dict(args.lambdas)},
             "seed": args.seed,
-            "campaign_iterations": init_iterations + it,
+            "campaign_iterations": init_iterations + it - args.init_at,
+            **({"init_at": args.init_at} if args.init_at else {}),
             "init": None if args.init is None else {
                 **config["init"],
                 "provenance": _json_or_str(init_meta.get("provenance")) if init_meta else None,

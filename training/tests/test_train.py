@@ -179,6 +179,32 @@ def test_init_from_weights_and_snapshots(dataset, tmp_path, capsys):
     assert "--init" in err and "other/weights.safetensors" in err and "config" in err
 
 
+def test_init_at_continues_a_schedule_from_its_snapshot(dataset, tmp_path, capsys):
+    # A 6-iteration run, and its snapshot at iteration 4 continued with --init-at 4: the second
+    # run does iterations 4..6 at the first run's learning rates (lr halved at 2 and 4), samples
+    # the windows the first run sampled there, and records where it began.
+    a = str(tmp_path / "a")
+    T.train(args(dataset, a, "--snapshot-every", "2", "--lr", "1e-3", iters=6))
+    lrs_a = {e["iteration"]: e["lr"] for e in map(json.loads, open(os.path.join(a, "log.jsonl"))) if e.get("event") == "train"}
+    b = str(tmp_path / "b")
+    snap = os.path.join(a, "snapshots", "it_0000004.safetensors")
+    res = T.train(args(dataset, b, "--init", snap, "--init-at", "4", "--lr", "1e-3", iters=6))
+    assert "beginning at iteration 4/6" in capsys.readouterr().out
+    lrs_b = {e["iteration"]: e["lr"] for e in map(json.loads, open(os.path.join(b, "log.jsonl"))) if e.get("event") == "train"}
+    assert sorted(lrs_b) == [5, 6] and all(lrs_b[i] == lrs_a[i] for i in lrs_b), (lrs_a, lrs_b)
+    _, meta = load_weights(res["weights"])
+    prov = meta["provenance"]
+    assert prov["iterations"] == 6 and prov["init_at"] == 4 and prov["campaign_iterations"] == 6
+    # it resumes like any run, and is refused without --init or past the end
+    T.train(args(dataset, b, "--init", snap, "--init-at", "4", "--lr", "1e-3", "--resume", iters=6))
+    with pytest.raises(SystemExit):
+        T.train(args(dataset, str(tmp_path / "c"), "--init-at", "2"))
+    assert "--init-at needs --init" in capsys.readouterr().err
+    with pytest.raises(SystemExit):
+        T.train(args(dataset, str(tmp_path / "c"), "--init", snap, "--init-at", "3", iters=3))
+    assert "0 <= N < --iters" in capsys.readouterr().err
+
+
 def test_train_baseline_exports(dataset, tmp_path):
     out = str(tmp_path / "rae")
     res = T.train(args(dataset, out, "--model", "rae", "--model-config", '{"enc": [8, 8], "bottleneck": 8}', iters=1))
