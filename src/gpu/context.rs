@@ -39,7 +39,19 @@ impl From<wgpu::DeviceType> for AdapterKind {
     }
 }
 
-/// How to pick the adapter. The defaults honour `WGPU_BACKEND` and `WGPU_ADAPTER_NAME`.
+/// How to pick the adapter. The defaults honour `WGPU_BACKEND`, `WGPU_ADAPTER_NAME` and
+/// `SUBPIXEL_COOP_MATRIX`.
+///
+/// ```no_run
+/// use subpixel::gpu::{Gpu, GpuOptions};
+/// // The discrete GPU, with the tensor-core convolution where its driver offers it.
+/// let gpu = Gpu::with_options(&GpuOptions {
+///     cooperative_matrix: Some(true),
+///     ..Default::default()
+/// })?;
+/// println!("{}: cooperative matrices {:?}", gpu.describe(), gpu.coop_tile);
+/// # Ok::<(), subpixel::Error>(())
+/// ```
 #[derive(Debug, Clone, Default)]
 pub struct GpuOptions {
     /// Substring (case-insensitive) of the adapter name; falls back to `WGPU_ADAPTER_NAME`.
