@@ -59,8 +59,9 @@ pub struct GpuOptions {
     /// Backends to consider; falls back to `WGPU_BACKEND`, then all.
     pub backends: Option<wgpu::Backends>,
     /// Whether to enable wgpu's experimental cooperative matrices (tensor cores) where the
-    /// adapter has the 16x16x16 f16 x f16 + f32 configuration the `nn/conv3x3_coop` kernel
-    /// uses; falls back to `SUBPIXEL_COOP_MATRIX` (`1` enables), then off. Experimental in
+    /// adapter has a configuration the `nn/conv3x3_coop` kernel uses (16x16x16 or 8x8x8, f16
+    /// x f16 + f32; [`adapter_coop_tile`]); falls back to `SUBPIXEL_COOP_MATRIX` (`1`
+    /// enables), then off. Experimental in
     /// wgpu 30: opt-in, and the autotuner checks the kernel's output before it times it.
     pub cooperative_matrix: Option<bool>,
 }
