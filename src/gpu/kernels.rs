@@ -811,41 +811,79 @@ mod tests {
         }
     }
 
-    /// Every expansion of a template kernel the crate can ask for validates with naga:
-    /// each conv tiling the autotuner may pick, for 1 to 4 inputs, in both parameter
-    /// bindings, with f32 and f16 storage; the f16 variants of the other kernels.
+    /// SPIR-V of a validated module with its override constants at their defaults (what the
+    /// Vulkan backend compiles), through naga's SPIR-V writer.
+    fn spirv(module: &naga::Module, info: &naga::valid::ModuleInfo) -> std::result::Result<Vec<u32>, String> {
+        let constants = naga::back::PipelineConstants::default();
+        let (module, info) =
+            naga::back::pipeline_constants::process_overrides(module, info, None, &constants)
+                .map_err(|e| e.to_string())?;
+        let options = naga::back::spv::Options {
+            lang_version: (1, 5),
+            ..Default::default()
+        };
+        naga::back::spv::write_vec(&module, &info, &options, None).map_err(|e| e.to_string())
+    }
+
+    /// Every expansion of a template kernel the crate can ask for validates with naga and
+    /// translates to SPIR-V: each conv tiling the autotuner may pick (register-blocked, and
+    /// cooperative-matrix ones with 16x16 and 8x8 matrices and subgroups of 32 and 8, whose
+    /// SPIR-V declares the cooperative-matrix capability: what a machine without tensor
+    /// cores can check of them), for 1 to 4 inputs, in both parameter bindings, with f32 and
+    /// f16 storage; the f16 variants of the other kernels. `SUBPIXEL_DUMP_SPIRV=DIR` writes
+    /// the cooperative ones' SPIR-V there (for `spirv-val`).
     #[test]
-    fn every_template_expansion_validates_with_naga() {
-        let k = kernel_source("nn/conv3x3_blocked").unwrap();
+    fn every_template_expansion_validates_and_translates_to_spirv() {
+        use crate::nn::conv::ConvKernel;
         let mut n = 0;
-        for kernel in crate::nn::conv::ConvKernel::blocked_tilings() {
-            let crate::nn::conv::ConvKernel::Blocked { px, cob } = kernel else {
-                unreachable!()
-            };
+        for kernel in ConvKernel::blocked_tilings()
+            .into_iter()
+            .chain(ConvKernel::coop_tilings())
+        {
             for inputs in 1..=4 {
                 for params in [ParamsBinding::Uniform, ParamsBinding::Storage] {
                     // f32 storage, and f16 for the first input and the output.
                     for f16 in [0, 1] {
-                        let src = k
-                            .wgsl(
-                                params,
-                                &[
-                                    ("N_IN", inputs),
-                                    ("PX", px),
-                                    ("COB", cob),
-                                    ("F16_IN0", f16),
-                                    ("F16_OUT", f16),
-                                ],
-                            )
-                            .unwrap();
-                        validate_wgsl(k.name, &src)
-                            .unwrap_or_else(|e| panic!("{kernel} x{inputs} f16 {f16}: {e}"));
+                        let mut template = vec![("N_IN", inputs), ("F16_IN0", f16), ("F16_OUT", f16)];
+                        let name = match kernel {
+                            ConvKernel::Blocked { px, cob } => {
+                                template.extend([("PX", px), ("COB", cob)]);
+                                "nn/conv3x3_blocked"
+                            }
+                            ConvKernel::Coop { mt, nt } => {
+                                template.extend([
+                                    ("MT", mt),
+                                    ("NT", nt),
+                                    ("SG", if f16 == 0 { 32 } else { 8 }),
+                                    ("T", if (inputs + f16) % 2 == 0 { 16 } else { 8 }),
+                                ]);
+                                "nn/conv3x3_coop"
+                            }
+                            ConvKernel::Generic => unreachable!(),
+                        };
+                        let k = kernel_source(name).unwrap();
+                        let case = format!("{kernel} x{inputs} f16 {f16} {params:?}");
+                        let src = k.wgsl(params, &template).unwrap();
+                        let (module, info) =
+                            validate_wgsl_info(k.name, &src).unwrap_or_else(|e| panic!("{case}: {e}"));
+                        let words = spirv(&module, &info).unwrap_or_else(|e| panic!("{case}: {e}"));
+                        if let ConvKernel::Coop { .. } = kernel {
+                            if let Ok(dir) = std::env::var("SUBPIXEL_DUMP_SPIRV") {
+                                let path = format!("{dir}/{kernel}-x{inputs}-f16{f16}-{params:?}.spv");
+                                std::fs::write(path, bytemuck::cast_slice::<u32, u8>(&words)).unwrap();
+                            }
+                            // OpCapability (17, one operand) CooperativeMatrixKHR (6022).
+                            assert!(
+                                words.windows(2).any(|w| w == [(2 << 16) | 17, 6022]),
+                                "{case}: no CooperativeMatrixKHR capability"
+                            );
+                        }
                         n += 1;
                     }
                 }
             }
         }
-        assert!(n >= 200, "{n} expansions");
+        assert!(n >= 200 + 96, "{n} expansions");
         // The f16 storage variants of the other kernels that have them, every flag alone.
         for (name, flags) in [
             (
@@ -861,67 +899,6 @@ mod tests {
                 validate_wgsl(name, &src).unwrap_or_else(|e| panic!("{name} {flag}: {e}"));
             }
         }
-    }
-
-    /// Every expansion of the cooperative-matrix convolution the autotuner may pick (each
-    /// tiling, 1 to 4 inputs, f32 and f16 storage, both parameter bindings, 16x16 and 8x8
-    /// matrices, subgroups of 32 and 8) validates with
-    /// naga and translates to SPIR-V that declares the cooperative-matrix capability: what
-    /// this machine can check of a kernel that only runs on an adapter with tensor cores.
-    #[test]
-    fn every_coop_expansion_translates_to_spirv() {
-        let k = kernel_source("nn/conv3x3_coop").unwrap();
-        let mut n = 0;
-        for kernel in crate::nn::conv::ConvKernel::coop_tilings() {
-            let crate::nn::conv::ConvKernel::Coop { mt, nt } = kernel else {
-                unreachable!()
-            };
-            for inputs in 1..=4 {
-                for params in [ParamsBinding::Uniform, ParamsBinding::Storage] {
-                    for f16 in [0, 1] {
-                        let src = k
-                            .wgsl(
-                                params,
-                                &[
-                                    ("N_IN", inputs),
-                                    ("MT", mt),
-                                    ("NT", nt),
-                                    ("SG", if f16 == 0 { 32 } else { 8 }),
-                                    ("T", if (inputs + f16) % 2 == 0 { 16 } else { 8 }),
-                                    ("F16_IN0", f16),
-                                    ("F16_OUT", f16),
-                                ],
-                            )
-                            .unwrap();
-                        let case = format!("{kernel} x{inputs} f16 {f16} {params:?}");
-                        let (module, info) =
-                            validate_wgsl_info(k.name, &src).unwrap_or_else(|e| panic!("{case}: {e}"));
-                        let constants = naga::back::PipelineConstants::default();
-                        let (module, info) = naga::back::pipeline_constants::process_overrides(
-                            &module, &info, None, &constants,
-                        )
-                        .unwrap_or_else(|e| panic!("{case}: {e}"));
-                        let options = naga::back::spv::Options {
-                            lang_version: (1, 5),
-                            ..Default::default()
-                        };
-                        let words = naga::back::spv::write_vec(&module, &info, &options, None)
-                            .unwrap_or_else(|e| panic!("{case}: {e}"));
-                        if let Ok(dir) = std::env::var("SUBPIXEL_DUMP_SPIRV") {
-                            let path = format!("{dir}/coop-m{mt}-n{nt}-x{inputs}-f16{f16}-{params:?}.spv");
-                            std::fs::write(path, bytemuck::cast_slice::<u32, u8>(&words)).unwrap();
-                        }
-                        // OpCapability (17, one operand) CooperativeMatrixKHR (6022).
-                        assert!(
-                            words.windows(2).any(|w| w == [(2 << 16) | 17, 6022]),
-                            "{case}: no CooperativeMatrixKHR capability"
-                        );
-                        n += 1;
-                    }
-                }
-            }
-        }
-        assert_eq!(n, 96);
     }
 
     /// Every `.wgsl` file under `wgsl/` is registered, so none escapes validation.
