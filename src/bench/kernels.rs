@@ -99,21 +99,29 @@ pub fn bench_kernels(gpu: &Gpu, o: &KernelBenchOptions) -> Result<Vec<KernelTimi
     let conv = bench_conv(gpu, c)?;
     for kernel in conv.candidates(gpu) {
         let mut name = format!("conv3x3 {c}->{c} relu {kernel}");
-        if let crate::nn::conv::ConvKernel::Coop { .. } = kernel {
+        let dispatch = if let crate::nn::conv::ConvKernel::Coop { .. } = kernel {
             // The experimental tensor-core kernel: its agreement with the CPU reference
             // (what the autotuner requires) beside its time; a failure is reported, not fatal.
             let (cw, ch) = crate::nn::autotune::COOP_CHECK_SIZE;
-            match conv.output_error(gpu, kernel, cw, ch, &[]) {
-                Ok(e) => name += &format!(" (error vs CPU {e:.1e})"),
+            let checked = conv
+                .output_error(gpu, kernel, cw, ch, &[])
+                .and_then(|e| Ok((e, conv.bind_with(gpu, kernel, &[&x], &y)?)));
+            match checked {
+                Ok((e, d)) => {
+                    name += &format!(" (error vs CPU {e:.1e})");
+                    d
+                }
                 Err(e) => {
                     log::warn!("conv3x3 {kernel} skipped: {e}");
                     continue;
                 }
             }
-        }
+        } else {
+            conv.bind_with(gpu, kernel, &[&x], &y)?
+        };
         cases.push(Case {
             name,
-            dispatch: conv.bind_with(gpu, kernel, &[&x], &y)?,
+            dispatch,
             bytes: b(&x) + b(&y) + (c * c * 9 * 4) as u64,
             flops: conv.flops_per_pixel() * px,
         });
