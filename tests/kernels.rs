@@ -429,11 +429,11 @@ fn conv3x3_coop_without_cooperative_matrices_is_a_named_error() {
         conv.candidates(&g)
     );
     let e = conv
-        .set_kernel(&g, ConvKernel::Coop { mt: 1, nt: 1 })
+        .set_kernel(&g, ConvKernel::Coop { mt: 1, nt: 1, rt: 1 })
         .unwrap_err()
         .to_string();
     assert!(
-        e.contains("'tc'") && e.contains("coop-m1-n1") && e.contains("SUBPIXEL_COOP_MATRIX=1"),
+        e.contains("'tc'") && e.contains("coop-m1-n1-r1") && e.contains("SUBPIXEL_COOP_MATRIX=1"),
         "{e}"
     );
 }

@@ -850,10 +850,11 @@ mod tests {
                                 template.extend([("PX", px), ("COB", cob)]);
                                 "nn/conv3x3_blocked"
                             }
-                            ConvKernel::Coop { mt, nt } => {
+                            ConvKernel::Coop { mt, nt, rt } => {
                                 template.extend([
                                     ("MT", mt),
                                     ("NT", nt),
+                                    ("RT", rt),
                                     ("SG", if f16 == 0 { 32 } else { 8 }),
                                     ("T", if (inputs + f16) % 2 == 0 { 16 } else { 8 }),
                                 ]);
@@ -883,7 +884,7 @@ mod tests {
                 }
             }
         }
-        assert!(n >= 200 + 96, "{n} expansions");
+        assert!(n >= 200 + 160, "{n} expansions");
         // The f16 storage variants of the other kernels that have them, every flag alone.
         for (name, flags) in [
             (

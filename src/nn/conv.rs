@@ -69,6 +69,8 @@ pub const BLOCKED_MAX_PX: u32 = 16;
 /// significands; a sum of n products then errs by about sqrt(n) * 2^-11 of the terms'
 /// scale), its sums are f32.
 pub const COOP_TOLERANCE: f32 = 4e-3;
+/// Most accumulator matrices (`mt * nt * rt`) one cooperative-matrix subgroup may hold.
+pub const COOP_MAX_ACC: u32 = 8;
 
 /// The workgroup size of `nn/conv3x3_coop` on `gpu`: one subgroup, the adapter's largest
 /// (where subgroups may be smaller, a workgroup holds several that repeat the same matrix
@@ -90,13 +92,15 @@ pub enum ConvKernel {
         /// Output vec4s (4 channels each) per invocation (1..=32, `px * cob <= 32`).
         cob: u32,
     },
-    /// `nn/conv3x3_coop`: one subgroup per `mt` tiles of T pixels of a row times `nt`
+    /// `nn/conv3x3_coop`: one subgroup per `mt` tiles of T pixels of `rt` rows times `nt`
     /// output tiles of T channels, on T x T cooperative matrices ([`Gpu::coop_tile`]).
     Coop {
         /// Pixel tiles per subgroup (1, 2 or 4).
         mt: u32,
         /// Output-channel tiles per subgroup (1 or 2).
         nt: u32,
+        /// Rows per subgroup (1 or 2): more rows share each staged input row.
+        rt: u32,
     },
 }
 
@@ -105,29 +109,38 @@ impl std::fmt::Display for ConvKernel {
         match self {
             ConvKernel::Generic => write!(f, "generic"),
             ConvKernel::Blocked { px, cob } => write!(f, "px{px}-cob{cob}"),
-            ConvKernel::Coop { mt, nt } => write!(f, "coop-m{mt}-n{nt}"),
+            ConvKernel::Coop { mt, nt, rt } => write!(f, "coop-m{mt}-n{nt}-r{rt}"),
         }
     }
 }
 
 impl std::str::FromStr for ConvKernel {
     type Err = Error;
-    /// Parses `generic`, `pxP-cobC` or `coop-mM-nN` (as [`ConvKernel`]'s `Display` writes
-    /// them).
+    /// Parses `generic`, `pxP-cobC` or `coop-mM-nN-rR` (as [`ConvKernel`]'s `Display`
+    /// writes them).
     fn from_str(s: &str) -> Result<Self> {
         let bad = || {
             Error::Invalid(format!(
-                "conv kernel '{s}': expected 'generic', 'pxP-cobC' (e.g. px4-cob2) or 'coop-mM-nN' (e.g. coop-m2-n2)"
+                "conv kernel '{s}': expected 'generic', 'pxP-cobC' (e.g. px4-cob2) or 'coop-mM-nN-rR' (e.g. coop-m2-n2-r1)"
             ))
         };
         if s == "generic" {
             return Ok(ConvKernel::Generic);
         }
         if let Some(rest) = s.strip_prefix("coop-") {
-            let (a, b) = rest.split_once('-').ok_or_else(bad)?;
-            let mt = a.strip_prefix('m').and_then(|v| v.parse().ok()).ok_or_else(bad)?;
-            let nt = b.strip_prefix('n').and_then(|v| v.parse().ok()).ok_or_else(bad)?;
-            let k = ConvKernel::Coop { mt, nt };
+            let mut parts = rest.split('-');
+            let mut field = |prefix: char| {
+                parts
+                    .next()
+                    .and_then(|p| p.strip_prefix(prefix))
+                    .and_then(|v| v.parse().ok())
+                    .ok_or_else(bad)
+            };
+            let (mt, nt, rt) = (field('m')?, field('n')?, field('r')?);
+            if parts.next().is_some() {
+                return Err(bad());
+            }
+            let k = ConvKernel::Coop { mt, nt, rt };
             k.check_tiling()
                 .map_err(|m| Error::Invalid(format!("conv kernel '{s}': {m}")))?;
             return Ok(k);
@@ -164,12 +177,18 @@ impl ConvKernel {
         v
     }
 
-    /// The cooperative-matrix tilings the autotuner tries where the device has them.
+    /// The cooperative-matrix tilings the autotuner tries where the device has them: 1, 2
+    /// or 4 pixel tiles times 1 or 2 channel tiles times 1 or 2 rows, at most
+    /// [`COOP_MAX_ACC`] accumulators.
     pub fn coop_tilings() -> Vec<ConvKernel> {
         let mut v = Vec::new();
-        for mt in [1, 2, 4] {
-            for nt in [1, 2] {
-                v.push(ConvKernel::Coop { mt, nt });
+        for rt in [1, 2] {
+            for mt in [1, 2, 4] {
+                for nt in [1, 2] {
+                    if mt * nt * rt <= COOP_MAX_ACC {
+                        v.push(ConvKernel::Coop { mt, nt, rt });
+                    }
+                }
             }
         }
         v
@@ -184,9 +203,15 @@ impl ConvKernel {
                     ));
                 }
             }
-            ConvKernel::Coop { mt, nt } => {
-                if ![1, 2, 4].contains(&mt) || ![1, 2].contains(&nt) {
-                    return Err("mt must be 1, 2 or 4 and nt 1 or 2".into());
+            ConvKernel::Coop { mt, nt, rt } => {
+                if ![1, 2, 4].contains(&mt)
+                    || ![1, 2].contains(&nt)
+                    || ![1, 2].contains(&rt)
+                    || mt * nt * rt > COOP_MAX_ACC
+                {
+                    return Err(format!(
+                        "mt must be 1, 2 or 4, nt and rt 1 or 2, and mt * nt * rt <= {COOP_MAX_ACC}"
+                    ));
                 }
             }
             ConvKernel::Generic => {}
@@ -710,7 +735,7 @@ impl Conv3x3 {
                 let first = parts.next().expect("a supported layer has at least one chunk");
                 Ok(first.chain(parts))
             }
-            ConvKernel::Coop { mt, nt } => {
+            ConvKernel::Coop { mt, nt, rt } => {
                 let tile = gpu.coop_tile.unwrap_or(16);
                 let co_pad = self.coop_co_pad(nt, tile);
                 let mut spec = shaped();
@@ -718,6 +743,7 @@ impl Conv3x3 {
                     ("CO_PAD", co_pad as f64),
                     ("MT", mt as f64),
                     ("NT", nt as f64),
+                    ("RT", rt as f64),
                     ("SG", coop_subgroup(gpu) as f64),
                     ("T", tile as f64),
                 ]);
@@ -731,7 +757,7 @@ impl Conv3x3 {
                     &bufs,
                     Grid::Invocations([
                         w.div_ceil(mt * tile) * coop_subgroup(gpu),
-                        h,
+                        h.div_ceil(rt),
                         co_pad / (nt * tile),
                     ]),
                 )
@@ -801,9 +827,12 @@ mod tests {
             "px4",
             "cob4-px4",
             "fast",
-            "coop-m3-n1",
-            "coop-m1-n4",
+            "coop-m3-n1-r1",
+            "coop-m1-n4-r1",
             "coop-m1",
+            "coop-m2-n2",
+            "coop-m4-n2-r2",
+            "coop-m1-n1-r1-x",
         ] {
             let e = bad.parse::<ConvKernel>().unwrap_err().to_string();
             assert!(e.contains(bad), "{e}");
