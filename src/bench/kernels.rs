@@ -97,14 +97,28 @@ pub fn bench_kernels(gpu: &Gpu, o: &KernelBenchOptions) -> Result<Vec<KernelTimi
     let b = |t: &Tensor| t.bytes();
     let mut cases = Vec::new();
     let conv = bench_conv(gpu, c)?;
-    for kernel in conv.candidates(gpu) {
+    let candidates = conv.candidates(gpu);
+    // The experimental tensor-core kernel: its agreement with the CPU reference (what the
+    // autotuner requires) beside its time, all tilings on one set of inputs; a failure is
+    // reported, not fatal.
+    let coop: Vec<ConvKernel> = candidates
+        .iter()
+        .copied()
+        .filter(|k| matches!(k, ConvKernel::Coop { .. }))
+        .collect();
+    let (cw, ch) = autotune::COOP_CHECK_SIZE;
+    let mut coop_errors = if coop.is_empty() {
+        Vec::new()
+    } else {
+        conv.output_errors(gpu, &coop, cw, ch, &[])?
+    }
+    .into_iter();
+    for kernel in candidates {
         let mut name = format!("conv3x3 {c}->{c} relu {kernel}");
-        let dispatch = if let crate::nn::conv::ConvKernel::Coop { .. } = kernel {
-            // The experimental tensor-core kernel: its agreement with the CPU reference
-            // (what the autotuner requires) beside its time; a failure is reported, not fatal.
-            let (cw, ch) = crate::nn::autotune::COOP_CHECK_SIZE;
-            let checked = conv
-                .output_error(gpu, kernel, cw, ch, &[])
+        let dispatch = if let ConvKernel::Coop { .. } = kernel {
+            let checked = coop_errors
+                .next()
+                .expect("one check per cooperative tiling")
                 .and_then(|e| Ok((e, conv.bind_with(gpu, kernel, &[&x], &y)?)));
             match checked {
                 Ok((e, d)) => {

@@ -261,11 +261,11 @@ impl Gpu {
                 adapter: info.name.clone(),
                 source,
             })?;
-        let mut gpu = Self::from_device(&device, &queue, info);
-        if gpu.coop_tile.is_some() {
-            gpu.coop_tile = tile;
-        }
-        Ok(gpu)
+        // The adapter's own matrix size (a wrapped device is assumed to have 16).
+        Ok(Self {
+            coop_tile: tile,
+            ..Self::from_device(&device, &queue, info)
+        })
     }
 
     /// Wraps a device the caller already owns (the embedding route).

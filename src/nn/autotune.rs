@@ -371,15 +371,40 @@ pub fn measure(
             .map(|kernel| (kernel, conv.bind_with(gpu, kernel, &refs, &out)))
             .collect()
     };
+    // The cooperative-matrix kernel runs on experimental driver paths: its output is
+    // checked against the CPU reference (at a small size with partial tiles, one set of
+    // inputs for every tiling) before it is timed.
+    let coop: Vec<ConvKernel> = bound
+        .iter()
+        .map(|b| b.0)
+        .filter(|k| matches!(k, ConvKernel::Coop { .. }))
+        .collect();
+    let mut coop_errors: std::collections::HashMap<ConvKernel, Result<f32>> = if coop.is_empty() {
+        Default::default()
+    } else {
+        let (w, h) = COOP_CHECK_SIZE;
+        match conv.output_errors(gpu, &coop, w, h, &storage.inputs) {
+            Ok(errors) => coop.iter().copied().zip(errors).collect(),
+            Err(e) => coop
+                .iter()
+                .map(|&k| {
+                    let message = format!("its output check could not run: {e}");
+                    (
+                        k,
+                        Err(Error::Kernel {
+                            kernel: "nn/conv3x3_coop".into(),
+                            message,
+                        }),
+                    )
+                })
+                .collect(),
+        }
+    };
     let mut candidates = Vec::new();
     let mut gpu_timestamps = true;
     for (kernel, dispatch) in bound {
-        // The cooperative-matrix kernel runs on experimental driver paths: its output is
-        // checked against the CPU reference (at a small size with partial tiles) first.
-        let checked = match kernel {
-            ConvKernel::Coop { .. } => conv
-                .output_error(gpu, kernel, COOP_CHECK_SIZE.0, COOP_CHECK_SIZE.1, &storage.inputs)
-                .and_then(|e| {
+        let checked = match coop_errors.remove(&kernel) {
+            Some(error) => error.and_then(|e| {
                     if e <= COOP_TOLERANCE {
                         Ok(())
                     } else {
@@ -391,7 +416,7 @@ pub fn measure(
                         })
                     }
                 }),
-            _ => Ok(()),
+            None => Ok(()),
         };
         let timed = checked
             .and(dispatch)

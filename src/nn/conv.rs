@@ -427,6 +427,21 @@ impl Conv3x3 {
         h: u32,
         dtypes: &[super::DType],
     ) -> Result<f32> {
+        let mut errors = self.output_errors(gpu, &[kernel], w, h, dtypes)?;
+        errors.pop().expect("one kernel, one result")
+    }
+
+    /// [`Conv3x3::output_error`] of each of `kernels`, on one set of inputs and one CPU
+    /// reference: an error building those is the outer one, a kernel that fails to bind or
+    /// run gets its own.
+    pub fn output_errors(
+        &self,
+        gpu: &Gpu,
+        kernels: &[ConvKernel],
+        w: u32,
+        h: u32,
+        dtypes: &[super::DType],
+    ) -> Result<Vec<Result<f32>>> {
         use super::ops::run;
         use super::reference::{self, HostTensor};
         let mut stored = Vec::new();
@@ -450,15 +465,20 @@ impl Conv3x3 {
         }
         let out = super::Tensor::new(gpu, "check.out", w, h, self.cout)?;
         let refs: Vec<&super::Tensor> = stored.iter().collect();
-        run(gpu, &[&self.bind_with(gpu, kernel, &refs, &out)?])?;
-        let got = out.read(gpu)?;
         let hin: Vec<&HostTensor> = seen.iter().collect();
         let want = reference::conv3x3(&hin, &self.weight, &self.bias_host, self.cout, self.act);
         let scale = want.data.iter().fold(1.0f32, |m, v| m.max(v.abs()));
-        Ok(got.data.iter().zip(&want.data).fold(0.0f32, |m, (g, r)| {
-            let e = (g - r).abs() / scale;
-            if e.is_finite() { m.max(e) } else { f32::INFINITY }
-        }))
+        Ok(kernels
+            .iter()
+            .map(|&kernel| {
+                run(gpu, &[&self.bind_with(gpu, kernel, &refs, &out)?])?;
+                let got = out.read(gpu)?;
+                Ok(got.data.iter().zip(&want.data).fold(0.0f32, |m, (g, r)| {
+                    let e = (g - r).abs() / scale;
+                    if e.is_finite() { m.max(e) } else { f32::INFINITY }
+                }))
+            })
+            .collect())
     }
 
     /// FLOPs per output pixel (multiply and add counted separately).
