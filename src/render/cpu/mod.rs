@@ -120,7 +120,9 @@ impl CpuTracer {
     /// of two walls), a backend whose arithmetic rounds otherwise (fused multiply-adds on a
     /// GPU) may report the surface on the other side of the edge. A brute-force test of
     /// every triangle (the BVH traversal's triangle test and alpha cut-outs, none of its
-    /// order), for diagnostics and tests.
+    /// order), for diagnostics and tests. A surface found by a tilted ray has the values of
+    /// the pixel's own ray meeting that triangle's plane (just beyond its edge), so that
+    /// depth and motion are those the other backend reports, not shifted by the tilt.
     pub fn primary_surfaces(
         &self,
         scene: &PackedScene,
@@ -132,6 +134,7 @@ impl CpuTracer {
         let p = self.params(s, s.seed);
         let d = primary_dir(&p, x, y);
         let o = glam::Vec3A::from_slice(&p.cam.pos[..3]);
+        let d0 = d;
         let mut dirs = vec![d];
         if graze > 0.0 {
             let (a, b) = glam::Vec3::from(d).any_orthonormal_pair();
@@ -161,7 +164,14 @@ impl CpuTracer {
                 if found.iter().any(|f| f.triangle == triangle) {
                     continue;
                 }
-                let g = gbuffer_of_hit(scene, &p, x, y, d, h);
+                // Along the pixel's own ray (the same hit for the untilted ray).
+                let h = traverse::plane_hit(scene, h.prim, o, d0).map_or(*h, |(t, u, v)| traverse::Hit {
+                    t,
+                    u,
+                    v,
+                    ..*h
+                });
+                let g = gbuffer_of_hit(scene, &p, x, y, d0, &h);
                 let [a0, a1, a2, depth] = g.albedo_depth;
                 let [n0, n1, n2, metallic] = g.normal_metallic;
                 found.push(PrimarySurface {

@@ -29,6 +29,18 @@ pub(crate) fn intersect_tri(
     tmin: f32,
     tmax: f32,
 ) -> Option<(f32, f32, f32)> {
+    let (t, u, v) = plane_hit(sc, prim, o, d)?;
+    let w = 1.0 - u - v;
+    if (u.to_bits() | v.to_bits() | w.to_bits()) & 0x8000_0000 != 0 {
+        return None;
+    }
+    (t >= tmin && t <= tmax).then_some((t, u, v))
+}
+
+/// `(t, u, v)` where `o + t d` meets the plane of triangle `prim`, with the barycentric
+/// weights of v1 and v2 (outside `[0, 1]` off the triangle); `None` parallel to it.
+#[inline(always)]
+pub(crate) fn plane_hit(sc: &PackedScene, prim: u32, o: Vec3, d: Vec3) -> Option<(f32, f32, f32)> {
     let t4 = &sc.tris[4 * prim as usize..4 * prim as usize + 3];
     let (v0, e1, e2) = (
         Vec3::from_slice(&t4[0][..3]),
@@ -44,14 +56,7 @@ pub(crate) fn intersect_tri(
         return None;
     }
     let inv_det = 1.0 / det;
-    let u = r.dot(e2) * inv_det;
-    let v = r.dot(e1) * inv_det;
-    let w = 1.0 - u - v;
-    if (u.to_bits() | v.to_bits() | w.to_bits()) & 0x8000_0000 != 0 {
-        return None;
-    }
-    let t = n.dot(c) * inv_det;
-    (t >= tmin && t <= tmax).then_some((t, u, v))
+    Some((n.dot(c) * inv_det, r.dot(e2) * inv_det, r.dot(e1) * inv_det))
 }
 
 /// Closest hit (or, with `any_hit`, any hit of a triangle that does not pass light straight
