@@ -15,6 +15,11 @@ Sequences are T = 5 frames. `preds` and `refs` are radiance (linear HDR, the rem
           few samples find light they leave the image's level loosely tied to the
           reference; this term ties the local mean radiance (issue 11; weight 5 took the
           val brightness error from 44.7 % to 30.7 %, training/README.md).
+    l_ssim structural: 1 - SSIM(tm(p_t), tm(r_t)), weighted by FRAME_WEIGHTS, where tm is the
+          metric's tonemap (metrics.py: Hable filmic, exposure 2, white 11.2, gamma 2.2) in
+          [0, 1] without the 8-bit rounding, and SSIM the metric's (11x11 Gaussian window,
+          sigma 1.5, K1 0.01, K2 0.03, valid window positions, per channel, averaged). Weight
+          0 by default (not computed); `--lambda ssim=W` turns it on.
     l_a   albedo loss, last frame only: L1 in the log-demodulated space where the network
           predicts, between its raw output o_{T-1} and the reference demodulated by the same
           albedo (and exposure s) the model remodulates with:
@@ -26,7 +31,8 @@ Sequences are T = 5 frames. `preds` and `refs` are radiance (linear HDR, the rem
           radiance losses give no gradient, and it weighs dark-albedo regions fairly.
 
 The frame-weighted terms are plain weighted sums sum_t w_t * l(t) (not normalised by
-sum w_t). total = 0.7 l_s + 0.1 l_t + 0.2 l_e + 0.4 l_wt + 5.0 l_a + 5.0 l_m (LAMBDAS).
+sum w_t). total = 0.7 l_s + 0.1 l_t + 0.2 l_e + 0.4 l_wt + 5.0 l_a + 5.0 l_m + 0 l_ssim
+(LAMBDAS).
 """
 
 from __future__ import annotations
@@ -37,10 +43,13 @@ from typing import Dict, Optional, Sequence, Tuple, Union
 import torch
 import torch.nn.functional as F
 
+from .metrics import EXPOSURE, GAMMA, SSIM_K1, SSIM_K2, SSIM_SIGMA, SSIM_WINDOW, WHITE
 from .model import demodulate, warp
 
 FRAME_WEIGHTS: Tuple[float, ...] = (0.05, 0.25, 0.5, 0.75, 1.0)
-LAMBDAS: Dict[str, float] = {"s": 0.7, "t": 0.1, "e": 0.2, "wt": 0.4, "a": 5.0, "m": 5.0}
+LAMBDAS: Dict[str, float] = {"s": 0.7, "t": 0.1, "e": 0.2, "wt": 0.4, "a": 5.0, "m": 5.0, "ssim": 0.0}
+# Below this the tonemap's gamma 1/2.2 has an unbounded slope: l_ssim clamps its input there.
+TONEMAP_FLOOR = 1e-4
 MEAN_BLOCK = 16
 SMAPE_EPS = 1e-2
 HFEN_EPS = 1e-2
@@ -134,6 +143,46 @@ def mean_loss(preds: Frames, refs: Frames, frame_weights: Optional[Sequence[floa
     return sum(wt * smape(block_means(p[:, t], block), block_means(r[:, t], block)) for t, wt in enumerate(w))
 
 
+def tonemap(x: torch.Tensor) -> torch.Tensor:
+    """The metric's tonemap (metrics.tonemap), differentiable: [0, 1], no 8-bit rounding; the
+    gamma's input is clamped to TONEMAP_FLOOR so that its slope stays finite."""
+    a, b, c, d, e, f = 0.15, 0.50, 0.10, 0.20, 0.02, 0.30
+
+    def hable(v):
+        return (v * (a * v + c * b) + d * e) / (v * (a * v + b) + d * f) - e / f
+
+    v = torch.clamp(torch.nan_to_num(x, nan=0.0, posinf=0.0, neginf=0.0), min=0.0)
+    t = torch.clamp(hable(EXPOSURE * v) / hable(torch.tensor(WHITE)), TONEMAP_FLOOR, 1.0)
+    return t ** (1.0 / GAMMA)
+
+
+def ssim_map_mean(x: torch.Tensor, y: torch.Tensor) -> torch.Tensor:
+    """Mean SSIM of images [N, C, H, W] in [0, 1] (the metric's window and constants, L = 1)."""
+    c, h, w = x.shape[1:]
+    win = min(SSIM_WINDOW, w, h)
+    half = (win - 1) / 2.0
+    g = torch.exp(-((torch.arange(win, dtype=x.dtype, device=x.device) - half) ** 2) / (2.0 * SSIM_SIGMA**2))
+    g = g / g.sum()
+    k = (g[:, None] * g[None, :]).view(1, 1, win, win).expand(c, 1, win, win)
+
+    def filt(t: torch.Tensor) -> torch.Tensor:
+        return F.conv2d(t, k, groups=c)
+
+    mx, my = filt(x), filt(y)
+    vx = filt(x * x) - mx * mx
+    vy = filt(y * y) - my * my
+    cov = filt(x * y) - mx * my
+    c1, c2 = SSIM_K1**2, SSIM_K2**2
+    return (((2 * mx * my + c1) * (2 * cov + c2)) / ((mx * mx + my * my + c1) * (vx + vy + c2))).mean()
+
+
+def ssim_loss(preds: Frames, refs: Frames, frame_weights: Optional[Sequence[float]] = None) -> torch.Tensor:
+    """l_ssim = sum_t w_t (1 - SSIM(tonemap(p_t), tonemap(r_t)))."""
+    p, r = _stack(preds, "preds"), _stack(refs, "refs")
+    w = _weights(p.shape[1], frame_weights)
+    return sum(wt * (1.0 - ssim_map_mean(tonemap(p[:, t]), tonemap(r[:, t]))) for t, wt in enumerate(w))
+
+
 def warped_temporal_loss(preds: Frames, refs: Frames, motion: Frames) -> torch.Tensor:
     """l_wt on the last two frames, masked by the warp validity, on log1p(max(x, 0)).
 
@@ -166,7 +215,8 @@ def total_loss(
     frame_weights: Optional[Sequence[float]] = None,
     lambdas: Optional[Dict[str, float]] = None,
 ) -> Tuple[torch.Tensor, Dict[str, torch.Tensor]]:
-    """Combined loss of a sequence. Returns (total, {"l_s", "l_t", "l_e", "l_wt", "l_a", "l_m"}).
+    """Combined loss of a sequence. Returns (total, {"l_s", "l_t", "l_e", "l_wt", "l_a", "l_m"}, and
+    "l_ssim" where its weight is not 0).
 
     preds, refs: radiance [N, T, 3, H, W] (or lists). aux:
         motion      [N, T, 2, H, W] (or list): each frame's motion
@@ -189,9 +239,11 @@ def total_loss(
         "l_a": albedo_loss(aux["o"], r[:, -1], aux["albedo_mod"], aux.get("exposure")),
         "l_m": mean_loss(p, r, frame_weights),
     }
-    unknown = set(lam) - {k[2:] for k in parts}
+    if lam.get("ssim", 0.0) != 0.0:
+        parts["l_ssim"] = ssim_loss(p, r, frame_weights)
+    unknown = set(lam) - set(LAMBDAS)
     if unknown:
-        raise KeyError(f"total_loss: unknown loss weight(s) {sorted(unknown)}, expected {sorted(k[2:] for k in parts)}")
+        raise KeyError(f"total_loss: unknown loss weight(s) {sorted(unknown)}, expected {sorted(LAMBDAS)}")
     total = sum(lam.get(k[2:], 0.0) * v for k, v in parts.items())
     return total, parts
 

@@ -23,7 +23,7 @@ def _aux(refs, motion, albedo):
 
 def test_constants():
     assert L.FRAME_WEIGHTS == (0.05, 0.25, 0.5, 0.75, 1.0)
-    assert L.LAMBDAS == {"s": 0.7, "t": 0.1, "e": 0.2, "wt": 0.4, "a": 5.0, "m": 5.0}
+    assert L.LAMBDAS == {"s": 0.7, "t": 0.1, "e": 0.2, "wt": 0.4, "a": 5.0, "m": 5.0, "ssim": 0.0}
 
 
 def test_zero_for_identical_inputs():
@@ -186,3 +186,49 @@ def test_sequence_loss_backprop_through_model():
     assert all(g is not None and torch.isfinite(g).all() for g in grads)
     assert model.unet.dec1[2].weight.grad.abs().sum() > 0
     assert model.tfa.ref[0].weight.grad.abs().sum() > 0
+
+
+def test_tonemap_matches_the_metric():
+    from ssr import metrics
+
+    g = torch.Generator().manual_seed(3)
+    x = torch.exp(2.0 * torch.randn(3, 20, 20, generator=g))
+    x[0, 0, 0], x[1, 0, 0], x[2, 0, 0] = 0.0, -1.0, float("nan")
+    want = torch.from_numpy(metrics.tonemap(x))
+    got = L.tonemap(x)
+    # Equal except where the metric's value lies below the gamma's floor (zero radiance).
+    floor = L.TONEMAP_FLOOR ** (1.0 / 2.2)
+    assert torch.allclose(got, torch.clamp(want, min=floor), atol=1e-6)
+
+
+def test_ssim_term_against_the_metric():
+    """1 - l_ssim of one frame equals the metric's SSIM (metrics.ssim, on the 8-bit images) up to
+    the 8-bit rounding; identical frames give 0, and the gradient is finite, also at zero."""
+    from ssr import metrics
+
+    g = torch.Generator().manual_seed(4)
+    r = torch.exp(torch.randn(1, 1, 3, 32, 32, generator=g))
+    r[..., :4, :4] = 0.0
+    p = r * torch.exp(0.4 * torch.randn(r.shape, generator=g))
+    p.requires_grad_(True)
+    loss = L.ssim_loss(p, r, frame_weights=[1.0])
+    want = metrics.ssim(p[0, 0].detach(), r[0, 0])
+    assert abs((1.0 - loss.item()) - want) < 5e-3, (1.0 - loss.item(), want)
+    loss.backward()
+    assert torch.isfinite(p.grad).all() and p.grad.abs().sum() > 0
+    assert L.ssim_loss(r, r.clone(), frame_weights=[1.0]).item() == pytest.approx(0.0, abs=1e-6)
+
+
+def test_ssim_term_only_when_weighted():
+    refs, motion, albedo = _seq()
+    g = torch.Generator().manual_seed(5)
+    preds = refs * torch.exp(0.3 * torch.randn(refs.shape, generator=g))
+    _, parts = L.total_loss(preds, refs, _aux(refs, motion, albedo))
+    assert "l_ssim" not in parts
+    lam = dict(L.LAMBDAS, ssim=0.5)
+    total, parts = L.total_loss(preds, refs, _aux(refs, motion, albedo), lambdas=lam)
+    assert parts["l_ssim"].item() > 0
+    base = sum(L.LAMBDAS[k[2:]] * v for k, v in parts.items() if k != "l_ssim")
+    assert total.item() == pytest.approx(base.item() + 0.5 * parts["l_ssim"].item(), rel=1e-6)
+    with pytest.raises(KeyError, match="unknown loss weight"):
+        L.total_loss(preds, refs, _aux(refs, motion, albedo), lambdas={"q": 1.0})
