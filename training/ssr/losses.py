@@ -43,7 +43,7 @@ from typing import Dict, Optional, Sequence, Tuple, Union
 import torch
 import torch.nn.functional as F
 
-from .metrics import EXPOSURE, GAMMA, SSIM_K1, SSIM_K2, SSIM_SIGMA, SSIM_WINDOW, WHITE
+from .metrics import EXPOSURE, GAMMA, WHITE, ssim_mean
 from .model import demodulate, warp
 
 FRAME_WEIGHTS: Tuple[float, ...] = (0.05, 0.25, 0.5, 0.75, 1.0)
@@ -156,31 +156,11 @@ def tonemap(x: torch.Tensor) -> torch.Tensor:
     return t ** (1.0 / GAMMA)
 
 
-def ssim_map_mean(x: torch.Tensor, y: torch.Tensor) -> torch.Tensor:
-    """Mean SSIM of images [N, C, H, W] in [0, 1] (the metric's window and constants, L = 1)."""
-    c, h, w = x.shape[1:]
-    win = min(SSIM_WINDOW, w, h)
-    half = (win - 1) / 2.0
-    g = torch.exp(-((torch.arange(win, dtype=x.dtype, device=x.device) - half) ** 2) / (2.0 * SSIM_SIGMA**2))
-    g = g / g.sum()
-    k = (g[:, None] * g[None, :]).view(1, 1, win, win).expand(c, 1, win, win)
-
-    def filt(t: torch.Tensor) -> torch.Tensor:
-        return F.conv2d(t, k, groups=c)
-
-    mx, my = filt(x), filt(y)
-    vx = filt(x * x) - mx * mx
-    vy = filt(y * y) - my * my
-    cov = filt(x * y) - mx * my
-    c1, c2 = SSIM_K1**2, SSIM_K2**2
-    return (((2 * mx * my + c1) * (2 * cov + c2)) / ((mx * mx + my * my + c1) * (vx + vy + c2))).mean()
-
-
 def ssim_loss(preds: Frames, refs: Frames, frame_weights: Optional[Sequence[float]] = None) -> torch.Tensor:
     """l_ssim = sum_t w_t (1 - SSIM(tonemap(p_t), tonemap(r_t)))."""
     p, r = _stack(preds, "preds"), _stack(refs, "refs")
     w = _weights(p.shape[1], frame_weights)
-    return sum(wt * (1.0 - ssim_map_mean(tonemap(p[:, t]), tonemap(r[:, t]))) for t, wt in enumerate(w))
+    return sum(wt * (1.0 - ssim_mean(tonemap(p[:, t]), tonemap(r[:, t]), 1.0)) for t, wt in enumerate(w))
 
 
 def warped_temporal_loss(preds: Frames, refs: Frames, motion: Frames) -> torch.Tensor:

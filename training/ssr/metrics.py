@@ -87,18 +87,14 @@ def _gaussian(win: int, sigma: float) -> torch.Tensor:
     return g / g.sum()
 
 
-def ssim(pred: Image, ref: Image) -> float:
-    """SSIM of the tonemapped 8-bit images [C, H, W] (see the module doc)."""
-    p, r = _np(pred), _np(ref)
-    _same(p, r)
-    if p.ndim == 2:
-        p, r = p[None], r[None]
-    c, h, w = p.shape
+def ssim_mean(x: torch.Tensor, y: torch.Tensor, data_range: float) -> torch.Tensor:
+    """Mean SSIM of images [N, C, H, W] whose values span `data_range` (255 for 8-bit values,
+    1 for [0, 1]): the window and constants of the module doc, differentiable (the training
+    loss's l_ssim uses it too)."""
+    c, h, w = x.shape[1:]
     win = min(SSIM_WINDOW, w, h)
-    g = _gaussian(win, SSIM_SIGMA)
+    g = _gaussian(win, SSIM_SIGMA).to(dtype=x.dtype, device=x.device)
     k = (g[:, None] * g[None, :]).view(1, 1, win, win).expand(c, 1, win, win)
-    x = torch.from_numpy(tonemap_u8(p).astype(np.float64)).unsqueeze(0)
-    y = torch.from_numpy(tonemap_u8(r).astype(np.float64)).unsqueeze(0)
 
     def filt(t: torch.Tensor) -> torch.Tensor:
         return F.conv2d(t, k, groups=c)
@@ -107,10 +103,20 @@ def ssim(pred: Image, ref: Image) -> float:
     vx = filt(x * x) - mx * mx
     vy = filt(y * y) - my * my
     cov = filt(x * y) - mx * my
-    c1 = (SSIM_K1 * 255.0) ** 2
-    c2 = (SSIM_K2 * 255.0) ** 2
-    s = ((2 * mx * my + c1) * (2 * cov + c2)) / ((mx * mx + my * my + c1) * (vx + vy + c2))
-    return float(s.mean())
+    c1 = (SSIM_K1 * data_range) ** 2
+    c2 = (SSIM_K2 * data_range) ** 2
+    return (((2 * mx * my + c1) * (2 * cov + c2)) / ((mx * mx + my * my + c1) * (vx + vy + c2))).mean()
+
+
+def ssim(pred: Image, ref: Image) -> float:
+    """SSIM of the tonemapped 8-bit images [C, H, W] (see the module doc)."""
+    p, r = _np(pred), _np(ref)
+    _same(p, r)
+    if p.ndim == 2:
+        p, r = p[None], r[None]
+    x = torch.from_numpy(tonemap_u8(p).astype(np.float64)).unsqueeze(0)
+    y = torch.from_numpy(tonemap_u8(r).astype(np.float64)).unsqueeze(0)
+    return float(ssim_mean(x, y, 255.0))
 
 
 def rmse(pred: Image, ref: Image) -> float:
