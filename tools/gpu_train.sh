@@ -24,7 +24,7 @@
 # a call of its own, not measured yet); TRAIN_SECONDS (default 300), ITERS (default 20000: the run's
 # length, which sets its learning-rate schedule), DEVICE (default cuda), CHECKPOINT, INIT
 # (weights to start a new run from; default weights/ssr.safetensors), TRAIN_ARGS (default
-# "--thin 0.5 --thin-keep-min 0.02", the shipped model's), PYTHON (default python3).
+# "--thin 0.5 --thin-keep-min 0.02 --lambda ssim=10", the shipped model's), PYTHON (default python3).
 #
 # As a call on this workplace's lent GPU machine (after tools/gpu_pack.sh here; carry .devpack):
 #   python3 -c "import tarfile; tarfile.open('.devpack/bins.tar.xz').extractall('/tmp/bin')" \
@@ -82,7 +82,7 @@ set +e
 (cd training && timeout -s TERM "${TRAIN_SECONDS:-300}" "$py" -m ssr.train --data "$ds" --out "$run" \
   --device "${DEVICE:-cuda}" --iters "${ITERS:-20000}" --batch 8 --crop 128 --lr 5e-4 --workers 4 \
   --cache memory --val-every 1000 --val-frames 8 --log-every 100 --ckpt-every 500 \
-  --snapshot-every 1000 "${init[@]}" "${resume[@]}" ${TRAIN_ARGS:---thin 0.5 --thin-keep-min 0.02}) \
+  --snapshot-every 1000 "${init[@]}" "${resume[@]}" ${TRAIN_ARGS:---thin 0.5 --thin-keep-min 0.02 --lambda ssim=10}) \
   > "$out/train.log" 2>&1
 rc=$?
 set -e

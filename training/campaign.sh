@@ -17,8 +17,9 @@
 #            snapshots every 500 iterations. When weights/ssr.safetensors is already a
 #            version-2 model (an earlier session's), training starts from it (--init), so
 #            sessions continue one campaign; INIT=none starts from scratch. Resumes from
-#            WORK/runs/RUN/checkpoint.pt when there is one. TRAIN_ARGS adds ssr.train
-#            options (e.g. TRAIN_ARGS="--lambda m=1").
+#            WORK/runs/RUN/checkpoint.pt when there is one. TRAIN_ARGS gives the ssr.train
+#            options of the recipe (default the shipped model's: "--thin 0.5
+#            --thin-keep-min 0.02 --lambda ssim=10"; replace it whole to change one).
 #   curve    weights/ssr-training.png and .json: training loss and held-out PSNR against
 #            iterations (ssr.curve; reporting only, no selection), earlier sessions' points
 #            (the committed JSON) in front.
@@ -71,7 +72,7 @@ for phase in "$@"; do
       (cd "$here" && "$py" -m ssr.train --data "$ds" --out "$out" --iters "${ITERS:-7000}" --batch 8 --crop 64 \
         --lr 5e-4 --workers 1 --cache memory --cache-mb 6000 --val-every "${VAL_EVERY:-1000}" --val-frames 8 \
         --log-every 50 --ckpt-every 250 --snapshot-every 500 --threads "$threads" "${init[@]}" "${resume[@]}" \
-        ${TRAIN_ARGS:-})
+        ${TRAIN_ARGS:---thin 0.5 --thin-keep-min 0.02 --lambda ssim=10})
       ;;
     curve)
       (cd "$here" && "$py" -m ssr.curve --run "$work/runs/$run" --data "$ds" --split test --frames 8 \
