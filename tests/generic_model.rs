@@ -13,10 +13,10 @@
 //! 1.18-1.27x the reference's mean with the weights of the third session, trained with
 //! sample thinning (1.9-3.2x with the second session's, 2.2-3.3x with the first generic
 //! model); the other two seeds are within 1.05-1.23x (worst channel: 27.4 % against the
-//! 12 % allowed; 31.7 % with the seventh session's weights; 24.5 % with the twelfth
+//! 12 % allowed; 31.7 % with the seventh session's weights; 32.2 % with the twelfth
 //! session's, trained with the SSIM term, on which procedural:1000000 comes out darker,
-//! 0.76-0.80x, and procedural:1000002's green channel 1.25x; 24.1 % with that session's
-//! arm C). What was measured (training/README.md, "Generalisation" 4 and 6): the
+//! 0.73-0.78x, and procedural:1000002's green channel 1.32x; 24.1-24.5 % with that
+//! session's arms C and E). What was measured (training/README.md, "Generalisation" 4 and 6): the
 //! relative losses are minimised below the mean where the network is unsure, and the
 //! network filled traced samples that carry no light like untraced ones; a brightness term
 //! in the loss and sample thinning (Russian roulette on the training inputs) each narrowed
