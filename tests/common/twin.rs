@@ -220,19 +220,18 @@ type Candidate = (String, Vec<(&'static str, f32)>, bool);
 /// metallic 0, roughness 0, transparent 0; its motion, which depends on the camera, is not
 /// compared and given as 0).
 fn sky_values() -> Vec<(&'static str, f32)> {
-    let mut v = Vec::new();
-    for (name, x) in [
-        ("albedo", &[1.0f32; 3][..]),
-        ("normal", &[0.0; 3][..]),
-        ("depth", &[1.0][..]),
-        ("metallic", &[0.0][..]),
-        ("roughness", &[0.0][..]),
-        ("transparent", &[0.0; 3][..]),
-        ("motion", &[0.0; 2][..]),
-    ] {
-        v.extend(x.iter().map(|&x| (name, x)));
-    }
-    v
+    surface_values(&PrimarySurface {
+        triangle: u32::MAX,
+        material: u32::MAX,
+        t: f32::INFINITY,
+        albedo: [1.0; 3],
+        normal: [0.0; 3],
+        depth: 1.0,
+        metallic: 0.0,
+        roughness: 0.0,
+        transparent: [0.0; 3],
+        motion: [0.0; 2],
+    })
 }
 
 /// The GPU's background `g` and the CPU twin's `c` (`n x n` rays per pixel) agree: the same

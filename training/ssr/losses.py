@@ -43,7 +43,7 @@ from typing import Dict, Optional, Sequence, Tuple, Union
 import torch
 import torch.nn.functional as F
 
-from .metrics import EXPOSURE, GAMMA, WHITE, ssim_mean
+from .metrics import EXPOSURE, GAMMA, HABLE, WHITE, hable_curve, ssim_mean
 from .model import demodulate, warp
 
 FRAME_WEIGHTS: Tuple[float, ...] = (0.05, 0.25, 0.5, 0.75, 1.0)
@@ -146,13 +146,8 @@ def mean_loss(preds: Frames, refs: Frames, frame_weights: Optional[Sequence[floa
 def tonemap(x: torch.Tensor) -> torch.Tensor:
     """The metric's tonemap (metrics.tonemap), differentiable: [0, 1], no 8-bit rounding; the
     gamma's input is clamped to TONEMAP_FLOOR so that its slope stays finite."""
-    a, b, c, d, e, f = 0.15, 0.50, 0.10, 0.20, 0.02, 0.30
-
-    def hable(v):
-        return (v * (a * v + c * b) + d * e) / (v * (a * v + b) + d * f) - e / f
-
     v = torch.clamp(torch.nan_to_num(x, nan=0.0, posinf=0.0, neginf=0.0), min=0.0)
-    t = torch.clamp(hable(EXPOSURE * v) / hable(torch.tensor(WHITE)), TONEMAP_FLOOR, 1.0)
+    t = torch.clamp(hable_curve(EXPOSURE * v, *HABLE) / hable_curve(WHITE, *HABLE), TONEMAP_FLOOR, 1.0)
     return t ** (1.0 / GAMMA)
 
 

@@ -46,10 +46,17 @@ def _np(x: Image) -> np.ndarray:
     return np.asarray(x)
 
 
+HABLE = (0.15, 0.50, 0.10, 0.20, 0.02, 0.30)
+
+
+def hable_curve(x, a, b, c, d, e, f):
+    """Hable's Uncharted 2 curve with constants A..F (numpy or torch values)."""
+    return (x * (a * x + c * b) + d * e) / (x * (a * x + b) + d * f) - e / f
+
+
 def hable(x):
     """Hable's Uncharted 2 curve; float32 constants as in the Rust code."""
-    a, b, c, d, e, f = (np.float32(v) for v in (0.15, 0.50, 0.10, 0.20, 0.02, 0.30))
-    return (x * (a * x + c * b) + d * e) / (x * (a * x + b) + d * f) - e / f
+    return hable_curve(x, *(np.float32(v) for v in HABLE))
 
 
 def tonemap(v: Image) -> np.ndarray:

@@ -134,7 +134,6 @@ impl CpuTracer {
         let p = self.params(s, s.seed);
         let d = primary_dir(&p, x, y);
         let o = glam::Vec3A::from_slice(&p.cam.pos[..3]);
-        let d0 = d;
         let mut dirs = vec![d];
         if graze > 0.0 {
             let (a, b) = glam::Vec3::from(d).any_orthonormal_pair();
@@ -143,10 +142,10 @@ impl CpuTracer {
             }
         }
         let mut found: Vec<PrimarySurface> = Vec::new();
-        for d in dirs {
+        for dir in dirs {
             let mut hits: Vec<traverse::Hit> = (0..scene.tris.len() as u32 / 4)
                 .filter_map(|prim| {
-                    let (t, u, v) = traverse::intersect_tri(scene, prim, o, d, 0.0, common::BIG)?;
+                    let (t, u, v) = traverse::intersect_tri(scene, prim, o, dir, 0.0, common::BIG)?;
                     let info = material::tri_info(scene, prim)[3];
                     (info & super::packed::TRI_FLAG_ALPHA == 0 || material::alpha_passes(scene, prim, u, v))
                         .then_some(traverse::Hit { t, prim, u, v })
@@ -165,13 +164,13 @@ impl CpuTracer {
                     continue;
                 }
                 // Along the pixel's own ray (the same hit for the untilted ray).
-                let h = traverse::plane_hit(scene, h.prim, o, d0).map_or(*h, |(t, u, v)| traverse::Hit {
+                let h = traverse::plane_hit(scene, h.prim, o, d).map_or(*h, |(t, u, v)| traverse::Hit {
                     t,
                     u,
                     v,
                     ..*h
                 });
-                let g = gbuffer_of_hit(scene, &p, x, y, d0, &h);
+                let g = gbuffer_of_hit(scene, &p, x, y, d, &h);
                 let [a0, a1, a2, depth] = g.albedo_depth;
                 let [n0, n1, n2, metallic] = g.normal_metallic;
                 found.push(PrimarySurface {
