@@ -8,7 +8,11 @@ exactly the same triangles, colours, light and camera:
 * one ``mesh`` per glTF primitive, built from numpy arrays (positions, normals, indices),
   with node transforms applied (the converted scenes have them baked, so they are identities);
 * a ``diffuse`` BSDF with the glTF base colour (``twosided`` only when the material is
-  ``doubleSided``; the cbox is all one-sided, as in Mitsuba's own cbox.xml);
+  ``doubleSided``; the cbox is all one-sided, as in Mitsuba's own cbox.xml), or with
+  ``--bsdf principled`` Mitsuba's ``principled`` one (base colour, roughness, metallic, and
+  the specular level of the glTF ior: 0.5 for 1.5), the counterpart of the glTF
+  metallic-roughness material whose GGX and diffuse lobes our tracer evaluates at every
+  vertex: a closer cost per vertex than ``diffuse``'s;
 * an ``area`` emitter with radiance = emissiveFactor x KHR_materials_emissive_strength;
 * a ``perspective`` sensor from scene.json (fov_axis "y", fov = yfov_deg, look_at), a box
   reconstruction filter, the ``independent`` sampler and the ``path`` integrator
@@ -182,6 +186,9 @@ class Primitive:
     base_color: tuple[float, float, float]
     radiance: tuple[float, float, float]  # emissiveFactor * emissive_strength
     double_sided: bool = False
+    roughness: float = 1.0
+    metallic: float = 0.0
+    ior: float = 1.5
 
     @property
     def emissive(self) -> bool:
@@ -218,9 +225,22 @@ class Scene:
         return pts.min(axis=0), pts.max(axis=0)
 
 
-def _material(doc: dict, index: int | None) -> tuple[tuple, tuple, bool, str]:
-    if index is None:  # glTF default material: white, not emissive, one-sided
-        return (1.0, 1.0, 1.0), (0.0, 0.0, 0.0), False, "default"
+@dataclass
+class Material:
+    """What the benchmark takes from a glTF material."""
+
+    name: str
+    base_color: tuple[float, float, float]
+    radiance: tuple[float, float, float]
+    double_sided: bool
+    roughness: float
+    metallic: float
+    ior: float
+
+
+def _material(doc: dict, index: int | None) -> Material:
+    if index is None:  # glTF default material: white, not emissive, one-sided, metallic 1
+        return Material("default", (1.0, 1.0, 1.0), (0.0, 0.0, 0.0), False, 1.0, 1.0, 1.5)
     mat = doc["materials"][index]
     pbr = mat.get("pbrMetallicRoughness", {})
     base = tuple(float(c) for c in pbr.get("baseColorFactor", [1.0, 1.0, 1.0, 1.0])[:3])
@@ -230,7 +250,15 @@ def _material(doc: dict, index: int | None) -> tuple[tuple, tuple, bool, str]:
         .get("emissiveStrength", 1.0)
     )
     radiance = tuple(float(c) * strength for c in mat.get("emissiveFactor", [0.0, 0.0, 0.0]))
-    return base, radiance, bool(mat.get("doubleSided", False)), mat.get("name", f"material{index}")
+    return Material(
+        name=mat.get("name", f"material{index}"),
+        base_color=base,
+        radiance=radiance,
+        double_sided=bool(mat.get("doubleSided", False)),
+        roughness=float(pbr.get("roughnessFactor", 1.0)),
+        metallic=float(pbr.get("metallicFactor", 1.0)),
+        ior=float(mat.get("extensions", {}).get("KHR_materials_ior", {}).get("ior", 1.5)),
+    )
 
 
 def load_gltf_primitives(glb_path: str | os.PathLike) -> list[Primitive]:
@@ -274,17 +302,20 @@ def load_gltf_primitives(glb_path: str | os.PathLike) -> list[Primitive]:
             idx = idx.reshape(-1, 3)
             if flip:
                 idx = idx[:, [0, 2, 1]]
-            base, radiance, double_sided, mat_name = _material(doc, prim.get("material"))
-            name = f"{node.get('name', 'node%d' % node_index)}_{k}_{mat_name}"
+            mat = _material(doc, prim.get("material"))
+            name = f"{node.get('name', 'node%d' % node_index)}_{k}_{mat.name}"
             prims.append(
                 Primitive(
                     name=re.sub(r"[^A-Za-z0-9_]", "_", name),
                     positions=np.ascontiguousarray(pos, np.float32),
                     normals=None if nrm is None else np.ascontiguousarray(nrm, np.float32),
                     indices=np.ascontiguousarray(idx, np.uint32),
-                    base_color=base,
-                    radiance=radiance,
-                    double_sided=double_sided,
+                    base_color=mat.base_color,
+                    radiance=mat.radiance,
+                    double_sided=mat.double_sided,
+                    roughness=mat.roughness,
+                    metallic=mat.metallic,
+                    ior=mat.ior,
                 )
             )
     return prims
@@ -389,8 +420,10 @@ def build_mitsuba_dict(
     spp: int,
     max_depth: int,
     rr_depth: int,
+    bsdf: str = "diffuse",
 ) -> dict:
-    """The mi.load_dict description (mitsuba must be imported, variant set)."""
+    """The mi.load_dict description (mitsuba must be imported, variant set); `bsdf` as
+    bsdf_dict."""
     import mitsuba as mi
 
     cam = scene.camera
@@ -422,19 +455,45 @@ def build_mitsuba_dict(
         },
     }
     for k, prim in enumerate(scene.primitives):
-        desc[f"mesh_{k}_{prim.name}"] = make_mesh(prim)
+        desc[f"mesh_{k}_{prim.name}"] = make_mesh(prim, bsdf)
     return desc
 
 
-def make_mesh(prim: Primitive):
+BSDFS = ("diffuse", "principled")
+"""`diffuse`: Mitsuba's own Cornell box's BSDF. `principled`: the glTF material's counterpart."""
+
+
+def specular_level(ior: float) -> float:
+    """Mitsuba `principled`'s `specular` for a dielectric of index `ior`: its normal-incidence
+    reflectance ((ior - 1) / (ior + 1))^2 over 0.08 (0.5 for 1.5, reflectance 0.04)."""
+    return ((ior - 1.0) / (ior + 1.0)) ** 2 / 0.08
+
+
+def bsdf_dict(prim: Primitive, kind: str = "diffuse") -> dict:
+    """The Mitsuba BSDF description of a primitive's material (no mitsuba import needed)."""
+    if kind == "diffuse":
+        bsdf = {"type": "diffuse", "reflectance": _rgb(prim.base_color)}
+    elif kind == "principled":
+        bsdf = {
+            "type": "principled",
+            "base_color": _rgb(prim.base_color),
+            "roughness": float(prim.roughness),
+            "metallic": float(prim.metallic),
+            "specular": specular_level(prim.ior),
+        }
+    else:
+        raise ValueError(f"bsdf must be one of {BSDFS}, got {kind!r}")
+    if prim.double_sided:
+        bsdf = {"type": "twosided", "material": bsdf}
+    return bsdf
+
+
+def make_mesh(prim: Primitive, bsdf: str = "diffuse"):
     """A mitsuba Mesh filled from the primitive's arrays, with its BSDF and emitter."""
     import mitsuba as mi
 
-    bsdf = {"type": "diffuse", "reflectance": _rgb(prim.base_color)}
-    if prim.double_sided:
-        bsdf = {"type": "twosided", "material": bsdf}
     props = mi.Properties()
-    props["bsdf"] = mi.load_dict(bsdf)
+    props["bsdf"] = mi.load_dict(bsdf_dict(prim, bsdf))
     if prim.emissive:
         props["emitter"] = mi.load_dict({"type": "area", "radiance": _rgb(prim.radiance)})
     has_normals = prim.normals is not None
@@ -494,6 +553,7 @@ def run_benchmark(
     threads: int | None = None,
     variant: str = "llvm_ad_rgb",
     out: str | None = None,
+    bsdf: str = "diffuse",
 ) -> dict:
     """Render untimed once, then `repeats` timed renders; returns the result record."""
     if repeats < 1:
@@ -505,7 +565,7 @@ def run_benchmark(
     jit = variant.startswith(("llvm", "cuda"))
 
     t0 = time.perf_counter()
-    mi_scene = mi.load_dict(build_mitsuba_dict(scene, width, height, spp, max_depth, rr_depth))
+    mi_scene = mi.load_dict(build_mitsuba_dict(scene, width, height, spp, max_depth, rr_depth, bsdf))
     load_s = time.perf_counter() - t0
 
     def render(seed: int):
@@ -568,8 +628,10 @@ def run_benchmark(
         "spp": spp,
         "max_depth": max_depth,
         "rr_depth": rr_depth,
-        "integrator": "path (NEE + MIS), hide_emitters=false; diffuse BSDFs; box filter; "
-        "independent sampler",
+        "integrator": "path (NEE + MIS), hide_emitters=false; "
+        + bsdf
+        + " BSDFs; box filter; independent sampler",
+        "bsdf": bsdf,
         "paths_per_render": width * height * spp,
         "repeats": repeats,
         "times_s": [round(t, 4) for t in times],
@@ -639,6 +701,8 @@ def parse_args(argv=None) -> argparse.Namespace:
     ap.add_argument("--threads", type=int, default=None, help="Dr.Jit worker threads (default: all cores)")
     ap.add_argument("--variant", default="llvm_ad_rgb", help="llvm_ad_rgb (default) or scalar_rgb")
     ap.add_argument("--out", default=None, help="write the last timed render (.exr, .png, ...)")
+    ap.add_argument("--bsdf", default="diffuse", choices=BSDFS,
+                    help="diffuse (Mitsuba's own Cornell box) or principled (the glTF metallic-roughness material's counterpart)")
     ap.add_argument("--json", action="store_true", help="print one JSON object")
     return ap.parse_args(argv)
 
@@ -656,6 +720,7 @@ def main(argv=None) -> int:
         threads=args.threads,
         variant=args.variant,
         out=args.out,
+        bsdf=args.bsdf,
     )
     result["command"] = " ".join([os.path.basename(sys.executable), *sys.argv])
     if result["contended"]:
