@@ -16,7 +16,8 @@
 //! 12 % allowed; 31.7 % with the seventh session's weights; 32.2 % with the twelfth
 //! session's, trained with the SSIM term, on which procedural:1000000 comes out darker,
 //! 0.73-0.78x, and procedural:1000002's green channel 1.32x; 24.1-24.5 % with that
-//! session's arms C and E). What was measured (training/README.md, "Generalisation" 4 and 6): the
+//! session's arms C and E; 22.8 % with the thirteenth session's, 0.77-0.83x and 1.17x).
+//! What was measured (training/README.md, "Generalisation" 4 and 6): the
 //! relative losses are minimised below the mean where the network is unsure, and the
 //! network filled traced samples that carry no light like untraced ones; a brightness term
 //! in the loss and sample thinning (Russian roulette on the training inputs) each narrowed
