@@ -176,6 +176,19 @@ def node_local_matrix(node: dict) -> np.ndarray:
 
 
 @dataclass
+class Material:
+    """What the benchmark takes from a glTF material."""
+
+    name: str
+    base_color: tuple[float, float, float]
+    radiance: tuple[float, float, float]  # emissiveFactor * emissive_strength
+    double_sided: bool
+    roughness: float
+    metallic: float
+    ior: float
+
+
+@dataclass
 class Primitive:
     """One triangle primitive in world space."""
 
@@ -183,16 +196,11 @@ class Primitive:
     positions: np.ndarray  # (V, 3) float32
     normals: np.ndarray | None  # (V, 3) float32, unit length
     indices: np.ndarray  # (F, 3) uint32, CCW = front face
-    base_color: tuple[float, float, float]
-    radiance: tuple[float, float, float]  # emissiveFactor * emissive_strength
-    double_sided: bool = False
-    roughness: float = 1.0
-    metallic: float = 0.0
-    ior: float = 1.5
+    material: Material
 
     @property
     def emissive(self) -> bool:
-        return max(self.radiance) > 0.0
+        return max(self.material.radiance) > 0.0
 
     @property
     def triangle_count(self) -> int:
@@ -223,19 +231,6 @@ class Scene:
     def bounds(self) -> tuple[np.ndarray, np.ndarray]:
         pts = np.concatenate([p.positions for p in self.primitives])
         return pts.min(axis=0), pts.max(axis=0)
-
-
-@dataclass
-class Material:
-    """What the benchmark takes from a glTF material."""
-
-    name: str
-    base_color: tuple[float, float, float]
-    radiance: tuple[float, float, float]
-    double_sided: bool
-    roughness: float
-    metallic: float
-    ior: float
 
 
 def _material(doc: dict, index: int | None) -> Material:
@@ -310,12 +305,7 @@ def load_gltf_primitives(glb_path: str | os.PathLike) -> list[Primitive]:
                     positions=np.ascontiguousarray(pos, np.float32),
                     normals=None if nrm is None else np.ascontiguousarray(nrm, np.float32),
                     indices=np.ascontiguousarray(idx, np.uint32),
-                    base_color=mat.base_color,
-                    radiance=mat.radiance,
-                    double_sided=mat.double_sided,
-                    roughness=mat.roughness,
-                    metallic=mat.metallic,
-                    ior=mat.ior,
+                    material=mat,
                 )
             )
     return prims
@@ -471,19 +461,20 @@ def specular_level(ior: float) -> float:
 
 def bsdf_dict(prim: Primitive, kind: str = "diffuse") -> dict:
     """The Mitsuba BSDF description of a primitive's material (no mitsuba import needed)."""
+    m = prim.material
     if kind == "diffuse":
-        bsdf = {"type": "diffuse", "reflectance": _rgb(prim.base_color)}
+        bsdf = {"type": "diffuse", "reflectance": _rgb(m.base_color)}
     elif kind == "principled":
         bsdf = {
             "type": "principled",
-            "base_color": _rgb(prim.base_color),
-            "roughness": float(prim.roughness),
-            "metallic": float(prim.metallic),
-            "specular": specular_level(prim.ior),
+            "base_color": _rgb(m.base_color),
+            "roughness": float(m.roughness),
+            "metallic": float(m.metallic),
+            "specular": specular_level(m.ior),
         }
     else:
         raise ValueError(f"bsdf must be one of {BSDFS}, got {kind!r}")
-    if prim.double_sided:
+    if m.double_sided:
         bsdf = {"type": "twosided", "material": bsdf}
     return bsdf
 
@@ -495,7 +486,7 @@ def make_mesh(prim: Primitive, bsdf: str = "diffuse"):
     props = mi.Properties()
     props["bsdf"] = mi.load_dict(bsdf_dict(prim, bsdf))
     if prim.emissive:
-        props["emitter"] = mi.load_dict({"type": "area", "radiance": _rgb(prim.radiance)})
+        props["emitter"] = mi.load_dict({"type": "area", "radiance": _rgb(prim.material.radiance)})
     has_normals = prim.normals is not None
     mesh = mi.Mesh(
         prim.name,

@@ -97,8 +97,8 @@ def test_reader_layouts(tmp_path, interleaved, index_type):
     np.testing.assert_allclose(prim.positions, [[0, 0, 5], [1, 0, 5], [0, 1, 5]])
     np.testing.assert_allclose(prim.normals, [[0, 0, 1]] * 3)
     assert prim.indices.tolist() == [[0, 1, 2]]
-    assert prim.base_color == (0.25, 0.5, 0.75)
-    assert prim.radiance == (4.0, 2.0, 0.0) and prim.emissive
+    assert prim.material.base_color == (0.25, 0.5, 0.75)
+    assert prim.material.radiance == (4.0, 2.0, 0.0) and prim.emissive
 
 
 def test_node_transforms_and_mirroring(tmp_path):
@@ -143,7 +143,7 @@ def cbox():
 
 
 def _by_colour(scene, rgb):
-    hits = [p for p in scene.primitives if np.allclose(p.base_color, rgb, atol=1e-3)]
+    hits = [p for p in scene.primitives if np.allclose(p.material.base_color, rgb, atol=1e-3)]
     assert hits, f"no primitive with base colour {rgb}"
     return hits
 
@@ -154,15 +154,15 @@ def test_cbox_counts(cbox):
     assert cbox.triangle_count == 38
     assert len(cbox.primitives) == 5
     assert sum(p.emissive for p in cbox.primitives) == 1
-    assert not any(p.double_sided for p in cbox.primitives)  # "All materials are one-sided"
+    assert not any(p.material.double_sided for p in cbox.primitives)  # "All materials are one-sided"
 
 
 @needs_cbox
 def test_cbox_light(cbox):
     (light,) = [p for p in cbox.primitives if p.emissive]
     # README: radiance (20.71, 10.85, 2.77); luminaire 130 x 105; reflectance (0.776, 0.780, 0.776).
-    np.testing.assert_allclose(light.radiance, (20.71, 10.85, 2.77), atol=0.01)
-    np.testing.assert_allclose(light.base_color, (0.776, 0.780, 0.776), atol=1e-3)
+    np.testing.assert_allclose(light.material.radiance, (20.71, 10.85, 2.77), atol=0.01)
+    np.testing.assert_allclose(light.material.base_color, (0.776, 0.780, 0.776), atol=1e-3)
     tri = light.positions[light.indices]
     cross = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
     assert 0.5 * np.linalg.norm(cross, axis=1).sum() == pytest.approx(130 * 105, rel=1e-3)
@@ -247,10 +247,11 @@ def test_cbox_walls_and_light_in_mitsuba(cbox):
 
 
 def _prim(**kw):
-    base = dict(name="p", positions=np.zeros((3, 3), np.float32), normals=None,
-                indices=np.array([[0, 1, 2]], np.uint32), base_color=(0.5, 0.25, 0.125), radiance=(0.0, 0.0, 0.0))
-    base.update(kw)
-    return bm.Primitive(**base)
+    mat = dict(name="m", base_color=(0.5, 0.25, 0.125), radiance=(0.0, 0.0, 0.0), double_sided=False,
+               roughness=1.0, metallic=0.0, ior=1.5)
+    mat.update(kw)
+    return bm.Primitive(name="p", positions=np.zeros((3, 3), np.float32), normals=None,
+                        indices=np.array([[0, 1, 2]], np.uint32), material=bm.Material(**mat))
 
 
 def test_bsdf_descriptions():
@@ -270,7 +271,8 @@ def test_bsdf_descriptions():
 @needs_cbox
 def test_cbox_materials_are_rough_dielectrics(cbox):
     # shared/scenes/cbox/scene.glb: every material metallicFactor 0, roughnessFactor 1.
-    assert all(p.metallic == 0.0 and p.roughness == 1.0 and p.ior == 1.5 for p in cbox.primitives)
+    assert all(p.material.metallic == 0.0 and p.material.roughness == 1.0 and p.material.ior == 1.5
+               for p in cbox.primitives)
 
 
 @needs_cbox
