@@ -459,9 +459,8 @@ def specular_level(ior: float) -> float:
     return ((ior - 1.0) / (ior + 1.0)) ** 2 / 0.08
 
 
-def bsdf_dict(prim: Primitive, kind: str = "diffuse") -> dict:
-    """The Mitsuba BSDF description of a primitive's material (no mitsuba import needed)."""
-    m = prim.material
+def bsdf_dict(m: Material, kind: str = "diffuse") -> dict:
+    """The Mitsuba BSDF description of a material (no mitsuba import needed)."""
     if kind == "diffuse":
         bsdf = {"type": "diffuse", "reflectance": _rgb(m.base_color)}
     elif kind == "principled":
@@ -484,7 +483,7 @@ def make_mesh(prim: Primitive, bsdf: str = "diffuse"):
     import mitsuba as mi
 
     props = mi.Properties()
-    props["bsdf"] = mi.load_dict(bsdf_dict(prim, bsdf))
+    props["bsdf"] = mi.load_dict(bsdf_dict(prim.material, bsdf))
     if prim.emissive:
         props["emitter"] = mi.load_dict({"type": "area", "radiance": _rgb(prim.material.radiance)})
     has_normals = prim.normals is not None

@@ -93,9 +93,8 @@ def sequence_sums(data: str, split: str, sequence: str, pred: str, methods: Sequ
     if not frames:
         raise DatasetError(f"{seq_dir}: no frame_*.exr")
     sums = RegionSums(methods)
+    has_cov = "coverage.Y" in exr_size(frames[0])[2]  # a sequence's frames share their buffers
     for f in frames:
-        names = exr_size(f)[2]
-        has_cov = "coverage.Y" in names
         x = read_exr(f, [f"reference.{c}" for c in RGB] + ["metallic.Y"] + (["coverage.Y"] if has_cov else []))
         preds = {}
         for k in methods:

@@ -246,16 +246,15 @@ def test_cbox_walls_and_light_in_mitsuba(cbox):
     assert left[0] > 3 * left[1] and right[1] > 2 * right[0]
 
 
-def _prim(**kw):
+def _mat(**kw):
     mat = dict(name="m", base_color=(0.5, 0.25, 0.125), radiance=(0.0, 0.0, 0.0), double_sided=False,
                roughness=1.0, metallic=0.0, ior=1.5)
     mat.update(kw)
-    return bm.Primitive(name="p", positions=np.zeros((3, 3), np.float32), normals=None,
-                        indices=np.array([[0, 1, 2]], np.uint32), material=bm.Material(**mat))
+    return bm.Material(**mat)
 
 
 def test_bsdf_descriptions():
-    p = _prim(roughness=0.5, metallic=0.25, ior=1.5)
+    p = _mat(roughness=0.5, metallic=0.25, ior=1.5)
     assert bm.bsdf_dict(p) == {"type": "diffuse", "reflectance": {"type": "rgb", "value": [0.5, 0.25, 0.125]}}
     d = bm.bsdf_dict(p, "principled")
     assert d["type"] == "principled" and d["base_color"]["value"] == [0.5, 0.25, 0.125]
@@ -263,7 +262,7 @@ def test_bsdf_descriptions():
     # Mitsuba's principled: specular 0.5 is a normal-incidence reflectance of 0.04 (ior 1.5).
     assert np.isclose(d["specular"], 0.5)
     assert np.isclose(bm.specular_level(1.0), 0.0) and bm.specular_level(2.0) > 0.5
-    assert bm.bsdf_dict(_prim(double_sided=True), "principled")["type"] == "twosided"
+    assert bm.bsdf_dict(_mat(double_sided=True), "principled")["type"] == "twosided"
     with pytest.raises(ValueError, match="bsdf must be one of"):
         bm.bsdf_dict(p, "glass")
 
