@@ -881,3 +881,79 @@ fn background_composites_by_coverage() {
     let e = with.denoise_host(&small).unwrap_err().to_string();
     assert!(e.contains("background"), "{e}");
 }
+
+/// The mean correction (config `mean_correction = "tiles"`): per 32x32 tile and channel, the
+/// reconstruction is scaled by the traced samples' sum over its own at the same pixels over
+/// the last 4 frames (clamped, interpolated between tile centres), against the CPU reference
+/// (`nn::reference::mean_tile_*`) applied to the output of the same weights without the
+/// option. With a background only the reconstructed part is scaled (the background stays);
+/// a reset forgets the earlier frames' sums. The history is the network's own, so the
+/// uncorrected denoiser gives the reconstruction on every frame.
+#[test]
+fn mean_correction_scales_each_tile_to_its_samples() {
+    use subpixel::frame::Background;
+    use subpixel::nn::reference::{mean_factor_at, mean_tile_factors, mean_tile_sums};
+    use subpixel::ssr::{MEAN_EPS, MEAN_HI, MEAN_LO, MEAN_RING, MEAN_TILE};
+    let gpu = common::gpu();
+    let weights = Weights::load(golden_weights_path()).unwrap();
+    let mut with_option = weights.clone();
+    with_option.config.mean_correction = Some("tiles".into());
+    let (w, h) = (64, 40);
+    let mut plain = Denoiser::with_gpu(&gpu, &weights, w, h).unwrap();
+    let mut corrected = Denoiser::with_gpu(&gpu, &with_option, w, h).unwrap();
+    let mut sums: Vec<HostTensor> = Vec::new();
+    let (mut clamped, mut between) = (0, 0);
+    for t in 0..7u64 {
+        if t == 5 {
+            plain.reset();
+            corrected.reset();
+            sums.clear();
+        }
+        let mut f = random_frame(w, h, 70 + t);
+        // Brighter samples on the left: the tiles' factors differ.
+        f.color = HostTensor::from_fn(w, h, 3, |x, y, c| {
+            f.color.at(x, y, c) * if x < 24 { 8.0 } else { 1.0 }
+        });
+        let background = (t % 2 == 1).then(|| {
+            let coverage = HostTensor::from_fn(w, h, 1, |x, y, _| [0.0, 0.5, 1.0][((x + y) % 3) as usize]);
+            let radiance =
+                HostTensor::from_fn(w, h, 3, |x, y, c| 0.3 * (c + 1) as f32 * coverage.at(x, y, 0));
+            Background { radiance, coverage }
+        });
+        f.background = background.clone();
+        let want = plain.denoise_host(&f).unwrap();
+        let got = corrected.denoise_host(&f).unwrap();
+        let bg = |x, y, c| background.as_ref().map_or(0.0, |b| b.radiance.at(x, y, c));
+        let part = HostTensor::from_fn(w, h, 3, |x, y, c| want.at(x, y, c) - bg(x, y, c));
+        let sample = HostTensor::from_fn(w, h, 3, |x, y, c| f.color.at(x, y, c) - bg(x, y, c));
+        sums.push(mean_tile_sums(&part, &sample, &f.mask, MEAN_TILE));
+        let recent = &sums[sums.len().saturating_sub(MEAN_RING as usize)..];
+        let factors = mean_tile_factors(recent, MEAN_EPS, MEAN_LO, MEAN_HI);
+        assert_eq!((factors.width, factors.height), (2, 2));
+        for k in 0..factors.data.len() {
+            let v = factors.data[k];
+            if v == MEAN_LO || v == MEAN_HI {
+                clamped += 1;
+            } else if (v - 1.0).abs() > 0.02 {
+                between += 1;
+            }
+        }
+        for y in 0..h {
+            for x in 0..w {
+                for c in 0..3 {
+                    let expect =
+                        bg(x, y, c) + part.at(x, y, c) * mean_factor_at(&factors, MEAN_TILE, x, y, c);
+                    let g = got.at(x, y, c);
+                    assert!(
+                        (g - expect).abs() <= 2e-5 * (1.0 + expect.abs()),
+                        "frame {t} pixel ({x}, {y}) channel {c}: {g} vs {expect}"
+                    );
+                }
+            }
+        }
+    }
+    assert!(
+        clamped > 0 && between > 0,
+        "{clamped} clamped and {between} other factors"
+    );
+}

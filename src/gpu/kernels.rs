@@ -156,6 +156,7 @@ pub const KERNELS: &[KernelSource] = &[
     kernel!("ssr/pack_inputs", ["ssr/lib/pack", "ssr/lib/sanitize"]),
     kernel!("ssr/pack_mt", ["ssr/lib/pack", "ssr/lib/sanitize"]),
     kernel!("ssr/store_output", ["ssr/lib/sanitize"]),
+    kernel!("ssr/tile_means", ["ssr/lib/sanitize"]),
     kernel!("ssr/exposure_partial", ["ssr/lib/sanitize", "ssr/lib/exposure"]),
     kernel!("ssr/exposure_final", ["ssr/lib/exposure"]),
     kernel!("ssr/warp_history", ["nn/lib/grid"]),

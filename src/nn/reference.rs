@@ -305,3 +305,51 @@ pub fn remodulate(o: &HostTensor, albedo: &HostTensor, albedo_channel: u32, scal
             * scale[c as usize]
     })
 }
+
+/// One frame's sums of the SSR mean correction (`wgsl/ssr/tile_means.wgsl`): per tile of
+/// `tile x tile` pixels, over the pixels whose `mask` (channel 0) is above 1/2, the sum of
+/// `sample` (the traced sample minus the background) and of `part` (the reconstruction's
+/// share, `(1 - coverage) x output`), each `W x H x 3`. Returns `tiles_x x tiles_y x 6`:
+/// the samples' sums, then the reconstruction's (accumulated in f64).
+pub fn mean_tile_sums(part: &HostTensor, sample: &HostTensor, mask: &HostTensor, tile: u32) -> HostTensor {
+    let (tx, ty) = (part.width.div_ceil(tile), part.height.div_ceil(tile));
+    let mut sums = vec![0f64; (tx * ty * 6) as usize];
+    for y in 0..part.height {
+        for x in 0..part.width {
+            if mask.at(x, y, 0) <= 0.5 {
+                continue;
+            }
+            let t = ((y / tile) * tx + x / tile) as usize * 6;
+            for c in 0..3 {
+                sums[t + c as usize] += sample.at(x, y, c) as f64;
+                sums[t + 3 + c as usize] += part.at(x, y, c) as f64;
+            }
+        }
+    }
+    HostTensor::from_fn(tx, ty, 6, |x, y, c| sums[((y * tx + x) * 6 + c) as usize] as f32)
+}
+
+/// The mean correction's factors from the sums of [`mean_tile_sums`] over some frames: per
+/// tile and channel `clamp((sum s + eps) / (sum r + eps), lo, hi)`, `tiles_x x tiles_y x 3`.
+pub fn mean_tile_factors(frames: &[HostTensor], eps: f32, lo: f32, hi: f32) -> HostTensor {
+    let (tx, ty) = (frames[0].width, frames[0].height);
+    HostTensor::from_fn(tx, ty, 3, |x, y, c| {
+        let s: f64 = frames.iter().map(|f| f.at(x, y, c) as f64).sum();
+        let r: f64 = frames.iter().map(|f| f.at(x, y, c + 3) as f64).sum();
+        (((s + eps as f64) / (r + eps as f64)) as f32).clamp(lo, hi)
+    })
+}
+
+/// The factor of pixel (x, y), channel c: the tiles' `factors` interpolated bilinearly
+/// between tile centres (`tile x tile` tiles; beyond the outer centres the edge is held).
+pub fn mean_factor_at(factors: &HostTensor, tile: u32, x: u32, y: u32, c: u32) -> f32 {
+    let lerp = |p: u32, n: u32| {
+        let t = (p as f32 + 0.5) / tile as f32 - 0.5;
+        let i0 = t.floor().clamp(0.0, (n - 1) as f32);
+        (i0 as u32, (i0 as u32 + 1).min(n - 1), (t - i0).clamp(0.0, 1.0))
+    };
+    let (x0, x1, fx) = lerp(x, factors.width);
+    let (y0, y1, fy) = lerp(y, factors.height);
+    let row = |yy| factors.at(x0, yy, c) * (1.0 - fx) + factors.at(x1, yy, c) * fx;
+    row(y0) * (1.0 - fy) + row(y1) * fy
+}

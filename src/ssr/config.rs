@@ -57,6 +57,32 @@ pub enum CeilingMode {
     Max,
 }
 
+/// Whether the output pass corrects the reconstruction's brightness (config
+/// `mean_correction`, version 2; absent: `none`).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum MeanCorrection {
+    /// The reconstruction as the network gives it.
+    None,
+    /// Per tile of [`MEAN_TILE`] x [`MEAN_TILE`] pixels and per channel, the reconstruction
+    /// is scaled by the traced samples' sum over its own sum at the same pixels, both over
+    /// the last [`MEAN_RING`] frames, clamped to [[`MEAN_LO`], [`MEAN_HI`]] and interpolated
+    /// between tile centres (`wgsl/ssr/tile_means.wgsl`; with a background buffer, only the
+    /// part of each pixel the network reconstructs). The samples are an unbiased estimate
+    /// of the radiance, so the tiles' brightness follows them; the history is not changed.
+    Tiles,
+}
+
+/// Config `mean_correction = "tiles"`: tile side in pixels.
+pub const MEAN_TILE: u32 = 32;
+/// Config `mean_correction = "tiles"`: frames whose sums make a factor.
+pub const MEAN_RING: u32 = 4;
+/// Config `mean_correction = "tiles"`: added to both sums of a factor.
+pub const MEAN_EPS: f32 = 1e-4;
+/// Config `mean_correction = "tiles"`: smallest factor.
+pub const MEAN_LO: f32 = 0.67;
+/// Config `mean_correction = "tiles"`: largest factor.
+pub const MEAN_HI: f32 = 1.5;
+
 /// Config `ceiling = "max"`: the demodulated output is at most this times M.
 pub const CEILING_GAIN: f32 = 1.0;
 /// M_t = max(m_t, CEILING_DECAY M_{t-1}) per colour channel, m_t the frame's max over its
@@ -97,6 +123,9 @@ pub struct SsrConfig {
     /// Version 2, optional (absent: `"none"`): `"none"` or `"max"` ([`CeilingMode`]).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub ceiling: Option<String>,
+    /// Version 2, optional (absent: `"none"`): `"none"` or `"tiles"` ([`MeanCorrection`]).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub mean_correction: Option<String>,
 }
 
 impl Default for SsrConfig {
@@ -113,6 +142,7 @@ impl Default for SsrConfig {
             remodulation: Some("current".into()),
             history: Some("geometry".into()),
             ceiling: Some("max".into()),
+            mean_correction: Some("none".into()),
         }
     }
 }
@@ -172,7 +202,10 @@ impl SsrConfig {
         }
         match self.version {
             1 => {
-                let late = [("ceiling", &self.ceiling)];
+                let late = [
+                    ("ceiling", &self.ceiling),
+                    ("mean_correction", &self.mean_correction),
+                ];
                 for (key, v) in self.options().into_iter().chain(late) {
                     if v.is_some() {
                         return bad(format!(
@@ -199,6 +232,7 @@ impl SsrConfig {
         self.exposure_mode()?;
         self.remodulation_albedo()?;
         self.history_test()?;
+        self.mean_correction()?;
         if self.ceiling_mode()? == CeilingMode::Max && self.exposure_mode()? != ExposureMode::Channel {
             return bad(
                 "ceiling \"max\" needs exposure \"channel\" (the running max lives in the exposure state)"
@@ -224,6 +258,7 @@ impl SsrConfig {
             remodulation: None,
             history: None,
             ceiling: None,
+            mean_correction: None,
             ..self.clone()
         }
     }
@@ -232,6 +267,12 @@ impl SsrConfig {
     pub fn ceiling_mode(&self) -> Result<CeilingMode> {
         let choices = [("none", CeilingMode::None), ("max", CeilingMode::Max)];
         choose("ceiling", self.ceiling.as_deref(), &choices)
+    }
+
+    /// The output pass's mean correction (version 1 and files without the option: none).
+    pub fn mean_correction(&self) -> Result<MeanCorrection> {
+        let choices = [("none", MeanCorrection::None), ("tiles", MeanCorrection::Tiles)];
+        choose("mean_correction", self.mean_correction.as_deref(), &choices)
     }
 
     /// Input normalisation (version 1: none).
@@ -387,7 +428,7 @@ mod tests {
         assert_eq!(d.ceiling_mode().unwrap(), CeilingMode::Max);
         // the engine's JSON is the trainer's (ssr/model.py SSRConfig.to_json, keys sorted)
         let back: SsrConfig = serde_json::from_str(
-            r#"{"ceiling":"max","enc":[16,32,28],"exposure":"channel","feature_pool":"max","history":"geometry","input_channels":37,"k":8,"remodulation":"current","tfa_hidden":8,"upsample":"bilinear","version":2}"#,
+            r#"{"ceiling":"max","enc":[16,32,28],"exposure":"channel","feature_pool":"max","history":"geometry","input_channels":37,"k":8,"mean_correction":"none","remodulation":"current","tfa_hidden":8,"upsample":"bilinear","version":2}"#,
         )
         .unwrap();
         assert_eq!(back, d);
@@ -398,6 +439,33 @@ mod tests {
         .unwrap();
         before.validate().unwrap();
         assert_eq!(before.ceiling_mode().unwrap(), CeilingMode::None);
+        assert_eq!(before.mean_correction().unwrap(), MeanCorrection::None);
+        // the mean correction, written by `ssr.export --option mean_correction=tiles`
+        let tiles: SsrConfig = serde_json::from_str(
+            r#"{"ceiling":"max","enc":[16,32,28],"exposure":"channel","feature_pool":"max","history":"geometry","input_channels":37,"k":8,"mean_correction":"tiles","remodulation":"current","tfa_hidden":8,"upsample":"bilinear","version":2}"#,
+        )
+        .unwrap();
+        tiles.validate().unwrap();
+        assert_eq!(tiles.mean_correction().unwrap(), MeanCorrection::Tiles);
+        let e = SsrConfig {
+            mean_correction: Some("blocks".into()),
+            ..d.clone()
+        }
+        .validate()
+        .unwrap_err()
+        .to_string();
+        assert!(
+            e.contains("mean_correction 'blocks', expected \"none\" or \"tiles\""),
+            "{e}"
+        );
+        let e = SsrConfig {
+            mean_correction: Some("tiles".into()),
+            ..d.legacy()
+        }
+        .validate()
+        .unwrap_err()
+        .to_string();
+        assert!(e.contains("version 1 has no 'mean_correction' option"), "{e}");
         // an option this engine does not know (a later trainer's) is an error naming it
         let e = serde_json::from_str::<SsrConfig>(
             r#"{"enc":[16,32,28],"exposure":"channel","feature_pool":"max","history":"geometry","input_channels":37,"k":8,"remodulation":"current","sky":"background","tfa_hidden":8,"upsample":"bilinear","version":2}"#,

@@ -3,7 +3,9 @@
 
 use bytemuck::{Pod, Zeroable};
 
-use super::config::{CEILING_DECAY, ExposureMode};
+use super::config::{
+    CEILING_DECAY, ExposureMode, MEAN_EPS, MEAN_HI, MEAN_LO, MEAN_RING, MEAN_TILE, MeanCorrection,
+};
 pub use super::network::Granularity;
 use super::network::StepCost;
 use super::network::{Network, exposure_groups};
@@ -61,6 +63,9 @@ type InputKey = ([wgpu::Buffer; 6], Option<wgpu::Buffer>);
 struct InputPasses {
     exposure: Option<ExposureDispatches>,
     pack: [Dispatch; 2],
+    /// The mean correction's tile sums (config `mean_correction = "tiles"`): one dispatch
+    /// per ring slot, then the same on the first frame after a reset (clearing the others).
+    mean: Option<Vec<Dispatch>>,
     store: Dispatch,
     /// Whether `store` composites a background.
     background: bool,
@@ -73,6 +78,32 @@ struct StoreParams {
     height: u32,
     padded_width: u32,
     c4: u32,
+    tiles_x: u32,
+    tiles_y: u32,
+    _pad: [u32; 2],
+}
+
+#[repr(C)]
+#[derive(Clone, Copy, Pod, Zeroable)]
+struct TileMeansParams {
+    width: u32,
+    height: u32,
+    padded_width: u32,
+    c4: u32,
+    tiles_x: u32,
+    tiles_y: u32,
+    slot: u32,
+    first: u32,
+}
+
+/// The mean correction's state: the ring of per-tile sums of the last frames and the
+/// factors the output pass applies.
+struct MeanState {
+    tiles: (u32, u32),
+    ring: wgpu::Buffer,
+    factors: wgpu::Buffer,
+    /// The ring slot of the next frame.
+    slot: u32,
 }
 
 /// Every kernel the denoiser runs: [`Denoiser::new`] checks them against the device's
@@ -84,6 +115,7 @@ pub const KERNELS_USED: &[&str] = &[
     "ssr/exposure_final",
     "ssr/warp_history",
     "ssr/store_output",
+    "ssr/tile_means",
     "nn/conv3x3",
     "nn/conv3x3_blocked",
     "nn/tfa_blend",
@@ -96,6 +128,7 @@ pub const PARAM_SIZES: &[(&str, usize)] = &[
     ("ssr/pack_inputs", std::mem::size_of::<PackParams>()),
     ("ssr/pack_mt", std::mem::size_of::<PackParams>()),
     ("ssr/store_output", std::mem::size_of::<StoreParams>()),
+    ("ssr/tile_means", std::mem::size_of::<TileMeansParams>()),
     (
         "ssr/exposure_partial",
         std::mem::size_of::<ExposurePartialParams>(),
@@ -134,6 +167,8 @@ pub struct Denoiser {
     /// [`Denoiser::denoise`].
     host_inputs: Option<Vec<wgpu::Buffer>>,
     sanitized: wgpu::Buffer,
+    /// Config `mean_correction = "tiles"`: its buffers and ring position.
+    mean: Option<MeanState>,
     first: bool,
     frames: u64,
     options: EngineOptions,
@@ -181,6 +216,27 @@ impl Denoiser {
         gpu.kernels.check_limits("the denoiser", KERNELS_USED)?;
         let net = Network::new(gpu, weights, round_up4(width), round_up4(height), options)?;
         let output = Self::make_output(gpu, width, height);
+        let mean = match weights.config.mean_correction()? {
+            MeanCorrection::None => None,
+            MeanCorrection::Tiles => {
+                let tiles = (width.div_ceil(MEAN_TILE), height.div_ceil(MEAN_TILE));
+                let n = tiles.0 as u64 * tiles.1 as u64;
+                let buffer = |label: &str, size: u64| {
+                    gpu.device.create_buffer(&wgpu::BufferDescriptor {
+                        label: Some(label),
+                        size,
+                        usage: wgpu::BufferUsages::STORAGE,
+                        mapped_at_creation: false,
+                    })
+                };
+                Some(MeanState {
+                    tiles,
+                    ring: buffer("subpixel.ssr.mean_ring", n * MEAN_RING as u64 * 32),
+                    factors: buffer("subpixel.ssr.mean_factors", n * 16),
+                    slot: 0,
+                })
+            }
+        };
         Ok(Self {
             gpu: gpu.clone(),
             weights: weights.clone(),
@@ -191,6 +247,7 @@ impl Denoiser {
             inputs: Bound::new(),
             host_inputs: None,
             sanitized: gpu.counter_buffer("subpixel.ssr.sanitized"),
+            mean,
             first: true,
             frames: 0,
             options,
@@ -207,30 +264,94 @@ impl Denoiser {
     }
 
     /// The output store: the network's output, cropped, into the output texture, composited
-    /// with the background (`background + (1 - coverage) x output`) when the caller gives one.
+    /// with the background (`background + (1 - coverage) x output`) when the caller gives one,
+    /// the output first scaled by the mean correction's factors when the config has it.
     fn store_dispatch(&self, background: Option<&wgpu::Buffer>) -> Result<Dispatch> {
+        let tiles = self.mean.as_ref().map_or((0, 0), |m| m.tiles);
         let params = StoreParams {
             width: self.width,
             height: self.height,
             padded_width: self.net.width,
             c4: self.net.output().c4(),
+            tiles_x: tiles.0,
+            tiles_y: tiles.1,
+            _pad: [0; 2],
         };
         let view = self.output.create_view(&Default::default());
         let mut resources = vec![
             self.net.output().buffer.as_entire_binding(),
             wgpu::BindingResource::TextureView(&view),
         ];
-        if let Some(b) = background {
-            resources.push(b.as_entire_binding());
-            resources.push(self.sanitized.as_entire_binding());
+        // Bindings 3 and 4 (background, counter) are not in the layout without a background:
+        // any buffer holds their places before the factors (binding 5).
+        let b = background.unwrap_or(&self.sanitized);
+        resources.push(b.as_entire_binding());
+        resources.push(self.sanitized.as_entire_binding());
+        if let Some(m) = &self.mean {
+            resources.push(m.factors.as_entire_binding());
         }
         self.gpu.kernels.dispatch_with(
             "ssr/store_output",
-            &Specialisation(vec![("BACKGROUND", background.is_some() as u32 as f64)]),
+            &Specialisation(vec![
+                ("BACKGROUND", background.is_some() as u32 as f64),
+                ("MEAN", self.mean.is_some() as u32 as f64),
+                ("TILE", MEAN_TILE as f64),
+            ]),
             bytemuck::bytes_of(&params),
             &resources,
             Grid::pixels(self.width, self.height),
         )
+    }
+
+    /// The mean correction's tile sums for each ring slot, then for each slot on a first
+    /// frame (`None` without the option).
+    fn mean_dispatches(
+        &self,
+        color_mask: &wgpu::Buffer,
+        background: Option<&wgpu::Buffer>,
+    ) -> Result<Option<Vec<Dispatch>>> {
+        let Some(m) = &self.mean else {
+            return Ok(None);
+        };
+        let mut out = Vec::new();
+        for first in [false, true] {
+            for slot in 0..MEAN_RING {
+                let params = TileMeansParams {
+                    width: self.width,
+                    height: self.height,
+                    padded_width: self.net.width,
+                    c4: self.net.output().c4(),
+                    tiles_x: m.tiles.0,
+                    tiles_y: m.tiles.1,
+                    slot,
+                    first: first as u32,
+                };
+                let mut resources = vec![
+                    self.net.output().buffer.as_entire_binding(),
+                    color_mask.as_entire_binding(),
+                    m.ring.as_entire_binding(),
+                    m.factors.as_entire_binding(),
+                ];
+                if let Some(b) = background {
+                    resources.push(b.as_entire_binding());
+                }
+                out.push(self.gpu.kernels.dispatch_with(
+                    "ssr/tile_means",
+                    &Specialisation(vec![
+                        ("BACKGROUND", background.is_some() as u32 as f64),
+                        ("TILE", MEAN_TILE as f64),
+                        ("RING", MEAN_RING as f64),
+                        ("EPS", MEAN_EPS as f64),
+                        ("LO", MEAN_LO as f64),
+                        ("HI", MEAN_HI as f64),
+                    ]),
+                    bytemuck::bytes_of(&params),
+                    &resources,
+                    Grid::Workgroups([m.tiles.0, m.tiles.1, 1]),
+                )?);
+            }
+        }
+        Ok(Some(out))
     }
 
     /// What each pass of a frame costs, in execution order: `pack` (exposure and input
@@ -255,6 +376,17 @@ impl Denoiser {
             }
         }
         out.extend(self.net.step_costs());
+        if self.mean.is_some() {
+            let reads = self.net.output().bytes() + px * if background { 2 } else { 1 };
+            out.push(StepCost {
+                stage: "output",
+                label: "mean tiles".into(),
+                flops: 0,
+                bytes_read: reads,
+                bytes_written: 0,
+                matrix: false,
+            });
+        }
         out.push(StepCost {
             stage: "output",
             label: "store output".into(),
@@ -347,6 +479,13 @@ impl Denoiser {
             .record(encoder, self.first, profiler.as_deref_mut(), granularity);
         {
             let mut pass = Profiler::pass(encoder, "output", profiler);
+            if let (Some(d), Some(m)) = (&passes.mean, self.mean.as_mut()) {
+                if self.first {
+                    m.slot = 0;
+                }
+                d[(m.slot + if self.first { MEAN_RING } else { 0 }) as usize].record(&mut pass);
+                m.slot = (m.slot + 1) % MEAN_RING;
+            }
             passes.store.record(&mut pass);
         }
         self.first = false;
@@ -474,6 +613,7 @@ impl Denoiser {
         Ok(InputPasses {
             exposure: e,
             pack: [pack_a, pack_mt],
+            mean: self.mean_dispatches(inputs.color_mask, inputs.background)?,
             store: self.store_dispatch(inputs.background)?,
             background: inputs.background.is_some(),
         })

@@ -38,6 +38,10 @@ from torch import nn
 
 from .model import OPTION_VALUES, SSRConfig, SSRModel, flops_per_pixel
 
+OUTPUT_PASS_OPTIONS = ("mean_correction",)
+"""Config options only the engine's output pass applies (after the network, outside its
+history): the PyTorch model's output, hence a file's val metrics, is the same with any value."""
+
 FORMAT = "subpixel-ssr"
 FORMAT_VERSION = "2"
 """Version written for default configs; a file's version is its config's (1 or 2)."""
@@ -255,7 +259,9 @@ def set_options(src: str, options: List[str], out: str, val_data: Optional[str] 
     """Rewrites weights file `src` as `out` with config `options` (KEY=VALUE) changed: the
     tensors are kept; provenance gains an `options_set` entry (what changed, from what, when);
     with `val_data` the val metrics are recomputed under the new config (train.validate),
-    otherwise they are dropped (they described the old one). Returns the new metrics."""
+    otherwise they are dropped (they described the old one), unless every changed option is
+    one the engine's output pass applies after the network (OUTPUT_PASS_OPTIONS), which leaves
+    the network's output and so its metrics as they were. Returns the new metrics."""
     import datetime
 
     model, meta = load_weights(src)
@@ -277,6 +283,9 @@ def set_options(src: str, options: List[str], out: str, val_data: Optional[str] 
     changed.load_state_dict(model.state_dict(), strict=True)
     changed.eval()
     metrics: dict = {}
+    if not val_data and all(c["option"] in OUTPUT_PASS_OPTIONS for c in changes):
+        # The network's output, which the val metrics describe, does not change.
+        metrics = dict(meta.get("metrics") or {})
     if val_data:
         from .data import SequenceDataset
         from .train import validate

@@ -85,7 +85,9 @@ TILE_OFFSETS: Tuple[Tuple[int, int], ...] = ((0, 0), (1, 1), (1, 0), (0, 1))
 CONFIG_VERSION = 2
 """Config (and weights file) version this code writes; version 1 is read as LEGACY_OPTIONS."""
 
-LEGACY_OPTIONS: Dict[str, str] = {"exposure": "none", "remodulation": "accumulated", "history": "screen", "ceiling": "none"}
+LEGACY_OPTIONS: Dict[str, str] = {
+    "exposure": "none", "remodulation": "accumulated", "history": "screen", "ceiling": "none", "mean_correction": "none",
+}
 """What version-1 weights were trained with: absolute radiance in, output remodulated with the
 accumulated albedo, history rejected only off screen, no output ceiling."""
 
@@ -94,9 +96,10 @@ OPTION_VALUES: Dict[str, Tuple[str, ...]] = {
     "remodulation": ("accumulated", "current"),
     "history": ("screen", "geometry"),
     "ceiling": ("none", "max"),
+    "mean_correction": ("none", "tiles"),
 }
 
-LATE_OPTIONS: Dict[str, str] = {"ceiling": "none"}
+LATE_OPTIONS: Dict[str, str] = {"ceiling": "none", "mean_correction": "none"}
 """Version-2 options added after the first version-2 weights: absent, they take this value."""
 
 CEILING_GAIN = 1.0
@@ -146,6 +149,10 @@ class SSRConfig:
     remodulation: str = "current"  # "accumulated" | "current": albedo of the remodulation
     history: str = "geometry"  # "screen" | "geometry": which warped history is invalid
     ceiling: str = "max"  # "none" | "max": clamp the output to the brightest recent sample
+    # "none" | "tiles": the engine's output pass scales each 32x32 tile of the reconstruction
+    # to the traced samples' sum over the last 4 frames (src/ssr/config.rs MeanCorrection;
+    # not applied by this mirror: ssr/mean_probe.py holds its PyTorch-side equivalent)
+    mean_correction: str = "none"
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "enc", tuple(int(c) for c in self.enc))

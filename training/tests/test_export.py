@@ -266,3 +266,10 @@ def test_set_options_rewrites_config_and_keeps_tensors(tmp_path):
         set_options(src, ["widths=3"], out)
     with pytest.raises(WeightsError, match="ceiling"):
         set_options(out, ["exposure=none"], str(tmp_path / "bad.safetensors"))  # the ceiling needs the exposure
+
+    # An option of the engine's output pass leaves the network's output, and so the metrics.
+    kept = str(tmp_path / "kept.safetensors")
+    assert set_options(src, ["mean_correction=tiles"], kept) == {"psnr": 20.0}
+    _, meta = load_weights(kept)
+    assert meta["config"].mean_correction == "tiles" and meta["metrics"] == {"psnr": 20.0}
+    assert meta["config"].to_dict()["mean_correction"] == "tiles"

@@ -7,14 +7,22 @@
 // coverage (w) is 1, the network's reconstruction alone where it is 0. Both are sanitised
 // (background as colour, ssr/lib/sanitize; coverage into [0, 1], non-finite 0), values
 // changed counted in `sanitized`. The network's own output (its history) is left as it was.
+// With template flag MEAN (config `mean_correction = "tiles"`), the reconstruction is first
+// multiplied by the mean correction's factors (ssr/tile_means, one per tile of TILE x TILE
+// pixels), interpolated bilinearly between tile centres (edges held).
 //
 //#param BACKGROUND 0
+//#param MEAN 0
 
 struct Params {
     width: u32,
     height: u32,
     padded_width: u32,
     c4: u32,
+    tiles_x: u32,
+    tiles_y: u32,
+    _pad0: u32,
+    _pad1: u32,
 }
 
 @group(0) @binding(0) var<uniform> p: Params;
@@ -24,6 +32,30 @@ struct Params {
 @group(0) @binding(3) var<storage, read> background: array<vec4<f32>>;
 @group(0) @binding(4) var<storage, read_write> sanitized: array<atomic<u32>>;
 //#end
+// The mean correction's tile side (src/ssr/config.rs MEAN_TILE, set by the denoiser).
+override TILE: u32 = 32u;
+//#if MEAN
+@group(0) @binding(5) var<storage, read> factors: array<vec4<f32>>;
+
+// Tile row or column below `c` (pixel centre in tile units, tile centres at integers) and
+// the weight of the next one, within `n` tiles.
+fn tile_lerp(c: f32, n: u32) -> vec2<f32> {
+    let i0 = clamp(floor(c), 0.0, f32(n - 1u));
+    return vec2<f32>(i0, clamp(c - i0, 0.0, 1.0));
+}
+
+fn factor_at(x: u32, y: u32) -> vec3<f32> {
+    let tx = tile_lerp((f32(x) + 0.5) / f32(TILE) - 0.5, p.tiles_x);
+    let ty = tile_lerp((f32(y) + 0.5) / f32(TILE) - 0.5, p.tiles_y);
+    let x0 = u32(tx.x);
+    let y0 = u32(ty.x);
+    let x1 = min(x0 + 1u, p.tiles_x - 1u);
+    let y1 = min(y0 + 1u, p.tiles_y - 1u);
+    let top = factors[y0 * p.tiles_x + x0].xyz * (1.0 - tx.y) + factors[y0 * p.tiles_x + x1].xyz * tx.y;
+    let bottom = factors[y1 * p.tiles_x + x0].xyz * (1.0 - tx.y) + factors[y1 * p.tiles_x + x1].xyz * tx.y;
+    return top * (1.0 - ty.y) + bottom * ty.y;
+}
+//#end
 
 @compute @workgroup_size(8, 8, 1)
 fn main(@builtin(global_invocation_id) gid: vec3<u32>) {
@@ -31,6 +63,9 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>) {
         return;
     }
     var rgb = src[(gid.y * p.padded_width + gid.x) * p.c4].xyz;
+//#if MEAN
+    rgb *= factor_at(gid.x, gid.y);
+//#end
 //#if BACKGROUND
     let b = background[gid.y * p.width + gid.x];
     var bad = 0u;
