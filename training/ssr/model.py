@@ -150,8 +150,8 @@ class SSRConfig:
     history: str = "geometry"  # "screen" | "geometry": which warped history is invalid
     ceiling: str = "max"  # "none" | "max": clamp the output to the brightest recent sample
     # "none" | "tiles": the engine's output pass scales each 32x32 tile of the reconstruction
-    # to the traced samples' sum over the last 4 frames (src/ssr/config.rs MeanCorrection;
-    # not applied by this mirror: ssr/mean_probe.py holds its PyTorch-side equivalent)
+    # to the traced samples' sum over the last 4 frames (`MeanCorrection` below, applied after
+    # the model like `composite_background`)
     mean_correction: str = "none"
 
     def __post_init__(self) -> None:
@@ -269,6 +269,60 @@ def remodulate(o: torch.Tensor, albedo: torch.Tensor) -> torch.Tensor:
     return torch.clamp(torch.exp(o) - 1.0, min=0.0) * (torch.clamp(albedo, min=0.0) + ALBEDO_EPS)
 
 
+MEAN_TILE, MEAN_RING, MEAN_EPS, MEAN_LO, MEAN_HI = 32, 4, 1e-4, 0.67, 1.5
+"""Config `mean_correction = "tiles"` (src/ssr/config.rs): tile side, frames of the ring, the
+epsilon of both sums, the clamp of the factor."""
+
+
+def tile_sums(x: torch.Tensor, tile: int = MEAN_TILE) -> torch.Tensor:
+    """[N, C, H, W] -> [N, C, ceil(H / tile), ceil(W / tile)]: sums over tiles (zero-padded)."""
+    n, c, h, w = x.shape
+    th, tw = -(-h // tile), -(-w // tile)
+    x = F.pad(x, (0, tw * tile - w, 0, th * tile - h))
+    return x.reshape(n, c, th, tile, tw, tile).sum(dim=(3, 5))
+
+
+class MeanCorrection:
+    """The engine's output pass with config `mean_correction = "tiles"` (wgsl/ssr/tile_means.wgsl,
+    store_output.wgsl), frame by frame: per tile of MEAN_TILE^2 pixels and channel, over the
+    traced pixels (mask > 1/2) of the last MEAN_RING frames, the factor
+    `clamp((sum(color - B) + eps) / (sum((1 - a) output) + eps), MEAN_LO, MEAN_HI)`, interpolated
+    bilinearly between tile centres (edges held), scales the reconstructed part:
+    `B + (1 - a) output factor` (B, a the background and coverage, 0 without them). The
+    factor is differentiable in `output` (training through it sees the whole pass). A new
+    instance (or `reset`) starts with an empty ring, as the engine after a reset."""
+
+    def __init__(self) -> None:
+        self.ring: List[Tuple[torch.Tensor, torch.Tensor]] = []
+
+    def reset(self) -> None:
+        self.ring = []
+
+    def __call__(self, output: torch.Tensor, frame: Dict[str, torch.Tensor]) -> torch.Tensor:
+        bg, cov = background_parts(frame, output)
+        part = (1.0 - cov) * output
+        traced = (frame["mask"] > 0.5).to(output.dtype)
+        sample = (_clean(frame["color"]).to(output.dtype) - bg) * traced
+        self.ring = (self.ring + [(tile_sums(sample), tile_sums(part * traced))])[-MEAN_RING:]
+        s = sum(x for x, _ in self.ring)
+        r = sum(x for _, x in self.ring)
+        f = ((s + MEAN_EPS) / (r + MEAN_EPS)).clamp(MEAN_LO, MEAN_HI)
+        h, w = output.shape[-2:]
+        up = F.interpolate(f, scale_factor=MEAN_TILE, mode="bilinear", align_corners=False)[..., :h, :w]
+        return bg + part * up
+
+
+def background_parts(frame: Dict[str, torch.Tensor], like: torch.Tensor) -> Tuple[torch.Tensor, torch.Tensor]:
+    """(background, coverage) of a frame, sanitised as the engine does (background values
+    non-finite or negative 0, at most 1e12; coverage in [0, 1], non-finite 0), in `like`'s
+    dtype; zeros without those buffers."""
+    if "background" not in frame or "coverage" not in frame:
+        return torch.zeros_like(like), torch.zeros_like(like[:, :1] if like.dim() == 4 else like[:1])
+    bg = torch.nan_to_num(frame["background"], nan=0.0, posinf=0.0, neginf=0.0).clamp(0.0, 1e12)
+    cov = torch.nan_to_num(frame["coverage"], nan=0.0, posinf=0.0, neginf=0.0).clamp(0.0, 1.0)
+    return bg.to(like.dtype), cov.to(like.dtype)
+
+
 def composite_background(output: torch.Tensor, frame: Dict[str, torch.Tensor]) -> torch.Tensor:
     """The engine's output pass with the optional background buffer (wgsl/ssr/store_output.wgsl):
     `background + (1 - coverage) * output`, the directly seen environment over the part of the
@@ -278,9 +332,8 @@ def composite_background(output: torch.Tensor, frame: Dict[str, torch.Tensor]) -
     buffers, `output` unchanged. [N, 3, H, W] (or [3, H, W]) like the frame."""
     if "background" not in frame or "coverage" not in frame:
         return output
-    bg = torch.nan_to_num(frame["background"], nan=0.0, posinf=0.0, neginf=0.0).clamp(0.0, 1e12)
-    cov = torch.nan_to_num(frame["coverage"], nan=0.0, posinf=0.0, neginf=0.0).clamp(0.0, 1.0)
-    return bg.to(output.dtype) + (1.0 - cov.to(output.dtype)) * output
+    bg, cov = background_parts(frame, output)
+    return bg + (1.0 - cov) * output
 
 
 def quarter_mask(height: int, width: int, t: int, *, dtype=torch.float32) -> torch.Tensor:

@@ -53,7 +53,7 @@ from . import losses
 from .baselines import build_model, export_model, loss_aux
 from .data import THIN_KEEP_MIN, DatasetError, SequenceDataset, WindowSampler, collate, pad_frame
 from .metrics import image_metrics, mean_metrics
-from .model import SSRModel, composite_background
+from .model import MeanCorrection, SSRModel, composite_background
 
 CHECKPOINT_FORMAT = "subpixel-train-checkpoint"
 CHECKPOINT_VERSION = 1
@@ -126,10 +126,18 @@ def parse_args(argv=None) -> argparse.Namespace:
         "model.composite_background), `loss` also trains on it (no gradient from wholly sky pixels); default none",
     )
     ap.add_argument(
+        "--mean-correction", default="none", choices=["none", "loss"],
+        help="`loss`: train on the output after the engine's mean correction (model.MeanCorrection, over each "
+        "window's frames; needs --background loss); the exported config's `mean_correction` is the initial "
+        "weights' either way; default none",
+    )
+    ap.add_argument(
         "--lambda", dest="lambdas", action="append", default=[], metavar="TERM=WEIGHT",
         help=f"override a loss weight (repeatable; terms and defaults: {losses.LAMBDAS}), e.g. --lambda m=1",
     )
     args = ap.parse_args(argv)
+    if args.mean_correction == "loss" and args.background != "loss":
+        ap.error("--mean-correction loss needs --background loss (the correction of the engine's output uses the background)")
     try:
         args.lambdas = loss_weights(args.lambdas)
     except ValueError as err:
@@ -171,6 +179,9 @@ def loss_weights(overrides: List[str]) -> Dict[str, float]:
 def run_config(args: argparse.Namespace) -> dict:
     """The settings a checkpoint must share to be resumed (not paths, logging, workers, device)."""
     model_cfg = json.loads(args.model_config) if args.model_config else {}
+    if args.init is not None:
+        # Options of the engine's output pass follow the initial weights unless set here.
+        model_cfg = {**init_output_pass_options(args.init), **model_cfg}
     model = build_model(args.model, model_cfg)
     cfg_dict = model.cfg.to_dict()
     return {
@@ -193,6 +204,8 @@ def run_config(args: argparse.Namespace) -> dict:
         **({"init_at": args.init_at} if args.init_at else {}),
         # Only present when the loss sees the background (older checkpoints have no such key).
         **({"background": "loss"} if args.background == "loss" else {}),
+        # Only present when the loss sees the mean correction (older checkpoints have no such key).
+        **({"mean_correction": "loss"} if args.mean_correction == "loss" else {}),
         # Only present when sample thinning is on (older checkpoints have no such key).
         **({"thin": args.thin} if args.thin > 0 else {}),
         **({"thin_keep_min": args.thin_keep_min} if args.thin > 0 and args.thin_keep_min != THIN_KEEP_MIN else {}),
@@ -209,6 +222,22 @@ def init_identity(path: Optional[str]) -> Optional[dict]:
     with open(path, "rb") as f:
         digest = hashlib.sha256(f.read()).hexdigest()
     return {"file": os.path.basename(path), "sha256": digest}
+
+
+def init_output_pass_options(path: str) -> dict:
+    """The config options of the engine's output pass (export.OUTPUT_PASS_OPTIONS) that the
+    weights file `path` sets; {} for a file without them or not readable as such (load_init
+    reports what is wrong with it)."""
+    from .export import OUTPUT_PASS_OPTIONS
+
+    try:
+        from safetensors import safe_open
+
+        with safe_open(path, "pt") as f:
+            cfg = json.loads((f.metadata() or {}).get("config", "{}"))
+    except Exception:  # noqa: BLE001 - load_init names the problem
+        return {}
+    return {k: cfg[k] for k in OUTPUT_PASS_OPTIONS if isinstance(cfg, dict) and k in cfg}
 
 
 def load_init(model: nn.Module, path: str, model_name: str) -> dict:
@@ -438,12 +467,16 @@ def validate(model: nn.Module, ds: SequenceDataset, device: torch.device, frames
     """Runs every val sequence from frame 0 for `frames` frames (whole frames, padded to a
     multiple of 4 like the engine, optionally centre-cropped to `size`) and averages the
     per-frame metrics (PSNR/SSIM tonemapped 8-bit, RMSE/relMSE HDR). With the background
-    buffers loaded (`ds.store.extra`), the output is composited as the engine does."""
+    buffers loaded (`ds.store.extra`), the output is composited as the engine does, and with
+    config `mean_correction = "tiles"` corrected as the engine does (model.MeanCorrection)."""
     was_training = model.training
     model.eval()
     rows, per_scene = [], {}
+    cfg = getattr(model, "cfg", None)
+    tiles = getattr(cfg, "mean_correction", "none") == "tiles"
     for si, seq in enumerate(ds.sequences):
         state = None
+        mc = MeanCorrection()
         for t in range(min(frames, seq.frames)):
             f = ds.full_frame(si, t)
             if size:
@@ -455,7 +488,8 @@ def validate(model: nn.Module, ds: SequenceDataset, device: torch.device, frames
             padded, (h, w) = pad_frame(f)
             r = model(padded, state)
             state = r["state"]
-            pred = composite_background(r["output"][:, :, :h, :w], f)[0].float().cpu()
+            out = r["output"][:, :, :h, :w]
+            pred = (mc(out, f) if tiles else composite_background(out, f))[0].float().cpu()
             m = image_metrics(pred, f["reference"][0].cpu())
             rows.append(m)
             per_scene.setdefault(seq.scene, []).append(m)
@@ -658,7 +692,10 @@ def _train(args, config: dict, dd: Dist) -> dict:
                 g["lr"] = lr
             frames = [{k: v.to(device, non_blocking=True) for k, v in f.items()} for f in batch]
             results = runner(frames)
-            if args.background == "loss":
+            if args.mean_correction == "loss":
+                mc = MeanCorrection()  # one window: the ring starts empty, as after a reset
+                results = [{**r, "output": mc(r["output"], f)} for r, f in zip(results, frames)]
+            elif args.background == "loss":
                 results = [{**r, "output": composite_background(r["output"], f)} for r, f in zip(results, frames)]
             loss, parts = compute_loss(model, results, frames, weights, args.lambdas)
             opt.zero_grad(set_to_none=True)
@@ -731,6 +768,7 @@ def _train(args, config: dict, dd: Dist) -> dict:
             "window": args.window,
             "augmentation": {"flips": not args.no_flips, "thin": args.thin, "thin_keep_min": args.thin_keep_min},
             "background": args.background,
+            "mean_correction": args.mean_correction,
             "lr": args.lr,
             "lr_schedule": "Adam; halved at 1/3 and 2/3 of the iterations",
             "losses": {"frame_weights": list(weights), "lambdas": dict(args.lambdas)},

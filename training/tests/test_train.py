@@ -265,3 +265,37 @@ def test_background_scores_val_and_trains_on_the_engines_output(tmp_path, capsys
     assert T.main(args(bare, str(tmp_path / "e"), "--background", "loss")) == 1
     err = capsys.readouterr().err
     assert "background" in err and "frame_0000.exr" in err, err
+
+
+def test_mean_correction_in_the_loss_and_in_val(tmp_path, capsys):
+    """Weights with the engine's mean correction (`mean_correction = "tiles"`) start a run
+    whose config, validation (model.MeanCorrection after the composite) and exported file keep
+    it; `--mean-correction loss` trains through it, recorded in the checkpoint's config and the
+    provenance, and needs `--background loss`."""
+    from ssr.export import set_options
+    from ssr.synth import write_dataset
+
+    root = write_dataset(str(tmp_path / "d"), {"train": 2, "val": 1}, 6, 16, 16, background=True)
+    base = T.train(args(root, str(tmp_path / "base"), "--background", "val", iters=1))
+    tiles = str(tmp_path / "tiles.safetensors")
+    set_options(base["weights"], ["mean_correction=tiles"], tiles)
+    plain = T.train(args(root, str(tmp_path / "plain"), "--background", "val", "--init", base["weights"], iters=1))
+    run = T.train(args(root, str(tmp_path / "run"), "--background", "val", "--init", tiles, iters=1))
+    m_plain, _ = load_weights(plain["weights"])
+    m_run, meta = load_weights(run["weights"])
+    assert meta["config"].mean_correction == "tiles"
+    for k, v in m_plain.state_dict().items():
+        assert torch.equal(m_run.state_dict()[k], v), k  # the loss did not see it: same weights
+    assert run["metrics"]["psnr"] != plain["metrics"]["psnr"]  # val did
+    loss = T.train(args(root, str(tmp_path / "loss"), "--background", "loss", "--mean-correction", "loss",
+                        "--init", tiles, iters=1))
+    _, meta = load_weights(loss["weights"])
+    assert meta["provenance"]["mean_correction"] == "loss" and meta["config"].mean_correction == "tiles"
+    ck = torch.load(os.path.join(str(tmp_path / "loss"), "checkpoint.pt"), weights_only=False)
+    assert ck["config"]["mean_correction"] == "loss"
+    m_loss, _ = load_weights(loss["weights"])
+    assert any(not torch.equal(m_loss.state_dict()[k], v) for k, v in m_run.state_dict().items())
+    capsys.readouterr()
+    with pytest.raises(SystemExit):
+        T.main(args(root, str(tmp_path / "e"), "--mean-correction", "loss"))
+    assert "--background loss" in capsys.readouterr().err

@@ -1,0 +1,68 @@
+"""model.MeanCorrection, the PyTorch mirror of the engine's mean correction (config
+`mean_correction = "tiles"`), against the numpy probe it was chosen with (ssr.mean_probe,
+whose output the engine reproduced on val to the last digit)."""
+
+import numpy as np
+import pytest
+import torch
+
+from ssr.mean_probe import block_sums, tile_factors
+from ssr.model import MEAN_EPS, MEAN_HI, MEAN_LO, MEAN_RING, MEAN_TILE, MeanCorrection
+
+
+def frame(rng, h, w, t, background):
+    mask = np.zeros((h, w, 1))
+    mask[t % 2 :: 2, (t // 2) % 2 :: 2] = 1.0
+    color = rng.gamma(0.5, 2.0, size=(h, w, 3)) * np.where(np.arange(w) < 20, 6.0, 1.0)[None, :, None]
+    f = {"color": color, "mask": mask}
+    if background:
+        cov = rng.choice([0.0, 0.5, 1.0], size=(h, w, 1))
+        f["coverage"] = cov
+        f["background"] = 0.3 * cov * np.ones((1, 1, 3))
+    return f
+
+
+def torch_frame(f):
+    return {k: torch.from_numpy(v.transpose(2, 0, 1)[None].copy()) for k, v in f.items()}
+
+
+@pytest.mark.parametrize("background", [False, True])
+def test_mean_correction_matches_the_probe(background):
+    rng = np.random.default_rng(3)
+    h, w = 40, 72  # partial tiles on both axes
+    mc = MeanCorrection()
+    ring = []
+    clamped = between = 0
+    for t in range(7):
+        if t == 5:
+            mc.reset()
+            ring = []
+        f = frame(rng, h, w, t, background)
+        out = rng.gamma(1.0, 1.0, size=(h, w, 3))
+        bg = f.get("background", np.zeros((h, w, 3)))
+        cov = f.get("coverage", np.zeros((h, w, 1)))
+        part = (1 - cov) * out
+        ring = (ring + [(block_sums((f["color"] - bg) * f["mask"], MEAN_TILE), block_sums(part * f["mask"], MEAN_TILE))])[-MEAN_RING:]
+        fac, log_c = tile_factors(sum(s for s, _ in ring), sum(r for _, r in ring), h, w, MEAN_TILE,
+                                  lo=MEAN_LO, hi=MEAN_HI, eps=MEAN_EPS)
+        c = np.exp(log_c)
+        clamped += int(np.isclose(c, MEAN_LO).sum() + np.isclose(c, MEAN_HI).sum())
+        between += int(((c > MEAN_LO + 1e-6) & (c < MEAN_HI - 1e-6)).sum())
+        want = bg + part * fac
+        got = mc(torch.from_numpy(out.transpose(2, 0, 1)[None].copy()), torch_frame(f))
+        assert np.allclose(got[0].numpy().transpose(1, 2, 0), want, rtol=1e-9, atol=1e-9), t
+    assert clamped > 0 and between > 0
+
+
+def test_mean_correction_is_differentiable_and_follows_the_samples():
+    rng = np.random.default_rng(4)
+    h, w = 64, 64
+    f = torch_frame(frame(rng, h, w, 0, False))
+    out = torch.full((1, 3, h, w), 1.0, dtype=torch.float64, requires_grad=True)
+    got = MeanCorrection()(out, f)
+    got.sum().backward()
+    assert out.grad is not None and torch.isfinite(out.grad).all()
+    # A uniform output within the clamp's reach comes out at the samples' tile means.
+    f["color"] = torch.full_like(f["color"], 1.25)
+    got = MeanCorrection()(out.detach(), f)
+    assert torch.allclose(got, torch.full_like(got, 1.25))
