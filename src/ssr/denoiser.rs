@@ -424,7 +424,7 @@ impl Denoiser {
     }
 
     /// Forgets the history (call on a camera cut); the next frame starts afresh, exposure
-    /// included. Without it, history whose depth or normal disagrees with the new frame is
+    /// and the mean correction's sums of earlier frames included. Without it, history whose depth or normal disagrees with the new frame is
     /// rejected per pixel (version-2 weights), but history that happens to agree is kept.
     pub fn reset(&mut self) {
         self.first = true;
