@@ -71,21 +71,11 @@ struct InputPasses {
     background: bool,
 }
 
+/// The parameters of the output passes, `ssr/tile_means` and `ssr/store_output` (which
+/// leaves `slot` and `first` unused).
 #[repr(C)]
 #[derive(Clone, Copy, Pod, Zeroable)]
-struct StoreParams {
-    width: u32,
-    height: u32,
-    padded_width: u32,
-    c4: u32,
-    tiles_x: u32,
-    tiles_y: u32,
-    _pad: [u32; 2],
-}
-
-#[repr(C)]
-#[derive(Clone, Copy, Pod, Zeroable)]
-struct TileMeansParams {
+struct OutputParams {
     width: u32,
     height: u32,
     padded_width: u32,
@@ -127,8 +117,8 @@ pub const KERNELS_USED: &[&str] = &[
 pub const PARAM_SIZES: &[(&str, usize)] = &[
     ("ssr/pack_inputs", std::mem::size_of::<PackParams>()),
     ("ssr/pack_mt", std::mem::size_of::<PackParams>()),
-    ("ssr/store_output", std::mem::size_of::<StoreParams>()),
-    ("ssr/tile_means", std::mem::size_of::<TileMeansParams>()),
+    ("ssr/store_output", std::mem::size_of::<OutputParams>()),
+    ("ssr/tile_means", std::mem::size_of::<OutputParams>()),
     (
         "ssr/exposure_partial",
         std::mem::size_of::<ExposurePartialParams>(),
@@ -267,16 +257,7 @@ impl Denoiser {
     /// with the background (`background + (1 - coverage) x output`) when the caller gives one,
     /// the output first scaled by the mean correction's factors when the config has it.
     fn store_dispatch(&self, background: Option<&wgpu::Buffer>) -> Result<Dispatch> {
-        let tiles = self.mean.as_ref().map_or((0, 0), |m| m.tiles);
-        let params = StoreParams {
-            width: self.width,
-            height: self.height,
-            padded_width: self.net.width,
-            c4: self.net.output().c4(),
-            tiles_x: tiles.0,
-            tiles_y: tiles.1,
-            _pad: [0; 2],
-        };
+        let params = self.output_params(0, false);
         let view = self.output.create_view(&Default::default());
         let mut resources = vec![
             self.net.output().buffer.as_entire_binding(),
@@ -303,6 +284,20 @@ impl Denoiser {
         )
     }
 
+    fn output_params(&self, slot: u32, first: bool) -> OutputParams {
+        let tiles = self.mean.as_ref().map_or((0, 0), |m| m.tiles);
+        OutputParams {
+            width: self.width,
+            height: self.height,
+            padded_width: self.net.width,
+            c4: self.net.output().c4(),
+            tiles_x: tiles.0,
+            tiles_y: tiles.1,
+            slot,
+            first: first as u32,
+        }
+    }
+
     /// The mean correction's tile sums for each ring slot, then for each slot on a first
     /// frame (`None` without the option).
     fn mean_dispatches(
@@ -316,16 +311,7 @@ impl Denoiser {
         let mut out = Vec::new();
         for first in [false, true] {
             for slot in 0..MEAN_RING {
-                let params = TileMeansParams {
-                    width: self.width,
-                    height: self.height,
-                    padded_width: self.net.width,
-                    c4: self.net.output().c4(),
-                    tiles_x: m.tiles.0,
-                    tiles_y: m.tiles.1,
-                    slot,
-                    first: first as u32,
-                };
+                let params = self.output_params(slot, first);
                 let mut resources = vec![
                     self.net.output().buffer.as_entire_binding(),
                     color_mask.as_entire_binding(),

@@ -21,8 +21,9 @@ struct Params {
     c4: u32,
     tiles_x: u32,
     tiles_y: u32,
-    _pad0: u32,
-    _pad1: u32,
+    // (the ring slot and the first-frame flag of ssr/tile_means, which shares these params)
+    _slot: u32,
+    _first: u32,
 }
 
 @group(0) @binding(0) var<uniform> p: Params;
