@@ -68,7 +68,8 @@ def snapshot_iteration(path: str) -> int:
 def score_snapshot(path: str, ds: SequenceDataset, frames: int) -> dict:
     model, _ = load_weights(path)
     with torch.no_grad():
-        m = validate(model, ds, torch.device("cpu"), frames)
+        # The network's own output, as every point since the first session (no output pass).
+        m = validate(model, ds, torch.device("cpu"), frames, output_pass=False)
     return {
         "psnr": m["psnr"],
         "ssim": m["ssim"],

@@ -463,17 +463,19 @@ def load_checkpoint(path: str, config: dict) -> dict:
 
 
 @torch.no_grad()
-def validate(model: nn.Module, ds: SequenceDataset, device: torch.device, frames: int, size: int = 0) -> dict:
+def validate(model: nn.Module, ds: SequenceDataset, device: torch.device, frames: int, size: int = 0,
+             output_pass: bool = True) -> dict:
     """Runs every val sequence from frame 0 for `frames` frames (whole frames, padded to a
     multiple of 4 like the engine, optionally centre-cropped to `size`) and averages the
     per-frame metrics (PSNR/SSIM tonemapped 8-bit, RMSE/relMSE HDR). With the background
     buffers loaded (`ds.store.extra`), the output is composited as the engine does, and with
-    config `mean_correction = "tiles"` corrected as the engine does (model.MeanCorrection)."""
+    config `mean_correction = "tiles"` corrected as the engine does (model.MeanCorrection);
+    `output_pass=False` scores the network's own output (neither)."""
     was_training = model.training
     model.eval()
     rows, per_scene = [], {}
     cfg = getattr(model, "cfg", None)
-    tiles = getattr(cfg, "mean_correction", "none") == "tiles"
+    tiles = output_pass and getattr(cfg, "mean_correction", "none") == "tiles"
     for si, seq in enumerate(ds.sequences):
         state = None
         mc = MeanCorrection()
@@ -489,7 +491,9 @@ def validate(model: nn.Module, ds: SequenceDataset, device: torch.device, frames
             r = model(padded, state)
             state = r["state"]
             out = r["output"][:, :, :h, :w]
-            pred = (mc(out, f) if tiles else composite_background(out, f))[0].float().cpu()
+            if output_pass:
+                out = mc(out, f) if tiles else composite_background(out, f)
+            pred = out[0].float().cpu()
             m = image_metrics(pred, f["reference"][0].cpu())
             rows.append(m)
             per_scene.setdefault(seq.scene, []).append(m)

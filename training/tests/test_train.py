@@ -287,6 +287,12 @@ def test_mean_correction_in_the_loss_and_in_val(tmp_path, capsys):
     for k, v in m_plain.state_dict().items():
         assert torch.equal(m_run.state_dict()[k], v), k  # the loss did not see it: same weights
     assert run["metrics"]["psnr"] != plain["metrics"]["psnr"]  # val did
+    # ... unless told to score the network's own output (the learning curves)
+    from ssr.data import SequenceDataset
+
+    ds = SequenceDataset(root, "val", window=1, crop=None, flips=False, extra=("background", "coverage"))
+    own = [T.validate(m, ds, torch.device("cpu"), 2, output_pass=False)["psnr"] for m in (m_plain, m_run)]
+    assert own[0] == own[1]
     loss = T.train(args(root, str(tmp_path / "loss"), "--background", "loss", "--mean-correction", "loss",
                         "--init", tiles, iters=1))
     _, meta = load_weights(loss["weights"])
