@@ -156,6 +156,7 @@ def test_config_json_round_trip():
         "remodulation": "current",
         "history": "geometry",
         "ceiling": "max",
+        "mean_correction": "none",
     }
     with pytest.raises(ValueError, match="feature_pool"):
         SSRConfig(feature_pool="median")
@@ -170,7 +171,7 @@ def test_config_json_round_trip():
     with pytest.raises(ValueError, match="unsupported `version` 3"):
         SSRConfig.from_dict({**d, "version": 3})
     # version 1 (the shipped weights'): no option keys, the legacy pipeline
-    v1 = {k: v for k, v in d.items() if k not in ("exposure", "remodulation", "history", "ceiling")}
+    v1 = {k: v for k, v in d.items() if k not in ("exposure", "remodulation", "history", "ceiling", "mean_correction")}
     v1["version"] = 1
     c1 = SSRConfig.from_dict(v1)
     assert (c1.exposure, c1.remodulation, c1.history, c1.ceiling) == ("none", "accumulated", "screen", "none")
