@@ -14,17 +14,7 @@
 //#param BACKGROUND 0
 //#param MEAN 0
 
-struct Params {
-    width: u32,
-    height: u32,
-    padded_width: u32,
-    c4: u32,
-    tiles_x: u32,
-    tiles_y: u32,
-    // (the ring slot and the first-frame flag of ssr/tile_means, which shares these params)
-    _slot: u32,
-    _first: u32,
-}
+// Params, TILE: ssr/lib/output.
 
 @group(0) @binding(0) var<uniform> p: Params;
 @group(0) @binding(1) var<storage, read> src: array<vec4<f32>>;
@@ -33,8 +23,6 @@ struct Params {
 @group(0) @binding(3) var<storage, read> background: array<vec4<f32>>;
 @group(0) @binding(4) var<storage, read_write> sanitized: array<atomic<u32>>;
 //#end
-// The mean correction's tile side (src/ssr/config.rs MEAN_TILE, set by the denoiser).
-override TILE: u32 = 32u;
 //#if MEAN
 @group(0) @binding(5) var<storage, read> factors: array<vec4<f32>>;
 

@@ -15,16 +15,7 @@
 //
 //#param BACKGROUND 0
 
-struct Params {
-    width: u32,
-    height: u32,
-    padded_width: u32,
-    c4: u32,
-    tiles_x: u32,
-    tiles_y: u32,
-    slot: u32,
-    first: u32,
-}
+// Params, TILE: ssr/lib/output.
 
 @group(0) @binding(0) var<uniform> p: Params;
 @group(0) @binding(1) var<storage, read> src: array<vec4<f32>>;
@@ -35,9 +26,8 @@ struct Params {
 @group(0) @binding(5) var<storage, read> background: array<vec4<f32>>;
 //#end
 
-// Set by the denoiser from src/ssr/config.rs (MEAN_TILE, MEAN_RING, MEAN_EPS, MEAN_LO,
-// MEAN_HI); TILE a multiple of SIDE.
-override TILE: u32 = 32u;
+// Set by the denoiser from src/ssr/config.rs (MEAN_RING, MEAN_EPS, MEAN_LO, MEAN_HI; TILE,
+// in ssr/lib/output, a multiple of SIDE).
 override RING: u32 = 4u;
 override EPS: f32 = 1.0e-4;
 override LO: f32 = 0.67;
