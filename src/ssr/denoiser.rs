@@ -308,30 +308,28 @@ impl Denoiser {
         let Some(m) = &self.mean else {
             return Ok(None);
         };
+        let spec = Specialisation(vec![
+            ("BACKGROUND", background.is_some() as u32 as f64),
+            ("TILE", MEAN_TILE as f64),
+            ("RING", MEAN_RING as f64),
+            ("EPS", MEAN_EPS as f64),
+            ("LO", MEAN_LO as f64),
+            ("HI", MEAN_HI as f64),
+        ]);
+        let mut resources = vec![
+            self.net.output().buffer.as_entire_binding(),
+            color_mask.as_entire_binding(),
+            m.ring.as_entire_binding(),
+            m.factors.as_entire_binding(),
+        ];
+        resources.extend(background.map(|b| b.as_entire_binding()));
         let mut out = Vec::new();
         for first in [false, true] {
             for slot in 0..MEAN_RING {
-                let params = self.output_params(slot, first);
-                let mut resources = vec![
-                    self.net.output().buffer.as_entire_binding(),
-                    color_mask.as_entire_binding(),
-                    m.ring.as_entire_binding(),
-                    m.factors.as_entire_binding(),
-                ];
-                if let Some(b) = background {
-                    resources.push(b.as_entire_binding());
-                }
                 out.push(self.gpu.kernels.dispatch_with(
                     "ssr/tile_means",
-                    &Specialisation(vec![
-                        ("BACKGROUND", background.is_some() as u32 as f64),
-                        ("TILE", MEAN_TILE as f64),
-                        ("RING", MEAN_RING as f64),
-                        ("EPS", MEAN_EPS as f64),
-                        ("LO", MEAN_LO as f64),
-                        ("HI", MEAN_HI as f64),
-                    ]),
-                    bytemuck::bytes_of(&params),
+                    &spec,
+                    bytemuck::bytes_of(&self.output_params(slot, first)),
                     &resources,
                     Grid::Workgroups([m.tiles.0, m.tiles.1, 1]),
                 )?);
@@ -410,8 +408,9 @@ impl Denoiser {
     }
 
     /// Forgets the history (call on a camera cut); the next frame starts afresh, exposure
-    /// and the mean correction's sums of earlier frames included. Without it, history whose depth or normal disagrees with the new frame is
-    /// rejected per pixel (version-2 weights), but history that happens to agree is kept.
+    /// and the mean correction's sums of earlier frames included. Without it, history whose
+    /// depth or normal disagrees with the new frame is rejected per pixel (version-2
+    /// weights), but history that happens to agree is kept.
     pub fn reset(&mut self) {
         self.first = true;
     }
@@ -466,9 +465,7 @@ impl Denoiser {
         {
             let mut pass = Profiler::pass(encoder, "output", profiler);
             if let (Some(d), Some(m)) = (&passes.mean, self.mean.as_mut()) {
-                if self.first {
-                    m.slot = 0;
-                }
+                // On a first frame any slot will do: that dispatch clears the others.
                 d[(m.slot + if self.first { MEAN_RING } else { 0 }) as usize].record(&mut pass);
                 m.slot = (m.slot + 1) % MEAN_RING;
             }

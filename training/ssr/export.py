@@ -36,11 +36,7 @@ from typing import Dict, List, Optional, Tuple
 import torch
 from torch import nn
 
-from .model import OPTION_VALUES, SSRConfig, SSRModel, flops_per_pixel
-
-OUTPUT_PASS_OPTIONS = ("mean_correction",)
-"""Config options only the engine's output pass applies (after the network, outside its
-history): the PyTorch model's output, hence a file's val metrics, is the same with any value."""
+from .model import OPTION_VALUES, OUTPUT_PASS_OPTIONS, SSRConfig, SSRModel, flops_per_pixel
 
 FORMAT = "subpixel-ssr"
 FORMAT_VERSION = "2"

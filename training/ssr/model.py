@@ -102,6 +102,10 @@ OPTION_VALUES: Dict[str, Tuple[str, ...]] = {
 LATE_OPTIONS: Dict[str, str] = {"ceiling": "none", "mean_correction": "none"}
 """Version-2 options added after the first version-2 weights: absent, they take this value."""
 
+OUTPUT_PASS_OPTIONS: Tuple[str, ...] = ("mean_correction",)
+"""Options only the engine's output pass applies (after the network, outside its history):
+the model's own output, hence a file's val metrics, is the same with any value."""
+
 CEILING_GAIN = 1.0
 """Config `ceiling = "max"`: the demodulated output of channel c never exceeds CEILING_GAIN * M_c,
 M the running max of the demodulated traced samples (below)."""

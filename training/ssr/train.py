@@ -53,7 +53,7 @@ from . import losses
 from .baselines import build_model, export_model, loss_aux
 from .data import THIN_KEEP_MIN, DatasetError, SequenceDataset, WindowSampler, collate, pad_frame
 from .metrics import image_metrics, mean_metrics
-from .model import MeanCorrection, SSRModel, composite_background
+from .model import OUTPUT_PASS_OPTIONS, MeanCorrection, SSRModel, composite_background
 
 CHECKPOINT_FORMAT = "subpixel-train-checkpoint"
 CHECKPOINT_VERSION = 1
@@ -225,11 +225,9 @@ def init_identity(path: Optional[str]) -> Optional[dict]:
 
 
 def init_output_pass_options(path: str) -> dict:
-    """The config options of the engine's output pass (export.OUTPUT_PASS_OPTIONS) that the
+    """The config options of the engine's output pass (model.OUTPUT_PASS_OPTIONS) that the
     weights file `path` sets; {} for a file without them or not readable as such (load_init
     reports what is wrong with it)."""
-    from .export import OUTPUT_PASS_OPTIONS
-
     try:
         from safetensors import safe_open
 
