@@ -291,7 +291,10 @@ fn conv3x3_and_pooling_with_f16_storage_match_reference() {
     } else {
         0
     };
-    assert_eq!(kernels.len(), 1 + ConvKernel::blocked_tilings().len() + coop);
+    assert_eq!(
+        kernels.len(),
+        1 + ConvKernel::blocked_tilings().len() + ConvKernel::winograd_tilings().len() + coop
+    );
     for &kernel in &kernels {
         let outputs: &[DType] = if kernel == ConvKernel::Generic || kernel.to_string() == "px4-cob2" {
             &[DType::F16, DType::F32]

@@ -145,6 +145,10 @@ pub const KERNELS: &[KernelSource] = &[
         ["nn/lib/storage", "nn/lib/conv_shape", "nn/lib/fetch"]
     ),
     kernel!(
+        "nn/conv3x3_winograd",
+        ["nn/lib/storage", "nn/lib/conv_shape", "nn/lib/fetch"]
+    ),
+    kernel!(
         "nn/conv3x3_coop",
         ["nn/lib/storage", "nn/lib/conv_shape", "nn/lib/fetch"]
     ),
@@ -564,6 +568,7 @@ impl KernelRegistry {
         }
         template.sort_unstable();
         let (module, info) = self.module(k, &template)?;
+        let started = std::time::Instant::now();
         let scope = self.device.push_error_scope(wgpu::ErrorFilter::Validation);
         let pipeline = self
             .device
@@ -584,6 +589,11 @@ impl KernelRegistry {
                 message: format!("pipeline creation failed (specialisation {:?}): {e}", spec.0),
             });
         }
+        log::debug!(
+            "pipeline {} {template:?} created in {:.2?}",
+            k.name,
+            started.elapsed()
+        );
         let compiled = (Arc::new(pipeline), info);
         self.pipelines.lock().unwrap().insert(key, compiled.clone());
         Ok(compiled)
@@ -839,6 +849,7 @@ mod tests {
         let mut n = 0;
         for kernel in ConvKernel::blocked_tilings()
             .into_iter()
+            .chain(ConvKernel::winograd_tilings())
             .chain(ConvKernel::coop_tilings())
         {
             for inputs in 1..=4 {
@@ -850,6 +861,10 @@ mod tests {
                             ConvKernel::Blocked { px, cob } => {
                                 template.extend([("PX", px), ("COB", cob)]);
                                 "nn/conv3x3_blocked"
+                            }
+                            ConvKernel::Winograd { tx, cob } => {
+                                template.extend([("TX", tx), ("COB", cob)]);
+                                "nn/conv3x3_winograd"
                             }
                             ConvKernel::Coop { mt, nt, rt } => {
                                 template.extend([
@@ -1030,8 +1045,9 @@ mod tests {
             let params = k.source.contains(PARAMS_UNIFORM) as u32;
             assert_eq!(s.uniform_buffers, u.uniform_buffers - params, "{}", k.name);
             assert_eq!(s.storage_buffers, u.storage_buffers + params, "{}", k.name);
-            // Only the blocked convolution has a second uniform block (its weights).
-            let extra = (k.name == "nn/conv3x3_blocked") as u32;
+            // Only the blocked and Winograd convolutions have a second uniform block (their
+            // weights).
+            let extra = matches!(k.name, "nn/conv3x3_blocked" | "nn/conv3x3_winograd") as u32;
             assert_eq!(u.uniform_buffers, params + extra, "{}", k.name);
         }
     }

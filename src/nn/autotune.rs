@@ -257,10 +257,10 @@ fn store(key: &str, tuning: &Tuning) {
     }
 }
 
-/// `kernels HASH`: a hash of both convolution kernels' sources, part of every cache key.
+/// `kernels HASH`: a hash of the convolution kernels' sources, part of every cache key.
 fn kernels_hash() -> String {
     let mut hasher = std::collections::hash_map::DefaultHasher::new();
-    for name in ["nn/conv3x3", "nn/conv3x3_blocked"] {
+    for name in ["nn/conv3x3", "nn/conv3x3_blocked", "nn/conv3x3_winograd"] {
         if let Ok(k) = crate::gpu::kernel_source(name) {
             k.source.hash(&mut hasher);
         }

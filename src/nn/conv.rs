@@ -8,6 +8,10 @@
 //!   output vec4s per invocation, shapes and activation as override constants (one
 //!   pipeline per layer shape), weights in a 64 KiB uniform buffer. Runs layers whose
 //!   packed weights fit it ([`Conv3x3::candidates`]).
+//! - `nn/conv3x3_winograd` ([`ConvKernel::Winograd`]): Winograd's F(2x2, 3x3), `tx`
+//!   adjacent 2x2 output tiles times `cob` output vec4s per invocation, 16 multiplications
+//!   per tile and channel pair instead of 36, otherwise as the blocked kernel (its weights
+//!   transformed on the host, 16 per input and output channel instead of 9).
 //! - `nn/conv3x3_coop` ([`ConvKernel::Coop`]): an implicit matrix product on cooperative
 //!   matrices (tensor cores), T x T matrices (16, or 8 where the adapter has only those),
 //!   one subgroup per `mt * T` pixels times `nt * T` output channels, f16 operands and f32
@@ -64,6 +68,8 @@ pub const BLOCKED_MAX_WEIGHTS: u32 = 4096;
 pub const BLOCKED_MAX_ACC: u32 = 32;
 /// Most pixels per blocked invocation (`MAX_PX`).
 pub const BLOCKED_MAX_PX: u32 = 16;
+/// Most accumulators (`16 * tx * cob` vec4s) one Winograd invocation may hold.
+pub const WINOGRAD_MAX_ACC: u32 = 64;
 /// Largest error of the cooperative-matrix kernel against the CPU reference, relative to
 /// the reference output's largest magnitude: its operands are rounded to f16 (11-bit
 /// significands; a sum of n products then errs by about sqrt(n) * 2^-11 of the terms'
@@ -92,6 +98,14 @@ pub enum ConvKernel {
         /// Output vec4s (4 channels each) per invocation (1..=32, `px * cob <= 32`).
         cob: u32,
     },
+    /// `nn/conv3x3_winograd`: F(2x2, 3x3) over `tx` adjacent 2x2 output tiles x `cob`
+    /// output vec4s per invocation, transformed weights in a uniform buffer.
+    Winograd {
+        /// Horizontally adjacent 2x2 output tiles per invocation (1, 2, 4, 8 or 16).
+        tx: u32,
+        /// Output vec4s per invocation (1, 2 or 4; `16 * tx * cob <= 512`).
+        cob: u32,
+    },
     /// `nn/conv3x3_coop`: one subgroup per `mt` tiles of T pixels of `rt` rows times `nt`
     /// output tiles of T channels, on T x T cooperative matrices ([`Gpu::coop_tile`]).
     Coop {
@@ -110,6 +124,7 @@ impl std::fmt::Display for ConvKernel {
             ConvKernel::Generic => write!(f, "generic"),
             ConvKernel::Blocked { px, cob } => write!(f, "px{px}-cob{cob}"),
             ConvKernel::Coop { mt, nt, rt } => write!(f, "coop-m{mt}-n{nt}-r{rt}"),
+            ConvKernel::Winograd { tx, cob } => write!(f, "wino-tx{tx}-cob{cob}"),
         }
     }
 }
@@ -121,11 +136,26 @@ impl std::str::FromStr for ConvKernel {
     fn from_str(s: &str) -> Result<Self> {
         let bad = || {
             Error::Invalid(format!(
-                "conv kernel '{s}': expected 'generic', 'pxP-cobC' (e.g. px4-cob2) or 'coop-mM-nN-rR' (e.g. coop-m2-n2-r1)"
+                "conv kernel '{s}': expected 'generic', 'pxP-cobC' (e.g. px4-cob2), 'wino-txT-cobC' (e.g. wino-tx2-cob1) or 'coop-mM-nN-rR' (e.g. coop-m2-n2-r1)"
             ))
         };
         if s == "generic" {
             return Ok(ConvKernel::Generic);
+        }
+        if let Some(rest) = s.strip_prefix("wino-") {
+            let (a, b) = rest.split_once('-').ok_or_else(bad)?;
+            let tx = a
+                .strip_prefix("tx")
+                .and_then(|v| v.parse().ok())
+                .ok_or_else(bad)?;
+            let cob = b
+                .strip_prefix("cob")
+                .and_then(|v| v.parse().ok())
+                .ok_or_else(bad)?;
+            let k = ConvKernel::Winograd { tx, cob };
+            k.check_tiling()
+                .map_err(|m| Error::Invalid(format!("conv kernel '{s}': {m}")))?;
+            return Ok(k);
         }
         if let Some(rest) = s.strip_prefix("coop-") {
             let mut parts = rest.split('-');
@@ -177,6 +207,30 @@ impl ConvKernel {
         v
     }
 
+    /// The Winograd tilings the autotuner tries: 1 to 16 tiles times 1, 2 or 4 output
+    /// blocks, at most [`WINOGRAD_MAX_ACC`] accumulators.
+    pub fn winograd_tilings() -> Vec<ConvKernel> {
+        let mut v = Vec::new();
+        for tx in [1, 2, 4, 8, 16] {
+            for cob in [1, 2, 4] {
+                if 16 * tx * cob <= WINOGRAD_MAX_ACC {
+                    v.push(ConvKernel::Winograd { tx, cob });
+                }
+            }
+        }
+        v
+    }
+
+    /// Weight positions per input and output channel pair in the packing of the kernels
+    /// with uniform weights: 9 taps, or the 16 of the Winograd transform.
+    fn positions(&self) -> u32 {
+        if let ConvKernel::Winograd { .. } = self {
+            16
+        } else {
+            9
+        }
+    }
+
     /// The cooperative-matrix tilings the autotuner tries where the device has them: 1, 2
     /// or 4 pixel tiles times 1 or 2 channel tiles times 1 or 2 rows, at most
     /// [`COOP_MAX_ACC`] accumulators.
@@ -214,10 +268,46 @@ impl ConvKernel {
                     ));
                 }
             }
+            ConvKernel::Winograd { tx, cob } => {
+                if ![1, 2, 4, 8, 16].contains(&tx)
+                    || ![1, 2, 4].contains(&cob)
+                    || 16 * tx * cob > WINOGRAD_MAX_ACC
+                {
+                    return Err(format!(
+                        "tx must be 1, 2, 4, 8 or 16, cob 1, 2 or 4, and 16 * tx * cob <= {WINOGRAD_MAX_ACC}"
+                    ));
+                }
+            }
             ConvKernel::Generic => {}
         }
         Ok(())
     }
+}
+
+/// Winograd's F(2x2, 3x3) weight transform `U = G g G^T` of one 3x3 kernel `g` (row-major
+/// taps), as `nn/conv3x3_winograd` reads it (row-major 4x4), with
+/// `G = [1 0 0; 1/2 1/2 1/2; 1/2 -1/2 1/2; 0 0 1]`.
+pub fn winograd_weights(g: &[f32; 9]) -> [f32; 16] {
+    const G: [[f32; 3]; 4] = [
+        [1.0, 0.0, 0.0],
+        [0.5, 0.5, 0.5],
+        [0.5, -0.5, 0.5],
+        [0.0, 0.0, 1.0],
+    ];
+    // G g (4x3), then (G g) G^T (4x4).
+    let mut gg = [[0.0f32; 3]; 4];
+    for (i, row) in gg.iter_mut().enumerate() {
+        for (j, v) in row.iter_mut().enumerate() {
+            *v = (0..3).map(|k| G[i][k] * g[k * 3 + j]).sum();
+        }
+    }
+    let mut u = [0.0f32; 16];
+    for i in 0..4 {
+        for j in 0..4 {
+            u[i * 4 + j] = (0..3).map(|k| gg[i][k] * G[j][k]).sum();
+        }
+    }
+    u
 }
 
 /// A 3x3 convolution layer (stride 1, zero padding, bias, activation) over up to 4 input
@@ -241,9 +331,10 @@ pub struct Conv3x3 {
     kernel: ConvKernel,
     /// How it reads each input ([`Fetch::Direct`] until set).
     fetch: Vec<Fetch>,
-    /// Uniform weight buffers of the blocked kernel, by output block `cob` (the packing's
-    /// output stride depends on it).
-    blocked: Mutex<HashMap<u32, Vec<wgpu::Buffer>>>,
+    /// Uniform weight buffers of the blocked and Winograd kernels, by weight positions per
+    /// channel pair (9, 16) and output block `cob` (the packing's output stride depends on
+    /// it).
+    blocked: Mutex<HashMap<(u32, u32), Vec<wgpu::Buffer>>>,
     /// f16 weight buffers of the cooperative-matrix kernel, by output tiles `nt` and matrix
     /// size.
     coop: Mutex<HashMap<(u32, u32), wgpu::Buffer>>,
@@ -295,11 +386,13 @@ impl Conv3x3 {
         input_channels: &[u32],
         cout: u32,
     ) -> Result<(Vec<f32>, Vec<f32>)> {
-        Self::pack_strided(name, weight, bias, input_channels, cout, padded(cout) / 4)
+        Self::pack_strided(name, weight, bias, input_channels, cout, padded(cout) / 4, 9)
     }
 
     /// [`Conv3x3::pack`] with `cout4_stride >= cout4` output vec4s per `(tap, ci4)` row
-    /// (the blocked kernel rounds the output up to its block; extra columns are zero).
+    /// (the blocked kernel rounds the output up to its block; extra columns are zero), and
+    /// `positions` 9 (the taps) or 16 (each 3x3 kernel through [`winograd_weights`], for
+    /// `nn/conv3x3_winograd`).
     fn pack_strided(
         name: &str,
         weight: &[f32],
@@ -307,6 +400,7 @@ impl Conv3x3 {
         input_channels: &[u32],
         cout: u32,
         cout4_stride: u32,
+        positions: u32,
     ) -> Result<(Vec<f32>, Vec<f32>)> {
         let op = format!("conv3x3 '{name}'");
         if input_channels.is_empty() || input_channels.len() > 4 || input_channels.contains(&0) {
@@ -336,7 +430,7 @@ impl Conv3x3 {
             ));
         }
         let cin4: u32 = input_channels.iter().map(|&c| padded(c) / 4).sum();
-        let mut packed = vec![0.0f32; (9 * cin4 * cout4_stride * 16) as usize];
+        let mut packed = vec![0.0f32; (positions * cin4 * cout4_stride * 16) as usize];
         let mut base_logical = 0;
         let mut base_padded = 0;
         for &c in input_channels {
@@ -344,10 +438,16 @@ impl Conv3x3 {
                 let li = base_logical + ci; // logical input channel (PyTorch index)
                 let pi = base_padded + ci; // padded slot
                 for co in 0..cout {
-                    for tap in 0..9 {
-                        let wv = weight[((co * cin + li) * 9 + tap) as usize];
-                        // [tap][ci4][co4][col k = pi%4][row = co%4]
-                        let idx = ((((tap * cin4 + pi / 4) * cout4_stride + co / 4) * 4 + pi % 4) * 4
+                    let at = ((co * cin + li) * 9) as usize;
+                    let g: [f32; 9] = weight[at..at + 9].try_into().expect("9 taps");
+                    let values = if positions == 16 {
+                        winograd_weights(&g).to_vec()
+                    } else {
+                        g.to_vec()
+                    };
+                    for (pos, &wv) in (0..).zip(&values) {
+                        // [position][ci4][co4][col k = pi%4][row = co%4]
+                        let idx = ((((pos * cin4 + pi / 4) * cout4_stride + co / 4) * 4 + pi % 4) * 4
                             + co % 4) as usize;
                         packed[idx] = wv;
                     }
@@ -490,17 +590,19 @@ impl Conv3x3 {
         self.input_channels.iter().map(|&c| padded(c) / 4).sum()
     }
 
-    /// Vec4s of packed weights the blocked kernel needs with output block `cob`.
-    fn blocked_weights(&self, cob: u32) -> u32 {
-        9 * self.cin4_total() * cob * 4
+    /// Vec4s of packed weights a kernel with uniform weights (`positions` per channel
+    /// pair: 9 blocked, 16 Winograd) needs per output block of `cob` vec4s.
+    fn blocked_weights(&self, positions: u32, cob: u32) -> u32 {
+        positions * self.cin4_total() * cob * 4
     }
 
-    /// The output ranges `(first vec4, vec4s)` the blocked kernel with output block `cob`
-    /// runs this layer in: as few dispatches as the uniform weight array allows (one for
-    /// every layer of the shipped network). Empty when one block's weights do not fit.
-    fn blocked_chunks(&self, cob: u32) -> Vec<(u32, u32)> {
+    /// The output ranges `(first vec4, vec4s)` a kernel with uniform weights (`positions`
+    /// per channel pair) and output block `cob` runs this layer in: as few dispatches as
+    /// the uniform weight array allows (one for every layer of the shipped network on the
+    /// blocked kernel). Empty when one block's weights do not fit.
+    fn blocked_chunks(&self, positions: u32, cob: u32) -> Vec<(u32, u32)> {
         let cout4 = padded(self.cout) / 4;
-        let per_block = self.blocked_weights(cob);
+        let per_block = self.blocked_weights(positions, cob);
         let blocks = BLOCKED_MAX_WEIGHTS / per_block.max(1);
         if blocks == 0 {
             return Vec::new();
@@ -526,7 +628,7 @@ impl Conv3x3 {
             }
             return None;
         }
-        let ConvKernel::Blocked { cob, .. } = kernel else {
+        let (ConvKernel::Blocked { cob, .. } | ConvKernel::Winograd { cob, .. }) = kernel else {
             return None;
         };
         if let Err(m) = kernel.check_tiling() {
@@ -536,7 +638,7 @@ impl Conv3x3 {
         if cob > cout4 {
             return Some(format!("cob {cob} exceeds the layer's {cout4} output vec4s"));
         }
-        let need = self.blocked_weights(cob);
+        let need = self.blocked_weights(kernel.positions(), cob);
         if need > BLOCKED_MAX_WEIGHTS {
             return Some(format!(
                 "one output block's packed weights are {need} vec4s, more than the uniform array's {BLOCKED_MAX_WEIGHTS}"
@@ -558,6 +660,7 @@ impl Conv3x3 {
     pub fn candidates(&self, gpu: &Gpu) -> Vec<ConvKernel> {
         std::iter::once(ConvKernel::Generic)
             .chain(ConvKernel::blocked_tilings())
+            .chain(ConvKernel::winograd_tilings())
             .chain(ConvKernel::coop_tilings())
             .filter(|&k| self.unsupported(gpu, k).is_none())
             .collect()
@@ -730,8 +833,8 @@ impl Conv3x3 {
                 )
             }
             ConvKernel::Blocked { px, cob } => {
-                let chunks = self.blocked_chunks(cob);
-                let weights = self.blocked_buffers(gpu, cob)?;
+                let chunks = self.blocked_chunks(9, cob);
+                let weights = self.blocked_buffers(gpu, 9, cob)?;
                 let mut parts = Vec::with_capacity(chunks.len());
                 for (&(base, count), weights) in chunks.iter().zip(&weights) {
                     let mut spec = shaped();
@@ -749,6 +852,32 @@ impl Conv3x3 {
                         bytemuck::bytes_of(&shaped_params),
                         &b,
                         Grid::Invocations([w.div_ceil(px), h, count.div_ceil(cob)]),
+                    )?);
+                }
+                let mut parts = parts.into_iter();
+                let first = parts.next().expect("a supported layer has at least one chunk");
+                Ok(first.chain(parts))
+            }
+            ConvKernel::Winograd { tx, cob } => {
+                let chunks = self.blocked_chunks(16, cob);
+                let weights = self.blocked_buffers(gpu, 16, cob)?;
+                let mut parts = Vec::with_capacity(chunks.len());
+                for (&(base, count), weights) in chunks.iter().zip(&weights) {
+                    let mut spec = shaped();
+                    spec.0.extend([
+                        ("CO_BASE", base as f64),
+                        ("CO_COUNT", count as f64),
+                        ("TX", tx as f64),
+                        ("COB", cob as f64),
+                    ]);
+                    let mut b = bufs.clone();
+                    b.extend([weights, &self.bias, &out.buffer]);
+                    parts.push(gpu.kernels.dispatch(
+                        "nn/conv3x3_winograd",
+                        &spec,
+                        bytemuck::bytes_of(&shaped_params),
+                        &b,
+                        Grid::Invocations([w.div_ceil(2 * tx), h.div_ceil(2), count.div_ceil(cob)]),
                     )?);
                 }
                 let mut parts = parts.into_iter();
@@ -785,18 +914,18 @@ impl Conv3x3 {
         }
     }
 
-    /// The blocked kernel's uniform weights for output block `cob`, one buffer per output
-    /// range of [`Conv3x3::blocked_chunks`] (a full 64 KiB array each, zero beyond the
-    /// packed weights), uploaded on first use.
-    fn blocked_buffers(&self, gpu: &Gpu, cob: u32) -> Result<Vec<wgpu::Buffer>> {
+    /// The uniform weights of the blocked (`positions` 9) or Winograd (16) kernel for
+    /// output block `cob`, one buffer per output range of [`Conv3x3::blocked_chunks`] (a
+    /// full 64 KiB array each, zero beyond the packed weights), uploaded on first use.
+    fn blocked_buffers(&self, gpu: &Gpu, positions: u32, cob: u32) -> Result<Vec<wgpu::Buffer>> {
         let mut cache = self.blocked.lock().unwrap();
-        if let Some(b) = cache.get(&cob) {
+        if let Some(b) = cache.get(&(positions, cob)) {
             return Ok(b.clone());
         }
         let cin: u32 = self.input_channels.iter().sum();
         let per_out = (cin * 9) as usize;
         let mut buffers = Vec::new();
-        for (base, count) in self.blocked_chunks(cob) {
+        for (base, count) in self.blocked_chunks(positions, cob) {
             // The chunk's output channels as a layer of their own.
             let lo = base * 4;
             let hi = ((base + count) * 4).min(self.cout);
@@ -807,16 +936,20 @@ impl Conv3x3 {
                 &self.input_channels,
                 hi - lo,
                 count.div_ceil(cob) * cob,
+                positions,
             )?;
             packed.resize(BLOCKED_MAX_WEIGHTS as usize * 4, 0.0);
             use wgpu::util::DeviceExt;
             buffers.push(gpu.device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
-                label: Some(&format!("subpixel.{}.weight.cob{cob}.from{base}", self.name)),
+                label: Some(&format!(
+                    "subpixel.{}.weight.p{positions}.cob{cob}.from{base}",
+                    self.name
+                )),
                 contents: bytemuck::cast_slice(&packed),
                 usage: wgpu::BufferUsages::UNIFORM,
             }));
         }
-        cache.insert(cob, buffers.clone());
+        cache.insert((positions, cob), buffers.clone());
         Ok(buffers)
     }
 }
@@ -825,6 +958,7 @@ impl Conv3x3 {
 pub const PARAM_SIZES: &[(&str, usize)] = &[
     ("nn/conv3x3", std::mem::size_of::<ConvParams>()),
     ("nn/conv3x3_blocked", std::mem::size_of::<ShapedParams>()),
+    ("nn/conv3x3_winograd", std::mem::size_of::<ShapedParams>()),
     ("nn/conv3x3_coop", std::mem::size_of::<ShapedParams>()),
 ];
 
@@ -836,13 +970,14 @@ mod tests {
     fn kernel_names_round_trip() {
         for k in std::iter::once(ConvKernel::Generic)
             .chain(ConvKernel::blocked_tilings())
+            .chain(ConvKernel::winograd_tilings())
             .chain(ConvKernel::coop_tilings())
         {
             assert_eq!(k.to_string().parse::<ConvKernel>().unwrap(), k);
         }
         for bad in [
             "px0-cob1",
-            "px8-cob8",
+            "px16-cob16",
             "px32-cob1",
             "px4",
             "cob4-px4",
@@ -853,6 +988,10 @@ mod tests {
             "coop-m2-n2",
             "coop-m4-n2-r2",
             "coop-m1-n1-r1-x",
+            "wino-tx3-cob1",
+            "wino-tx16-cob4",
+            "wino-tx2",
+            "wino-tx1-cob8",
         ] {
             let e = bad.parse::<ConvKernel>().unwrap_err().to_string();
             assert!(e.contains(bad), "{e}");
@@ -982,6 +1121,51 @@ mod tests {
         }
     }
 
+    /// Winograd's F(2x2, 3x3) with [`winograd_weights`]: `A^T [U . (B^T d B)] A` of a 4x4
+    /// input patch `d` equals the four outputs of the direct 3x3 correlation, for random
+    /// kernels and patches (the transforms written out independently of the kernel's).
+    #[test]
+    fn winograd_transform_gives_the_direct_correlation() {
+        let mut seed = 99u32;
+        let mut rnd = || {
+            seed = seed.wrapping_mul(1664525).wrapping_add(1013904223);
+            (seed >> 8) as f32 / (1u32 << 24) as f32 * 2.0 - 1.0
+        };
+        const BT: [[f32; 4]; 4] = [
+            [1.0, 0.0, -1.0, 0.0],
+            [0.0, 1.0, 1.0, 0.0],
+            [0.0, -1.0, 1.0, 0.0],
+            [0.0, 1.0, 0.0, -1.0],
+        ];
+        const AT: [[f32; 4]; 2] = [[1.0, 1.0, 1.0, 0.0], [0.0, 1.0, -1.0, -1.0]];
+        for _ in 0..100 {
+            let g: [f32; 9] = std::array::from_fn(|_| rnd());
+            let d: [[f32; 4]; 4] = std::array::from_fn(|_| std::array::from_fn(|_| rnd()));
+            let u = winograd_weights(&g);
+            // V = B^T d B, M = U . V, Y = A^T M A.
+            let v = |i: usize, j: usize| -> f32 {
+                (0..4)
+                    .map(|k| (0..4).map(|l| BT[i][k] * d[k][l] * BT[j][l]).sum::<f32>())
+                    .sum()
+            };
+            for r in 0..2 {
+                for c in 0..2 {
+                    let y: f32 = (0..4)
+                        .map(|i| {
+                            (0..4)
+                                .map(|j| AT[r][i] * u[i * 4 + j] * v(i, j) * AT[c][j])
+                                .sum::<f32>()
+                        })
+                        .sum();
+                    let direct: f32 = (0..3)
+                        .map(|ky| (0..3).map(|kx| g[ky * 3 + kx] * d[r + ky][c + kx]).sum::<f32>())
+                        .sum();
+                    assert!((y - direct).abs() <= 1e-5, "({r}, {c}): {y} against {direct}");
+                }
+            }
+        }
+    }
+
     /// The strided packing puts each weight where the blocked kernel reads it and zeroes
     /// the padding columns.
     #[test]
@@ -990,7 +1174,8 @@ mod tests {
         let cin: u32 = split.iter().sum();
         let w: Vec<f32> = (0..cout * cin * 9).map(|i| i as f32 + 1.0).collect();
         let stride = 4; // cout4 = 2, rounded up to a block of 4
-        let (p, _) = Conv3x3::pack_strided("t", &w, &vec![0.0; cout as usize], &split, cout, stride).unwrap();
+        let (p, _) =
+            Conv3x3::pack_strided("t", &w, &vec![0.0; cout as usize], &split, cout, stride, 9).unwrap();
         let cin4 = 1 + 2;
         assert_eq!(p.len(), (9 * cin4 * stride * 16) as usize);
         let slot = |li: u32| if li < 3 { li } else { 4 + li - 3 };

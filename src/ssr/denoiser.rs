@@ -108,6 +108,7 @@ pub const KERNELS_USED: &[&str] = &[
     "ssr/tile_means",
     "nn/conv3x3",
     "nn/conv3x3_blocked",
+    "nn/conv3x3_winograd",
     "nn/tfa_blend",
     "nn/resample2x",
     "nn/remodulate",
