@@ -305,6 +305,20 @@ def read_sequence(path: str, split: Optional[str] = None) -> SequenceInfo:
     )
 
 
+def reference_psnr(seq: SequenceInfo) -> float:
+    """The mean PSNR between the two halves of a sequence's references (`reference_noise`
+    of its sequence.json, written by `subpixel dataset`): how clean its references are.
+    Raises DatasetError naming the file when it is missing or not a number."""
+    rn = seq.meta.get("reference_noise")
+    v = rn.get("mean_psnr_db") if isinstance(rn, dict) else None
+    if isinstance(v, bool) or not isinstance(v, (int, float)):
+        raise DatasetError(
+            f"{os.path.join(seq.path, 'sequence.json')}: no `reference_noise.mean_psnr_db` (render it with a "
+            "current `subpixel dataset`, or leave out the reference-noise threshold)"
+        )
+    return float(v)
+
+
 def list_sequences(root: str, split: str, scenes: Optional[Sequence[str]] = None) -> List[SequenceInfo]:
     """Every sequence of ROOT/split (sorted by folder name), optionally only of `scenes`."""
     if split not in SPLITS:
@@ -538,6 +552,7 @@ class SequenceDataset(torch.utils.data.Dataset):
         thin: float = 0.0,
         thin_keep_min: float = THIN_KEEP_MIN,
         extra: Sequence[str] = (),
+        min_reference_psnr: Optional[float] = None,
     ):
         self.root = root
         self.split = split
@@ -552,6 +567,20 @@ class SequenceDataset(torch.utils.data.Dataset):
         self.sequences = list_sequences(root, split, scenes)
         if not self.sequences:
             raise DatasetError(f"{os.path.join(root, split)}: no sequences")
+        # Sequences left out for their reference noise (sequence.json's `reference_noise`).
+        self.noisy: List[SequenceInfo] = []
+        if min_reference_psnr is not None:
+            kept = []
+            for s in self.sequences:
+                if reference_psnr(s) < min_reference_psnr:
+                    self.noisy.append(s)
+                else:
+                    kept.append(s)
+            if not kept:
+                raise DatasetError(
+                    f"{os.path.join(root, split)}: every sequence's reference noise is below {min_reference_psnr} dB"
+                )
+            self.sequences = kept
         short = [s for s in self.sequences if s.frames < self.window]
         if short:
             raise DatasetError(

@@ -89,6 +89,11 @@ def parse_args(argv=None) -> argparse.Namespace:
         "--thin-keep-min", type=float, default=THIN_KEEP_MIN,
         help=f"lowest keep probability of sample thinning (log-uniform in [this, 1]; default {THIN_KEEP_MIN})",
     )
+    ap.add_argument(
+        "--min-reference-psnr", type=float, default=None,
+        help="leave out training sequences whose references are noisier than this: the mean PSNR (dB) between "
+        "their two halves, as sequence.json records it (default: keep every sequence; validation is never filtered)",
+    )
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--resume", action="store_true", help="continue from RUN_DIR/checkpoint.pt")
     ap.add_argument("--ckpt-every", type=int, default=1000)
@@ -209,6 +214,8 @@ def run_config(args: argparse.Namespace) -> dict:
         # Only present when sample thinning is on (older checkpoints have no such key).
         **({"thin": args.thin} if args.thin > 0 else {}),
         **({"thin_keep_min": args.thin_keep_min} if args.thin > 0 and args.thin_keep_min != THIN_KEEP_MIN else {}),
+        # Only present when noisy training sequences are left out (older checkpoints have no such key).
+        **({"min_reference_psnr": args.min_reference_psnr} if args.min_reference_psnr is not None else {}),
     }
 
 
@@ -569,7 +576,13 @@ def _train(args, config: dict, dd: Dist) -> dict:
         args.data, "train", window=args.window, crop=args.crop, flips=not args.no_flips, scenes=args.scenes,
         cache=args.cache, cache_mb=args.cache_mb, cache_dir=args.cache_dir, thin=args.thin,
         thin_keep_min=args.thin_keep_min, extra=background if args.background == "loss" else (),
+        min_reference_psnr=args.min_reference_psnr,
     )
+    if train_ds.noisy:
+        say(
+            f"left out {len(train_ds.noisy)} training sequence(s) with references below {args.min_reference_psnr} dB "
+            f"between halves: {', '.join(s.name for s in train_ds.noisy)}"
+        )
     if tuple(train_ds.crop_hw) != (args.crop, args.crop):
         say(f"note: frames smaller than --crop {args.crop}: crops are {train_ds.crop_hw[1]}x{train_ds.crop_hw[0]}")
     val_ds = None
@@ -763,6 +776,7 @@ def _train(args, config: dict, dd: Dist) -> dict:
                 "val": [s.id for s in val_ds.sequences] if val_ds is not None else [],
             },
             "train_frames": sum(s.frames for s in train_ds.sequences),
+            **({"min_reference_psnr": args.min_reference_psnr} if args.min_reference_psnr is not None else {}),
             "resolution": sorted({f"{s.width}x{s.height}" for s in train_ds.sequences}),
             "iterations": it,
             "batch": args.batch,

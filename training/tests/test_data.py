@@ -342,3 +342,44 @@ def test_extra_buffers_load_beside_the_frame(tmp_path):
     bare = write_dataset(str(tmp_path / "b"), {"train": 1}, 5, 16, 16, seed=4)
     with pytest.raises(DatasetError, match=r"frame_0000\.exr: missing channel\(s\) \['full\.R'"):
         SequenceDataset(bare, "train", crop=8, extra=("full",)).full_frame(0, 0)
+
+
+def test_noisy_reference_sequences_are_left_out_on_request(tmp_path):
+    """`min_reference_psnr` drops the training sequences whose sequence.json records a mean
+    PSNR between reference halves below it, keeps the rest, and without it keeps all; a
+    sequence without the record, or a threshold that leaves nothing, is an error naming the
+    file or the folder."""
+    from ssr.synth import write_dataset
+
+    root = write_dataset(str(tmp_path / "ds"), {"train": 3}, 5, 16, 16, seed=4)
+    names = sorted(os.listdir(os.path.join(root, "train")))
+    noise = dict(zip(names, [15.0, 31.5, 24.0]))
+
+    def record(name, value):
+        path = os.path.join(root, "train", name, "sequence.json")
+        with open(path) as f:
+            meta = json.load(f)
+        if value is None:
+            meta.pop("reference_noise", None)
+        else:
+            meta["reference_noise"] = {"frames": 5, "mean_psnr_db": value, "min_psnr_db": value - 1}
+        with open(path, "w") as f:
+            json.dump(meta, f)
+        return path
+
+    for name, value in noise.items():
+        record(name, value)
+    everything = SequenceDataset(root, "train", window=3, crop=16)
+    assert sorted(s.name for s in everything.sequences) == names and everything.noisy == []
+    ds = SequenceDataset(root, "train", window=3, crop=16, min_reference_psnr=24.0)
+    assert sorted(s.name for s in ds.sequences) == sorted(n for n, v in noise.items() if v >= 24.0)
+    assert [s.name for s in ds.noisy] == [n for n, v in noise.items() if v < 24.0]
+    # Windows come only from the kept sequences.
+    assert {ds.sequences[si].name for si, _ in ds.windows} == {s.name for s in ds.sequences}
+    with pytest.raises(DatasetError, match="every sequence's reference noise is below 40"):
+        SequenceDataset(root, "train", window=3, crop=16, min_reference_psnr=40.0)
+    missing = record(names[1], None)
+    with pytest.raises(DatasetError, match=re.escape(missing) + ".*reference_noise"):
+        SequenceDataset(root, "train", window=3, crop=16, min_reference_psnr=20.0)
+    # Without the threshold the record is not needed.
+    assert len(SequenceDataset(root, "train", window=3, crop=16).sequences) == 3
