@@ -142,11 +142,21 @@ pub const KERNELS: &[KernelSource] = &[
     kernel!("nn/conv3x3", ["nn/lib/storage", "nn/lib/fetch"]),
     kernel!(
         "nn/conv3x3_blocked",
-        ["nn/lib/storage", "nn/lib/conv_shape", "nn/lib/fetch"]
+        [
+            "nn/lib/storage",
+            "nn/lib/conv_shape",
+            "nn/lib/uniform_weights",
+            "nn/lib/fetch"
+        ]
     ),
     kernel!(
         "nn/conv3x3_winograd",
-        ["nn/lib/storage", "nn/lib/conv_shape", "nn/lib/fetch"]
+        [
+            "nn/lib/storage",
+            "nn/lib/conv_shape",
+            "nn/lib/uniform_weights",
+            "nn/lib/fetch"
+        ]
     ),
     kernel!(
         "nn/conv3x3_coop",
@@ -974,11 +984,13 @@ mod tests {
                 k.name
             );
             // Libraries declare no bindings: those belong to the entry file; except the
-            // tracer's scene, declared once for all tracer kernels.
+            // tracer's scene, declared once for all tracer kernels, and the inputs, weights
+            // and output of the convolutions with uniform weights (after the entry file's
+            // parameter block).
             for lib in k.includes {
                 let text = std::fs::read_to_string(root.join(format!("{lib}.wgsl"))).unwrap();
                 assert!(
-                    !text.contains("@binding") || *lib == "trace/lib/scene",
+                    !text.contains("@binding") || ["trace/lib/scene", "nn/lib/uniform_weights"].contains(lib),
                     "library {lib} declares a binding"
                 );
                 assert!(

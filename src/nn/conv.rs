@@ -832,52 +832,34 @@ impl Conv3x3 {
                     Grid::Invocations([w, h, padded(self.cout).div_ceil(GENERIC_COUT_BLOCK)]),
                 )
             }
-            ConvKernel::Blocked { px, cob } => {
-                let chunks = self.blocked_chunks(9, cob);
-                let weights = self.blocked_buffers(gpu, 9, cob)?;
+            ConvKernel::Blocked { .. } | ConvKernel::Winograd { .. } => {
+                // The kernels with uniform weights: one dispatch per output range whose
+                // weights fit the array, each invocation over a tile of `tile` pixels.
+                let (name, tiling, tile, cob) = match kernel {
+                    ConvKernel::Blocked { px, cob } => ("nn/conv3x3_blocked", ("PX", px), [px, 1], cob),
+                    ConvKernel::Winograd { tx, cob } => ("nn/conv3x3_winograd", ("TX", tx), [2 * tx, 2], cob),
+                    _ => unreachable!("matched above"),
+                };
+                let positions = kernel.positions();
+                let chunks = self.blocked_chunks(positions, cob);
+                let weights = self.blocked_buffers(gpu, positions, cob)?;
                 let mut parts = Vec::with_capacity(chunks.len());
                 for (&(base, count), weights) in chunks.iter().zip(&weights) {
                     let mut spec = shaped();
                     spec.0.extend([
                         ("CO_BASE", base as f64),
                         ("CO_COUNT", count as f64),
-                        ("PX", px as f64),
+                        (tiling.0, tiling.1 as f64),
                         ("COB", cob as f64),
                     ]);
                     let mut b = bufs.clone();
                     b.extend([weights, &self.bias, &out.buffer]);
                     parts.push(gpu.kernels.dispatch(
-                        "nn/conv3x3_blocked",
+                        name,
                         &spec,
                         bytemuck::bytes_of(&shaped_params),
                         &b,
-                        Grid::Invocations([w.div_ceil(px), h, count.div_ceil(cob)]),
-                    )?);
-                }
-                let mut parts = parts.into_iter();
-                let first = parts.next().expect("a supported layer has at least one chunk");
-                Ok(first.chain(parts))
-            }
-            ConvKernel::Winograd { tx, cob } => {
-                let chunks = self.blocked_chunks(16, cob);
-                let weights = self.blocked_buffers(gpu, 16, cob)?;
-                let mut parts = Vec::with_capacity(chunks.len());
-                for (&(base, count), weights) in chunks.iter().zip(&weights) {
-                    let mut spec = shaped();
-                    spec.0.extend([
-                        ("CO_BASE", base as f64),
-                        ("CO_COUNT", count as f64),
-                        ("TX", tx as f64),
-                        ("COB", cob as f64),
-                    ]);
-                    let mut b = bufs.clone();
-                    b.extend([weights, &self.bias, &out.buffer]);
-                    parts.push(gpu.kernels.dispatch(
-                        "nn/conv3x3_winograd",
-                        &spec,
-                        bytemuck::bytes_of(&shaped_params),
-                        &b,
-                        Grid::Invocations([w.div_ceil(2 * tx), h.div_ceil(2), count.div_ceil(cob)]),
+                        Grid::Invocations([w.div_ceil(tile[0]), h.div_ceil(tile[1]), count.div_ceil(cob)]),
                     )?);
                 }
                 let mut parts = parts.into_iter();

@@ -25,28 +25,9 @@
 //#param TX 1
 //#param COB 1
 
-// The shape, activation and parameter block: nn/lib/conv_shape.
-override CO_BASE: u32 = 0u; // first output vec4 of this dispatch
-override CO_COUNT: u32 = 1u; // output vec4s of this dispatch (its weights)
-
-const MAX_WEIGHTS: u32 = 4096u; // vec4s: 64 KiB, WebGPU's default uniform binding size
-
+// The shape, activation and parameter block: nn/lib/conv_shape; the output range, the
+// other bindings and `store`: nn/lib/uniform_weights.
 @group(0) @binding(0) var<uniform> p: Params;
-//#repeat k N_IN
-@group(0) @binding({k+1}) var<storage, read> in{k}: array<In{k}>;
-//#end
-@group(0) @binding({N_IN+1}) var<uniform> weights: array<vec4<f32>, MAX_WEIGHTS>;
-@group(0) @binding({N_IN+2}) var<storage, read> bias: array<vec4<f32>>;
-@group(0) @binding({N_IN+3}) var<storage, read_write> out: array<Out>;
-
-// Activation and finiteness (nn/lib/storage's to_out), stored when the pixel and output
-// block exist.
-fn store(x: u32, y: u32, co4: u32, acc: vec4<f32>) {
-    if (x >= p.width || y >= p.height || co4 >= min(COUT4, CO_BASE + CO_COUNT)) {
-        return;
-    }
-    out[(y * p.width + x) * COUT4 + co4] = to_out(activate(acc));
-}
 
 @compute @workgroup_size(8, 8, 1)
 fn main(@builtin(global_invocation_id) gid: vec3<u32>) {

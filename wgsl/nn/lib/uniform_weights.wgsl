@@ -1,0 +1,27 @@
+// What the convolutions with weights in a uniform buffer (nn/conv3x3_blocked,
+// nn/conv3x3_winograd) share: the output range of one dispatch (a layer whose weights
+// exceed the uniform array runs as several, nn::conv packs them), the bindings after the
+// parameter block (N_IN inputs, the weights, the bias, the output) and the store of one
+// output vec4. A kernel including this library declares template parameter N_IN, `p:
+// Params` at binding 0, and includes nn/lib/storage and nn/lib/conv_shape.
+
+override CO_BASE: u32 = 0u; // first output vec4 of this dispatch
+override CO_COUNT: u32 = 1u; // output vec4s of this dispatch (its weights)
+
+const MAX_WEIGHTS: u32 = 4096u; // vec4s: 64 KiB, WebGPU's default uniform binding size
+
+//#repeat k N_IN
+@group(0) @binding({k+1}) var<storage, read> in{k}: array<In{k}>;
+//#end
+@group(0) @binding({N_IN+1}) var<uniform> weights: array<vec4<f32>, MAX_WEIGHTS>;
+@group(0) @binding({N_IN+2}) var<storage, read> bias: array<vec4<f32>>;
+@group(0) @binding({N_IN+3}) var<storage, read_write> out: array<Out>;
+
+// Activation and finiteness (nn/lib/storage's to_out, as in nn/conv3x3), stored when the
+// pixel and output block exist.
+fn store(x: u32, y: u32, co4: u32, acc: vec4<f32>) {
+    if (x >= p.width || y >= p.height || co4 >= min(COUT4, CO_BASE + CO_COUNT)) {
+        return;
+    }
+    out[(y * p.width + x) * COUT4 + co4] = to_out(activate(acc));
+}
