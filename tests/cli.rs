@@ -870,9 +870,20 @@ fn default_weights_follow_the_binary_and_the_environment() {
             .arg("--input")
             .arg(&frames)
             .arg("--out")
-            .arg(root.join(out))
-            .output()
-            .unwrap()
+            .arg(root.join(out));
+        // A test thread forking a child while the copy above was open for writing makes
+        // the child hold it until its exec: the kernel then refuses to run the copy (text
+        // file busy) for a moment. Retry that, nothing else.
+        let mut tries = 0;
+        loop {
+            match c.output() {
+                Err(e) if e.kind() == std::io::ErrorKind::ExecutableFileBusy && tries < 20 => {
+                    tries += 1;
+                    std::thread::sleep(std::time::Duration::from_millis(50));
+                }
+                r => break r.unwrap(),
+            }
+        }
     };
     // The golden weights are random test weights: the warning names the file in use.
     let o = denoise(&exe, None, "out1");

@@ -142,49 +142,32 @@ impl std::str::FromStr for ConvKernel {
         if s == "generic" {
             return Ok(ConvKernel::Generic);
         }
-        if let Some(rest) = s.strip_prefix("wino-") {
-            let (a, b) = rest.split_once('-').ok_or_else(bad)?;
-            let tx = a
-                .strip_prefix("tx")
-                .and_then(|v| v.parse().ok())
-                .ok_or_else(bad)?;
-            let cob = b
-                .strip_prefix("cob")
-                .and_then(|v| v.parse().ok())
-                .ok_or_else(bad)?;
-            let k = ConvKernel::Winograd { tx, cob };
-            k.check_tiling()
-                .map_err(|m| Error::Invalid(format!("conv kernel '{s}': {m}")))?;
-            return Ok(k);
-        }
-        if let Some(rest) = s.strip_prefix("coop-") {
-            let mut parts = rest.split('-');
-            let mut field = |prefix: char| {
-                parts
-                    .next()
-                    .and_then(|p| p.strip_prefix(prefix))
-                    .and_then(|v| v.parse().ok())
-                    .ok_or_else(bad)
-            };
-            let (mt, nt, rt) = (field('m')?, field('n')?, field('r')?);
-            if parts.next().is_some() {
+        // `NAMEa-NAMEb` fields after a prefix, each a number after its name.
+        let fields = |rest: &str, names: &[&str]| -> Result<Vec<u32>> {
+            let parts: Vec<&str> = rest.split('-').collect();
+            if parts.len() != names.len() {
                 return Err(bad());
             }
-            let k = ConvKernel::Coop { mt, nt, rt };
-            k.check_tiling()
-                .map_err(|m| Error::Invalid(format!("conv kernel '{s}': {m}")))?;
-            return Ok(k);
-        }
-        let (a, b) = s.split_once('-').ok_or_else(bad)?;
-        let px = a
-            .strip_prefix("px")
-            .and_then(|v| v.parse().ok())
-            .ok_or_else(bad)?;
-        let cob = b
-            .strip_prefix("cob")
-            .and_then(|v| v.parse().ok())
-            .ok_or_else(bad)?;
-        let k = ConvKernel::Blocked { px, cob };
+            parts
+                .iter()
+                .zip(names)
+                .map(|(p, n)| p.strip_prefix(n).and_then(|v| v.parse().ok()).ok_or_else(bad))
+                .collect()
+        };
+        let k = if let Some(rest) = s.strip_prefix("wino-") {
+            let f = fields(rest, &["tx", "cob"])?;
+            ConvKernel::Winograd { tx: f[0], cob: f[1] }
+        } else if let Some(rest) = s.strip_prefix("coop-") {
+            let f = fields(rest, &["m", "n", "r"])?;
+            ConvKernel::Coop {
+                mt: f[0],
+                nt: f[1],
+                rt: f[2],
+            }
+        } else {
+            let f = fields(s, &["px", "cob"])?;
+            ConvKernel::Blocked { px: f[0], cob: f[1] }
+        };
         k.check_tiling()
             .map_err(|m| Error::Invalid(format!("conv kernel '{s}': {m}")))?;
         Ok(k)
