@@ -868,13 +868,10 @@ mod tests {
                     for f16 in [0, 1] {
                         let mut template = vec![("N_IN", inputs), ("F16_IN0", f16), ("F16_OUT", f16)];
                         let name = match kernel {
-                            ConvKernel::Blocked { px, cob } => {
-                                template.extend([("PX", px), ("COB", cob)]);
-                                "nn/conv3x3_blocked"
-                            }
-                            ConvKernel::Winograd { tx, cob } => {
-                                template.extend([("TX", tx), ("COB", cob)]);
-                                "nn/conv3x3_winograd"
+                            ConvKernel::Blocked { .. } | ConvKernel::Winograd { .. } => {
+                                let l = kernel.uniform_layout().expect("uniform weights");
+                                template.extend([l.tiling, ("COB", l.cob)]);
+                                l.kernel
                             }
                             ConvKernel::Coop { mt, nt, rt } => {
                                 template.extend([

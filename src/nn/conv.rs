@@ -206,13 +206,25 @@ impl ConvKernel {
         v
     }
 
-    /// Weight positions per input and output channel pair in the packing of the kernels
-    /// with uniform weights: 9 taps, or the 16 of the Winograd transform.
-    fn positions(&self) -> u32 {
-        if let ConvKernel::Winograd { .. } = self {
-            16
-        } else {
-            9
+    /// How a kernel with weights in a uniform buffer (blocked, Winograd) is shaped; `None`
+    /// for the others.
+    pub(crate) fn uniform_layout(&self) -> Option<UniformLayout> {
+        match *self {
+            ConvKernel::Blocked { px, cob } => Some(UniformLayout {
+                kernel: "nn/conv3x3_blocked",
+                positions: 9,
+                tiling: ("PX", px),
+                tile: [px, 1],
+                cob,
+            }),
+            ConvKernel::Winograd { tx, cob } => Some(UniformLayout {
+                kernel: "nn/conv3x3_winograd",
+                positions: 16,
+                tiling: ("TX", tx),
+                tile: [2 * tx, 2],
+                cob,
+            }),
+            ConvKernel::Generic | ConvKernel::Coop { .. } => None,
         }
     }
 
@@ -264,6 +276,22 @@ impl ConvKernel {
         }
         Ok(())
     }
+}
+
+/// The shape of a convolution kernel with weights in a uniform buffer
+/// ([`ConvKernel::uniform_layout`]).
+pub(crate) struct UniformLayout {
+    /// The WGSL kernel.
+    pub kernel: &'static str,
+    /// Packed weights per input and output channel pair: 9 taps, or the 16 positions of
+    /// the Winograd transform ([`winograd_weights`]).
+    pub positions: u32,
+    /// The template parameter of the invocation's tile width, and its value.
+    pub tiling: (&'static str, u32),
+    /// Output pixels per invocation, across and down.
+    pub tile: [u32; 2],
+    /// Output vec4s per invocation (template parameter `COB`).
+    pub cob: u32,
 }
 
 /// Winograd's F(2x2, 3x3) weight transform `U = G g G^T` of one 3x3 kernel `g` (row-major
@@ -610,9 +638,8 @@ impl Conv3x3 {
             }
             return None;
         }
-        let (ConvKernel::Blocked { cob, .. } | ConvKernel::Winograd { cob, .. }) = kernel else {
-            return None;
-        };
+        // The generic kernel runs every layer (no reason, `None`).
+        let UniformLayout { positions, cob, .. } = kernel.uniform_layout()?;
         if let Err(m) = kernel.check_tiling() {
             return Some(m);
         }
@@ -620,7 +647,7 @@ impl Conv3x3 {
         if cob > cout4 {
             return Some(format!("cob {cob} exceeds the layer's {cout4} output vec4s"));
         }
-        let need = self.blocked_weights(kernel.positions(), cob);
+        let need = self.blocked_weights(positions, cob);
         if need > BLOCKED_MAX_WEIGHTS {
             return Some(format!(
                 "one output block's packed weights are {need} vec4s, more than the uniform array's {BLOCKED_MAX_WEIGHTS}"
@@ -817,12 +844,13 @@ impl Conv3x3 {
             ConvKernel::Blocked { .. } | ConvKernel::Winograd { .. } => {
                 // The kernels with uniform weights: one dispatch per output range whose
                 // weights fit the array, each invocation over a tile of `tile` pixels.
-                let (name, tiling, tile, cob) = match kernel {
-                    ConvKernel::Blocked { px, cob } => ("nn/conv3x3_blocked", ("PX", px), [px, 1], cob),
-                    ConvKernel::Winograd { tx, cob } => ("nn/conv3x3_winograd", ("TX", tx), [2 * tx, 2], cob),
-                    _ => unreachable!("matched above"),
-                };
-                let positions = kernel.positions();
+                let UniformLayout {
+                    kernel: name,
+                    positions,
+                    tiling,
+                    tile,
+                    cob,
+                } = kernel.uniform_layout().expect("a kernel with uniform weights");
                 let chunks = self.blocked_chunks(positions, cob);
                 let weights = self.blocked_buffers(gpu, positions, cob)?;
                 let mut parts = Vec::with_capacity(chunks.len());
