@@ -21,7 +21,8 @@
 # gpu), SIZE (default 128), TRAIN_SPP (default 512), VAL_SEEDS (default 6) and the
 # recipe's other variables (NOISE_TARGET=40: references to 40 dB between halves, about 12x
 # the samples, some 30 minutes of H100 for the whole recipe by the measured path rate:
-# a call of its own, not measured yet); TRAIN_SECONDS (default 300), ITERS (default 20000: the run's
+# a call of its own, not measured yet; without it, 8 shards render about 2.3 frames/s on an
+# H100, training/README.md); TRAIN_SECONDS (default 300), ITERS (default 20000: the run's
 # length, which sets its learning-rate schedule), DEVICE (default cuda), CHECKPOINT, INIT
 # (weights to start a new run from; default weights/ssr.safetensors), TRAIN_ARGS (default
 # "--thin 0.5 --thin-keep-min 0.02 --lambda ssim=10", the shipped model's), PYTHON (default python3).
