@@ -6,7 +6,8 @@
 //! invocations did. So the engine measures: for each layer shape it compiles every
 //! candidate kernel (on every core at once), times each on scratch tensors with GPU
 //! timestamps at [`tuning_size`] (at least the layer's own size on a GPU, at most
-//! 128x128 on a CPU driver) and keeps the fastest. Results are cached in memory for
+//! 128x128 on a CPU driver), times the fastest few again interleaved ([`CONFIRM_CANDIDATES`];
+//! on a GPU after [`SPIN_UP_MS`] of continuous work) and keeps the fastest of those. Results are cached in memory for
 //! the process and on disk per adapter, driver, kernel sources and shape, in
 //! `autotune.json` under the cache folder ([`cache_dir`]); a corrupt cache file is
 //! ignored (with a warning) and rewritten.
@@ -51,6 +52,18 @@ pub const TUNE_MAX_SIDE_CPU: u32 = 128;
 pub const TUNE_MAX_SIDE_GPU: u32 = 2048;
 /// Timed runs per candidate (after one warm-up run); the median is compared.
 pub const TUNE_ITERATIONS: u32 = 3;
+/// On a GPU, continuous work (wall time, ms) before a layer shape's candidates are timed.
+/// The candidates' compiles leave the GPU idle, and a GPU that clocks down when idle times
+/// the first candidates slow: in two tunings of the same layer shapes in one call on an
+/// H100 (2026-11-27, `tools/gpu_runs/2026-11-27-h100`), the first timed whole shapes
+/// 1.4-3.7x slower than the second, and single candidates up to 5.6x.
+pub const SPIN_UP_MS: f64 = 100.0;
+/// The fastest candidates of the first pass, timed again interleaved (one round of each in
+/// turn, [`CONFIRM_ROUNDS`] times) so that a change of clock or load during tuning slows
+/// them alike; the fastest of them by the median of their rounds is chosen.
+pub const CONFIRM_CANDIDATES: usize = 3;
+/// Rounds of the interleaved re-timing ([`TUNE_ITERATIONS`] runs each).
+pub const CONFIRM_ROUNDS: usize = 2;
 /// The size at which the autotuner checks the cooperative-matrix kernel's output against
 /// the CPU reference before timing it: two pixel tiles of 16 and a partial one, a few rows.
 pub const COOP_CHECK_SIZE: (u32, u32) = (37, 5);
@@ -176,7 +189,8 @@ impl LayerStorage {
 pub struct Candidate {
     /// The kernel.
     pub kernel: ConvKernel,
-    /// Median time in ms over [`TUNE_ITERATIONS`] runs, `None` when it failed.
+    /// Median time in ms over [`TUNE_ITERATIONS`] runs (for the [`CONFIRM_CANDIDATES`]
+    /// fastest, the median of their interleaved re-timing's rounds), `None` when it failed.
     pub median_ms: Option<f64>,
     /// Why it could not run (compile or validation failure), when it failed.
     pub error: Option<String>,
@@ -400,11 +414,12 @@ pub fn measure(
                 .collect(),
         }
     };
-    let mut candidates = Vec::new();
-    let mut gpu_timestamps = true;
-    for (kernel, dispatch) in bound {
-        let checked = match coop_errors.remove(&kernel) {
-            Some(error) => error.and_then(|e| {
+    // Checked and bound candidates; the others fail with their reason.
+    let checked: Vec<(ConvKernel, Result<Dispatch>)> = bound
+        .into_iter()
+        .map(|(kernel, dispatch)| {
+            let checked = match coop_errors.remove(&kernel) {
+                Some(error) => error.and_then(|e| {
                     if e <= COOP_TOLERANCE {
                         Ok(())
                     } else {
@@ -416,19 +431,33 @@ pub fn measure(
                         })
                     }
                 }),
-            None => Ok(()),
-        };
-        let timed = checked
-            .and(dispatch)
-            .and_then(|d| time_dispatch(gpu, &d, warmup, iterations));
+                None => Ok(()),
+            };
+            (kernel, checked.and(dispatch))
+        })
+        .collect();
+    if gpu.kind() != AdapterKind::Cpu
+        && let Some(d) = checked.iter().find_map(|(_, d)| d.as_ref().ok())
+    {
+        spin_up(gpu, d)?;
+    }
+    let mut candidates = Vec::new();
+    let mut dispatches = Vec::new();
+    let mut gpu_timestamps = true;
+    for (kernel, dispatch) in checked {
+        let timed = dispatch.and_then(|d| {
+            let t = time_dispatch(gpu, &d, warmup, iterations)?;
+            Ok((t, d))
+        });
         match timed {
-            Ok((stats, timestamps)) => {
+            Ok(((stats, timestamps), d)) => {
                 gpu_timestamps &= timestamps;
                 candidates.push(Candidate {
                     kernel,
                     median_ms: Some(stats.median_ms),
                     error: None,
                 });
+                dispatches.push(Some(d));
             }
             Err(e) => {
                 log::warn!("conv3x3 '{}': kernel {kernel} skipped: {e}", conv.name);
@@ -437,23 +466,91 @@ pub fn measure(
                     median_ms: None,
                     error: Some(e.to_string()),
                 });
+                dispatches.push(None);
             }
         }
     }
-    let choice = candidates
-        .iter()
-        .filter_map(|c| c.median_ms.map(|t| (t, c.kernel)))
-        .min_by(|a, b| a.0.total_cmp(&b.0))
-        .map(|(_, k)| k)
-        .ok_or_else(|| Error::Kernel {
-            kernel: "nn/conv3x3".into(),
-            message: format!("no candidate kernel could run layer '{}'", conv.name),
-        })?;
+    let first: Vec<Option<f64>> = candidates.iter().map(|c| c.median_ms).collect();
+    let (medians, chosen) = confirm(&first, |i| {
+        let d = dispatches[i]
+            .as_ref()
+            .expect("only candidates that ran are re-timed");
+        Ok(time_dispatch(gpu, d, 0, iterations)?.0.median_ms)
+    })
+    .ok_or_else(|| Error::Kernel {
+        kernel: "nn/conv3x3".into(),
+        message: format!("no candidate kernel could run layer '{}'", conv.name),
+    })?;
+    for (c, m) in candidates.iter_mut().zip(medians) {
+        c.median_ms = m;
+    }
     Ok(Tuning {
-        choice,
+        choice: candidates[chosen].kernel,
         candidates,
         gpu_timestamps,
     })
+}
+
+/// Keeps the GPU busy with `d` for [`SPIN_UP_MS`] of wall time (a few dispatches per
+/// submission, so that it does not idle between them).
+fn spin_up(gpu: &Gpu, d: &Dispatch) -> Result<()> {
+    let started = std::time::Instant::now();
+    while started.elapsed().as_secs_f64() * 1e3 < SPIN_UP_MS {
+        let mut encoder = gpu.device.create_command_encoder(&Default::default());
+        for _ in 0..4 {
+            d.encode(&mut encoder);
+        }
+        gpu.queue.submit([encoder.finish()]);
+        gpu.wait()?;
+    }
+    Ok(())
+}
+
+/// The interleaved re-timing of the [`CONFIRM_CANDIDATES`] fastest of `first` (first-pass
+/// medians, `None` for candidates that failed): [`CONFIRM_ROUNDS`] rounds, each calling
+/// `round(i)` (one round's median of candidate `i`) for every one of them in turn. Returns
+/// the medians to record (the re-timed candidates' replaced by the median of their rounds)
+/// and the index chosen: the fastest re-timed candidate. A candidate whose re-timing fails
+/// keeps its first time and is not chosen (logged), unless all fail: then the first pass
+/// decides. `None` when no candidate ran.
+fn confirm(
+    first: &[Option<f64>],
+    mut round: impl FnMut(usize) -> Result<f64>,
+) -> Option<(Vec<Option<f64>>, usize)> {
+    let mut ranked: Vec<(f64, usize)> = first
+        .iter()
+        .enumerate()
+        .filter_map(|(i, t)| t.map(|t| (t, i)))
+        .collect();
+    ranked.sort_by(|a, b| a.0.total_cmp(&b.0));
+    let fastest_first = ranked.first()?.1;
+    ranked.truncate(CONFIRM_CANDIDATES);
+    let mut rounds: Vec<Option<Vec<f64>>> = vec![Some(Vec::new()); ranked.len()];
+    for _ in 0..CONFIRM_ROUNDS {
+        for (slot, &(_, i)) in rounds.iter_mut().zip(&ranked) {
+            if let Some(times) = slot {
+                match round(i) {
+                    Ok(t) => times.push(t),
+                    Err(e) => {
+                        log::warn!("autotune: re-timing candidate {i} failed ({e}); it is not chosen");
+                        *slot = None;
+                    }
+                }
+            }
+        }
+    }
+    let mut medians = first.to_vec();
+    let mut chosen: Option<(f64, usize)> = None;
+    for (times, &(_, i)) in rounds.iter().zip(&ranked) {
+        let Some(stats) = times.as_deref().and_then(crate::gpu::Stats::from_samples) else {
+            continue;
+        };
+        medians[i] = Some(stats.median_ms);
+        if chosen.is_none_or(|(best, _)| stats.median_ms < best) {
+            chosen = Some((stats.median_ms, i));
+        }
+    }
+    Some((medians, chosen.map_or(fastest_first, |(_, i)| i)))
 }
 
 /// The tuning of `conv` for a `w x h` layer with `storage`: from the process's memory,
@@ -510,8 +607,9 @@ pub fn tuned_ms(gpu: &Gpu, conv: &Conv3x3, w: u32, h: u32, storage: &LayerStorag
     let best = t
         .candidates
         .iter()
-        .filter_map(|c| c.median_ms)
-        .fold(f64::INFINITY, f64::min);
+        .find(|c| c.kernel == t.choice)
+        .and_then(|c| c.median_ms)
+        .unwrap_or(f64::INFINITY);
     let (tw, th) = tuning_size(gpu, conv, w, h, storage);
     Ok(best * (w as f64 * h as f64) / (tw as f64 * th as f64))
 }
@@ -519,6 +617,55 @@ pub fn tuned_ms(gpu: &Gpu, conv: &Conv3x3, w: u32, h: u32, storage: &LayerStorag
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    fn failed() -> Error {
+        Error::Kernel {
+            kernel: "test".into(),
+            message: "re-timing failed".into(),
+        }
+    }
+
+    #[test]
+    fn a_clock_that_drifts_during_the_first_pass_does_not_decide_the_choice() {
+        // True times; the first pass ran while the clock came up (3x, 2x, then steady), so
+        // it ranks candidate 2 first. The re-timing runs the three fastest of the first
+        // pass in turn, each round at its own clock (1.5x, then 1x) for all of them alike.
+        let truth = [1.0, 0.9, 1.1, 2.0, 1.5];
+        let first: Vec<Option<f64>> = [3.0, 2.0, 1.0, 1.0, 1.0]
+            .iter()
+            .zip(truth)
+            .map(|(f, t)| Some(f * t))
+            .collect();
+        let mut calls = Vec::new();
+        let (medians, chosen) = confirm(&first, |i| {
+            calls.push(i);
+            let clock = if calls.len() <= CONFIRM_CANDIDATES {
+                1.5
+            } else {
+                1.0
+            };
+            Ok(clock * truth[i])
+        })
+        .unwrap();
+        assert_eq!(chosen, 1, "the truly fastest of those re-timed");
+        // Interleaved: every re-timed candidate once per round, the first pass's fastest first.
+        assert_eq!(calls, [2, 4, 1, 2, 4, 1]);
+        assert!((medians[1].unwrap() - 1.25 * 0.9).abs() < 1e-12);
+        assert_eq!(medians[0], first[0], "candidates not re-timed keep their time");
+        assert_eq!(medians[3], first[3]);
+    }
+
+    #[test]
+    fn failed_candidates_and_failed_re_timings_are_never_chosen() {
+        let first = [None, Some(1.0), Some(1.2)];
+        let (medians, chosen) = confirm(&first, |i| if i == 1 { Err(failed()) } else { Ok(1.3) }).unwrap();
+        assert_eq!(chosen, 2);
+        assert_eq!(medians, vec![None, Some(1.0), Some(1.3)]);
+        // If every re-timing fails, the first pass decides.
+        let (_, chosen) = confirm(&first, |_| Err(failed())).unwrap();
+        assert_eq!(chosen, 1);
+        assert!(confirm(&[None, None], |_| Ok(1.0)).is_none());
+    }
 
     #[test]
     fn corrupt_or_missing_cache_files_are_empty() {
