@@ -175,6 +175,7 @@ fn fixed_kernels_fall_back_to_generic_where_they_cannot_run() {
         let options = EngineOptions {
             kernels,
             precision: Precision::F32,
+            ..Default::default()
         };
         let mut den = Denoiser::with_options(&gpu, &weights, 20, 12, options).unwrap();
         let kernels: Vec<ConvKernel> = den.network().conv_kernels().into_iter().map(|(_, k)| k).collect();
@@ -690,6 +691,7 @@ fn precision_auto_and_f16_need_and_follow_the_device() {
         let options = EngineOptions {
             kernels: KernelChoice::Autotune,
             precision,
+            ..Default::default()
         };
         let mut den = Denoiser::with_options(&gpu, &weights, w, h, options).unwrap();
         let out = (0..2)
@@ -719,6 +721,7 @@ fn precision_auto_and_f16_need_and_follow_the_device() {
     let options = EngineOptions {
         kernels: KernelChoice::Fixed(subpixel::nn::conv::ConvKernel::Generic),
         precision: Precision::F16,
+        ..Default::default()
     };
     let e = Denoiser::with_options(&bare, &weights, w, h, options)
         .err()
@@ -729,6 +732,7 @@ fn precision_auto_and_f16_need_and_follow_the_device() {
     let options = EngineOptions {
         kernels: KernelChoice::Fixed(subpixel::nn::conv::ConvKernel::Generic),
         precision: Precision::Auto,
+        ..Default::default()
     };
     let den = Denoiser::with_options(&bare, &weights, w, h, options).unwrap();
     assert_eq!(den.network().activations(), DType::F32);

@@ -9,7 +9,7 @@ mod common;
 
 use std::path::PathBuf;
 
-use subpixel::nn::autotune::{EngineOptions, KernelChoice, Precision};
+use subpixel::nn::autotune::{EngineOptions, KernelChoice, Pooling, Precision};
 use subpixel::nn::{DType, HostTensor};
 use subpixel::ssr::{Denoiser, HostFrame, INTERMEDIATES, Weights};
 
@@ -65,6 +65,15 @@ fn denoiser_matches_pytorch_on_golden_frames() {
     golden_parity("golden_", 2, Precision::F32);
 }
 
+/// Both ways of reading the U-Net's pooled levels (pooled on load by the convolution, or
+/// written by pooling passes: `Pooling`), forced, against the same golden frames.
+#[test]
+fn pooling_on_load_and_pooling_passes_match_pytorch() {
+    for pooling in [Pooling::OnLoad, Pooling::Pass] {
+        golden_parity_with("golden_", 2, Precision::F32, pooling);
+    }
+}
+
 #[test]
 fn version_1_weights_run_the_version_1_pipeline() {
     golden_parity("golden_v1_", 1, Precision::F32);
@@ -84,15 +93,23 @@ fn f16_activations_match_pytorch_within_f16_tolerance() {
 /// Engine options of a golden run: `precision`, and for f16 one fixed tiling (every
 /// tiling's f16 storage is checked against the CPU reference in the kernel tests; this
 /// spares a fresh machine the tuning of f16 layer shapes).
-fn options(precision: Precision) -> EngineOptions {
+fn options(precision: Precision, pooling: Pooling) -> EngineOptions {
     let kernels = match precision {
         Precision::F16 => KernelChoice::Fixed("px4-cob2".parse().unwrap()),
         _ => KernelChoice::FromEnv,
     };
-    EngineOptions { kernels, precision }
+    EngineOptions {
+        kernels,
+        precision,
+        pooling,
+    }
 }
 
 fn golden_parity(prefix: &str, version: u32, precision: Precision) {
+    golden_parity_with(prefix, version, precision, Pooling::FromEnv);
+}
+
+fn golden_parity_with(prefix: &str, version: u32, precision: Precision, pooling: Pooling) {
     let gpu = common::gpu();
     let weights = Weights::load(data(&format!("{prefix}weights.safetensors"))).unwrap();
     assert!(
@@ -100,7 +117,7 @@ fn golden_parity(prefix: &str, version: u32, precision: Precision) {
         "golden weights are random-initialised test weights"
     );
     assert_eq!(weights.config.version, version);
-    let mut den = Denoiser::with_options(&gpu, &weights, 40, 24, options(precision)).unwrap();
+    let mut den = Denoiser::with_options(&gpu, &weights, 40, 24, options(precision, pooling)).unwrap();
     let f16 = precision == Precision::F16;
     assert_eq!(den.network().activations() == DType::F16, f16);
     let (output_tol, intermediate_tol) = if f16 {

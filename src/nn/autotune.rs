@@ -37,6 +37,8 @@ use crate::gpu::{AdapterKind, Dispatch, Gpu, time_dispatch};
 pub const ENV_KERNEL: &str = "SUBPIXEL_CONV_KERNEL";
 /// The environment variable that chooses the activations' storage ([`Precision`]).
 pub const ENV_PRECISION: &str = "SUBPIXEL_PRECISION";
+/// The environment variable that chooses how the pooled levels are read ([`Pooling`]).
+pub const ENV_POOLING: &str = "SUBPIXEL_POOLING";
 /// The environment variable that moves the cache folder.
 pub const ENV_CACHE_DIR: &str = "SUBPIXEL_CACHE_DIR";
 /// On a CPU driver, layers are tuned on at most this many pixels per side (a 1080p layer
@@ -146,6 +148,53 @@ impl Precision {
     }
 }
 
+/// How the convolutions that read the U-Net's pooled encoder levels get them.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub enum Pooling {
+    /// `SUBPIXEL_POOLING` if set (`load`, `pass` or `auto`), else [`Pooling::Auto`].
+    #[default]
+    FromEnv,
+    /// Pooled on load by the convolution (no pass and no memory of their own).
+    OnLoad,
+    /// Written by a pooling pass each and read directly: on an H100 the convolutions that
+    /// pool on load ran 1.7-4x slower per FLOP than their peers (2026-11-27).
+    Pass,
+    /// Whichever is faster by the tuned times: the reading convolutions' tunings for both
+    /// reads, plus the pooling passes timed on this adapter.
+    Auto,
+}
+
+impl std::str::FromStr for Pooling {
+    type Err = Error;
+    fn from_str(s: &str) -> Result<Self> {
+        match s.trim() {
+            "load" => Ok(Pooling::OnLoad),
+            "pass" => Ok(Pooling::Pass),
+            "auto" => Ok(Pooling::Auto),
+            other => Err(Error::Invalid(format!(
+                "pooling '{other}': expected load, pass or auto"
+            ))),
+        }
+    }
+}
+
+impl Pooling {
+    /// Resolves [`Pooling::FromEnv`] (an unparsable value is an error naming the variable);
+    /// the other choices come back as they are.
+    pub fn resolve(self) -> Result<Self> {
+        if self != Pooling::FromEnv {
+            return Ok(self);
+        }
+        match std::env::var(ENV_POOLING) {
+            Err(_) => Ok(Pooling::Auto),
+            Ok(v) if v.trim().is_empty() => Ok(Pooling::Auto),
+            Ok(v) => v
+                .parse()
+                .map_err(|e| Error::Invalid(format!("{ENV_POOLING}: {e}"))),
+        }
+    }
+}
+
 /// How the engine runs the network on an adapter.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
 pub struct EngineOptions {
@@ -153,6 +202,8 @@ pub struct EngineOptions {
     pub kernels: KernelChoice,
     /// Storage of the interior activations.
     pub precision: Precision,
+    /// How the pooled encoder levels are read.
+    pub pooling: Pooling,
 }
 
 /// The storage of one layer's tensors: its inputs' (in concatenation order) and its
@@ -707,6 +758,16 @@ mod tests {
             assert_eq!(tune_size(gpu, 3840, 2160), (2048, 2048));
             assert_eq!(tune_size(gpu, 16, 20), (32, 32));
         }
+    }
+
+    #[test]
+    fn poolings_parse_and_bad_ones_are_named() {
+        assert_eq!("load".parse::<Pooling>().unwrap(), Pooling::OnLoad);
+        assert_eq!(" pass ".parse::<Pooling>().unwrap(), Pooling::Pass);
+        assert_eq!("auto".parse::<Pooling>().unwrap(), Pooling::Auto);
+        let e = "fused".parse::<Pooling>().unwrap_err().to_string();
+        assert!(e.contains("fused") && e.contains("load, pass or auto"), "{e}");
+        assert_eq!(Pooling::Pass.resolve().unwrap(), Pooling::Pass);
     }
 
     #[test]

@@ -183,7 +183,9 @@ impl Denoiser {
     /// A denoiser on a [`Gpu`] context. Each convolution runs on the kernel the
     /// autotuner picks for this adapter ([`crate::nn::autotune`]: measured once per layer
     /// shape and cached on disk), or the one `SUBPIXEL_CONV_KERNEL` fixes; activations are
-    /// f32 unless `SUBPIXEL_PRECISION` says `f16` or `auto`.
+    /// f32 unless `SUBPIXEL_PRECISION` says `f16` or `auto`; the pooled encoder levels are
+    /// pooled on load or by passes as measured faster, unless `SUBPIXEL_POOLING` says
+    /// `load` or `pass`.
     pub fn with_gpu(gpu: &Gpu, weights: &Weights, width: u32, height: u32) -> Result<Self> {
         Self::with_options(gpu, weights, width, height, EngineOptions::default())
     }

@@ -158,14 +158,15 @@ impl TensorId {
     }
 
     /// The stored tensor it is read from and how: itself as stored, or, for a view (the
-    /// U-Net's pooled encoder levels and upsampled decoder outputs), its source resampled
-    /// on load by the convolution that reads it (`nn/lib/fetch`), so that it takes no pass
-    /// and no memory of its own.
-    pub fn stored(self, config: &SsrConfig) -> Result<(TensorId, Fetch)> {
+    /// U-Net's upsampled decoder outputs, and its pooled encoder levels unless `pool_pass`),
+    /// its source resampled on load by the convolution that reads it (`nn/lib/fetch`), so
+    /// that it takes no pass and no memory of its own. With `pool_pass` the pooled levels
+    /// are tensors of their own that pooling steps write ([`steps`]).
+    pub fn stored(self, config: &SsrConfig, pool_pass: bool) -> Result<(TensorId, Fetch)> {
         use TensorId::*;
         Ok(match self {
-            Pool1 => (Enc1, Fetch::Pool(config.pool_mode()?)),
-            Pool2 => (Enc2, Fetch::Pool(config.pool_mode()?)),
+            Pool1 if !pool_pass => (Enc1, Fetch::Pool(config.pool_mode()?)),
+            Pool2 if !pool_pass => (Enc2, Fetch::Pool(config.pool_mode()?)),
             Up3 => (I3, Fetch::Upsample(config.upsample_mode()?)),
             Up2 => (I2, Fetch::Upsample(config.upsample_mode()?)),
             _ => (self, Fetch::Direct),
@@ -249,8 +250,10 @@ fn step(stage: &'static str, label: &'static str, op: Op, tensors: &[TensorId]) 
     }
 }
 
-/// The steps of one frame under `config`, in execution order.
-pub fn steps(config: &SsrConfig) -> Result<Vec<StepSpec>> {
+/// The steps of one frame under `config`, in execution order; with `pool_pass`, a pooling
+/// step writes each pooled encoder level after the layer that produces it (else the
+/// convolutions that read them pool on load: [`TensorId::stored`]).
+pub fn steps(config: &SsrConfig, pool_pass: bool) -> Result<Vec<StepSpec>> {
     use Op::*;
     use TensorId::*;
     let rescale = config.exposure_mode()? == ExposureMode::Channel;
@@ -315,6 +318,7 @@ pub fn steps(config: &SsrConfig) -> Result<Vec<StepSpec>> {
             &[ACur, Mt, AAcc, WarpOut, Enc1Hidden],
         ),
         step("unet", "unet.enc1.2", Conv("unet.enc1.2"), &[Enc1Hidden, Enc1]),
+        step("unet", "pool enc1", Pool(config.pool_mode()?), &[Enc1, Pool1]),
         step(
             "unet",
             "unet.enc2.0",
@@ -322,6 +326,7 @@ pub fn steps(config: &SsrConfig) -> Result<Vec<StepSpec>> {
             &[Pool1, Wo2, Enc2Hidden],
         ),
         step("unet", "unet.enc2.2", Conv("unet.enc2.2"), &[Enc2Hidden, Enc2]),
+        step("unet", "pool enc2", Pool(config.pool_mode()?), &[Enc2, Pool2]),
         step(
             "unet",
             "unet.enc3.0",
@@ -352,6 +357,9 @@ pub fn steps(config: &SsrConfig) -> Result<Vec<StepSpec>> {
         step("unet", "unet.dec1.2", Conv("unet.dec1.2"), &[Dec1Hidden, O]),
         step("unet", "remodulate", Remodulate, &[O, albedo, Exposure, Output]),
     ]);
+    if !pool_pass {
+        all.retain(|s| !matches!(s.tensors[..], [_, Pool1 | Pool2]));
+    }
     // Production order: each stage's history steps, then its other steps.
     let mut ordered = Vec::with_capacity(all.len());
     for stage in ["tfa", "unet"] {
@@ -370,8 +378,14 @@ mod tests {
     /// split of the tensors the graph gives it, at its level.
     #[test]
     fn graph_matches_the_layer_list() {
+        for pool_pass in [false, true] {
+            graph_matches_the_layer_list_with(pool_pass);
+        }
+    }
+
+    fn graph_matches_the_layer_list_with(pool_pass: bool) {
         let config = SsrConfig::default();
-        let steps = steps(&config).unwrap();
+        let steps = steps(&config, pool_pass).unwrap();
         for l in config.layers() {
             let uses: Vec<&StepSpec> = steps
                 .iter()
@@ -401,7 +415,7 @@ mod tests {
     /// layer sees the same storage in every step that runs it (one kernel per layer).
     #[test]
     fn f16_tensors_meet_only_kernels_with_f16_variants() {
-        let steps = steps(&SsrConfig::default()).unwrap();
+        let steps = steps(&SsrConfig::default(), true).unwrap();
         let mut seen = std::collections::HashMap::new();
         for s in &steps {
             let f16: Vec<bool> = s.tensors.iter().map(|t| t.may_store_f16()).collect();
@@ -419,6 +433,42 @@ mod tests {
             }
         }
         assert!(TensorId::ALL.iter().filter(|t| t.may_store_f16()).count() >= 14);
+    }
+
+    /// With pooling passes, each pooled level is written once, after the last write of its
+    /// source and before its first read, and nothing reads it as a view; without them,
+    /// no step writes it and the convolutions read it pooled on load.
+    #[test]
+    fn pooled_levels_are_written_before_they_are_read() {
+        use TensorId::*;
+        let config = SsrConfig::default();
+        for pool_pass in [false, true] {
+            let steps = steps(&config, pool_pass).unwrap();
+            for (pooled, source) in [(Pool1, Enc1), (Pool2, Enc2)] {
+                let (stored, fetch) = pooled.stored(&config, pool_pass).unwrap();
+                let writes: Vec<usize> = (0..steps.len())
+                    .filter(|&i| steps[i].tensors.last() == Some(&pooled))
+                    .collect();
+                let first_read = (0..steps.len())
+                    .find(|&i| steps[i].tensors[..steps[i].tensors.len() - 1].contains(&pooled))
+                    .unwrap();
+                let source_written = (0..steps.len())
+                    .filter(|&i| steps[i].tensors.last() == Some(&source))
+                    .max()
+                    .unwrap();
+                if pool_pass {
+                    assert_eq!((stored, fetch), (pooled, Fetch::Direct));
+                    assert_eq!(writes.len(), 1, "{pooled:?}");
+                    assert!(source_written < writes[0] && writes[0] < first_read, "{pooled:?}");
+                    assert_eq!(steps[writes[0]].tensors, [source, pooled]);
+                } else {
+                    assert_eq!(stored, source);
+                    assert!(matches!(fetch, Fetch::Pool(_)));
+                    assert!(writes.is_empty(), "{pooled:?}");
+                    assert!(source_written < first_read);
+                }
+            }
+        }
     }
 
     #[test]

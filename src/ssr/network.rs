@@ -10,8 +10,8 @@ use super::config::{CEILING_GAIN, CeilingMode, LayerSpec, SsrConfig};
 use super::graph::{self, Extent, Op, StepSpec, TensorId};
 use super::weights::Weights;
 use crate::error::{Error, Result};
-use crate::gpu::{Dispatch, Gpu, Grid, Profiler, Specialisation};
-use crate::nn::autotune::{self, EngineOptions, LayerStorage, Precision};
+use crate::gpu::{Dispatch, Gpu, Grid, Profiler, Specialisation, time_dispatch};
+use crate::nn::autotune::{self, EngineOptions, LayerStorage, Pooling, Precision};
 use crate::nn::conv::ConvKernel;
 use crate::nn::ops::{self, Conv3x3, Fetch, TfaBlend};
 use crate::nn::{DType, HostTensor, Tensor};
@@ -144,6 +144,93 @@ fn activation_storage(
     })
 }
 
+/// The steps of a frame with or without pooling passes, where each tensor is stored, and
+/// each convolution set to read its inputs accordingly (resampled on load for views; one
+/// step per layer is enough: the graph gives a layer the same inputs in every step that
+/// runs it, up to history).
+#[allow(clippy::type_complexity)]
+fn graph_with(
+    config: &SsrConfig,
+    pool_pass: bool,
+    convs: &mut BTreeMap<String, Conv3x3>,
+) -> Result<(Vec<StepSpec>, BTreeMap<TensorId, (TensorId, Fetch)>)> {
+    let specs = graph::steps(config, pool_pass)?;
+    let stored: BTreeMap<TensorId, (TensorId, Fetch)> = TensorId::ALL
+        .iter()
+        .map(|&id| Ok((id, id.stored(config, pool_pass)?)))
+        .collect::<Result<_>>()?;
+    for s in &specs {
+        if let Op::Conv(layer) = s.op {
+            let (_, ins) = s.tensors.split_last().expect("a convolution has an output");
+            let fetch: Vec<Fetch> = ins.iter().map(|id| stored[id].1).collect();
+            convs
+                .get_mut(layer)
+                .expect("every layer is built")
+                .set_fetch(&fetch)?;
+        }
+    }
+    Ok((specs, stored))
+}
+
+/// Whether the pooled encoder levels get pooling passes, as `pooling` resolves; for
+/// [`Pooling::Auto`], whether the tuned times of the layers that read them (each at its
+/// `size`, `runs` times a frame) with direct reads, plus the pooling passes timed here, are
+/// lower than their tuned times pooling on load. `specs` and `convs` read on load.
+fn pool_pass(
+    gpu: &Gpu,
+    specs: &[StepSpec],
+    layers: &[LayerSpec],
+    convs: &mut BTreeMap<String, Conv3x3>,
+    pooling: Pooling,
+    dtype: DType,
+    size: impl Fn(&LayerSpec) -> (u32, u32),
+) -> Result<bool> {
+    match pooling.resolve()? {
+        Pooling::OnLoad => return Ok(false),
+        Pooling::Pass => return Ok(true),
+        _ => {}
+    }
+    let (mut on_load, mut passes) = (0.0f64, 0.0f64);
+    for l in layers {
+        let conv = convs.get_mut(&l.name).expect("every layer is built");
+        let fetch = conv.fetch().to_vec();
+        if !fetch.iter().any(|f| matches!(f, Fetch::Pool(_))) {
+            continue;
+        }
+        let (lw, lh) = size(l);
+        let storage = layer_storage(specs, &l.name, dtype);
+        on_load += autotune::tuned_ms(gpu, conv, lw, lh, &storage)? * l.runs as f64;
+        let direct: Vec<Fetch> = fetch
+            .iter()
+            .map(|&f| {
+                if matches!(f, Fetch::Pool(_)) {
+                    Fetch::Direct
+                } else {
+                    f
+                }
+            })
+            .collect();
+        conv.set_fetch(&direct)?;
+        let tuned = autotune::tuned_ms(gpu, conv, lw, lh, &storage);
+        conv.set_fetch(&fetch)?;
+        passes += tuned? * l.runs as f64;
+        for (i, f) in fetch.iter().enumerate() {
+            if let Fetch::Pool(mode) = *f {
+                let dtype = storage.inputs[i];
+                let input = Tensor::new_typed(gpu, "pooling.in", 2 * lw, 2 * lh, l.inputs[i], dtype)?;
+                let out = Tensor::new_typed(gpu, "pooling.out", lw, lh, l.inputs[i], dtype)?;
+                let d = ops::pool2x2(gpu, mode, &input, &out)?;
+                let (stats, _) = time_dispatch(gpu, &d, 1, autotune::TUNE_ITERATIONS)?;
+                passes += stats.median_ms * l.runs as f64;
+            }
+        }
+    }
+    log::info!(
+        "pooled levels: their layers take {on_load:.3} ms pooling on load, {passes:.3} ms with pooling passes"
+    );
+    Ok(passes < on_load)
+}
+
 impl Network {
     /// Uploads `weights` and allocates everything for a `width x height` padded image;
     /// the interior activations are stored as `options.precision` resolves and each
@@ -164,7 +251,6 @@ impl Network {
         }
         let config = weights.config.clone();
         config.validate()?;
-        let specs = graph::steps(&config)?;
         let layers = config.layers();
         let mut convs = BTreeMap::new();
         for l in &layers {
@@ -174,24 +260,25 @@ impl Network {
                 Conv3x3::new(gpu, &l.name, w, b, &l.inputs, l.cout, l.act)?,
             );
         }
-        let stored: BTreeMap<TensorId, (TensorId, Fetch)> = TensorId::ALL
-            .iter()
-            .map(|&id| Ok((id, id.stored(&config)?)))
-            .collect::<Result<_>>()?;
-        // Each layer reads its views resampled on load (one step per layer is enough: the
-        // graph gives a layer the same inputs in every step that runs it, up to history).
-        for s in &specs {
-            if let Op::Conv(layer) = s.op {
-                let (_, ins) = s.tensors.split_last().expect("a convolution has an output");
-                let fetch: Vec<Fetch> = ins.iter().map(|id| stored[id].1).collect();
-                convs
-                    .get_mut(layer)
-                    .expect("every layer is built")
-                    .set_fetch(&fetch)?;
-            }
-        }
+        // The graph with the pooled levels read on load first: the precision and the
+        // pooling are chosen from it, then the graph is built as chosen.
+        let (specs, stored) = graph_with(&config, false, &mut convs)?;
         let size = |l: &LayerSpec| (width >> l.level, height >> l.level);
         let activations = activation_storage(gpu, &specs, &layers, &convs, options.precision, size)?;
+        let pool_pass = pool_pass(
+            gpu,
+            &specs,
+            &layers,
+            &mut convs,
+            options.pooling,
+            activations,
+            size,
+        )?;
+        let (specs, stored) = if pool_pass {
+            graph_with(&config, true, &mut convs)?
+        } else {
+            (specs, stored)
+        };
         for l in &layers {
             let (lw, lh) = size(l);
             let conv = convs.get_mut(&l.name).expect("inserted above");
