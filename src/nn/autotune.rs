@@ -160,7 +160,8 @@ pub enum Pooling {
     /// pool on load ran 1.7-4x slower per FLOP than their peers (2026-11-27).
     Pass,
     /// Whichever is faster by the tuned times: the reading convolutions' tunings for both
-    /// reads, plus the pooling passes timed on this adapter.
+    /// reads, plus the pooling passes timed on this adapter; with fixed kernels
+    /// ([`KernelChoice::Fixed`], nothing tuned), [`Pooling::OnLoad`].
     Auto,
 }
 

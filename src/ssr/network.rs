@@ -11,7 +11,7 @@ use super::graph::{self, Extent, Op, StepSpec, TensorId};
 use super::weights::Weights;
 use crate::error::{Error, Result};
 use crate::gpu::{Dispatch, Gpu, Grid, Profiler, Specialisation, time_dispatch};
-use crate::nn::autotune::{self, EngineOptions, LayerStorage, Pooling, Precision};
+use crate::nn::autotune::{self, EngineOptions, KernelChoice, LayerStorage, Pooling, Precision};
 use crate::nn::conv::ConvKernel;
 use crate::nn::ops::{self, Conv3x3, Fetch, TfaBlend};
 use crate::nn::{DType, HostTensor, Tensor};
@@ -58,7 +58,7 @@ pub struct Network {
     /// The steps of a frame, in execution order.
     specs: Vec<StepSpec>,
     /// Each tensor's stored tensor and how steps read it ([`TensorId::stored`]).
-    stored: BTreeMap<TensorId, (TensorId, Fetch)>,
+    stored: Stored,
     /// Storage of the interior activations ([`TensorId::may_store_f16`]).
     activations: DType,
     /// `[parity][step]` -> its dispatch.
@@ -144,18 +144,20 @@ fn activation_storage(
     })
 }
 
+/// Where each tensor of the graph is stored and how it is read ([`TensorId::stored`]).
+type Stored = BTreeMap<TensorId, (TensorId, Fetch)>;
+
 /// The steps of a frame with or without pooling passes, where each tensor is stored, and
 /// each convolution set to read its inputs accordingly (resampled on load for views; one
 /// step per layer is enough: the graph gives a layer the same inputs in every step that
 /// runs it, up to history).
-#[allow(clippy::type_complexity)]
 fn graph_with(
     config: &SsrConfig,
     pool_pass: bool,
     convs: &mut BTreeMap<String, Conv3x3>,
-) -> Result<(Vec<StepSpec>, BTreeMap<TensorId, (TensorId, Fetch)>)> {
+) -> Result<(Vec<StepSpec>, Stored)> {
     let specs = graph::steps(config, pool_pass)?;
-    let stored: BTreeMap<TensorId, (TensorId, Fetch)> = TensorId::ALL
+    let stored: Stored = TensorId::ALL
         .iter()
         .map(|&id| Ok((id, id.stored(config, pool_pass)?)))
         .collect::<Result<_>>()?;
@@ -175,19 +177,21 @@ fn graph_with(
 /// Whether the pooled encoder levels get pooling passes, as `pooling` resolves; for
 /// [`Pooling::Auto`], whether the tuned times of the layers that read them (each at its
 /// `size`, `runs` times a frame) with direct reads, plus the pooling passes timed here, are
-/// lower than their tuned times pooling on load. `specs` and `convs` read on load.
+/// lower than their tuned times pooling on load; with fixed kernels (`options.kernels`,
+/// nothing tuned), on load. `specs` and `convs` read on load.
 fn pool_pass(
     gpu: &Gpu,
     specs: &[StepSpec],
     layers: &[LayerSpec],
     convs: &mut BTreeMap<String, Conv3x3>,
-    pooling: Pooling,
+    options: EngineOptions,
     dtype: DType,
     size: impl Fn(&LayerSpec) -> (u32, u32),
 ) -> Result<bool> {
-    match pooling.resolve()? {
+    match options.pooling.resolve()? {
         Pooling::OnLoad => return Ok(false),
         Pooling::Pass => return Ok(true),
+        _ if matches!(options.kernels.resolve()?, KernelChoice::Fixed(_)) => return Ok(false),
         _ => {}
     }
     let (mut on_load, mut passes) = (0.0f64, 0.0f64);
@@ -265,15 +269,7 @@ impl Network {
         let (specs, stored) = graph_with(&config, false, &mut convs)?;
         let size = |l: &LayerSpec| (width >> l.level, height >> l.level);
         let activations = activation_storage(gpu, &specs, &layers, &convs, options.precision, size)?;
-        let pool_pass = pool_pass(
-            gpu,
-            &specs,
-            &layers,
-            &mut convs,
-            options.pooling,
-            activations,
-            size,
-        )?;
+        let pool_pass = pool_pass(gpu, &specs, &layers, &mut convs, options, activations, size)?;
         let (specs, stored) = if pool_pass {
             graph_with(&config, true, &mut convs)?
         } else {
