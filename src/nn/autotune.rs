@@ -138,13 +138,7 @@ impl Precision {
         if self != Precision::FromEnv {
             return Ok(self);
         }
-        match std::env::var(ENV_PRECISION) {
-            Err(_) => Ok(Precision::F32),
-            Ok(v) if v.trim().is_empty() => Ok(Precision::F32),
-            Ok(v) => v
-                .parse()
-                .map_err(|e| Error::Invalid(format!("{ENV_PRECISION}: {e}"))),
-        }
+        from_env(ENV_PRECISION, Precision::F32)
     }
 }
 
@@ -186,13 +180,16 @@ impl Pooling {
         if self != Pooling::FromEnv {
             return Ok(self);
         }
-        match std::env::var(ENV_POOLING) {
-            Err(_) => Ok(Pooling::Auto),
-            Ok(v) if v.trim().is_empty() => Ok(Pooling::Auto),
-            Ok(v) => v
-                .parse()
-                .map_err(|e| Error::Invalid(format!("{ENV_POOLING}: {e}"))),
-        }
+        from_env(ENV_POOLING, Pooling::Auto)
+    }
+}
+
+/// The environment variable `var` parsed as `T`; `default` when it is unset or empty, an
+/// error naming the variable when it does not parse.
+fn from_env<T: std::str::FromStr<Err = Error>>(var: &str, default: T) -> Result<T> {
+    match std::env::var(var) {
+        Ok(v) if !v.trim().is_empty() => v.parse().map_err(|e| Error::Invalid(format!("{var}: {e}"))),
+        _ => Ok(default),
     }
 }
 
