@@ -23,18 +23,9 @@ BIN=$(realpath "${1:?BIN_DIR}")
 OUT=$(realpath "${2:?OUT_DIR}")
 mkdir -p "$OUT"
 cd "$(dirname "$0")/.."
-ROOT=$PWD
 
-export NODEVICE_SELECT=1 RUST_LOG=${RUST_LOG:-warn} PYTHONUNBUFFERED=1
-export SUBPIXEL_CACHE_DIR="$OUT/cache"
-if [ -z "${VK_DRIVER_FILES:-}" ] && [ -f /usr/local/nvidia/share/vulkan/icd.d/nvidia_icd.json ]; then
-  export VK_DRIVER_FILES=/usr/local/nvidia/share/vulkan/icd.d/nvidia_icd.json
-fi
-# The test binaries look for their data under the path they were built in (BIN_DIR/built_in).
-built_in=$(cat "$BIN/built_in" 2>/dev/null)
-if [ -n "$built_in" ] && [ ! -e "$built_in" ]; then
-  mkdir -p "$(dirname "$built_in")" && ln -s "$ROOT" "$built_in"
-fi
+. tools/gpu_env.sh "$BIN"
+export RUST_LOG=${RUST_LOG:-warn} SUBPIXEL_CACHE_DIR="$OUT/cache"
 
 step() { # name limit_s command...
   local name=$1 limit=$2; shift 2

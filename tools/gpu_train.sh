@@ -44,10 +44,7 @@ py="${PYTHON:-python3}"
 jobs="${JOBS:-8}"
 ds="$work/ds"
 run="$work/runs/ssr"
-export NODEVICE_SELECT=1 PYTHONUNBUFFERED=1
-if [ -z "${VK_DRIVER_FILES:-}" ] && [ -f /usr/local/nvidia/share/vulkan/icd.d/nvidia_icd.json ]; then
-  export VK_DRIVER_FILES=/usr/local/nvidia/share/vulkan/icd.d/nvidia_icd.json
-fi
+. tools/gpu_env.sh "$bin_dir"
 
 t0=$SECONDS
 echo "== rendering val and train with $jobs shards side by side"

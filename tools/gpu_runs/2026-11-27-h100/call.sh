@@ -20,15 +20,8 @@ if [ ! -x "$BIN/subpixel" ]; then
   for f in .devpack/.gl/*.deb; do dpkg -x "$f" /; done
   ldconfig
 fi
-export NODEVICE_SELECT=1 RUST_LOG=${RUST_LOG:-warn} PYTHONUNBUFFERED=1
-export SUBPIXEL_CACHE_DIR="$O/cache"
-if [ -z "${VK_DRIVER_FILES:-}" ] && [ -f /usr/local/nvidia/share/vulkan/icd.d/nvidia_icd.json ]; then
-  export VK_DRIVER_FILES=/usr/local/nvidia/share/vulkan/icd.d/nvidia_icd.json
-fi
-built_in=$(cat "$BIN/built_in" 2>/dev/null)
-if [ -n "$built_in" ] && [ ! -e "$built_in" ]; then
-  mkdir -p "$(dirname "$built_in")" && ln -s "$PWD" "$built_in"
-fi
+. tools/gpu_env.sh "$BIN"
+export RUST_LOG=${RUST_LOG:-warn} SUBPIXEL_CACHE_DIR="$O/cache"
 step() { # name limit command...
   local name=$1 limit=$2; shift 2
   local left=$((DEADLINE - (SECONDS - T0)))

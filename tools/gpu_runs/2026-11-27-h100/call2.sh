@@ -6,7 +6,8 @@ set -u
 O=${1:?OUT}; mkdir -p "$O"
 for f in .devpack/.gl/*.deb; do dpkg -x "$f" /; done; ldconfig
 xz -dc .devpack/new/subpixel.xz > /tmp/subpixel && chmod +x /tmp/subpixel
-export NODEVICE_SELECT=1 RUST_LOG=warn VK_DRIVER_FILES=/usr/local/nvidia/share/vulkan/icd.d/nvidia_icd.json
+. tools/gpu_env.sh
+export RUST_LOG=warn
 for k in 1 2; do
   t0=$SECONDS
   SUBPIXEL_CACHE_DIR="$O/cache$k" timeout 75 /tmp/subpixel bench denoise --width 1920 --height 1080 \

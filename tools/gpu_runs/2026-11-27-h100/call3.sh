@@ -6,7 +6,7 @@ set -u
 O=${1:?OUT}; mkdir -p "$O"
 for f in .devpack/.gl/*.deb; do dpkg -x "$f" /; done; ldconfig
 xz -dc .devpack/new/subpixel.xz > /tmp/subpixel && chmod +x /tmp/subpixel
-export NODEVICE_SELECT=1 VK_DRIVER_FILES=/usr/local/nvidia/share/vulkan/icd.d/nvidia_icd.json
+. tools/gpu_env.sh
 export SUBPIXEL_CACHE_DIR="$O/cache"
 RUST_LOG=subpixel=info timeout 80 /tmp/subpixel bench denoise --width 1920 --height 1080 --precision f32 \
   --frames 30 > "$O/auto.log" 2>&1
