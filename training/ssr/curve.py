@@ -34,7 +34,7 @@ import torch
 
 from .data import DatasetError, SequenceDataset
 from .export import load_weights
-from .train import validate
+from .validation import validate
 
 
 def read_log(run: str) -> List[dict]:

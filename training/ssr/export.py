@@ -254,7 +254,7 @@ def load_weights(path: str, device: str = "cpu") -> Tuple[SSRModel, dict]:
 def set_options(src: str, options: List[str], out: str, val_data: Optional[str] = None, frames: int = 8) -> dict:
     """Rewrites weights file `src` as `out` with config `options` (KEY=VALUE) changed: the
     tensors are kept; provenance gains an `options_set` entry (what changed, from what, when);
-    with `val_data` the val metrics are recomputed under the new config (train.validate),
+    with `val_data` the val metrics are recomputed under the new config (validation.validate),
     otherwise they are dropped (they described the old one), unless every changed option is
     one the engine's output pass applies after the network (OUTPUT_PASS_OPTIONS), which leaves
     the network's output and so its metrics as they were. Returns the new metrics."""
@@ -284,7 +284,7 @@ def set_options(src: str, options: List[str], out: str, val_data: Optional[str] 
         metrics = dict(meta.get("metrics") or {})
     if val_data:
         from .data import SequenceDataset
-        from .train import validate
+        from .validation import validate
 
         ds = SequenceDataset(val_data, "val", window=1, crop=None, flips=False)
         with torch.no_grad():

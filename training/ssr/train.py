@@ -42,7 +42,7 @@ import subprocess
 import sys
 import threading
 import time
-from typing import Dict, List, Optional, Sequence, Tuple
+from typing import Dict, List, Optional, Tuple
 
 import numpy as np
 import torch
@@ -51,9 +51,9 @@ from torch import nn
 
 from . import losses
 from .baselines import build_model, export_model, loss_aux
-from .data import THIN_KEEP_MIN, DatasetError, SequenceDataset, WindowSampler, collate, pad_frame
-from .metrics import image_metrics, mean_metrics
+from .data import THIN_KEEP_MIN, DatasetError, SequenceDataset, WindowSampler, collate
 from .model import OUTPUT_PASS_OPTIONS, MeanCorrection, SSRModel, composite_background
+from .validation import validate
 
 CHECKPOINT_FORMAT = "subpixel-train-checkpoint"
 CHECKPOINT_VERSION = 1
@@ -462,52 +462,6 @@ def load_checkpoint(path: str, config: dict) -> dict:
     if diff:
         raise CheckpointError(f"{path}: checkpoint is from another config; differing keys: " + "; ".join(diff))
     return ck
-
-
-# ----------------------------------------------------------------------------- validation
-
-
-@torch.no_grad()
-def validate(model: nn.Module, ds: SequenceDataset, device: torch.device, frames: int, size: int = 0,
-             output_pass: bool = True) -> dict:
-    """Runs every val sequence from frame 0 for `frames` frames (whole frames, padded to a
-    multiple of 4 like the engine, optionally centre-cropped to `size`) and averages the
-    per-frame metrics (PSNR/SSIM tonemapped 8-bit, RMSE/relMSE HDR). With the background
-    buffers loaded (`ds.store.extra`), the output is composited as the engine does, and with
-    config `mean_correction = "tiles"` corrected as the engine does (model.MeanCorrection);
-    `output_pass=False` scores the network's own output (neither)."""
-    was_training = model.training
-    model.eval()
-    rows, per_scene = [], {}
-    cfg = getattr(model, "cfg", None)
-    tiles = output_pass and getattr(cfg, "mean_correction", "none") == "tiles"
-    for si, seq in enumerate(ds.sequences):
-        state = None
-        mc = MeanCorrection()
-        for t in range(min(frames, seq.frames)):
-            f = ds.full_frame(si, t)
-            if size:
-                h, w = f["color"].shape[-2:]
-                ch, cw = min(h, size), min(w, size)
-                y0, x0 = (h - ch) // 2, (w - cw) // 2
-                f = {k: v[:, y0 : y0 + ch, x0 : x0 + cw] for k, v in f.items()}
-            f = {k: v.unsqueeze(0).to(device) for k, v in f.items()}
-            padded, (h, w) = pad_frame(f)
-            r = model(padded, state)
-            state = r["state"]
-            out = r["output"][:, :, :h, :w]
-            if output_pass:
-                out = mc(out, f) if tiles else composite_background(out, f)
-            pred = out[0].float().cpu()
-            m = image_metrics(pred, f["reference"][0].cpu())
-            rows.append(m)
-            per_scene.setdefault(seq.scene, []).append(m)
-    model.train(was_training)
-    out = mean_metrics(rows)
-    out["frames"] = len(rows)
-    out["sequences"] = len(ds.sequences)
-    out["scenes"] = {k: mean_metrics(v) for k, v in sorted(per_scene.items())}
-    return out
 
 
 # ----------------------------------------------------------------------------- training

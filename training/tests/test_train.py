@@ -9,6 +9,7 @@ from ssr import losses as L
 from ssr import train as T
 from ssr.baselines import load_model
 from ssr.export import load_weights
+from ssr.validation import validate
 
 
 def args(data, out, *extra, iters=3):
@@ -291,7 +292,7 @@ def test_mean_correction_in_the_loss_and_in_val(tmp_path, capsys):
     from ssr.data import SequenceDataset
 
     ds = SequenceDataset(root, "val", window=1, crop=None, flips=False, extra=("background", "coverage"))
-    own = [T.validate(m, ds, torch.device("cpu"), 2, output_pass=False)["psnr"] for m in (m_plain, m_run)]
+    own = [validate(m, ds, torch.device("cpu"), 2, output_pass=False)["psnr"] for m in (m_plain, m_run)]
     assert own[0] == own[1]
     loss = T.train(args(root, str(tmp_path / "loss"), "--background", "loss", "--mean-correction", "loss",
                         "--init", tiles, iters=1))

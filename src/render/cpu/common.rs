@@ -10,6 +10,16 @@ pub(crate) const INV_PI: f32 = std::f32::consts::FRAC_1_PI;
 pub(crate) const NO_HIT: u32 = u32::MAX;
 pub(crate) const BIG: f32 = 3.0e38;
 
+/// A ray hit (WGSL `Hit`): `prim` is the BVH-order triangle, [`NO_HIT`] on a miss; `u`, `v`
+/// the barycentric weights of v1 and v2.
+#[derive(Debug, Clone, Copy)]
+pub(crate) struct Hit {
+    pub t: f32,
+    pub prim: u32,
+    pub u: f32,
+    pub v: f32,
+}
+
 /// One PCG output permutation of `v` (as `pcg_hash` in WGSL).
 #[inline]
 pub(crate) fn pcg_hash(v: u32) -> u32 {

@@ -5,13 +5,13 @@
 use glam::{Vec2, Vec3A as Vec3};
 
 use super::bsdf::{Lobes, bsdf_eval_with, bsdf_sample_with, pass_through};
-use super::common::{BIG, NO_HIT, Rng, finite3, max3, offset_ray, rng_seed};
+use super::common::{BIG, Hit, NO_HIT, Rng, finite3, max3, offset_ray, rng_seed};
 use super::lights::{
     EnvInfo, env_light_pdf, env_radiance, env_select_prob, has_lights, has_pass, mis_power, sample_light,
     tri_light_pdf,
 };
 use super::material::surface_at;
-use super::traverse::{Hit, occluded, traverse};
+use super::traverse::{occluded, traverse};
 use crate::render::camera::GpuCamera;
 use crate::render::packed::{MAT_THIN, PackedScene};
 

@@ -3,8 +3,7 @@
 
 use glam::{Vec2, Vec3A as Vec3, Vec4};
 
-use super::common::{finite3, srgb_to_linear};
-use super::traverse::Hit;
+use super::common::{Hit, finite3, srgb_to_linear};
 use crate::render::packed::{
     GpuMaterial, MAT_THIN, NO_TEX, PackedScene, TRI_FLAG_HAS_TANGENT, TRI_FLAG_TANGENT_NEG, TRI_MATERIAL_MASK,
 };

@@ -143,12 +143,12 @@ impl CpuTracer {
         }
         let mut found: Vec<PrimarySurface> = Vec::new();
         for dir in dirs {
-            let mut hits: Vec<traverse::Hit> = (0..scene.tris.len() as u32 / 4)
+            let mut hits: Vec<common::Hit> = (0..scene.tris.len() as u32 / 4)
                 .filter_map(|prim| {
                     let (t, u, v) = traverse::intersect_tri(scene, prim, o, dir, 0.0, common::BIG)?;
                     let info = material::tri_info(scene, prim)[3];
                     (info & super::packed::TRI_FLAG_ALPHA == 0 || material::alpha_passes(scene, prim, u, v))
-                        .then_some(traverse::Hit { t, prim, u, v })
+                        .then_some(common::Hit { t, prim, u, v })
                 })
                 .collect();
             hits.sort_by(|a, b| a.t.total_cmp(&b.t));
@@ -164,7 +164,7 @@ impl CpuTracer {
                     continue;
                 }
                 // Along the pixel's own ray (the same hit for the untilted ray).
-                let h = traverse::plane_hit(scene, h.prim, o, d).map_or(*h, |(t, u, v)| traverse::Hit {
+                let h = traverse::plane_hit(scene, h.prim, o, d).map_or(*h, |(t, u, v)| common::Hit {
                     t,
                     u,
                     v,

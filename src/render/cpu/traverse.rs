@@ -5,19 +5,9 @@
 use glam::Vec3A as Vec3;
 use obvhs::ray::{Ray, RayHit};
 
-use super::common::{BIG, NO_HIT};
+use super::common::{BIG, Hit, NO_HIT};
 use super::material::alpha_passes;
 use crate::render::packed::{PackedScene, TRI_FLAG_ALPHA, TRI_FLAG_PASS};
-
-/// A ray hit (WGSL `Hit`): `prim` is the BVH-order triangle, [`NO_HIT`] on a miss; `u`, `v`
-/// the barycentric weights of v1 and v2.
-#[derive(Debug, Clone, Copy)]
-pub(crate) struct Hit {
-    pub t: f32,
-    pub prim: u32,
-    pub u: f32,
-    pub v: f32,
-}
 
 /// `(t, u, v)` of the hit of triangle `prim` within `[tmin, tmax]`, as `intersect_tri`.
 #[inline(always)]
