@@ -51,6 +51,7 @@ pub use builder::mean_radiance;
 pub use props::{MAX_PROP_TRIANGLES, PropFile, PropLibrary};
 pub use shapes::{push_box, push_cylinder, push_rect, push_sphere, push_wall};
 pub use view::{ViewCheck, check_view};
+
 /// Scenes tried per seed (the first, then sub-seeds) before the fallback scene is used.
 pub const MAX_ATTEMPTS: u32 = 12;
 
