@@ -453,3 +453,61 @@ fn explicit_cut_paths_jump_between_keys() {
     }
     assert!(found, "no seed of 0..64 has explicit cuts");
 }
+
+/// What a seed's scene is, in terms that survive last-bit differences of the platform's
+/// maths library: enclosure, counts, material kinds, camera path kind.
+fn summary(seed: u64) -> String {
+    let g = generate(seed, &SceneOptions::default()).unwrap();
+    let s = &g.scene;
+    let path = match &s.camera_path {
+        Some(CameraPathSpec::Static) => "static",
+        Some(CameraPathSpec::Orbit { .. }) => "orbit",
+        Some(CameraPathSpec::FlyThrough {
+            cut_every: Some(_), ..
+        }) => "cuts",
+        Some(CameraPathSpec::FlyThrough { keys: Some(_), .. }) => "keys",
+        Some(CameraPathSpec::FlyThrough { .. }) => "flythrough",
+        None => "none",
+    };
+    let kinds: Vec<String> = material_kinds(s)
+        .iter()
+        .map(|(k, n)| format!("{}{n}", k.name()))
+        .collect();
+    format!(
+        "{seed}: {} attempt {} objects {} triangles {} vertices {} textures {} [{}] {path}",
+        g.enclosure.name(),
+        g.attempt,
+        g.objects,
+        s.geometry.triangles.len(),
+        s.geometry.positions.len(),
+        s.textures.len(),
+        kinds.join(" "),
+    )
+}
+
+/// The generator's output for given seeds is part of the datasets' definition (their splits
+/// are seed ranges, re-created by the recipe on a new machine): a change to what a seed
+/// generates must be deliberate. If it is, re-render the datasets and update this list with
+/// the printed lines.
+#[test]
+fn seeds_keep_their_scenes_across_versions() {
+    // Printed by `subpixel scene --scene builtin:procedural:SEED` of a build three sessions
+    // older (the one that rendered most of the train split) as well.
+    let golden = [
+        "0: room attempt 0 objects 11 triangles 6568 vertices 3912 textures 15 [emitter2 cut-out2 solid glass3 metal2 textured5 glossy2 diffuse2] flythrough",
+        "1: open ground attempt 0 objects 31 triangles 15526 vertices 9903 textures 35 [emitter1 cut-out4 thin glass2 solid glass1 metal6 textured13 glossy4 diffuse8] cuts",
+        "2: corridor attempt 0 objects 12 triangles 4854 vertices 3403 textures 11 [emitter6 cut-out1 thin glass1 solid glass2 metal2 textured4 glossy4 diffuse4] keys",
+        "3: steps attempt 0 objects 36 triangles 14354 vertices 9655 textures 40 [emitter6 cut-out2 thin glass1 solid glass8 metal5 textured14 glossy4 diffuse6] flythrough",
+        "4: room attempt 0 objects 14 triangles 13104 vertices 7700 textures 5 [thin glass2 solid glass2 metal2 textured2 glossy5 diffuse5] flythrough",
+        "5: open ground attempt 0 objects 22 triangles 7760 vertices 5178 textures 11 [emitter4 cut-out1 thin glass2 solid glass4 metal5 textured4 glossy4 diffuse3] flythrough",
+        "6: corridor attempt 0 objects 15 triangles 10104 vertices 6162 textures 13 [emitter10 cut-out2 thin glass2 solid glass2 metal5 textured4 glossy2 diffuse4] flythrough",
+        "7: steps attempt 0 objects 18 triangles 5940 vertices 4244 textures 24 [emitter4 cut-out2 solid glass1 metal1 textured8 glossy2 diffuse5] static",
+    ];
+    let now: Vec<String> = (0..8).map(summary).collect();
+    assert_eq!(
+        now.iter().map(String::as_str).collect::<Vec<_>>(),
+        golden,
+        "the generator's output changed; if deliberate, the new lines are:\n{}",
+        now.join("\n")
+    );
+}
