@@ -158,16 +158,7 @@ fn seeds_validate_light_and_see_geometry() {
         for (k, _) in material_kinds(s) {
             kinds.insert(k);
         }
-        paths.insert(match &s.camera_path {
-            Some(CameraPathSpec::Static) => "static",
-            Some(CameraPathSpec::Orbit { .. }) => "orbit",
-            Some(CameraPathSpec::FlyThrough {
-                cut_every: Some(_), ..
-            }) => "cuts",
-            Some(CameraPathSpec::FlyThrough { keys: Some(_), .. }) => "keys",
-            Some(CameraPathSpec::FlyThrough { .. }) => "flythrough",
-            None => "none",
-        });
+        paths.insert(path_kind(&s.camera_path));
         assert!(
             prints.insert(fingerprint(s)),
             "seed {seed} repeats an earlier scene"
@@ -454,12 +445,9 @@ fn explicit_cut_paths_jump_between_keys() {
     assert!(found, "no seed of 0..64 has explicit cuts");
 }
 
-/// What a seed's scene is, in terms that survive last-bit differences of the platform's
-/// maths library: enclosure, counts, material kinds, camera path kind.
-fn summary(seed: u64) -> String {
-    let g = generate(seed, &SceneOptions::default()).unwrap();
-    let s = &g.scene;
-    let path = match &s.camera_path {
+/// The kind of a camera path: static, orbit, flythrough, keys (explicit keys) or cuts.
+fn path_kind(path: &Option<CameraPathSpec>) -> &'static str {
+    match path {
         Some(CameraPathSpec::Static) => "static",
         Some(CameraPathSpec::Orbit { .. }) => "orbit",
         Some(CameraPathSpec::FlyThrough {
@@ -468,7 +456,15 @@ fn summary(seed: u64) -> String {
         Some(CameraPathSpec::FlyThrough { keys: Some(_), .. }) => "keys",
         Some(CameraPathSpec::FlyThrough { .. }) => "flythrough",
         None => "none",
-    };
+    }
+}
+
+/// What a seed's scene is, in terms that survive last-bit differences of the platform's
+/// maths library: enclosure, counts, material kinds, camera path kind.
+fn summary(seed: u64) -> String {
+    let g = generate(seed, &SceneOptions::default()).unwrap();
+    let s = &g.scene;
+    let path = path_kind(&s.camera_path);
     let kinds: Vec<String> = material_kinds(s)
         .iter()
         .map(|(k, n)| format!("{}{n}", k.name()))
