@@ -252,6 +252,22 @@ fn denoise_then_eval_a_frame_folder() {
     let o = table(&["--scenes", "procedural,golden"]);
     let md = String::from_utf8_lossy(&o.stdout);
     assert!(md.contains("| method | procedural | golden | mean |"), "{md}");
+    // --per-sequence: a column per sequence; --scenes still picks and orders the scenes.
+    let o = table(&["--scenes", "procedural", "--per-sequence", "--json"]);
+    let v: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
+    let cells = v[1]["scenes"].as_object().unwrap();
+    assert_eq!(
+        cells.keys().collect::<Vec<_>>(),
+        ["procedural_5_test_000", "procedural_9_test_000"],
+        "{v}"
+    );
+    assert_eq!(cells["procedural_9_test_000"]["sequences"], 1, "{v}");
+    let o = table(&["--scenes", "procedural,golden", "--per-sequence"]);
+    let md = String::from_utf8_lossy(&o.stdout);
+    assert!(
+        md.contains("| method | procedural_5_test_000 | procedural_9_test_000 | golden_test_000 | mean |"),
+        "{md}"
+    );
     // A method without predictions for some sequences: its cell says how many it covers,
     // the row's mean how many scenes, and a warning names the method.
     std::fs::remove_dir_all(pred.join("input/test/procedural_9_test_000")).unwrap();

@@ -29,6 +29,11 @@ pub(super) struct EvalArgs {
     /// `sequence.json`, or `procedural` for the procedural scenes), in this order.
     #[arg(long, value_delimiter = ',')]
     scenes: Vec<String>,
+    /// With `--table`: a column per sequence (its folder name) instead of per scene, e.g.
+    /// to find the procedural seeds where a method falls behind; `--scenes` still picks
+    /// which scenes' sequences are shown.
+    #[arg(long)]
+    per_sequence: bool,
     /// Print JSON instead of a table.
     #[arg(long)]
     json: bool,
@@ -226,11 +231,12 @@ fn column_of(scene: &str) -> String {
 }
 
 /// Scores every method folder of `pred` on every sequence of `root/split`: rows (method,
-/// scene -> cell).
+/// column -> cell).
 type TableRows = Vec<(String, std::collections::BTreeMap<String, Cell>)>;
 
-/// The table: its scene columns, its rows, and each column's number of sequences in the split
-/// (a cell over fewer, because a method lacks predictions for some, is marked).
+/// The table: its columns (scenes, or sequences with `--per-sequence`), its rows, and each
+/// column's number of sequences in the split (a cell over fewer, because a method lacks
+/// predictions for some, is marked).
 struct Table {
     scenes: Vec<String>,
     rows: TableRows,
@@ -248,7 +254,13 @@ impl Table {
     }
 }
 
-fn table(pred: &std::path::Path, root: &std::path::Path, split: &str, only: &[String]) -> Result<Table> {
+fn table(
+    pred: &std::path::Path,
+    root: &std::path::Path,
+    split: &str,
+    only: &[String],
+    per_sequence: bool,
+) -> Result<Table> {
     let seq_root = root.join(split);
     let mut seqs: Vec<PathBuf> = std::fs::read_dir(&seq_root)
         .map_err(|e| anyhow::anyhow!("{}: {e}", seq_root.display()))?
@@ -291,18 +303,26 @@ fn table(pred: &std::path::Path, root: &std::path::Path, split: &str, only: &[St
         (ORDER.iter().position(|o| *o == n).unwrap_or(ORDER.len()), n)
     };
     methods.sort_by_key(rank);
-    // Each sequence's column, and how many sequences each column has.
+    // Each sequence's scene and column (the scene's, or its own with `per_sequence`), and
+    // how many sequences each column has.
     let mut columns = Vec::with_capacity(seqs.len());
+    let mut scene_of = std::collections::BTreeMap::new();
     let mut expected = std::collections::BTreeMap::new();
     for s in &seqs {
         let file = s.join("sequence.json");
         let json: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(&file)?)
             .map_err(|e| anyhow::anyhow!("{}: {e}", file.display()))?;
         let scene = column_of(json["scene"].as_str().unwrap_or("?"));
+        let column = if per_sequence {
+            s.file_name().expect("a folder").to_string_lossy().to_string()
+        } else {
+            scene.clone()
+        };
         if only.is_empty() || only.contains(&scene) {
-            *expected.entry(scene.clone()).or_insert(0usize) += 1;
+            *expected.entry(column.clone()).or_insert(0usize) += 1;
         }
-        columns.push(scene);
+        scene_of.insert(column.clone(), scene);
+        columns.push(column);
     }
     let mut scenes = std::collections::BTreeSet::new();
     let mut rows = Vec::new();
@@ -339,15 +359,22 @@ fn table(pred: &std::path::Path, root: &std::path::Path, split: &str, only: &[St
             expected,
         });
     }
-    if let Some(missing) = only.iter().find(|s| !scenes.contains(*s)) {
+    let scored: std::collections::BTreeSet<&String> = scenes.iter().map(|c| &scene_of[c]).collect();
+    if let Some(missing) = only.iter().find(|s| !scored.contains(*s)) {
         bail!(
             "--scenes: no predictions for scene '{missing}' in {} (scenes there: {})",
             seq_root.display(),
-            scenes.iter().cloned().collect::<Vec<_>>().join(", ")
+            scored.iter().map(|s| s.as_str()).collect::<Vec<_>>().join(", ")
         );
     }
+    // The columns in the order of `only`, each scene's sequences in folder order.
+    let (scenes, scene_of) = (&scenes, &scene_of);
+    let ordered = only
+        .iter()
+        .flat_map(|scene| scenes.iter().filter(move |c| &scene_of[*c] == scene).cloned())
+        .collect();
     Ok(Table {
-        scenes: only.to_vec(),
+        scenes: ordered,
         rows,
         expected,
     })
@@ -355,7 +382,7 @@ fn table(pred: &std::path::Path, root: &std::path::Path, split: &str, only: &[St
 
 pub(super) fn run(a: &EvalArgs) -> Result<()> {
     if a.table {
-        let t = table(&a.pred, &a.reference, &a.split, &a.scenes)?;
+        let t = table(&a.pred, &a.reference, &a.split, &a.scenes, a.per_sequence)?;
         let (scenes, rows) = (&t.scenes, &t.rows);
         if a.json {
             let v: Vec<_> = rows
@@ -408,10 +435,16 @@ pub(super) fn run(a: &EvalArgs) -> Result<()> {
         println!(
             "\nPSNR (dB) / SSIM on tonemapped 8-bit images / temporal error (mean |(p_t - W(p_t-1)) - \
              (r_t - W(r_t-1))| on tonemapped [0, 1] values) / brightness error (the worst RGB channel's \
-             image mean against the reference's, exp|ln(P/R)| - 1 in percent, frame mean), mean over the {} \
-             sequences of each scene (procedural: of every procedural scene); a temporal error of - means a \
-             single frame or no motion vectors.",
-            a.split
+             image mean against the reference's, exp|ln(P/R)| - 1 in percent, frame mean), {}; a temporal \
+             error of - means a single frame or no motion vectors.",
+            if a.per_sequence {
+                format!("one {} sequence a column", a.split)
+            } else {
+                format!(
+                    "mean over the {} sequences of each scene (procedural: of every procedural scene)",
+                    a.split
+                )
+            }
         );
         return Ok(());
     }
