@@ -280,18 +280,29 @@ impl Portal {
 }
 
 impl Environment {
-    /// A constant environment of radiance `rgb` (a small map, so the CDF code path is used).
-    pub fn uniform(rgb: [f32; 3]) -> Self {
-        let (width, height) = (8, 4);
+    /// A map of `width` x `height` linear RGB `pixels` (row-major from the top-left) from
+    /// `source`, unscaled, unrotated, without portals.
+    pub fn from_pixels(source: impl Into<PathBuf>, width: u32, height: u32, pixels: Vec<[f32; 3]>) -> Self {
         Self {
-            source: PathBuf::from(format!("uniform {rgb:?}")),
+            source: source.into(),
             width,
             height,
-            pixels: vec![rgb; (width * height) as usize],
+            pixels,
             scale: 1.0,
             to_world: Mat3::IDENTITY,
             portals: Vec::new(),
         }
+    }
+
+    /// A constant environment of radiance `rgb` (a small map, so the CDF code path is used).
+    pub fn uniform(rgb: [f32; 3]) -> Self {
+        let (width, height) = (8, 4);
+        Self::from_pixels(
+            format!("uniform {rgb:?}"),
+            width,
+            height,
+            vec![rgb; (width * height) as usize],
+        )
     }
 
     /// Radiance (scaled) towards world direction `d`, nearest texel, as the GPU looks it up.

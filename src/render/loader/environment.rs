@@ -27,12 +27,8 @@ pub fn load_environment(path: &Path, scale: f32, to_world: Mat3) -> Result<Envir
         .map(|p| p.0.map(|v| if v.is_finite() { v.max(0.0) } else { 0.0 }))
         .collect();
     Ok(Environment {
-        source: path.to_path_buf(),
-        width,
-        height,
-        pixels,
         scale,
         to_world,
-        portals: Vec::new(),
+        ..Environment::from_pixels(path, width, height, pixels)
     })
 }

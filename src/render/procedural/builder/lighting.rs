@@ -1,7 +1,5 @@
 //! Environment maps, the procedural sky, area and small lights.
 
-use std::path::PathBuf;
-
 use glam::{Mat3, Vec2, Vec3};
 
 use super::*;
@@ -96,18 +94,8 @@ impl Builder<'_> {
                 }
             }
         }
-        let mut e = Environment {
-            source: PathBuf::from(format!(
-                "procedural sky (sun {:.0} deg up)",
-                elevation.to_degrees()
-            )),
-            width: w,
-            height: h,
-            pixels,
-            scale: 1.0,
-            to_world: Mat3::IDENTITY,
-            portals: Vec::new(),
-        };
+        let source = format!("procedural sky (sun {:.0} deg up)", elevation.to_degrees());
+        let mut e = Environment::from_pixels(source, w, h, pixels);
         let mean = mean_radiance(&e);
         e.scale = if mean > 0.0 { level / mean } else { 1.0 };
         e
