@@ -622,8 +622,9 @@ fn cli_render_args(
 }
 
 /// `subpixel render --reference-noise-target`: each frame's reference takes the samples its
-/// halves need (recorded per frame), up to the cap; the recorded noise of the frames that
-/// stopped short of the cap reaches the target; an odd base count is refused.
+/// halves need (recorded per frame as it is written, so an interrupted run loses none), up to
+/// the cap; the recorded noise of the frames that stopped short of the cap reaches the
+/// target; an odd base count is refused.
 #[test]
 fn render_command_meets_a_reference_noise_target() {
     use subpixel::cli::render::{RenderArgs, render_command};
@@ -648,6 +649,20 @@ fn render_command_meets_a_reference_noise_target() {
     assert!(e.contains("even --reference-spp"), "{e}");
     args.reference_spp = Some(8);
     args.reference_spp_max = Some(128);
+    // A run stopped after its first frame (frame 1 cannot be written here) keeps that
+    // frame's samples in sequence.json; the resumed run adds the others.
+    let blocker = out.join("frame_0001.partial.exr");
+    std::fs::create_dir_all(&blocker).unwrap();
+    assert!(render_command(&args).is_err());
+    let seq: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(out.join("sequence.json")).unwrap()).unwrap();
+    assert_eq!(
+        seq["reference_spp_per_frame"].as_object().map(|m| m.len()),
+        Some(1),
+        "{seq}"
+    );
+    std::fs::remove_dir_all(&blocker).unwrap();
+    args.resume = true;
     render_command(&args).unwrap();
     let seq: serde_json::Value =
         serde_json::from_str(&std::fs::read_to_string(out.join("sequence.json")).unwrap()).unwrap();

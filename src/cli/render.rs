@@ -236,8 +236,6 @@ pub fn render_command(args: &RenderArgs) -> Result<()> {
     );
     let (mut rays, mut samples, mut render_secs) = (0u64, 0u64, 0f64);
     let mut skipped = 0;
-    // Samples of each reference rendered by this run (under a noise target they differ).
-    let mut reference_spp = serde_json::Map::new();
     for k in 0..args.frames {
         let f = args.first_frame + k;
         let file = args.out.join(format!("frame_{f:04}.exr"));
@@ -264,6 +262,7 @@ pub fn render_command(args: &RenderArgs) -> Result<()> {
             frame: Some(frame),
             ..Default::default()
         };
+        let mut reference_spp = None;
         if let Some(spp) = args.reference_spp {
             let (r, spp) = match args.reference_noise_target {
                 Some(db) => {
@@ -274,8 +273,8 @@ pub fn render_command(args: &RenderArgs) -> Result<()> {
             };
             rays += r.rays;
             samples += w as u64 * h as u64 * spp as u64;
-            reference_spp.insert(format!("frame_{f:04}"), serde_json::json!(spp));
             host.reference = Some(r.mean(spp));
+            reference_spp = Some(spp);
             host.reference_half = Some(r.first);
         }
         if args.full_spp {
@@ -290,6 +289,19 @@ pub fn render_command(args: &RenderArgs) -> Result<()> {
         }
         render_secs += t.elapsed().as_secs_f64();
         write_frame_atomically(&file, &host)?;
+        if let (Some(spp), Some(_)) = (reference_spp, args.reference_noise_target) {
+            // Recorded with the frame, so that a run stopped later loses none of them.
+            let mut m = serde_json::Map::new();
+            m.insert(format!("frame_{f:04}"), serde_json::json!(spp));
+            update_sequence_json(&args.out, |o| {
+                let entry = o
+                    .entry("reference_spp_per_frame")
+                    .or_insert_with(|| serde_json::json!({}));
+                if let Some(e) = entry.as_object_mut() {
+                    e.extend(m);
+                }
+            })?;
+        }
         if args.png {
             write_png(&args.out.join(format!("frame_{f:04}.png")), &host)?;
         }
@@ -311,7 +323,7 @@ pub fn render_command(args: &RenderArgs) -> Result<()> {
     }
     bar.finish();
     if args.reference_spp.is_some() {
-        update_reference_noise(&args.out, args.reference_noise_target.map(|_| reference_spp))?;
+        update_reference_noise(&args.out)?;
     }
     if skipped > 0 {
         println!("skipped {skipped} frame(s) already in {}", args.out.display());
@@ -386,18 +398,13 @@ fn add_background(file: &Path, packed: &PackedScene, settings: &FrameSettings) -
 
 /// PSNR (tonemapped, DESIGN §7) between the two halves of each reference in `dir`, from
 /// the `reference` and `reference_half` channels of its frames, written into
-/// `sequence.json` as `reference_noise` (per frame, mean and minimum). `frame_spp` (frame
-/// name -> samples, from a render under a noise target) is merged into its
-/// `reference_spp_per_frame`.
-pub fn update_reference_noise(
-    dir: &Path,
-    frame_spp: Option<serde_json::Map<String, serde_json::Value>>,
-) -> Result<()> {
+/// `sequence.json` as `reference_noise` (per frame, mean and minimum).
+pub fn update_reference_noise(dir: &Path) -> Result<()> {
     let json_path = dir.join("sequence.json");
     let Ok(text) = std::fs::read_to_string(&json_path) else {
         return Ok(()); // a shard's own sequence_NNNN.json: nothing shared to update
     };
-    let mut json: serde_json::Value =
+    let json: serde_json::Value =
         serde_json::from_str(&text).with_context(|| format!("cannot parse {}", json_path.display()))?;
     let spp = json.get("reference_spp").and_then(|v| v.as_u64()).unwrap_or(0) as u32;
     let mut per_frame = serde_json::Map::new();
@@ -427,15 +434,7 @@ pub fn update_reference_noise(
     let finite: Vec<f64> = values.iter().copied().filter(|v| v.is_finite()).collect();
     let mean = finite.iter().sum::<f64>() / finite.len().max(1) as f64;
     let min = values.iter().copied().fold(f64::INFINITY, f64::min);
-    if let (Some(frame_spp), Some(o)) = (frame_spp, json.as_object_mut()) {
-        let entry = o
-            .entry("reference_spp_per_frame")
-            .or_insert_with(|| serde_json::json!({}));
-        if let Some(m) = entry.as_object_mut() {
-            m.extend(frame_spp);
-        }
-    }
-    if let Some(o) = json.as_object_mut() {
+    update_sequence_json(dir, |o| {
         o.insert(
             "reference_noise".into(),
             serde_json::json!({
@@ -446,6 +445,23 @@ pub fn update_reference_noise(
                 "per_frame": per_frame,
             }),
         );
+    })
+}
+
+/// Applies `change` to the object of `dir/sequence.json` and writes it back atomically; no
+/// `sequence.json` (a shard's own `sequence_NNNN.json`) is left alone.
+fn update_sequence_json(
+    dir: &Path,
+    change: impl FnOnce(&mut serde_json::Map<String, serde_json::Value>),
+) -> Result<()> {
+    let json_path = dir.join("sequence.json");
+    let Ok(text) = std::fs::read_to_string(&json_path) else {
+        return Ok(());
+    };
+    let mut json: serde_json::Value =
+        serde_json::from_str(&text).with_context(|| format!("cannot parse {}", json_path.display()))?;
+    if let Some(o) = json.as_object_mut() {
+        change(o);
     }
     let tmp = dir.join("sequence.json.partial");
     std::fs::write(&tmp, serde_json::to_string_pretty(&json)?)
