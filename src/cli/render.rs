@@ -291,14 +291,13 @@ pub fn render_command(args: &RenderArgs) -> Result<()> {
         write_frame_atomically(&file, &host)?;
         if let (Some(spp), Some(_)) = (reference_spp, args.reference_noise_target) {
             // Recorded with the frame, so that a run stopped later loses none of them.
-            let mut m = serde_json::Map::new();
-            m.insert(format!("frame_{f:04}"), serde_json::json!(spp));
             update_sequence_json(&args.out, |o| {
-                let entry = o
+                if let Some(e) = o
                     .entry("reference_spp_per_frame")
-                    .or_insert_with(|| serde_json::json!({}));
-                if let Some(e) = entry.as_object_mut() {
-                    e.extend(m);
+                    .or_insert_with(|| serde_json::json!({}))
+                    .as_object_mut()
+                {
+                    e.insert(format!("frame_{f:04}"), serde_json::json!(spp));
                 }
             })?;
         }
