@@ -79,6 +79,11 @@ def parse_args(argv=None) -> argparse.Namespace:
     ap.add_argument("--crop", type=int, default=256, help="crop size, a multiple of 4")
     ap.add_argument("--lr", type=float, default=1e-4)
     ap.add_argument("--window", type=int, default=5, help="frames per training sequence")
+    ap.add_argument(
+        "--frame-weights", default=None,
+        help="comma-separated loss weight of each frame of a window, first to last (as many as --window; "
+        "default: the paper's 0.05,0.25,0.5,0.75,1 for 5 frames, its last ones for fewer, 0.05 prepended for more)",
+    )
     ap.add_argument("--scenes", nargs="+", default=None, help="train (and validate) on these scenes only")
     ap.add_argument("--no-flips", action="store_true", help="no random flips")
     ap.add_argument(
@@ -153,6 +158,10 @@ def parse_args(argv=None) -> argparse.Namespace:
         ap.error(f"--crop must be a positive multiple of 4, got {args.crop}")
     if args.window < 2:
         ap.error("--window must be at least 2 (the warped temporal loss uses the last two frames)")
+    try:
+        args.frame_weights = parse_frame_weights(args.frame_weights, args.window)
+    except ValueError as err:
+        ap.error(str(err))
     if args.snapshot_every < 0 or args.threads < 0:
         ap.error("--snapshot-every and --threads must not be negative")
     if args.init is not None and not os.path.isfile(args.init):
@@ -201,7 +210,7 @@ def run_config(args: argparse.Namespace) -> dict:
         "flips": not args.no_flips,
         "seed": args.seed,
         "clip": args.clip,
-        "frame_weights": list(frame_weights(args.window)),
+        "frame_weights": list(args.frame_weights),
         "lambdas": dict(args.lambdas),
         # Only present for runs started from weights (older checkpoints have no such key).
         **({"init": init_identity(args.init)} if args.init is not None else {}),
@@ -284,6 +293,22 @@ def frame_weights(window: int) -> Tuple[float, ...]:
     if window < len(w):
         return tuple(w[-window:])
     return (w[0],) * (window - len(w)) + tuple(w)
+
+
+def parse_frame_weights(text: Optional[str], window: int) -> Tuple[float, ...]:
+    """`--frame-weights`: `window` comma-separated finite weights >= 0, not all 0; None gives
+    frame_weights(window)."""
+    if text is None:
+        return frame_weights(window)
+    try:
+        w = tuple(float(x) for x in text.split(","))
+    except ValueError:
+        raise ValueError(f"--frame-weights {text!r}: expected comma-separated numbers") from None
+    if len(w) != window:
+        raise ValueError(f"--frame-weights {text!r}: {len(w)} weight(s) for a --window of {window} frames")
+    if not all(math.isfinite(x) and x >= 0 for x in w) or not any(w):
+        raise ValueError(f"--frame-weights {text!r}: weights must be finite, >= 0 and not all 0")
+    return w
 
 
 def lr_at(base: float, iteration: int, iters: int) -> float:
@@ -603,7 +628,7 @@ def _train(args, config: dict, dd: Dist) -> dict:
         train_ds, batch_sampler=sampler, collate_fn=collate, num_workers=args.workers,
         pin_memory=device.type == "cuda", persistent_workers=False, worker_init_fn=leave_stop_signals_to_main,
     )
-    weights = frame_weights(args.window)
+    weights = args.frame_weights
 
     def checkpoint(it: int, wall_now: float) -> None:
         rngs = dd.gather(rng_state())

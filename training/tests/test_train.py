@@ -28,6 +28,21 @@ def test_lr_schedule_and_frame_weights():
     assert T.frame_weights(6) == (0.05, 0.05, 0.25, 0.5, 0.75, 1.0)
 
 
+def test_frame_weights_option():
+    from ssr.train import parse_args
+
+    base = ["--data", "d", "--out", "o"]
+    assert parse_args(base).frame_weights == (0.05, 0.25, 0.5, 0.75, 1.0)
+    assert parse_args([*base, "--window", "8"]).frame_weights == (0.05,) * 4 + (0.25, 0.5, 0.75, 1.0)
+    w = parse_args([*base, "--window", "8", "--frame-weights", "0.05,0.25,0.5,0.75,1,1,1,1"]).frame_weights
+    assert w == (0.05, 0.25, 0.5, 0.75, 1.0, 1.0, 1.0, 1.0)
+    for bad in ["1,1,1", "1,1,1,1,x", "1,1,1,1,-1", "0,0,0,0,0", "1,1,1,1,nan"]:
+        with pytest.raises(SystemExit):
+            parse_args([*base, "--frame-weights", bad])
+    with pytest.raises(ValueError, match="3 weight.*window of 5"):
+        T.parse_frame_weights("1,1,1", 5)
+
+
 def test_loss_weight_overrides():
     from ssr.train import loss_weights, parse_args
 
