@@ -268,6 +268,35 @@ fn denoise_then_eval_a_frame_folder() {
         md.contains("| method | procedural_5_test_000 | procedural_9_test_000 | golden_test_000 | mean |"),
         "{md}"
     );
+    // --per-frame: a column per frame index, the mean of that frame over the chosen scenes'
+    // sequences; the frames' mean is the sequence's score (every frame weighs the same).
+    let o = table(&["--scenes", "golden", "--per-frame", "--json"]);
+    let f: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
+    let o = table(&["--scenes", "golden", "--json"]);
+    let g: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
+    let frames = f[1]["scenes"].as_object().unwrap();
+    assert_eq!(
+        frames.keys().collect::<Vec<_>>(),
+        ["frame 0", "frame 1", "frame 2"],
+        "{f}"
+    );
+    let mean_psnr = frames.values().map(|c| c["psnr"].as_f64().unwrap()).sum::<f64>() / 3.0;
+    assert!(
+        (mean_psnr - g[1]["scenes"]["golden"]["psnr"].as_f64().unwrap()).abs() < 1e-9,
+        "{f} {g}"
+    );
+    assert!(
+        frames["frame 0"]["temporal"].is_null() && frames["frame 1"]["temporal"].is_f64(),
+        "{f}"
+    );
+    assert_eq!(frames["frame 2"]["sequences"], 1, "{f}");
+    let md = String::from_utf8_lossy(&table(&["--per-frame"]).stdout).to_string();
+    assert!(
+        md.contains("| method | frame 0 | frame 1 | frame 2 | mean |"),
+        "{md}"
+    );
+    let o = table(&["--per-frame", "--per-sequence"]);
+    assert!(!o.status.success(), "the two column choices exclude each other");
     // A method without predictions for some sequences: its cell says how many it covers,
     // the row's mean how many scenes, and a warning names the method.
     std::fs::remove_dir_all(pred.join("input/test/procedural_9_test_000")).unwrap();

@@ -32,8 +32,13 @@ pub(super) struct EvalArgs {
     /// With `--table`: a column per sequence (its folder name) instead of per scene, e.g.
     /// to find the procedural seeds where a method falls behind; `--scenes` still picks
     /// which scenes' sequences are shown.
-    #[arg(long)]
+    #[arg(long, conflicts_with = "per_frame")]
     per_sequence: bool,
+    /// With `--table`: a column per frame index (`frame N`: the mean over the sequences of
+    /// that frame), e.g. to tell the first frames, without history, from the later ones;
+    /// `--scenes` still picks the scenes whose sequences are averaged.
+    #[arg(long)]
+    per_frame: bool,
     /// Print JSON instead of a table.
     #[arg(long)]
     json: bool,
@@ -59,8 +64,38 @@ pub struct Scores {
     pub brightness: f64,
 }
 
-/// Scores the frames of `pred` against those of `reference`.
+/// Scores the frames of `pred` against those of `reference`: the means of
+/// [`score_frames`].
 pub fn score(pred: &std::path::Path, reference: &std::path::Path) -> Result<Scores> {
+    let frames = score_frames(pred, reference)?;
+    let n = frames.len() as f64;
+    let (mut psnr, mut ssim, mut rmse, mut relmse, mut brightness) = (0.0, 0.0, 0.0, 0.0, 0.0);
+    let (mut temporal, mut nt) = (0.0, 0);
+    for f in &frames {
+        psnr += f.psnr;
+        ssim += f.ssim;
+        rmse += f.rmse;
+        relmse += f.relmse;
+        brightness += f.brightness;
+        if let Some(t) = f.temporal {
+            temporal += t;
+            nt += 1;
+        }
+    }
+    Ok(Scores {
+        frames: frames.len(),
+        psnr: psnr / n,
+        ssim: ssim / n,
+        rmse: rmse / n,
+        relmse: relmse / n,
+        temporal: (nt > 0).then(|| temporal / nt as f64),
+        brightness: brightness / n,
+    })
+}
+
+/// The scores of each frame of `pred` against the same frame of `reference` (each with
+/// `frames` 1; the temporal error from the second frame on, against the frame before).
+pub fn score_frames(pred: &std::path::Path, reference: &std::path::Path) -> Result<Vec<Scores>> {
     let pf = list_frames(pred)?;
     let rf = list_frames(reference)?;
     if pf.len() != rf.len() {
@@ -72,8 +107,7 @@ pub fn score(pred: &std::path::Path, reference: &std::path::Path) -> Result<Scor
             rf.len()
         );
     }
-    let (mut psnr, mut ssim, mut rmse, mut relmse, mut brightness) = (0.0, 0.0, 0.0, 0.0, 0.0);
-    let (mut temporal, mut nt) = (0.0, 0);
+    let mut out = Vec::with_capacity(pf.len());
     let mut prev: Option<(crate::nn::HostTensor, crate::nn::HostTensor)> = None;
     for (p, r) in pf.iter().zip(&rf) {
         let Some(pi) = read_frame(p)?.pred else {
@@ -97,27 +131,22 @@ pub fn score(pred: &std::path::Path, reference: &std::path::Path) -> Result<Scor
             );
         }
         let v = metrics::psnr(&pi, &ri);
-        psnr += if v.is_finite() { v } else { 100.0 };
-        ssim += metrics::ssim(&pi, &ri);
-        rmse += metrics::rmse(&pi, &ri);
-        relmse += metrics::relmse(&pi, &ri);
-        brightness += metrics::brightness_error(&pi, &ri);
-        if let (Some((pp, rp)), Some(frame)) = (&prev, &rfile.frame) {
-            temporal += metrics::temporal_error(&pi, pp, &ri, rp, &frame.motion);
-            nt += 1;
-        }
+        let temporal = match (&prev, &rfile.frame) {
+            (Some((pp, rp)), Some(frame)) => Some(metrics::temporal_error(&pi, pp, &ri, rp, &frame.motion)),
+            _ => None,
+        };
+        out.push(Scores {
+            frames: 1,
+            psnr: if v.is_finite() { v } else { 100.0 },
+            ssim: metrics::ssim(&pi, &ri),
+            rmse: metrics::rmse(&pi, &ri),
+            relmse: metrics::relmse(&pi, &ri),
+            temporal,
+            brightness: metrics::brightness_error(&pi, &ri),
+        });
         prev = Some((pi, ri));
     }
-    let n = pf.len() as f64;
-    Ok(Scores {
-        frames: pf.len(),
-        psnr: psnr / n,
-        ssim: ssim / n,
-        rmse: rmse / n,
-        relmse: relmse / n,
-        temporal: (nt > 0).then(|| temporal / nt as f64),
-        brightness: brightness / n,
-    })
+    Ok(out)
 }
 
 /// An image with NaN or Inf pixels has no meaningful score (the metrics would turn them
@@ -234,9 +263,23 @@ fn column_of(scene: &str) -> String {
 /// column -> cell).
 type TableRows = Vec<(String, std::collections::BTreeMap<String, Cell>)>;
 
-/// The table: its columns (scenes, or sequences with `--per-sequence`), its rows, and each
-/// column's number of sequences in the split (a cell over fewer, because a method lacks
-/// predictions for some, is marked).
+/// What a table column holds: a scene's sequences, one sequence, or one frame index of
+/// every sequence.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum Columns {
+    Scene,
+    Sequence,
+    Frame,
+}
+
+/// The column name of frame index `i` with `--per-frame`.
+fn frame_column(i: usize) -> String {
+    format!("frame {i}")
+}
+
+/// The table: its columns (scenes, sequences or frame indices, in display order), its
+/// rows, and each column's number of sequences in the split (a cell over fewer, because a
+/// method lacks predictions for some, is marked).
 struct Table {
     scenes: Vec<String>,
     rows: TableRows,
@@ -259,7 +302,7 @@ fn table(
     root: &std::path::Path,
     split: &str,
     only: &[String],
-    per_sequence: bool,
+    by: Columns,
 ) -> Result<Table> {
     let seq_root = root.join(split);
     let mut seqs: Vec<PathBuf> = std::fs::read_dir(&seq_root)
@@ -303,63 +346,70 @@ fn table(
         (ORDER.iter().position(|o| *o == n).unwrap_or(ORDER.len()), n)
     };
     methods.sort_by_key(rank);
-    // Each sequence's scene and column (the scene's, or its own with `per_sequence`), and
-    // how many sequences each column has.
-    let mut columns = Vec::with_capacity(seqs.len());
-    let mut scene_of = std::collections::BTreeMap::new();
+    // The sequences of the chosen scenes, each with its scene and its columns (its scene's,
+    // its own, or one per frame), and how many sequences each column has.
+    let mut chosen = Vec::with_capacity(seqs.len());
     let mut expected = std::collections::BTreeMap::new();
     for s in &seqs {
         let file = s.join("sequence.json");
         let json: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(&file)?)
             .map_err(|e| anyhow::anyhow!("{}: {e}", file.display()))?;
         let scene = column_of(json["scene"].as_str().unwrap_or("?"));
-        let column = if per_sequence {
-            s.file_name().expect("a folder").to_string_lossy().to_string()
-        } else {
-            scene.clone()
-        };
-        if only.is_empty() || only.contains(&scene) {
-            *expected.entry(column.clone()).or_insert(0usize) += 1;
+        if !only.is_empty() && !only.contains(&scene) {
+            continue;
         }
-        scene_of.insert(column.clone(), scene);
-        columns.push(column);
+        let columns = match by {
+            Columns::Scene => vec![scene.clone()],
+            Columns::Sequence => vec![s.file_name().expect("a folder").to_string_lossy().to_string()],
+            Columns::Frame => (0..list_frames(s)?.len()).map(frame_column).collect(),
+        };
+        for c in &columns {
+            *expected.entry(c.clone()).or_insert(0usize) += 1;
+        }
+        chosen.push((s, scene, columns));
     }
-    let mut scenes = std::collections::BTreeSet::new();
+    // Columns in display order: frames by index; otherwise by the scene's place in `only`
+    // (if given), then by name (a scene's sequences in folder order).
+    let mut order: Vec<((usize, String), String)> = Vec::new();
+    let mut scored = std::collections::BTreeSet::new();
     let mut rows = Vec::new();
     for m in &methods {
         let mut per: std::collections::BTreeMap<String, Cell> = Default::default();
-        for (s, scene) in seqs.iter().zip(&columns) {
+        for (s, scene, columns) in &chosen {
             let p = m.join(split).join(s.file_name().expect("a folder"));
-            if !p.is_dir() || !expected.contains_key(scene) {
+            if !p.is_dir() {
                 continue;
             }
-            let scene = scene.clone();
-            let sc = score(&p, s)?;
-            per.entry(scene.clone()).or_default().add((&sc).into());
-            scenes.insert(scene);
+            let scores = match by {
+                Columns::Frame => score_frames(&p, s)?,
+                _ => vec![score(&p, s)?],
+            };
+            for (i, (c, sc)) in columns.iter().zip(&scores).enumerate() {
+                per.entry(c.clone()).or_default().add(sc.into());
+                let key = match by {
+                    Columns::Frame => (i, String::new()),
+                    _ => (only.iter().position(|o| o == scene).unwrap_or(0), c.clone()),
+                };
+                if !order.iter().any(|(_, o)| o == c) {
+                    order.push((key, c.clone()));
+                }
+            }
+            scored.insert(scene.clone());
         }
         let name = m.file_name().expect("a folder").to_string_lossy().to_string();
-        for (scene, c) in &per {
-            if c.sequences < expected[scene] {
+        for (column, c) in &per {
+            if c.sequences < expected[column] {
                 eprintln!(
-                    "warning: {name} has predictions for {} of the {} {split} sequences of {scene} \
+                    "warning: {name} has predictions for {} of the {} {split} sequences of {column} \
                      (in {}): its cell covers those only",
                     c.sequences,
-                    expected[scene],
+                    expected[column],
                     m.display()
                 );
             }
         }
         rows.push((name, per));
     }
-    if only.is_empty() {
-        return Ok(Table {
-            scenes: scenes.into_iter().collect(),
-            rows,
-            expected,
-        });
-    }
-    let scored: std::collections::BTreeSet<&String> = scenes.iter().map(|c| &scene_of[c]).collect();
     if let Some(missing) = only.iter().find(|s| !scored.contains(*s)) {
         bail!(
             "--scenes: no predictions for scene '{missing}' in {} (scenes there: {})",
@@ -367,14 +417,9 @@ fn table(
             scored.iter().map(|s| s.as_str()).collect::<Vec<_>>().join(", ")
         );
     }
-    // The columns in the order of `only`, each scene's sequences in folder order.
-    let (scenes, scene_of) = (&scenes, &scene_of);
-    let ordered = only
-        .iter()
-        .flat_map(|scene| scenes.iter().filter(move |c| &scene_of[*c] == scene).cloned())
-        .collect();
+    order.sort();
     Ok(Table {
-        scenes: ordered,
+        scenes: order.into_iter().map(|(_, c)| c).collect(),
         rows,
         expected,
     })
@@ -382,7 +427,14 @@ fn table(
 
 pub(super) fn run(a: &EvalArgs) -> Result<()> {
     if a.table {
-        let t = table(&a.pred, &a.reference, &a.split, &a.scenes, a.per_sequence)?;
+        let by = if a.per_sequence {
+            Columns::Sequence
+        } else if a.per_frame {
+            Columns::Frame
+        } else {
+            Columns::Scene
+        };
+        let t = table(&a.pred, &a.reference, &a.split, &a.scenes, by)?;
         let (scenes, rows) = (&t.scenes, &t.rows);
         if a.json {
             let v: Vec<_> = rows
@@ -439,6 +491,16 @@ pub(super) fn run(a: &EvalArgs) -> Result<()> {
              error of - means a single frame or no motion vectors.",
             if a.per_sequence {
                 format!("one {} sequence a column", a.split)
+            } else if a.per_frame {
+                format!(
+                    "one frame index a column: the mean of that frame over the {} sequences{}",
+                    a.split,
+                    if a.scenes.is_empty() {
+                        String::new()
+                    } else {
+                        format!(" of {}", a.scenes.join(", "))
+                    }
+                )
             } else {
                 format!(
                     "mean over the {} sequences of each scene (procedural: of every procedural scene)",
