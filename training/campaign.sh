@@ -25,7 +25,8 @@
 #            (the committed JSON) in front.
 #   table    the held-out table: training/table1.sh over WORK/ds with the held-out columns
 #            (SCENES, default living-room,flight-helmet,barn-lamp,procedural), the engine
-#            scoring every SSR weights file as in table1.sh.
+#            scoring every SSR weights file as in table1.sh; then each column per frame
+#            index (PER_FRAME=1 by default; PER_FRAME= leaves it out).
 # DS (default WORK/ds) names another dataset root for every phase, e.g. a folder whose
 # train split links a subset of WORK/ds/train (an A/B arm without some sequences).
 # THREADS (default: all) limits the CPU threads of the renderer (RAYON_NUM_THREADS) and of
@@ -81,7 +82,8 @@ for phase in "$@"; do
         --title "SSR generic: training loss and held-out PSNR (CPU, $(date -u +%F))")
       ;;
     table)
-      SCENES="${SCENES:-living-room,flight-helmet,barn-lamp,procedural}" "$here/table1.sh" "$ds" "$work/pred"
+      SCENES="${SCENES:-living-room,flight-helmet,barn-lamp,procedural}" PER_FRAME="${PER_FRAME-1}" \
+        "$here/table1.sh" "$ds" "$work/pred"
       ;;
     *)
       echo "campaign.sh: unknown phase '$phase' (data, heldout, train, curve, table)" >&2

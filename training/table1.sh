@@ -18,6 +18,9 @@
 # SCENES=a,b,... restricts the table to those scene columns, in that order (`procedural` is
 # the mean over the procedural scenes), e.g. the held-out scenes:
 #   SCENES=living-room,flight-helmet,barn-lamp,procedural training/table1.sh ...
+# PER_FRAME=1 also prints, for each of those scenes (or for all test sequences together
+# without SCENES), the table with a column per frame index (`subpixel eval --per-frame`):
+# the first frames have no history, the later ones show what the temporal accumulation adds.
 set -euo pipefail
 here="$(cd "$(dirname "$0")" && pwd)"
 root="$(cd "$here/.." && pwd)"
@@ -74,3 +77,12 @@ done
 scene_args=()
 [ -n "${SCENES:-}" ] && scene_args=(--scenes "$SCENES")
 "$bin" eval --table --pred "$pred" --ref "$data" --split test "${scene_args[@]}"
+if [ -n "${PER_FRAME:-}" ]; then
+  IFS=, read -ra per_frame_scenes <<<"${SCENES:-}"
+  [ ${#per_frame_scenes[@]} -gt 0 ] || per_frame_scenes=("")
+  for sc in "${per_frame_scenes[@]}"; do
+    echo
+    echo "Per frame${sc:+, $sc}:"
+    "$bin" eval --table --per-frame --pred "$pred" --ref "$data" --split test ${sc:+--scenes "$sc"}
+  done
+fi
