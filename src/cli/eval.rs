@@ -370,7 +370,7 @@ fn table(
     }
     // Columns in display order: frames by index; otherwise by the scene's place in `only`
     // (if given), then by name (a scene's sequences in folder order).
-    let mut order: Vec<((usize, String), String)> = Vec::new();
+    let mut order = std::collections::BTreeSet::new();
     let mut scored = std::collections::BTreeSet::new();
     let mut rows = Vec::new();
     for m in &methods {
@@ -390,9 +390,7 @@ fn table(
                     Columns::Frame => (i, String::new()),
                     _ => (only.iter().position(|o| o == scene).unwrap_or(0), c.clone()),
                 };
-                if !order.iter().any(|(_, o)| o == c) {
-                    order.push((key, c.clone()));
-                }
+                order.insert((key, c.clone()));
             }
             scored.insert(scene.clone());
         }
@@ -417,7 +415,6 @@ fn table(
             scored.iter().map(|s| s.as_str()).collect::<Vec<_>>().join(", ")
         );
     }
-    order.sort();
     Ok(Table {
         scenes: order.into_iter().map(|(_, c)| c).collect(),
         rows,

@@ -299,6 +299,7 @@ pub fn render_command(args: &RenderArgs) -> Result<()> {
                 {
                     e.insert(format!("frame_{f:04}"), serde_json::json!(spp));
                 }
+                Ok(true)
             })?;
         }
         if args.png {
@@ -399,41 +400,35 @@ fn add_background(file: &Path, packed: &PackedScene, settings: &FrameSettings) -
 /// the `reference` and `reference_half` channels of its frames, written into
 /// `sequence.json` as `reference_noise` (per frame, mean and minimum).
 pub fn update_reference_noise(dir: &Path) -> Result<()> {
-    let json_path = dir.join("sequence.json");
-    let Ok(text) = std::fs::read_to_string(&json_path) else {
-        return Ok(()); // a shard's own sequence_NNNN.json: nothing shared to update
-    };
-    let json: serde_json::Value =
-        serde_json::from_str(&text).with_context(|| format!("cannot parse {}", json_path.display()))?;
-    let spp = json.get("reference_spp").and_then(|v| v.as_u64()).unwrap_or(0) as u32;
-    let mut per_frame = serde_json::Map::new();
-    let mut files: Vec<PathBuf> = std::fs::read_dir(dir)
-        .with_context(|| format!("cannot list {}", dir.display()))?
-        .filter_map(|e| e.ok().map(|e| e.path()))
-        .filter(|p| {
-            let n = p.file_name().and_then(|n| n.to_str()).unwrap_or("");
-            n.starts_with("frame_") && n.ends_with(".exr") && !n.ends_with(".partial.exr")
-        })
-        .collect();
-    files.sort();
-    let mut values = Vec::new();
-    for f in &files {
-        let ff = crate::io::exr::read_frame(f)?;
-        let (Some(r), Some(a)) = (ff.reference, ff.reference_half) else {
-            continue;
-        };
-        let psnr = crate::metrics::reference_halves_psnr(&r, &a, spp);
-        let name = f.file_stem().and_then(|n| n.to_str()).unwrap_or("").to_string();
-        per_frame.insert(name, serde_json::json!(psnr));
-        values.push(psnr);
-    }
-    if values.is_empty() {
-        return Ok(());
-    }
-    let finite: Vec<f64> = values.iter().copied().filter(|v| v.is_finite()).collect();
-    let mean = finite.iter().sum::<f64>() / finite.len().max(1) as f64;
-    let min = values.iter().copied().fold(f64::INFINITY, f64::min);
     update_sequence_json(dir, |o| {
+        let spp = o.get("reference_spp").and_then(|v| v.as_u64()).unwrap_or(0) as u32;
+        let mut per_frame = serde_json::Map::new();
+        let mut files: Vec<PathBuf> = std::fs::read_dir(dir)
+            .with_context(|| format!("cannot list {}", dir.display()))?
+            .filter_map(|e| e.ok().map(|e| e.path()))
+            .filter(|p| {
+                let n = p.file_name().and_then(|n| n.to_str()).unwrap_or("");
+                n.starts_with("frame_") && n.ends_with(".exr") && !n.ends_with(".partial.exr")
+            })
+            .collect();
+        files.sort();
+        let mut values = Vec::new();
+        for f in &files {
+            let ff = crate::io::exr::read_frame(f)?;
+            let (Some(r), Some(a)) = (ff.reference, ff.reference_half) else {
+                continue;
+            };
+            let psnr = crate::metrics::reference_halves_psnr(&r, &a, spp);
+            let name = f.file_stem().and_then(|n| n.to_str()).unwrap_or("").to_string();
+            per_frame.insert(name, serde_json::json!(psnr));
+            values.push(psnr);
+        }
+        if values.is_empty() {
+            return Ok(false);
+        }
+        let finite: Vec<f64> = values.iter().copied().filter(|v| v.is_finite()).collect();
+        let mean = finite.iter().sum::<f64>() / finite.len().max(1) as f64;
+        let min = values.iter().copied().fold(f64::INFINITY, f64::min);
         o.insert(
             "reference_noise".into(),
             serde_json::json!({
@@ -444,14 +439,16 @@ pub fn update_reference_noise(dir: &Path) -> Result<()> {
                 "per_frame": per_frame,
             }),
         );
+        Ok(true)
     })
 }
 
-/// Applies `change` to the object of `dir/sequence.json` and writes it back atomically; no
-/// `sequence.json` (a shard's own `sequence_NNNN.json`) is left alone.
+/// Applies `change` to the object of `dir/sequence.json` (read once) and, if it says it
+/// changed something, writes it back atomically; no `sequence.json` (a shard's own
+/// `sequence_NNNN.json`) is left alone.
 fn update_sequence_json(
     dir: &Path,
-    change: impl FnOnce(&mut serde_json::Map<String, serde_json::Value>),
+    change: impl FnOnce(&mut serde_json::Map<String, serde_json::Value>) -> Result<bool>,
 ) -> Result<()> {
     let json_path = dir.join("sequence.json");
     let Ok(text) = std::fs::read_to_string(&json_path) else {
@@ -459,8 +456,11 @@ fn update_sequence_json(
     };
     let mut json: serde_json::Value =
         serde_json::from_str(&text).with_context(|| format!("cannot parse {}", json_path.display()))?;
-    if let Some(o) = json.as_object_mut() {
-        change(o);
+    let Some(o) = json.as_object_mut() else {
+        return Ok(());
+    };
+    if !change(o)? {
+        return Ok(());
     }
     let tmp = dir.join("sequence.json.partial");
     std::fs::write(&tmp, serde_json::to_string_pretty(&json)?)
