@@ -614,6 +614,7 @@ pub fn tune(gpu: &Gpu, conv: &Conv3x3, w: u32, h: u32, storage: &LayerStorage) -
             return Ok((t.clone(), true));
         }
     }
+    announce_first_tuning(gpu);
     let started = std::time::Instant::now();
     let t = measure(gpu, conv, tw, th, storage, 1, TUNE_ITERATIONS)?;
     log::info!(
@@ -631,6 +632,26 @@ pub fn tune(gpu: &Gpu, conv: &Conv3x3, w: u32, h: u32, storage: &LayerStorage) -
     memory().lock().unwrap().insert(key.clone(), t.clone());
     store(&key, &t);
     Ok((t, false))
+}
+
+/// Says once per process, before the first layer shape is measured, what is happening and
+/// how long it may take: on a CPU driver every candidate compiles at its first dispatch, and
+/// a first tuning of the SSR network with Mesa's shader cache empty took about 20 minutes on a
+/// 2-core machine (README Performance).
+fn announce_first_tuning(gpu: &Gpu) {
+    static ONCE: std::sync::Once = std::sync::Once::new();
+    ONCE.call_once(|| {
+        let cost = if gpu.kind() == AdapterKind::Cpu {
+            "on a CPU driver each candidate kernel compiles first: about 20 minutes for the SSR network on a 2-core machine the first time, about a minute once the driver's shader cache holds the kernels"
+        } else {
+            "seconds per layer shape"
+        };
+        log::info!(
+            "autotuning the convolutions on {} (once per adapter, driver and layer shape; {cost}; \
+             {ENV_KERNEL}=px8-cob4 or another kernel skips it)",
+            gpu.describe()
+        );
+    });
 }
 
 /// The kernel `conv` runs on for a `w x h` layer with `storage` under `choice`.

@@ -1,0 +1,59 @@
+#!/usr/bin/env bash
+# Engine validation of SSR weights files, the score the training rounds' pre-registered rules
+# choose by (weights/README.md): the WGSL engine (`subpixel denoise`, with the background and
+# the mean correction as shipped) over every val sequence of DATASET, scored by `subpixel
+# eval --table --split val`, whose `mean` column (the mean over the scene columns, the
+# procedural scenes one column) is the figure the rules compare.
+#
+#   training/engine_val.sh DATASET PRED [NAME=]WEIGHTS [[NAME=]WEIGHTS ...]
+#
+# Each model's output goes to PRED/NAME/val (NAME defaults to the file's name without
+# .safetensors); sequences already denoised there are kept, so an interrupted run continues
+# and a second call adds rows. EXTRA=DIR,... adds rows already in other folders (e.g. OIDN's
+# val output from `python -m ssr.evaluate --split val --out DIR`: its method folders are
+# linked into PRED). PER_FRAME=1 also prints the table with a column per frame index.
+set -euo pipefail
+here="$(cd "$(dirname "$0")" && pwd)"
+root="$(cd "$here/.." && pwd)"
+usage="usage: engine_val.sh DATASET PRED [NAME=]WEIGHTS [...]"
+data="$(realpath "${1:?$usage}")"
+pred="$(realpath -m "${2:?$usage}")"
+shift 2
+[ $# -gt 0 ] || { echo "engine_val.sh: name at least one weights file ($usage)" >&2; exit 2; }
+[ -d "$data/val" ] || { echo "engine_val.sh: $data/val: no such folder (a dataset with a val split)" >&2; exit 2; }
+bin="${SUBPIXEL:-$root/target/release/subpixel}"
+if [ -z "${SUBPIXEL:-}" ]; then
+  cargo build --release --quiet --manifest-path "$root/Cargo.toml"
+fi
+mkdir -p "$pred"
+for arg in "$@"; do
+  if [[ "$arg" == *=* ]]; then name="${arg%%=*}"; weights="${arg#*=}"; else
+    weights="$arg"; name="$(basename "$arg" .safetensors)"; fi
+  [ -f "$weights" ] || { echo "engine_val.sh: $weights: no such weights file" >&2; exit 2; }
+  for seq in "$data"/val/*/; do
+    [ -f "$seq/sequence.json" ] || continue
+    out="$pred/$name/val/$(basename "$seq")"
+    n_ref=$(find "$seq" -maxdepth 1 -name 'frame_*.exr' | wc -l)
+    if [ -d "$out" ] && [ "$(find "$out" -maxdepth 1 -name 'frame_*.exr' | wc -l)" = "$n_ref" ]; then
+      continue
+    fi
+    rm -rf "$out.tmp"
+    "$bin" denoise --weights "$weights" --input "$seq" --out "$out.tmp" >/dev/null
+    rm -rf "$out"
+    mv "$out.tmp" "$out"
+  done
+done
+if [ -n "${EXTRA:-}" ]; then
+  IFS=, read -ra extra <<<"$EXTRA"
+  for dir in "${extra[@]}"; do
+    for m in "$dir"/*/; do
+      [ -d "$m/val" ] && [ ! -e "$pred/$(basename "$m")" ] && ln -s "$(realpath "$m")" "$pred/$(basename "$m")"
+    done
+  done
+fi
+"$bin" eval --table --pred "$pred" --ref "$data" --split val
+if [ -n "${PER_FRAME:-}" ]; then
+  echo
+  echo "Per frame:"
+  "$bin" eval --table --per-frame --pred "$pred" --ref "$data" --split val
+fi
