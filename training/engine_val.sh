@@ -3,7 +3,9 @@
 # choose by (weights/README.md): the WGSL engine (`subpixel denoise`, with the background and
 # the mean correction as shipped) over every val sequence of DATASET, scored by `subpixel
 # eval --table --split val`, whose `mean` column (the mean over the scene columns, the
-# procedural scenes one column) is the figure the rules compare.
+# procedural scenes one column) holds the PSNR and SSIM the rules compare. (The engine-val
+# brightness figures in weights/README are the mean of the `--json` cells' `brightness`,
+# |ln(P/R)|, times 100; the table prints exp of the mean minus 1.)
 #
 #   training/engine_val.sh DATASET PRED [NAME=]WEIGHTS [[NAME=]WEIGHTS ...]
 #
