@@ -648,7 +648,7 @@ fn announce_first_tuning(gpu: &Gpu) {
         };
         log::info!(
             "autotuning the convolutions on {} (once per adapter, driver and layer shape; {cost}; \
-             {ENV_KERNEL}=px8-cob4 or another kernel skips it)",
+             {ENV_KERNEL}=px16-cob1, a tiling every layer can run, skips it)",
             gpu.describe()
         );
     });
