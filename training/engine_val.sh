@@ -39,10 +39,9 @@ for arg in "$@"; do
     if [ -d "$out" ] && [ "$(find "$out" -maxdepth 1 -name 'frame_*.exr' | wc -l)" = "$n_ref" ]; then
       continue
     fi
-    rm -rf "$out.tmp"
-    "$bin" denoise --weights "$weights" --input "$seq" --out "$out.tmp" >/dev/null
-    rm -rf "$out"
-    mv "$out.tmp" "$out"
+    # (`subpixel denoise` writes each frame atomically: an interrupted sequence has fewer
+    # frames than its input and is denoised again here)
+    "$bin" denoise --weights "$weights" --input "$seq" --out "$out" >/dev/null
   done
 done
 if [ -n "${EXTRA:-}" ]; then
