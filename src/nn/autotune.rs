@@ -629,9 +629,31 @@ pub fn tune(gpu: &Gpu, conv: &Conv3x3, w: u32, h: u32, storage: &LayerStorage) -
             .map(|f| f.display().to_string())
             .unwrap_or_else(|| "memory only".into())
     );
-    memory().lock().unwrap().insert(key.clone(), t.clone());
-    store(&key, &t);
+    // Another thread may have tuned the same shape meanwhile: the first result stays, so
+    // every network of the process runs a shape on one kernel (and sums in one order).
+    let (t, first) = {
+        let mut memory = memory().lock().unwrap();
+        let first = !memory.contains_key(&key);
+        (memory.entry(key.clone()).or_insert(t).clone(), first)
+    };
+    if first {
+        store(&key, &t);
+    }
     Ok((t, false))
+}
+
+/// `measure()` (milliseconds) once per process and `key`, the later calls answering from
+/// memory: for timings that steer a choice outside the tuning cache (e.g. whether the
+/// pooled levels get passes of their own), so that every network built in a process
+/// makes the same choice.
+pub fn timed_once(key: String, measure: impl FnOnce() -> Result<f64>) -> Result<f64> {
+    static TIMES: OnceLock<Mutex<BTreeMap<String, f64>>> = OnceLock::new();
+    let times = TIMES.get_or_init(Default::default);
+    if let Some(&ms) = times.lock().unwrap().get(&key) {
+        return Ok(ms);
+    }
+    let ms = measure()?;
+    Ok(*times.lock().unwrap().entry(key).or_insert(ms))
 }
 
 /// Says once per process, before the first layer shape is measured, what is happening and

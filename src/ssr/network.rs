@@ -220,12 +220,15 @@ fn pool_pass(
         passes += tuned? * l.runs as f64;
         for (i, f) in fetch.iter().enumerate() {
             if let Fetch::Pool(mode) = *f {
-                let dtype = storage.inputs[i];
-                let input = Tensor::new_typed(gpu, "pooling.in", 2 * lw, 2 * lh, l.inputs[i], dtype)?;
-                let out = Tensor::new_typed(gpu, "pooling.out", lw, lh, l.inputs[i], dtype)?;
-                let d = ops::pool2x2(gpu, mode, &input, &out)?;
-                let (stats, _) = time_dispatch(gpu, &d, 1, autotune::TUNE_ITERATIONS)?;
-                passes += stats.median_ms * l.runs as f64;
+                let (dtype, c) = (storage.inputs[i], l.inputs[i]);
+                let key = format!("{} pool2x2 {mode:?} {lw}x{lh}x{c} {dtype:?}", gpu.describe());
+                let ms = autotune::timed_once(key, || {
+                    let input = Tensor::new_typed(gpu, "pooling.in", 2 * lw, 2 * lh, c, dtype)?;
+                    let out = Tensor::new_typed(gpu, "pooling.out", lw, lh, c, dtype)?;
+                    let d = ops::pool2x2(gpu, mode, &input, &out)?;
+                    Ok(time_dispatch(gpu, &d, 1, autotune::TUNE_ITERATIONS)?.0.median_ms)
+                })?;
+                passes += ms * l.runs as f64;
             }
         }
     }
