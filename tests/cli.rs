@@ -979,6 +979,7 @@ fn denoise_uses_the_frames_background() {
         frame.background = Some(subpixel::frame::Background {
             radiance: HostTensor::from_fn(w, h, 3, |x, _, c| if sky(x) { 0.5 + c as f32 } else { 0.0 }),
             coverage: HostTensor::from_fn(w, h, 1, |x, _, _| sky(x) as u32 as f32),
+            albedo: None,
         });
         write_frame(&with.join(&name), &f).unwrap();
     }

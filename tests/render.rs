@@ -752,6 +752,19 @@ fn render_command_writes_exr_frames() {
                 &before.full
             )
         );
+        // A background written before the footprint albedo existed gets the albedo added
+        // on resume, its radiance and coverage kept as they are.
+        let albedo = added.albedo.clone().expect("footprint albedo added");
+        assert_eq!((albedo.width, albedo.height, albedo.channels), (9, 7, 3));
+        let mut old = read(1);
+        let b = old.frame.as_mut().unwrap().background.as_mut().unwrap();
+        b.albedo = None;
+        b.radiance.data.iter_mut().for_each(|v| *v += 1.0);
+        let kept = b.radiance.clone();
+        subpixel::io::exr::write_frame(&out.join("frame_0001.exr"), &old).unwrap();
+        render_command(&args).unwrap();
+        let again = read(1).frame.unwrap().background.unwrap();
+        assert_eq!((&again.radiance, &again.albedo), (&kept, &Some(albedo)));
         let (bg, cov) = (added.radiance, added.coverage);
         assert_eq!((bg.width, bg.height, bg.channels, cov.channels), (9, 7, 3, 1));
         assert!(cov.data.iter().all(|c| (0.0..=1.0).contains(c)));
@@ -777,6 +790,7 @@ fn render_command_writes_exr_frames() {
             "{backend:?}: coverage agrees at {same} of {} pixels",
             cov.data.len()
         );
+        assert!(fresh.albedo.is_some(), "{backend:?}: footprint albedo written");
         if backend == Backend::Cpu {
             assert_eq!((&fresh.radiance, &fresh.coverage), (&bg, &cov));
         }

@@ -855,6 +855,7 @@ fn background_composites_by_coverage() {
         background: Some(Background {
             radiance: radiance.clone(),
             coverage: coverage.clone(),
+            albedo: None,
         }),
         ..f0.clone()
     };
@@ -896,6 +897,7 @@ fn background_composites_by_coverage() {
         background: Some(Background {
             radiance: HostTensor::zeros(w - 1, h, 3),
             coverage: HostTensor::zeros(w - 1, h, 1),
+            albedo: None,
         }),
         ..f1
     };
@@ -939,7 +941,11 @@ fn mean_correction_scales_each_tile_to_its_samples() {
             let coverage = HostTensor::from_fn(w, h, 1, |x, y, _| [0.0, 0.5, 1.0][((x + y) % 3) as usize]);
             let radiance =
                 HostTensor::from_fn(w, h, 3, |x, y, c| 0.3 * (c + 1) as f32 * coverage.at(x, y, 0));
-            Background { radiance, coverage }
+            Background {
+                radiance,
+                coverage,
+                albedo: None,
+            }
         });
         f.background = background.clone();
         let want = plain.denoise_host(&f).unwrap();

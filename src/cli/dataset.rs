@@ -48,8 +48,9 @@ pub(super) struct DatasetArgs {
     /// times `--reference-spp`).
     #[arg(long, value_name = "SPP", requires = "reference_noise_target")]
     reference_spp_max: Option<u32>,
-    /// Also store each frame's directly seen environment (`background`, `coverage`) from
-    /// N x N lookups per pixel; frames already rendered without it get it added.
+    /// Also store each frame's directly seen environment (`background`, `coverage`) and
+    /// footprint albedo (`albedo_footprint`) from N x N camera rays per pixel; frames
+    /// already rendered without them get them added.
     #[arg(long, value_name = "N", value_parser = clap::value_parser!(u32).range(1..))]
     background: Option<u32>,
     /// Largest number of path segments.

@@ -8,7 +8,6 @@ use std::time::Instant;
 
 use anyhow::{Context, Result, bail};
 
-use crate::frame::Background;
 use crate::gpu::Gpu;
 use crate::io::exr::FrameFile;
 use crate::nn::HostTensor;
@@ -81,10 +80,11 @@ pub struct RenderArgs {
     #[arg(long)]
     pub full_spp: bool,
     /// Also store the directly seen environment averaged over each pixel's footprint
-    /// (`background` channels) and the fraction of the footprint that escapes (`coverage`),
-    /// from N x N stratified lookups per pixel (no path tracing; the denoiser composites
-    /// it). With `--resume`, frames written before without them get them added (by the CPU
-    /// twin).
+    /// (`background` channels), the fraction of the footprint that escapes (`coverage`) and
+    /// the first-hit base colour averaged over it (`albedo_footprint`), from N x N
+    /// stratified camera rays per pixel (no path tracing; the denoiser composites the
+    /// background). With `--resume`, frames written before without them get them added (by
+    /// the CPU twin).
     #[arg(long, value_name = "N", value_parser = clap::value_parser!(u32).range(1..))]
     pub background: Option<u32>,
     /// Camera path when neither `--path` nor the scene gives one (set by `subpixel
@@ -378,21 +378,27 @@ fn write_frame_atomically(file: &Path, ff: &FrameFile) -> Result<()> {
     Ok(())
 }
 
-/// Adds the background (`background` and `coverage` channels, `CpuTracer::background`
-/// with `settings.background` lookups per pixel axis) to the frame file `file` when it
-/// lacks one (a frame rendered before `--background` existed), rewriting it atomically.
+/// Adds the background (`background`, `coverage` and `albedo_footprint` channels,
+/// `CpuTracer::background` with `settings.background` lookups per pixel axis) to the frame
+/// file `file` when it lacks one (a frame rendered before `--background` existed), and the
+/// footprint albedo alone to a background without it (one written before the footprint
+/// albedo existed: its radiance and coverage are kept as they are), rewriting the file
+/// atomically; a frame that has both is left alone.
 fn add_background(file: &Path, packed: &PackedScene, settings: &FrameSettings) -> Result<()> {
     let mut ff = crate::io::exr::read_frame(file)?;
     let frame = ff
         .frame
         .as_mut()
         .with_context(|| format!("{}: a frame file without the renderer's buffers", file.display()))?;
-    if frame.background.is_some() {
+    if frame.background.as_ref().is_some_and(|b| b.albedo.is_some()) {
         return Ok(());
     }
     let (w, h) = frame.size()?;
-    let (radiance, coverage) = CpuTracer::new(w, h)?.background(packed, settings)?;
-    frame.background = Some(Background { radiance, coverage });
+    let made = CpuTracer::new(w, h)?.background(packed, settings)?;
+    match &mut frame.background {
+        Some(b) => b.albedo = made.albedo,
+        None => frame.background = Some(made),
+    }
     write_frame_atomically(file, &ff)
 }
 

@@ -42,6 +42,11 @@ pub struct Background {
     pub radiance: HostTensor,
     /// Fraction of the footprint that escapes, in [0, 1] (1).
     pub coverage: HostTensor,
+    /// First-hit base colour averaged over the same footprint rays (the G-buffer's albedo
+    /// with sky 1, box-filtered over the pixel) (3): what the reference's albedo is, where
+    /// the G-buffer's `albedo` is the value at the pixel centre. `None` in frame files
+    /// written before it existed (`subpixel dataset --background N --resume` adds it).
+    pub albedo: Option<HostTensor>,
 }
 
 impl HostFrame {
@@ -81,10 +86,11 @@ impl HostFrame {
     /// them and the right channels.
     pub fn size(&self) -> Result<(u32, u32)> {
         let (w, h) = (self.color.width, self.color.height);
-        let background = self
-            .background
-            .iter()
-            .flat_map(|b| [("background", &b.radiance, 3), ("coverage", &b.coverage, 1)]);
+        let background = self.background.iter().flat_map(|b| {
+            [("background", &b.radiance, 3), ("coverage", &b.coverage, 1)]
+                .into_iter()
+                .chain(b.albedo.iter().map(|a| ("albedo_footprint", a, 3)))
+        });
         for (name, t, c) in self.fields().into_iter().chain(background) {
             if (t.width, t.height, t.channels) != (w, h, c) {
                 return Err(Error::shape(

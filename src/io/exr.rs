@@ -262,6 +262,9 @@ pub fn write_frame(path: &Path, f: &FrameFile) -> Result<()> {
         if let Some(b) = &frame.background {
             tensors.push(("background", &b.radiance));
             tensors.push(("coverage", &b.coverage));
+            if let Some(a) = &b.albedo {
+                tensors.push(("albedo_footprint", a));
+            }
         }
     }
     if let Some(r) = &f.reference {
@@ -281,7 +284,8 @@ pub fn write_frame(path: &Path, f: &FrameFile) -> Result<()> {
 
 /// Reads a frame file. The renderer's buffers are all-or-nothing: a file with some of
 /// them is an error naming the first missing channel; so are the optional background's
-/// two (`background`, `coverage`), which belong to the renderer's buffers.
+/// two (`background`, `coverage`), which belong to the renderer's buffers, and its
+/// optional footprint albedo (`albedo_footprint`), which belongs to the background.
 pub fn read_frame(path: &Path) -> Result<FrameFile> {
     let (w, h, chans) = read_channels(path)?;
     let get = |name: &str, c: u32| gather(path, w, h, &chans, name, c);
@@ -289,8 +293,19 @@ pub fn read_frame(path: &Path) -> Result<FrameFile> {
     let pred = get("pred", 3)?;
     let reference_half = get("reference_half", 3)?;
     let full = get("full", 3)?;
+    let albedo = get("albedo_footprint", 3)?;
     let background = match (get("background", 3)?, get("coverage", 1)?) {
-        (Some(radiance), Some(coverage)) => Some(Background { radiance, coverage }),
+        (Some(radiance), Some(coverage)) => Some(Background {
+            radiance,
+            coverage,
+            albedo,
+        }),
+        (None, None) if albedo.is_some() => {
+            return Err(Error::File {
+                path: path.to_path_buf(),
+                message: "channels 'albedo_footprint.RGB' without the background they belong to (background.RGB, coverage.Y)".into(),
+            });
+        }
         (None, None) => None,
         (r, _) => {
             let missing = if r.is_none() { "background.R" } else { "coverage.Y" };
@@ -403,6 +418,7 @@ mod tests {
                 background: Some(Background {
                     radiance: HostTensor::from_fn(7, 5, 3, |x, y, c| (x * c + y) as f32 * 0.5),
                     coverage: HostTensor::from_fn(7, 5, 1, |x, _, _| x as f32 / 6.0),
+                    albedo: Some(HostTensor::from_fn(7, 5, 3, |x, y, c| (x + y + c) as f32 * 0.1)),
                 }),
                 ..frame(7, 5)
             }),
@@ -415,6 +431,11 @@ mod tests {
         };
         write_frame(&path, &f).unwrap();
         assert_eq!(read_frame(&path).unwrap(), f);
+        // A background without the footprint albedo (files from before it existed).
+        let mut old = f.clone();
+        old.frame.as_mut().unwrap().background.as_mut().unwrap().albedo = None;
+        write_frame(&path, &old).unwrap();
+        assert_eq!(read_frame(&path).unwrap(), old);
         // Only a prediction.
         let p = FrameFile {
             pred: Some(HostTensor::from_fn(7, 5, 3, |x, y, c| (x * y + c) as f32)),
@@ -478,6 +499,16 @@ mod tests {
         let e = read_err(&path);
         assert!(
             e.contains("frame_0001.exr") && e.contains("'motion.X' is missing"),
+            "{e}"
+        );
+        // The footprint albedo without its background.
+        let albedo = HostTensor::zeros(4, 4, 3);
+        let mut all: Vec<(&str, &HostTensor)> = fields.iter().map(|(n, t, _)| (*n, *t)).collect();
+        all.push(("albedo_footprint", &albedo));
+        write_tensors(&path, &all).unwrap();
+        let e = read_err(&path);
+        assert!(
+            e.contains("frame_0001.exr") && e.contains("'albedo_footprint.RGB' without the background"),
             "{e}"
         );
         let e = read_err(&dir.join("nope.exr"));

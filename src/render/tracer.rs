@@ -73,6 +73,9 @@ pub struct FrameBuffers {
     /// (directly seen environment averaged over the pixel's footprint; coverage), present
     /// after a frame rendered with [`FrameSettings::background`] > 0.
     pub background: Option<Tensor>,
+    /// (first-hit base colour averaged over the same footprint rays as the background, sky
+    /// 1; 0), present with the background.
+    pub albedo_footprint: Option<Tensor>,
 }
 
 impl FrameBuffers {
@@ -100,6 +103,7 @@ impl FrameBuffers {
             transparent: t("frame.transparent")?,
             motion: t("frame.motion")?,
             background: None,
+            albedo_footprint: None,
         })
     }
 
@@ -124,9 +128,14 @@ impl FrameBuffers {
         let background = match &self.background {
             Some(b) => {
                 let bc = b.read(gpu)?;
+                let albedo = match &self.albedo_footprint {
+                    Some(a) => Some(channels(&a.read(gpu)?, &[0, 1, 2])),
+                    None => None,
+                };
                 Some(Background {
                     radiance: channels(&bc, &[0, 1, 2]),
                     coverage: channels(&bc, &[3]),
+                    albedo,
                 })
             }
             None => None,
@@ -268,32 +277,37 @@ impl Tracer {
         )
     }
 
-    /// Makes [`FrameBuffers::background`] when frame `s` has a background
-    /// (`s.background` > 0), drops it when not, so the denoiser never reads a stale one.
+    /// Makes [`FrameBuffers::background`] and [`FrameBuffers::albedo_footprint`] when frame
+    /// `s` has a background (`s.background` > 0), drops them when not, so the denoiser
+    /// never reads a stale one.
     fn prepare_background(&mut self, s: &FrameSettings) -> Result<()> {
+        let b = &mut self.buffers;
         if s.background == 0 {
-            self.buffers.background = None;
-        } else if self.buffers.background.is_none() {
-            let (w, h) = (self.width(), self.height());
-            self.buffers.background = Some(Tensor::new(&self.gpu, "frame.background", w, h, 4)?);
+            b.background = None;
+            b.albedo_footprint = None;
+        } else if b.background.is_none() || b.albedo_footprint.is_none() {
+            let (w, h) = (b.width(), b.height());
+            b.background = Some(Tensor::new(&self.gpu, "frame.background", w, h, 4)?);
+            b.albedo_footprint = Some(Tensor::new(&self.gpu, "frame.albedo_footprint", w, h, 4)?);
         }
         Ok(())
     }
 
     /// The background dispatch of frame `s` (`s.background` lookups per pixel axis),
-    /// writing [`FrameBuffers::background`] (made by a frame with a background first).
+    /// writing [`FrameBuffers::background`] and [`FrameBuffers::albedo_footprint`] (made by
+    /// a frame with a background first).
     pub fn background_dispatch(&self, scene: &GpuScene, s: &FrameSettings) -> Result<Dispatch> {
         let (w, h) = (self.width(), self.height());
-        let b = self.buffers.background.as_ref().ok_or_else(|| {
-            Error::Invalid(
+        let (Some(b), Some(a)) = (&self.buffers.background, &self.buffers.albedo_footprint) else {
+            return Err(Error::Invalid(
                 "background_dispatch: the frame buffers have no background (settings.background is 0)".into(),
-            )
-        })?;
+            ));
+        };
         self.gpu.kernels.dispatch(
             "trace/background",
             &Specialisation::none(),
             bytemuck::bytes_of(&self.params(s, [0, 1])),
-            &scene.bindings(&[&b.buffer]),
+            &scene.bindings(&[&b.buffer, &a.buffer]),
             Grid::pixels(w, h),
         )
     }

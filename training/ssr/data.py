@@ -104,11 +104,15 @@ EXTRA_SUFFIXES: Dict[str, Tuple[str, ...]] = {
     "reference_half": ("R", "G", "B"),
     "background": ("R", "G", "B"),
     "coverage": ("Y",),
+    "albedo_footprint": ("R", "G", "B"),
 }
 """Buffers some datasets also hold, loaded on request (`SequenceDataset(extra=...)`): `full`
 (the 1-spp frame of the recipe), `reference_half` (the mean of the reference's first half
 of samples), `background` and `coverage` (the directly seen environment over each pixel's
-footprint and the fraction that escapes: `subpixel dataset --background N`)."""
+footprint and the fraction that escapes: `subpixel dataset --background N`), and
+`albedo_footprint` (the first-hit base colour averaged over the same footprint, sky 1:
+written with the background since it existed, added to older frames by re-running the
+same `dataset --background N` command)."""
 
 
 def layout(extra: Sequence[str] = ()) -> Tuple[Tuple[str, ...], Dict[str, Tuple[int, int]]]:

@@ -1,13 +1,15 @@
-// The optional background buffer (DESIGN.md section 3): per pixel, the environment seen
-// directly through the pixel's footprint, averaged over n x n stratified camera rays
-// (n = p.accum.z; rays that hit anything, transmissive surfaces included, count 0), and the
-// fraction of those rays that escape (the coverage). Where the coverage is 1 this is the
+// The optional background buffer (DESIGN.md section 3) and the footprint albedo: per pixel,
+// over n x n stratified camera rays through the pixel's footprint (n = p.accum.z), the
+// environment seen directly (rays that hit anything, transmissive surfaces included, count
+// 0), the fraction of those rays that escape (the coverage), and the mean first-hit base
+// colour (the G-buffer's albedo, sky 1). Where the coverage is 1 the background is the
 // pixel's radiance, estimated with n x n environment lookups instead of path samples.
 // CPU twin: `background_pixel` in src/render/cpu/integrator.rs.
 
 @group(0) @binding(0) var<uniform> p: FrameParams;
 // The scene at bindings 1-7 (trace/lib/scene.wgsl).
 @group(0) @binding(8) var<storage, read_write> background: array<vec4<f32>>;
+@group(0) @binding(9) var<storage, read_write> albedo_footprint: array<vec4<f32>>;
 
 @compute @workgroup_size(8, 8, 1)
 fn main(@builtin(global_invocation_id) gid: vec3<u32>) {
@@ -18,6 +20,7 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>) {
     let size = vec2<f32>(p.size.xy);
     let o = p.cam.pos.xyz;
     var sum = vec3<f32>(0.0);
+    var albedo = vec3<f32>(0.0);
     var escaped = 0u;
     for (var j = 0u; j < n; j++) {
         for (var i = 0u; i < n; i++) {
@@ -26,12 +29,18 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>) {
                 f32(gid.y) + (f32(j) + 0.5) / f32(n),
             );
             let d = camera_dir(p.cam, px, size);
-            if (traverse(o, d, BIG, false, NO_HIT).prim == NO_HIT) {
+            let hit = traverse(o, d, BIG, false, NO_HIT);
+            if (hit.prim == NO_HIT) {
                 escaped += 1u;
                 sum += env_radiance(d); // 0 without an environment
+                albedo += vec3<f32>(1.0);
+            } else {
+                albedo += surface_at(hit, d).base;
             }
         }
     }
     let count = f32(n * n);
-    background[gid.y * p.size.x + gid.x] = vec4<f32>(sum / count, f32(escaped) / count);
+    let at = gid.y * p.size.x + gid.x;
+    background[at] = vec4<f32>(sum / count, f32(escaped) / count);
+    albedo_footprint[at] = vec4<f32>(albedo / count, 0.0);
 }

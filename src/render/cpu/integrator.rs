@@ -277,9 +277,11 @@ pub(crate) fn primary_dir(p: &Params, x: u32, y: u32) -> Vec3 {
     camera_dir(&p.cam, Vec2::new(x as f32 + 0.5, y as f32 + 0.5), size)
 }
 
-/// The directly seen environment of pixel (x, y): the mean over `n x n` stratified positions
-/// in the pixel of the environment radiance along the camera rays that escape (0 for those
-/// that hit anything, transmissive surfaces included), and the fraction that escape.
+/// The footprint values of pixel (x, y) (WGSL `background.wgsl`), over `n x n` stratified
+/// positions in the pixel: the directly seen environment (the mean of the environment
+/// radiance along the camera rays that escape, 0 for those that hit anything, transmissive
+/// surfaces included), the fraction that escape, and the mean first-hit base colour (the
+/// G-buffer's albedo, sky 1).
 pub(crate) fn background_pixel(
     sc: &PackedScene,
     ei: &EnvInfo,
@@ -288,10 +290,10 @@ pub(crate) fn background_pixel(
     y: u32,
     n: u32,
     rays: &mut u64,
-) -> (Vec3, f32) {
+) -> (Vec3, f32, Vec3) {
     let size = Vec2::new(p.width as f32, p.height as f32);
     let o = v3(p.cam.pos);
-    let (mut sum, mut escaped) = (Vec3::ZERO, 0u32);
+    let (mut sum, mut escaped, mut albedo) = (Vec3::ZERO, 0u32, Vec3::ZERO);
     for j in 0..n {
         for i in 0..n {
             let px = Vec2::new(
@@ -299,14 +301,18 @@ pub(crate) fn background_pixel(
                 y as f32 + (j as f32 + 0.5) / n as f32,
             );
             let d = camera_dir(&p.cam, px, size);
-            if traverse(sc, o, d, BIG, false, NO_HIT, rays).prim == NO_HIT {
+            let hit = traverse(sc, o, d, BIG, false, NO_HIT, rays);
+            if hit.prim == NO_HIT {
                 escaped += 1;
                 sum += env_radiance(sc, ei, d); // 0 without an environment
+                albedo += Vec3::ONE;
+            } else {
+                albedo += surface_at(sc, &hit, d).base;
             }
         }
     }
     let count = (n * n) as f32;
-    (sum / count, escaped as f32 / count)
+    (sum / count, escaped as f32 / count, albedo / count)
 }
 
 /// The G-buffer values of pixel (x, y) whose primary ray (direction `d`) has hit `hit`.

@@ -266,8 +266,7 @@ impl CpuTracer {
         }
         debug_assert_eq!(i, n);
         if s.background > 0 {
-            let (radiance, coverage) = self.background(scene, s)?;
-            f.background = Some(Background { radiance, coverage });
+            f.background = Some(self.background(scene, s)?);
         }
         let samples = match s.mode {
             Mode::Quarter => (w.div_ceil(2) as u64) * (h.div_ceil(2) as u64),
@@ -276,14 +275,15 @@ impl CpuTracer {
         Ok((f, FrameStats { rays, samples }))
     }
 
-    /// The background buffer of frame `s` ([`crate::frame::Background`]): per pixel, the
-    /// mean over `s.background x s.background` stratified positions in the pixel of the
+    /// The background buffer of frame `s` ([`crate::frame::Background`]): per pixel, over
+    /// `s.background x s.background` stratified positions in the pixel, the mean of the
     /// environment radiance along the camera rays that escape the scene (0 for rays that
-    /// hit anything, glass included), as `(background, coverage)`: 3 and 1 channels,
-    /// coverage the fraction that escape. Where the coverage is 1 the background is the
-    /// pixel's radiance, estimated with lookups instead of path samples. The reference of
-    /// the WGSL tracer's `trace/background` pass; an error when `s.background` is 0.
-    pub fn background(&self, scene: &PackedScene, s: &FrameSettings) -> Result<(HostTensor, HostTensor)> {
+    /// hit anything, glass included), the fraction that escape (coverage) and the mean
+    /// first-hit base colour (the footprint albedo, sky 1). Where the coverage is 1 the
+    /// background is the pixel's radiance, estimated with lookups instead of path samples.
+    /// The reference of the WGSL tracer's `trace/background` pass; an error when
+    /// `s.background` is 0.
+    pub fn background(&self, scene: &PackedScene, s: &FrameSettings) -> Result<Background> {
         let n = s.background;
         if n == 0 {
             return Err(Error::Invalid(
@@ -293,19 +293,21 @@ impl CpuTracer {
         let (w, h) = (self.width, self.height);
         let p = self.params(s, s.seed);
         let ei = EnvInfo::new(scene);
-        let px: Vec<(glam::Vec3A, f32)> = (0..h)
+        let px: Vec<(glam::Vec3A, f32, glam::Vec3A)> = (0..h)
             .into_par_iter()
             .flat_map_iter(|y| {
                 let (p, ei) = (&p, &ei);
                 (0..w).map(move |x| integrator::background_pixel(scene, ei, p, x, y, n, &mut 0))
             })
             .collect();
-        let background = px.iter().flat_map(|(b, _)| b.to_array()).collect();
-        let coverage = px.iter().map(|(_, c)| *c).collect();
-        Ok((
-            HostTensor::from_vec(w, h, 3, background),
-            HostTensor::from_vec(w, h, 1, coverage),
-        ))
+        let radiance = px.iter().flat_map(|(b, _, _)| b.to_array()).collect();
+        let coverage = px.iter().map(|(_, c, _)| *c).collect();
+        let albedo = px.iter().flat_map(|(_, _, a)| a.to_array()).collect();
+        Ok(Background {
+            radiance: HostTensor::from_vec(w, h, 3, radiance),
+            coverage: HostTensor::from_vec(w, h, 1, coverage),
+            albedo: Some(HostTensor::from_vec(w, h, 3, albedo)),
+        })
     }
 
     /// Radiance of samples `first .. first + count` per pixel of frame `s` with `seed`.
