@@ -30,10 +30,15 @@
 //! # Ok(()) }
 //! ```
 
-use crate::error::Result;
+use crate::error::{Error, Result};
 use crate::gpu::{Gpu, Profiler};
 use crate::render::{FrameSettings, GpuScene, Tracer};
-use crate::ssr::{Denoiser, Granularity, Weights};
+use crate::ssr::{AlbedoSource, Denoiser, Granularity, Weights};
+
+/// Camera rays per pixel axis of the background pass a model of config albedo "footprint"
+/// needs in every frame, when the frame has no background of its own (2 x 2: the footprint
+/// albedo's error is then that of a 2x2 supersampled G-buffer).
+pub const FOOTPRINT_RAYS: u32 = 2;
 
 /// The timed passes of a frame, in order: the tracer's (`background` only in frames with
 /// a background), then the denoiser's.
@@ -59,8 +64,10 @@ impl FrameLoop {
     /// Records frame `s` of `scene` into `encoder`: the tracer's `gbuffer`, `trace` (and
     /// with `s.background` > 0, `background`) passes, then the denoiser's `pack`, `tfa`,
     /// `unet` and `output` passes, each timed by `profiler` when given (the output pass
-    /// composites the background, [`crate::frame::FrameInputs`]). Submit the encoder (e.g.
-    /// [`Profiler::submit`]) to run it.
+    /// composites the background, [`crate::frame::FrameInputs`]). A model of config albedo
+    /// "footprint" reads the background pass's footprint albedo in place of the G-buffer's,
+    /// so its frames always have that pass (at least [`FOOTPRINT_RAYS`] rays per axis).
+    /// Submit the encoder (e.g. [`Profiler::submit`]) to run it.
     pub fn encode(
         &mut self,
         encoder: &mut wgpu::CommandEncoder,
@@ -68,9 +75,28 @@ impl FrameLoop {
         s: &FrameSettings,
         mut profiler: Option<&mut Profiler>,
     ) -> Result<()> {
+        let footprint = self.denoiser.network().config.albedo_source()? == AlbedoSource::Footprint;
+        let s = &FrameSettings {
+            background: if footprint {
+                s.background.max(FOOTPRINT_RAYS)
+            } else {
+                s.background
+            },
+            ..*s
+        };
         self.tracer
             .encode_frame(encoder, scene, s, profiler.as_deref_mut())?;
-        let inputs = self.tracer.buffers.inputs();
+        let b = &self.tracer.buffers;
+        let mut inputs = b.inputs();
+        if footprint {
+            inputs.albedo_depth = &b
+                .albedo_footprint
+                .as_ref()
+                .ok_or_else(|| {
+                    Error::Invalid("frame loop: the background pass made no footprint albedo".into())
+                })?
+                .buffer;
+        }
         self.denoiser
             .denoise_profiled(encoder, &inputs, profiler, Granularity::Stage)?;
         Ok(())

@@ -1017,3 +1017,103 @@ fn denoise_uses_the_frames_background() {
         }
     }
 }
+
+/// The golden weights rewritten with config albedo "footprint" (the same tensors), in `dir`.
+fn footprint_weights(dir: &Path) -> PathBuf {
+    let bytes = std::fs::read(data("golden_weights.safetensors")).unwrap();
+    let n = u64::from_le_bytes(bytes[..8].try_into().unwrap()) as usize;
+    let mut header: serde_json::Value = serde_json::from_slice(&bytes[8..8 + n]).unwrap();
+    let meta = header["__metadata__"].as_object_mut().unwrap();
+    let mut config: serde_json::Value = serde_json::from_str(meta["config"].as_str().unwrap()).unwrap();
+    config["albedo"] = "footprint".into();
+    meta["config"] = config.to_string().into();
+    let mut head = serde_json::to_vec(&header).unwrap();
+    head.resize(head.len().next_multiple_of(8), b' ');
+    let mut out = (head.len() as u64).to_le_bytes().to_vec();
+    out.extend(head);
+    out.extend(&bytes[8 + n..]);
+    let path = dir.join("footprint.safetensors");
+    std::fs::write(&path, out).unwrap();
+    path
+}
+
+/// `subpixel denoise` with a model of config albedo "footprint": frames without the
+/// footprint albedo are refused before anything is written, naming the file and the
+/// channels; with it, the model runs on it: with `--no-background` exactly as the same
+/// weights as a centre model run on the frames with their albedo replaced by the footprint
+/// albedo (and no background), and by default composited with the frames' background.
+#[test]
+fn denoise_feeds_a_footprint_model_the_frames_footprint_albedo() {
+    let dir = tmp("fp");
+    let weights = footprint_weights(&dir);
+    let plain = tmp("fp-plain");
+    golden_folder(&plain);
+    let run = |w: &Path, input: &Path, name: &str, extra: &[&str]| {
+        let out = tmp(name);
+        let o = bin()
+            .args(["denoise", "--weights"])
+            .arg(w)
+            .arg("--input")
+            .arg(input)
+            .arg("--out")
+            .arg(&out)
+            .args(extra)
+            .output()
+            .unwrap();
+        (out, o)
+    };
+    let (out, o) = run(&weights, &plain, "fp-out-bare", &[]);
+    let e = failed(&o, "a footprint model on frames without the footprint albedo");
+    assert_contains_all(&e, &["frame_0000.exr", "albedo_footprint", "--background"]);
+    assert_eq!(std::fs::read_dir(&out).unwrap().count(), 0, "nothing written");
+    let (with, swapped) = (tmp("fp-with"), tmp("fp-swapped"));
+    for i in 0..3 {
+        let name = frame_name(i);
+        let mut f = read_frame(&plain.join(&name)).unwrap();
+        let (w, h) = f.frame.as_ref().unwrap().size().unwrap();
+        let albedo = HostTensor::from_fn(w, h, 3, |x, y, c| {
+            ((x * 7 + y * 3 + c * 5 + i as u32) % 11) as f32 / 10.0
+        });
+        let mut plain_swapped = f.clone();
+        plain_swapped.frame.as_mut().unwrap().albedo = albedo.clone();
+        write_frame(&swapped.join(&name), &plain_swapped).unwrap();
+        f.frame.as_mut().unwrap().background = Some(subpixel::frame::Background {
+            radiance: HostTensor::from_fn(w, h, 3, |x, _, c| if x < w / 2 { 0.5 + c as f32 } else { 0.0 }),
+            coverage: HostTensor::from_fn(w, h, 1, |x, _, _| (x < w / 2) as u32 as f32),
+            albedo: Some(albedo),
+        });
+        write_frame(&with.join(&name), &f).unwrap();
+    }
+    let (a, o) = run(&weights, &with, "fp-out-nobg", &["--no-background"]);
+    succeeded(&o);
+    let (b, o) = run(
+        &data("golden_weights.safetensors"),
+        &swapped,
+        "fp-out-centre",
+        &[],
+    );
+    succeeded(&o);
+    let (c, o) = run(&weights, &with, "fp-out-bg", &[]);
+    succeeded(&o);
+    assert!(String::from_utf8_lossy(&o.stdout).contains("background in 3 of them"));
+    for i in 0..3 {
+        let pred = |d: &Path| read_frame(&d.join(frame_name(i))).unwrap().pred.unwrap();
+        let (pa, pb, pc) = (pred(&a), pred(&b), pred(&c));
+        assert_eq!(
+            pa, pb,
+            "frame {i}: --no-background as the centre model on the swapped albedo"
+        );
+        for y in 0..pa.height {
+            for x in 0..pa.width {
+                for k in 0..3 {
+                    let want = if x < pa.width / 2 {
+                        0.5 + k as f32
+                    } else {
+                        pa.at(x, y, k)
+                    };
+                    assert_eq!(pc.at(x, y, k), want, "frame {i} pixel ({x}, {y}) channel {k}");
+                }
+            }
+        }
+    }
+}

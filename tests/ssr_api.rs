@@ -661,7 +661,7 @@ fn denoise_host_never_writes_the_callers_buffers() {
     let weights = Weights::load(golden_weights_path()).unwrap();
     let (w, h) = (12, 8);
     let (a, b) = (random_frame(w, h, 21), random_frame(w, h, 22));
-    let packed = a.pack().unwrap();
+    let packed = a.pack(subpixel::ssr::AlbedoSource::Centre).unwrap();
     let caller: Vec<wgpu::Buffer> = packed
         .iter()
         .map(|d| {
@@ -983,4 +983,92 @@ fn mean_correction_scales_each_tile_to_its_samples() {
         clamped > 0 && between > 0,
         "{clamped} clamped and {between} other factors"
     );
+}
+
+/// Config albedo "footprint": the whole pipeline runs on the frame's footprint albedo
+/// instead of the G-buffer's, so a footprint model on a frame gives exactly what the same
+/// weights as a centre model give on that frame with its albedo replaced by the footprint
+/// albedo (over several frames: the history too), and not what they give on the frame as
+/// it is; a frame without a footprint albedo is refused, naming it.
+#[test]
+fn footprint_albedo_models_take_the_frames_footprint_albedo() {
+    use subpixel::frame::Background;
+    let gpu = common::gpu();
+    let centre = Weights::load(golden_weights_path()).unwrap();
+    let mut footprint = centre.clone();
+    footprint.config.albedo = Some("footprint".into());
+    let (w, h) = (20u32, 12u32);
+    let mut a = Denoiser::with_gpu(&gpu, &footprint, w, h).unwrap();
+    let mut b = Denoiser::with_gpu(&gpu, &centre, w, h).unwrap();
+    let mut c = Denoiser::with_gpu(&gpu, &centre, w, h).unwrap();
+    for t in 0..3 {
+        let mut f = random_frame(w, h, 90 + t);
+        let albedo = common::random(9_000 + t, w, h, 3, 0.0, 1.0);
+        f.background = Some(Background {
+            radiance: HostTensor::zeros(w, h, 3),
+            coverage: HostTensor::zeros(w, h, 1),
+            albedo: Some(albedo.clone()),
+        });
+        let swapped = HostFrame {
+            albedo: albedo.clone(),
+            ..f.clone()
+        };
+        let got = a.denoise_host(&f).unwrap();
+        assert_eq!(got, b.denoise_host(&swapped).unwrap(), "frame {t}");
+        assert_ne!(got, c.denoise_host(&f).unwrap(), "frame {t}");
+    }
+    let mut bare = random_frame(w, h, 99);
+    let e = a.denoise_host(&bare).unwrap_err().to_string();
+    assert!(
+        e.contains("footprint albedo") && e.contains("albedo_footprint"),
+        "{e}"
+    );
+    bare.background = Some(Background {
+        radiance: HostTensor::zeros(w, h, 3),
+        coverage: HostTensor::zeros(w, h, 1),
+        albedo: None,
+    });
+    assert!(a.denoise_host(&bare).is_err());
+}
+
+/// The frame loop with a footprint model (what `subpixel run` and the viewer run): on a
+/// scene without an environment (no background of its own) it still runs the background
+/// pass and feeds the pass's footprint albedo, with the G-buffer's depth, in place of the
+/// G-buffer's albedo: its output equals a second denoiser's given the frames it traced
+/// (downloaded, background and footprint albedo included) through `denoise_host`.
+#[test]
+fn the_frame_loop_feeds_a_footprint_model_its_footprint_albedo() {
+    use subpixel::frame_loop::FrameLoop;
+    use subpixel::render::{CameraPathSpec, FrameSettings, GpuScene, Mode, load_scene};
+    let gpu = common::gpu();
+    let mut weights = Weights::load(golden_weights_path()).unwrap();
+    weights.config.albedo = Some("footprint".into());
+    let scene = load_scene("builtin:cornell").unwrap();
+    let gs = GpuScene::new(&gpu, &scene).unwrap();
+    let (w, h) = (16u32, 12u32);
+    let (path, far) = scene
+        .camera_path(&CameraPathSpec::Static, 1, 3, 0, &gs.bvh)
+        .unwrap();
+    let mut frames = FrameLoop::new(&gpu, &weights, w, h).unwrap();
+    let mut host = Denoiser::with_gpu(&gpu, &weights, w, h).unwrap();
+    for f in 0..3 {
+        let s = FrameSettings::along(&path, f, Mode::Quarter, 1, far);
+        assert_eq!(s.background, 0);
+        let mut enc = gpu.device.create_command_encoder(&Default::default());
+        frames.encode(&mut enc, &gs, &s, None).unwrap();
+        gpu.queue.submit([enc.finish()]);
+        gpu.wait().unwrap();
+        let traced = frames.tracer.buffers.download(&gpu).unwrap();
+        let fp = traced
+            .background
+            .as_ref()
+            .and_then(|b| b.albedo.as_ref())
+            .expect("footprint albedo");
+        assert_ne!(fp, &traced.albedo, "frame {f}: edges mix surfaces");
+        assert_eq!(
+            frames.denoiser.read_output().unwrap(),
+            host.denoise_host(&traced).unwrap(),
+            "frame {f}"
+        );
+    }
 }

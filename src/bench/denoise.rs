@@ -107,7 +107,7 @@ pub fn bench_denoise(
         ..Default::default()
     };
     let mut den = Denoiser::with_options(gpu, weights, w, h, options)?;
-    let packed = synthetic_frame(w, h, 0).pack()?;
+    let packed = synthetic_frame(w, h, 0).pack(crate::ssr::AlbedoSource::Centre)?;
     let bufs: Vec<wgpu::Buffer> = packed
         .iter()
         .map(|d| {

@@ -8,7 +8,7 @@ use crate::gpu::Gpu;
 use crate::io::exr::{FrameFile, read_frame, read_header, write_frame};
 use crate::io::frames::list_frames;
 use crate::io::png::write_png_row;
-use crate::ssr::{Denoiser, Weights};
+use crate::ssr::{AlbedoSource, Denoiser, Weights};
 
 #[derive(clap::Args)]
 pub(super) struct DenoiseArgs {
@@ -29,6 +29,7 @@ pub(super) struct DenoiseArgs {
     /// Ignore the frames' background channels (`background`, `coverage`): reconstruct
     /// every pixel, the wholly sky ones included. By default a frame that has them is
     /// composited with its background (`background + (1 - coverage) x reconstruction`).
+    /// A model of config albedo "footprint" still takes the footprint albedo from them.
     #[arg(long)]
     no_background: bool,
 }
@@ -44,7 +45,8 @@ pub(super) fn run(a: &DenoiseArgs) -> Result<()> {
     }
     let frames = list_frames(&a.input)?;
     super::refuse_overlap("--input", &a.input, "--out", &a.out)?;
-    let (w, h) = check_frames(&frames)?;
+    let footprint = weights.config.albedo_source()? == AlbedoSource::Footprint;
+    let (w, h) = check_frames(&frames, footprint)?;
     std::fs::create_dir_all(&a.out).with_context(|| format!("cannot create {}", a.out.display()))?;
     let gpu = Gpu::new()?;
     let mut den = Denoiser::with_gpu(&gpu, &weights, w, h)?;
@@ -89,14 +91,22 @@ pub(super) fn run(a: &DenoiseArgs) -> Result<()> {
 }
 
 /// Checks every frame's header before anything is written: each holds the renderer's
-/// buffers, all of one size. Returns that size.
-fn check_frames(frames: &[PathBuf]) -> Result<(u32, u32)> {
+/// buffers (and with `footprint`, a model of config albedo "footprint", the footprint
+/// albedo), all of one size. Returns that size.
+fn check_frames(frames: &[PathBuf], footprint: bool) -> Result<(u32, u32)> {
     let mut size: Option<(u32, u32, &PathBuf)> = None;
     for path in frames {
         let header = read_header(path)?;
         if !header.has_frame(path)? {
             bail!(
                 "{}: holds no renderer buffers (color.R, mask.Y, ...)",
+                path.display()
+            );
+        }
+        if footprint && !header.channels.iter().any(|c| c == "albedo_footprint.R") {
+            bail!(
+                "{}: no footprint albedo (albedo_footprint.RGB), which this model uses (config albedo \"footprint\"); \
+                 `subpixel dataset --background N` over the same folder adds it",
                 path.display()
             );
         }
@@ -134,8 +144,14 @@ fn denoise_all(
     for path in frames {
         let mut file = read_frame(path)?;
         if a.no_background {
-            if let Some(f) = &mut file.frame {
-                f.background = None;
+            if let Some(b) = file.frame.as_mut().and_then(|f| f.background.as_mut()) {
+                if b.albedo.is_some() && den.network().config.albedo_source()? == AlbedoSource::Footprint {
+                    // Nothing composited (coverage 0), the footprint albedo the model uses kept.
+                    b.radiance.data.fill(0.0);
+                    b.coverage.data.fill(0.0);
+                } else {
+                    file.frame.as_mut().expect("has a background").background = None;
+                }
             }
         }
         let Some(frame) = &file.frame else {
@@ -153,7 +169,7 @@ fn denoise_all(
                 den.height()
             );
         }
-        with_background += frame.background.is_some() as usize;
+        with_background += (frame.background.is_some() && !a.no_background) as usize;
         let pred = den.denoise_host(frame)?;
         let name = path.file_name().expect("a frame file");
         let dst = a.out.join(name);

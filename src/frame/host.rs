@@ -2,6 +2,7 @@
 
 use crate::error::{Error, Result};
 use crate::nn::HostTensor;
+use crate::ssr::AlbedoSource;
 
 /// One frame of inputs in host memory, one [`HostTensor`] per buffer of DESIGN §3.
 #[derive(Debug, Clone, PartialEq)]
@@ -105,9 +106,22 @@ impl HostFrame {
         Ok((w, h))
     }
 
-    /// The six packed `vec4` buffers of [`FrameInputs`](super::FrameInputs), in its field order.
-    pub fn pack(&self) -> Result<[Vec<[f32; 4]>; 6]> {
+    /// The six packed `vec4` buffers of [`FrameInputs`](super::FrameInputs), in its field
+    /// order, with the albedo a model of `albedo` uses in `albedo_depth`
+    /// ([`AlbedoSource`]): the G-buffer's, or the background's footprint albedo (an error
+    /// naming it when the frame has none).
+    pub fn pack(&self, albedo: AlbedoSource) -> Result<[Vec<[f32; 4]>; 6]> {
         let (w, h) = self.size()?;
+        let albedo = match albedo {
+            AlbedoSource::Centre => &self.albedo,
+            AlbedoSource::Footprint => self.background.as_ref().and_then(|b| b.albedo.as_ref()).ok_or_else(|| {
+                Error::shape(
+                    "frame",
+                    "the model uses the footprint albedo (config albedo \"footprint\") and the frame has none \
+                     (buffer 'albedo_footprint', written with the background: `subpixel dataset --background N`)",
+                )
+            })?,
+        };
         let n = (w * h) as usize;
         let mut out: [Vec<[f32; 4]>; 6] = Default::default();
         for v in out.iter_mut() {
@@ -121,7 +135,7 @@ impl HostFrame {
         };
         put(&mut out[0], &self.color, 0);
         put(&mut out[0], &self.mask, 3);
-        put(&mut out[1], &self.albedo, 0);
+        put(&mut out[1], albedo, 0);
         put(&mut out[1], &self.depth, 3);
         put(&mut out[2], &self.normal, 0);
         put(&mut out[2], &self.metallic, 3);

@@ -74,7 +74,8 @@ pub struct FrameBuffers {
     /// after a frame rendered with [`FrameSettings::background`] > 0.
     pub background: Option<Tensor>,
     /// (first-hit base colour averaged over the same footprint rays as the background, sky
-    /// 1; 0), present with the background.
+    /// 1; the G-buffer's depth), present with the background: [`FrameBuffers::albedo_depth`]
+    /// with the footprint albedo, for models that use it (config `albedo`).
     pub albedo_footprint: Option<Tensor>,
 }
 
@@ -307,7 +308,7 @@ impl Tracer {
             "trace/background",
             &Specialisation::none(),
             bytemuck::bytes_of(&self.params(s, [0, 1])),
-            &scene.bindings(&[&b.buffer, &a.buffer]),
+            &scene.bindings(&[&b.buffer, &a.buffer, &self.buffers.albedo_depth.buffer]),
             Grid::pixels(w, h),
         )
     }

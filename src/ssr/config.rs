@@ -72,6 +72,20 @@ pub enum MeanCorrection {
     Tiles,
 }
 
+/// Which albedo the pipeline uses (config `albedo`, version 2; absent: `centre`): the one
+/// in [`crate::frame::FrameInputs::albedo_depth`] demodulates, feeds the network, tests the
+/// history and remodulates, so it is the caller who provides it.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum AlbedoSource {
+    /// The G-buffer's first-hit base colour at the pixel centre (every model before the
+    /// option).
+    Centre,
+    /// The first-hit base colour averaged over the pixel's footprint (the background
+    /// pass's `albedo_footprint`, [`crate::frame::Background::albedo`]): the albedo the
+    /// reference sees, so remodulation reaches the reference where a pixel mixes surfaces.
+    Footprint,
+}
+
 /// Config `mean_correction = "tiles"`: tile side in pixels.
 pub const MEAN_TILE: u32 = 32;
 /// Config `mean_correction = "tiles"`: frames whose sums make a factor.
@@ -126,6 +140,10 @@ pub struct SsrConfig {
     /// Version 2, optional (absent: `"none"`): `"none"` or `"tiles"` ([`MeanCorrection`]).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub mean_correction: Option<String>,
+    /// Version 2, optional (absent: `"centre"`): `"centre"` or `"footprint"`
+    /// ([`AlbedoSource`]).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub albedo: Option<String>,
 }
 
 impl Default for SsrConfig {
@@ -143,6 +161,7 @@ impl Default for SsrConfig {
             history: Some("geometry".into()),
             ceiling: Some("max".into()),
             mean_correction: Some("none".into()),
+            albedo: Some("centre".into()),
         }
     }
 }
@@ -205,6 +224,7 @@ impl SsrConfig {
                 let late = [
                     ("ceiling", &self.ceiling),
                     ("mean_correction", &self.mean_correction),
+                    ("albedo", &self.albedo),
                 ];
                 for (key, v) in self.options().into_iter().chain(late) {
                     if v.is_some() {
@@ -233,6 +253,7 @@ impl SsrConfig {
         self.remodulation_albedo()?;
         self.history_test()?;
         self.mean_correction()?;
+        self.albedo_source()?;
         if self.ceiling_mode()? == CeilingMode::Max && self.exposure_mode()? != ExposureMode::Channel {
             return bad(
                 "ceiling \"max\" needs exposure \"channel\" (the running max lives in the exposure state)"
@@ -259,8 +280,18 @@ impl SsrConfig {
             history: None,
             ceiling: None,
             mean_correction: None,
+            albedo: None,
             ..self.clone()
         }
+    }
+
+    /// The albedo the pipeline uses (version 1 and files without the option: the centre's).
+    pub fn albedo_source(&self) -> Result<AlbedoSource> {
+        let choices = [
+            ("centre", AlbedoSource::Centre),
+            ("footprint", AlbedoSource::Footprint),
+        ];
+        choose("albedo", self.albedo.as_deref(), &choices)
     }
 
     /// The output ceiling (version 1 and files without the option: none).
@@ -428,10 +459,11 @@ mod tests {
         assert_eq!(d.ceiling_mode().unwrap(), CeilingMode::Max);
         // the engine's JSON is the trainer's (ssr/model.py SSRConfig.to_json, keys sorted)
         let back: SsrConfig = serde_json::from_str(
-            r#"{"ceiling":"max","enc":[16,32,28],"exposure":"channel","feature_pool":"max","history":"geometry","input_channels":37,"k":8,"mean_correction":"none","remodulation":"current","tfa_hidden":8,"upsample":"bilinear","version":2}"#,
+            r#"{"albedo":"centre","ceiling":"max","enc":[16,32,28],"exposure":"channel","feature_pool":"max","history":"geometry","input_channels":37,"k":8,"mean_correction":"none","remodulation":"current","tfa_hidden":8,"upsample":"bilinear","version":2}"#,
         )
         .unwrap();
         assert_eq!(back, d);
+        assert_eq!(d.albedo_source().unwrap(), AlbedoSource::Centre);
         // a version-2 file written before the ceiling: none
         let before: SsrConfig = serde_json::from_str(
             r#"{"enc":[16,32,28],"exposure":"channel","feature_pool":"max","history":"geometry","input_channels":37,"k":8,"remodulation":"current","tfa_hidden":8,"upsample":"bilinear","version":2}"#,
@@ -440,6 +472,33 @@ mod tests {
         before.validate().unwrap();
         assert_eq!(before.ceiling_mode().unwrap(), CeilingMode::None);
         assert_eq!(before.mean_correction().unwrap(), MeanCorrection::None);
+        assert_eq!(before.albedo_source().unwrap(), AlbedoSource::Centre);
+        // the footprint albedo (`ssr.train --model-config '{"albedo": "footprint"}'`)
+        let fp = SsrConfig {
+            albedo: Some("footprint".into()),
+            ..d.clone()
+        };
+        fp.validate().unwrap();
+        assert_eq!(fp.albedo_source().unwrap(), AlbedoSource::Footprint);
+        let e = SsrConfig {
+            albedo: Some("middle".into()),
+            ..d.clone()
+        }
+        .validate()
+        .unwrap_err()
+        .to_string();
+        assert!(
+            e.contains("albedo 'middle', expected \"centre\" or \"footprint\""),
+            "{e}"
+        );
+        let e = SsrConfig {
+            albedo: Some("footprint".into()),
+            ..d.legacy()
+        }
+        .validate()
+        .unwrap_err()
+        .to_string();
+        assert!(e.contains("version 1 has no 'albedo' option"), "{e}");
         // the mean correction, written by `ssr.export --option mean_correction=tiles`
         let tiles: SsrConfig = serde_json::from_str(
             r#"{"ceiling":"max","enc":[16,32,28],"exposure":"channel","feature_pool":"max","history":"geometry","input_channels":37,"k":8,"mean_correction":"tiles","remodulation":"current","tfa_hidden":8,"upsample":"bilinear","version":2}"#,

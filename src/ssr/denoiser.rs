@@ -616,7 +616,8 @@ impl Denoiser {
     }
 
     /// Offline convenience: uploads a frame from host memory, denoises it, waits and
-    /// returns the output (3 channels, `width x height`).
+    /// returns the output (3 channels, `width x height`). A model of config albedo
+    /// `footprint` takes the frame's footprint albedo ([`HostFrame::pack`]).
     pub fn denoise_host(&mut self, frame: &HostFrame) -> Result<HostTensor> {
         let (w, h) = frame.size()?;
         if (w, h) != (self.width, self.height) {
@@ -628,7 +629,7 @@ impl Denoiser {
                 ),
             ));
         }
-        let packed = frame.pack()?;
+        let packed = frame.pack(self.net.config.albedo_source()?)?;
         let background = frame.pack_background()?;
         let bufs = self.host_buffers();
         for (b, data) in bufs.iter().zip(packed.iter().chain(&background)) {

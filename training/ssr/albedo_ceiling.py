@@ -8,12 +8,14 @@ ceiling on a dataset split: with E = reference / (footprint albedo + eps), the i
 perfect network would predict where the irradiance is constant over the pixel, it scores
 E x (centre albedo + eps) against the reference with the metrics' PSNR (`ssr.metrics`).
 
-The footprint albedo comes from the same split rendered at K times the width and height
-(`subpixel dataset ... --width K*W --height K*H`: the camera paths do not depend on the
-size), box-filtered K x K: the mean albedo over K^2 points of each pixel, as the traced
-sample's jitter is uniform over the pixel.
+The footprint albedo comes from the frames' own `albedo_footprint` channels (`subpixel
+dataset --background N`: the mean over N x N points of each pixel), or with `--fine` from
+the same split rendered at K times the width and height (`subpixel dataset ... --width K*W
+--height K*H`: the camera paths do not depend on the size), box-filtered K x K: the mean
+albedo over K^2 points of each pixel, as the traced sample's jitter is uniform over the
+pixel. The two estimate the same box filter, so they cross-check each other.
 
-    python -m ssr.albedo_ceiling --data ROOT --fine FINE_ROOT [--split val]
+    python -m ssr.albedo_ceiling --data ROOT [--fine FINE_ROOT] [--split val]
 
 Prints, per sequence, the share of "mixed" pixels (footprint albedo more than 0.05 from the
 centre albedo in some channel) and the ceiling PSNR, and their means over the sequences.
@@ -54,15 +56,22 @@ def frame_ceiling(reference: np.ndarray, centre: np.ndarray, foot: np.ndarray) -
     return {"psnr": psnr(out, reference), "mixed": mixed}
 
 
-def sequence_ceiling(coarse_dir: str, fine_dir: str, frames: int, width: int, height: int) -> Dict[str, float]:
+def sequence_ceiling(coarse_dir: str, fine_dir: Optional[str], frames: int, width: int, height: int) -> Dict[str, float]:
     """Mean of `frame_ceiling` over a sequence's frames (an infinite PSNR, where centre and
-    footprint agree everywhere, counts as 100 dB)."""
+    footprint agree everywhere, counts as 100 dB); the footprint albedo from `fine_dir`'s
+    frames box-filtered, or without it from the frames' `albedo_footprint` channels."""
     rows = []
     for i in range(frames):
         ch = tuple(f"albedo.{c}" for c in RGB) + tuple(f"reference.{c}" for c in RGB)
+        if fine_dir is None:
+            ch += tuple(f"albedo_footprint.{c}" for c in RGB)
         coarse = read_exr(os.path.join(coarse_dir, frame_name(i)), ch).astype(np.float64)
-        fine = read_exr(os.path.join(fine_dir, frame_name(i)), ch[:3]).astype(np.float64)
-        r = frame_ceiling(coarse[..., 3:], coarse[..., :3], footprint(fine, width, height))
+        if fine_dir is None:
+            foot = coarse[..., 6:9]
+        else:
+            fine = read_exr(os.path.join(fine_dir, frame_name(i)), ch[:3]).astype(np.float64)
+            foot = footprint(fine, width, height)
+        r = frame_ceiling(coarse[..., 3:6], coarse[..., :3], foot)
         r["psnr"] = min(r["psnr"], 100.0)
         rows.append(r)
     return {k: float(np.mean([r[k] for r in rows])) for k in rows[0]}
@@ -71,15 +80,15 @@ def sequence_ceiling(coarse_dir: str, fine_dir: str, frames: int, width: int, he
 def main(argv: Optional[Sequence[str]] = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--data", required=True, help="dataset root (its references and G-buffers)")
-    ap.add_argument("--fine", required=True, help="the same split rendered at K times the size")
+    ap.add_argument("--fine", help="the same split rendered at K times the size (default: the frames' albedo_footprint)")
     ap.add_argument("--split", default="val")
     a = ap.parse_args(argv)
     try:
         seqs = list_sequences(a.data, a.split)
         results: List[tuple] = []
         for s in seqs:
-            fine_dir = os.path.join(a.fine, a.split, s.name)
-            if not os.path.isdir(fine_dir):
+            fine_dir = os.path.join(a.fine, a.split, s.name) if a.fine else None
+            if fine_dir is not None and not os.path.isdir(fine_dir):
                 continue
             results.append((s.name, sequence_ceiling(s.path, fine_dir, s.frames, s.width, s.height)))
     except DatasetError as err:

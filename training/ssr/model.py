@@ -34,6 +34,13 @@ Config version 2 (the default) adds three things that version-1 weights did not 
   becomes the history. A network extrapolating far beyond its training range (a held-out
   scene's tiny directly visible emitter came out 24x too bright and tripled the frame's
   mean) cannot make a pixel brighter than anything sampled lately.
+* `albedo = "footprint"` (a later version-2 option; files without it read "centre"): the
+  albedo buffer the whole pipeline uses (demodulation, the network's albedo input, the
+  history test's A, remodulation) is the first-hit base colour averaged over each pixel's
+  footprint (`albedo_footprint`, written by `subpixel dataset --background N`) instead of
+  the G-buffer's value at the pixel centre. The reference is the footprint's mean radiance,
+  so where a pixel mixes surfaces (an albedo edge) remodulating with the centre's albedo
+  cannot reach it (`ssr.albedo_ceiling`); with the footprint's it can. `use_albedo` below.
 """
 
 from __future__ import annotations
@@ -42,6 +49,7 @@ import json
 from dataclasses import dataclass
 from typing import Dict, List, Optional, Sequence, Tuple
 
+import numpy as np
 import torch
 import torch.nn.functional as F
 from torch import nn
@@ -87,6 +95,7 @@ CONFIG_VERSION = 2
 
 LEGACY_OPTIONS: Dict[str, str] = {
     "exposure": "none", "remodulation": "accumulated", "history": "screen", "ceiling": "none", "mean_correction": "none",
+    "albedo": "centre",
 }
 """What version-1 weights were trained with: absolute radiance in, output remodulated with the
 accumulated albedo, history rejected only off screen, no output ceiling."""
@@ -97,10 +106,15 @@ OPTION_VALUES: Dict[str, Tuple[str, ...]] = {
     "history": ("screen", "geometry"),
     "ceiling": ("none", "max"),
     "mean_correction": ("none", "tiles"),
+    "albedo": ("centre", "footprint"),
 }
 
-LATE_OPTIONS: Dict[str, str] = {"ceiling": "none", "mean_correction": "none"}
+LATE_OPTIONS: Dict[str, str] = {"ceiling": "none", "mean_correction": "none", "albedo": "centre"}
 """Version-2 options added after the first version-2 weights: absent, they take this value."""
+
+FINE_TUNE_OPTIONS: Tuple[str, ...] = ("albedo",)
+"""Options that change what the network is fed but not its parameters: a run started from
+weights (`ssr.train --init`) may set them differently from the file, fine-tuning it."""
 
 OUTPUT_PASS_OPTIONS: Tuple[str, ...] = ("mean_correction",)
 """Options only the engine's output pass applies (after the network, outside its history):
@@ -157,6 +171,8 @@ class SSRConfig:
     # to the traced samples' sum over the last 4 frames (`MeanCorrection` below, applied after
     # the model like `composite_background`)
     mean_correction: str = "none"
+    # "centre" | "footprint": which albedo buffer the pipeline uses (`use_albedo`)
+    albedo: str = "centre"
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "enc", tuple(int(c) for c in self.enc))
@@ -249,6 +265,30 @@ class SSRConfig:
         except json.JSONDecodeError as err:
             raise ValueError(f"config: not valid JSON ({err})") from None
         return cls.from_dict(d)
+
+
+FOOTPRINT_ALBEDO = "albedo_footprint"
+"""The frame buffer (data.EXTRA_SUFFIXES) config `albedo = "footprint"` uses as the albedo."""
+
+
+def extra_buffers(cfg: SSRConfig) -> Tuple[str, ...]:
+    """Buffers beyond data.BUFFERS a model of config `cfg` reads (load them with
+    `SequenceDataset(extra=...)`)."""
+    return (FOOTPRINT_ALBEDO,) if cfg.albedo == "footprint" else ()
+
+
+def use_albedo(frame: Dict[str, torch.Tensor], cfg: SSRConfig) -> Dict[str, torch.Tensor]:
+    """`frame` with the albedo config `cfg.albedo` asks for in its `albedo` buffer: itself
+    for "centre", the footprint albedo for "footprint" (a KeyError naming the buffer and the
+    command that writes it when the frame lacks it)."""
+    if cfg.albedo == "centre":
+        return frame
+    if FOOTPRINT_ALBEDO not in frame:
+        raise KeyError(
+            f"config albedo = \"footprint\" needs the frames' `{FOOTPRINT_ALBEDO}` buffer (written by "
+            "`subpixel dataset --background N`; load it with SequenceDataset(extra=model.extra_buffers(cfg)))"
+        )
+    return {**frame, "albedo": frame[FOOTPRINT_ALBEDO]}
 
 
 # ----------------------------------------------------------------------------- elementwise ops
@@ -634,6 +674,25 @@ class SSRModel(nn.Module):
         self.tfa = TFA(self.cfg)
         self.unet = UNet(self.cfg)
 
+    def read_extra(self, path: str) -> Dict[str, torch.Tensor]:
+        """The buffers beyond data.BUFFERS this model reads (`extra_buffers`), from frame file
+        `path` (for `ssr.evaluate`); a DatasetError naming the file when it lacks them."""
+        from .data import DatasetError, EXTRA_SUFFIXES, exr_size, read_exr
+
+        out = {}
+        for b in extra_buffers(self.cfg):
+            channels = [f"{b}.{c}" for c in EXTRA_SUFFIXES[b]]
+            missing = [c for c in channels if c not in exr_size(path)[2]]
+            if missing:
+                raise DatasetError(
+                    f"{path}: missing channel(s) {missing}: config albedo = {self.cfg.albedo!r} reads them "
+                    "(add them with `subpixel dataset --background N` over the same folder)"
+                )
+            arr = read_exr(path, channels)
+            arr[~np.isfinite(arr)] = 0.0
+            out[b] = torch.from_numpy(np.ascontiguousarray(arr.transpose(2, 0, 1)))
+        return out
+
     def forward(self, frame: Dict[str, torch.Tensor], state: Optional[State] = None) -> Dict[str, object]:
         """Denoises one frame.
 
@@ -648,6 +707,7 @@ class SSRModel(nn.Module):
         (and the history) never exceeds the brightest demodulated sample of recent frames, so a
         tiny bright emitter cannot be extrapolated into a blown-up one.
         """
+        frame = use_albedo(frame, self.cfg)
         h = self.history(frame, state)
         tfa = self.tfa(h["a_cur"], h["mt"], h["warp_acc"], h["warp_valid"])
         a_acc = tfa["a_acc"]

@@ -32,7 +32,8 @@ def make_sequence(
     """Frames as dicts of float32 [C, H, W] arrays with every buffer of data.BUFFERS (and
     `full`, the 1-spp colour, with `full`; with `background`, the background buffer: the top
     quarter of the rows wholly sky, `coverage` 1 and `background` the reference there, the
-    next row half covered, the rest none)."""
+    next row half covered, the rest none, and the footprint albedo `albedo_footprint`: the
+    albedo, as the reference here is the albedo times the light pixel by pixel)."""
     rng = np.random.default_rng(seed)
     frng = np.random.default_rng(20_000 + seed)
     srng = np.random.default_rng(10_000 + scene_seed)
@@ -85,6 +86,7 @@ def make_sequence(
             cov[:, sky] = 0.5
             frame["coverage"] = cov
             frame["background"] = (frame["reference"] * cov).astype(np.float32)
+            frame["albedo_footprint"] = frame["albedo"].copy()
         out.append(frame)
     return out
 
@@ -117,7 +119,7 @@ def write_sequence(
     with open(os.path.join(folder, "sequence.json"), "w") as f:
         json.dump(meta, f, indent=2)
     for t, fr in enumerate(make_sequence(width, height, frames, seed, scene_seed, full, background)):
-        write_exr(os.path.join(folder, frame_name(t)), fr, {"full": ("R", "G", "B"), "background": ("R", "G", "B"), "coverage": ("Y",)})
+        write_exr(os.path.join(folder, frame_name(t)), fr, {"full": ("R", "G", "B"), "background": ("R", "G", "B"), "coverage": ("Y",), "albedo_footprint": ("R", "G", "B")})
     return folder
 
 

@@ -52,7 +52,7 @@ from torch import nn
 from . import losses
 from .baselines import build_model, export_model, loss_aux
 from .data import THIN_KEEP_MIN, DatasetError, SequenceDataset, WindowSampler, collate
-from .model import OUTPUT_PASS_OPTIONS, MeanCorrection, SSRModel, composite_background
+from .model import FINE_TUNE_OPTIONS, OUTPUT_PASS_OPTIONS, MeanCorrection, SSRConfig, SSRModel, composite_background, extra_buffers
 from .validation import validate
 
 CHECKPOINT_FORMAT = "subpixel-train-checkpoint"
@@ -256,7 +256,9 @@ def init_output_pass_options(path: str) -> dict:
 
 def load_init(model: nn.Module, path: str, model_name: str) -> dict:
     """Loads `path` into `model`: the weights loader checks the file (format, every tensor's
-    name and shape); its config must equal the run's. Returns the file's metadata."""
+    name and shape); its config must equal the run's but for model.FINE_TUNE_OPTIONS (what
+    the network is fed, not its parameters: the run fine-tunes the weights to the new
+    value). Returns the file's metadata."""
     from .baselines import load_model
     from .export import WeightsError
 
@@ -265,7 +267,8 @@ def load_init(model: nn.Module, path: str, model_name: str) -> dict:
     except (WeightsError, ValueError, OSError) as err:
         raise CheckpointError(f"--init {path}: {err}") from err
     want, got = model.cfg.to_dict(), loaded.cfg.to_dict()
-    if type(loaded) is not type(model) or got != want:
+    same = lambda d: {k: v for k, v in d.items() if k not in FINE_TUNE_OPTIONS}  # noqa: E731
+    if type(loaded) is not type(model) or same(got) != same(want):
         raise CheckpointError(
             f"--init {path}: its model config {json.dumps(got, sort_keys=True)} differs from the run's "
             f"{json.dumps(want, sort_keys=True)} (model {model_name})"
@@ -551,10 +554,12 @@ def _train(args, config: dict, dd: Dist) -> dict:
 
     # data
     background = ("background", "coverage")
+    # buffers the model itself reads (config albedo = "footprint": the footprint albedo)
+    model_extra = extra_buffers(SSRConfig.from_dict(config["model_config"])) if args.model == "ssr" else ()
     train_ds = SequenceDataset(
         args.data, "train", window=args.window, crop=args.crop, flips=not args.no_flips, scenes=args.scenes,
         cache=args.cache, cache_mb=args.cache_mb, cache_dir=args.cache_dir, thin=args.thin,
-        thin_keep_min=args.thin_keep_min, extra=background if args.background == "loss" else (),
+        thin_keep_min=args.thin_keep_min, extra=(background if args.background == "loss" else ()) + model_extra,
         min_reference_psnr=args.min_reference_psnr,
     )
     if train_ds.noisy:

@@ -21,17 +21,22 @@ def validate(model: nn.Module, ds: SequenceDataset, device: torch.device, frames
     per-frame metrics (PSNR/SSIM tonemapped 8-bit, RMSE/relMSE HDR). With the background
     buffers loaded (`ds.store.extra`), the output is composited as the engine does, and with
     config `mean_correction = "tiles"` corrected as the engine does (model.MeanCorrection);
-    `output_pass=False` scores the network's own output (neither)."""
+    `output_pass=False` scores the network's own output (neither). Buffers the model reads
+    beyond the dataset's (`model.read_extra`: config albedo = "footprint") come from each
+    frame's file."""
     was_training = model.training
     model.eval()
     rows, per_scene = [], {}
     cfg = getattr(model, "cfg", None)
     tiles = output_pass and getattr(cfg, "mean_correction", "none") == "tiles"
+    read_extra = getattr(model, "read_extra", None)
     for si, seq in enumerate(ds.sequences):
         state = None
         mc = MeanCorrection()
         for t in range(min(frames, seq.frames)):
             f = ds.full_frame(si, t)
+            if read_extra is not None:
+                f.update({k: v for k, v in read_extra(seq.frame_path(t)).items() if k not in f})
             if size:
                 h, w = f["color"].shape[-2:]
                 ch, cw = min(h, size), min(w, size)

@@ -46,7 +46,7 @@ def test_a_pixel_half_red_half_white_is_the_analytic_case():
     assert ac.frame_ceiling(reference, foot, foot)["psnr"] == float("inf")
 
 
-def _sequence(root, name, w, h, albedo, reference=None):
+def _sequence(root, name, w, h, albedo, reference=None, albedo_footprint=None):
     d = os.path.join(root, "val", name)
     os.makedirs(d)
     json.dump(
@@ -66,7 +66,9 @@ def _sequence(root, name, w, h, albedo, reference=None):
     bufs = {"albedo": albedo.transpose(2, 0, 1)}
     if reference is not None:
         bufs["reference"] = reference.transpose(2, 0, 1)
-    write_exr(os.path.join(d, frame_name(0)), bufs)
+    if albedo_footprint is not None:
+        bufs["albedo_footprint"] = albedo_footprint.transpose(2, 0, 1)
+    write_exr(os.path.join(d, frame_name(0)), bufs, {"albedo_footprint": ("R", "G", "B")})
 
 
 def test_cli_scores_the_sequences_that_have_a_fine_render(tmp_path, capsys):
@@ -86,3 +88,22 @@ def test_cli_scores_the_sequences_that_have_a_fine_render(tmp_path, capsys):
     # No fine render at all: a named error.
     assert ac.main(["--data", data, "--fine", str(tmp_path / "none")]) == 2
     assert "no sequence" in capsys.readouterr().err
+
+
+def test_cli_reads_the_frames_own_footprint_albedo(tmp_path, capsys):
+    """Without --fine, the footprint albedo is the frames' `albedo_footprint` channels (as
+    `subpixel dataset --background N` writes them): the same figure as the fine render
+    gives for the same box filter; a frame without the channels is a named error."""
+    data = str(tmp_path / "ds")
+    rng = np.random.default_rng(4)
+    fine_albedo = rng.uniform(0.1, 0.9, (8, 8, 3))
+    foot = ac.footprint(fine_albedo, 4, 4)
+    centre = fine_albedo[::2, ::2]
+    _sequence(data, "a_val_000", 4, 4, centre, foot * 0.7, albedo_footprint=foot)
+    assert ac.main(["--data", data]) == 0
+    want = psnr((foot * 0.7) / (foot + ALBEDO_EPS) * (centre + ALBEDO_EPS), foot * 0.7)
+    assert f"{want:.2f}" in capsys.readouterr().out
+    _sequence(data, "b_val_000", 4, 4, centre, foot * 0.7)
+    assert ac.main(["--data", data]) == 2
+    err = capsys.readouterr().err
+    assert "b_val_000" in err and "albedo_footprint.R" in err

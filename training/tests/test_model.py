@@ -12,6 +12,7 @@ from ssr.model import (
     SSRModel,
     conv_layers,
     demodulate,
+    extra_buffers,
     flops_per_pixel,
     history_consistent,
     pool2x2,
@@ -20,6 +21,7 @@ from ssr.model import (
     remodulate,
     rescale_log,
     upsample2x,
+    use_albedo,
     warp,
 )
 
@@ -105,6 +107,33 @@ def test_batched_equals_single(frames):
         torch.testing.assert_close(a["output"][:1], b["output"], rtol=1e-5, atol=1e-6)
 
 
+def test_footprint_albedo_is_the_albedo_the_whole_pipeline_uses(frames):
+    """Config albedo = "footprint" runs the pipeline of albedo = "centre" on frames whose
+    albedo buffer holds the footprint albedo (demodulation, the network's input, history,
+    remodulation alike), and says which buffer it needs when a frame lacks it."""
+    fp = random_model(4, SSRConfig(albedo="footprint"))
+    centre = random_model(4)
+    assert extra_buffers(fp.cfg) == ("albedo_footprint",) and extra_buffers(centre.cfg) == ()
+    g = torch.Generator().manual_seed(9)
+    with_fp = [{**f, "albedo_footprint": torch.rand(f["albedo"].shape, generator=g)} for f in frames]
+    swapped = [{**f, "albedo": f["albedo_footprint"]} for f in with_fp]
+    with torch.no_grad():
+        a = fp.run_sequence(with_fp)
+        b = centre.run_sequence(swapped)
+        c = centre.run_sequence(with_fp)
+    for x, y, z in zip(a, b, c):
+        assert torch.equal(x["output"], y["output"])
+        assert not torch.equal(x["output"], z["output"])  # the centre model ignores the buffer
+    with pytest.raises(KeyError, match="albedo_footprint.*subpixel dataset --background"):
+        fp(frames[0])
+    assert use_albedo(frames[0], centre.cfg) is frames[0]
+    # the option is a version-2 key added late: absent it reads "centre"; version 1 has none
+    d = SSRConfig(albedo="footprint").to_dict()
+    assert d["albedo"] == "footprint" and SSRConfig.from_dict({k: v for k, v in d.items() if k != "albedo"}).albedo == "centre"
+    with pytest.raises(ValueError, match="`albedo` must be one of"):
+        SSRConfig(albedo="middle")
+
+
 def test_size_must_be_multiple_of_4(frames):
     f = {k: v[:, :, :22] for k, v in frames[0].items()}
     with pytest.raises(ValueError, match="multiples of 4"):
@@ -157,6 +186,7 @@ def test_config_json_round_trip():
         "history": "geometry",
         "ceiling": "max",
         "mean_correction": "none",
+        "albedo": "centre",
     }
     with pytest.raises(ValueError, match="feature_pool"):
         SSRConfig(feature_pool="median")
@@ -171,7 +201,7 @@ def test_config_json_round_trip():
     with pytest.raises(ValueError, match="unsupported `version` 3"):
         SSRConfig.from_dict({**d, "version": 3})
     # version 1 (the shipped weights'): no option keys, the legacy pipeline
-    v1 = {k: v for k, v in d.items() if k not in ("exposure", "remodulation", "history", "ceiling", "mean_correction")}
+    v1 = {k: v for k, v in d.items() if k not in ("exposure", "remodulation", "history", "ceiling", "mean_correction", "albedo")}
     v1["version"] = 1
     c1 = SSRConfig.from_dict(v1)
     assert (c1.exposure, c1.remodulation, c1.history, c1.ceiling) == ("none", "accumulated", "screen", "none")

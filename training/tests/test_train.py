@@ -321,3 +321,26 @@ def test_mean_correction_in_the_loss_and_in_val(tmp_path, capsys):
     with pytest.raises(SystemExit):
         T.main(args(root, str(tmp_path / "e"), "--mean-correction", "loss"))
     assert "--background loss" in capsys.readouterr().err
+
+
+def test_footprint_albedo_fine_tune_from_centre_weights(tmp_path, capsys):
+    """A run with config albedo = "footprint" loads the frames' footprint albedo, may start
+    from weights trained with the centre albedo (the option changes what the network is fed,
+    not its parameters), validates with it and writes it into its weights; on a dataset
+    without the buffer it stops naming it."""
+    from ssr.synth import write_dataset
+
+    data = write_dataset(str(tmp_path / "d"), {"train": 1, "val": 1}, 6, 16, 16, seed=5, background=True)
+    centre = T.train(args(data, str(tmp_path / "c"), iters=1))
+    fp = '{"albedo": "footprint"}'
+    res = T.train(args(data, str(tmp_path / "f"), "--init", centre["weights"], "--model-config", fp, "--val-every", "1", iters=2))
+    model, meta = load_weights(res["weights"])
+    assert model.cfg.albedo == "footprint" and meta["provenance"]["init"]["file"] == "weights.safetensors"
+    assert "initialised from" in capsys.readouterr().out
+    # another option than the albedo still has to match the initial weights
+    assert T.main(args(data, str(tmp_path / "g"), "--init", centre["weights"], "--model-config", '{"history": "screen"}')) == 1
+    assert "differs from the run's" in capsys.readouterr().err
+    bare = write_dataset(str(tmp_path / "bare"), {"train": 1, "val": 1}, 6, 16, 16, seed=5)
+    assert T.main(args(bare, str(tmp_path / "h"), "--model-config", fp, iters=1)) == 1
+    err = capsys.readouterr().err
+    assert "frame_0000.exr: missing channel(s) ['albedo_footprint.R'" in err, err

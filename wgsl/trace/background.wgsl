@@ -2,14 +2,18 @@
 // over n x n stratified camera rays through the pixel's footprint (n = p.accum.z), the
 // environment seen directly (rays that hit anything, transmissive surfaces included, count
 // 0), the fraction of those rays that escape (the coverage), and the mean first-hit base
-// colour (the G-buffer's albedo, sky 1). Where the coverage is 1 the background is the
-// pixel's radiance, estimated with n x n environment lookups instead of path samples.
+// colour (the G-buffer's albedo, sky 1), written with the G-buffer's depth as
+// albedo_footprint = (albedo, depth): the layout of albedo_depth, so a model that uses the
+// footprint albedo reads this buffer in its place. Where the coverage is 1 the background
+// is the pixel's radiance, estimated with n x n environment lookups instead of path samples.
+// Runs after the G-buffer pass.
 // CPU twin: `background_pixel` in src/render/cpu/integrator.rs.
 
 @group(0) @binding(0) var<uniform> p: FrameParams;
 // The scene at bindings 1-7 (trace/lib/scene.wgsl).
 @group(0) @binding(8) var<storage, read_write> background: array<vec4<f32>>;
 @group(0) @binding(9) var<storage, read_write> albedo_footprint: array<vec4<f32>>;
+@group(0) @binding(10) var<storage, read> albedo_depth: array<vec4<f32>>;
 
 @compute @workgroup_size(8, 8, 1)
 fn main(@builtin(global_invocation_id) gid: vec3<u32>) {
@@ -42,5 +46,5 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>) {
     let count = f32(n * n);
     let at = gid.y * p.size.x + gid.x;
     background[at] = vec4<f32>(sum / count, f32(escaped) / count);
-    albedo_footprint[at] = vec4<f32>(albedo / count, 0.0);
+    albedo_footprint[at] = vec4<f32>(albedo / count, albedo_depth[at].w);
 }
