@@ -61,6 +61,8 @@ fn main() -> anyhow::Result<()> {
                 let radiance = x as f32 / w as f32 * 2.0;
                 let m = traced as u32 as f32;
                 data[0].push([radiance * m * 0.8, radiance * m * 0.6, radiance * m * 0.4, m]);
+                // albedo + depth (a model of config albedo "footprint", the shipped one, wants
+                // the albedo averaged over each pixel's footprint: uniform here)
                 data[1].push([0.8, 0.6, 0.4, 0.5]);
                 data[2].push([0.0, 0.0, 1.0, 0.0]);
                 data[3].push([m, m, m, 0.7]);

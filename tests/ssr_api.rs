@@ -762,7 +762,8 @@ fn precision_auto_and_f16_need_and_follow_the_device() {
 /// it, the shipped ones must respect it too. Odd size: the padding must not change M.
 #[test]
 fn output_never_exceeds_the_brightest_recent_sample() {
-    use subpixel::ssr::{CEILING_DECAY, CEILING_GAIN, CeilingMode};
+    use subpixel::frame::Background;
+    use subpixel::ssr::{AlbedoSource, CEILING_DECAY, CEILING_GAIN, CeilingMode};
     let gpu = common::gpu();
     let shipped = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("weights/ssr.safetensors");
     let (w, h) = (15u32, 11u32);
@@ -774,10 +775,23 @@ fn output_never_exceeds_the_brightest_recent_sample() {
             "{path:?}"
         );
         let mut den = Denoiser::with_gpu(&gpu, &weights, w, h).unwrap();
+        // The albedo the model demodulates with: the G-buffer's, or (config albedo
+        // "footprint", the shipped model) the frame's footprint albedo, here another one.
+        let footprint = weights.config.albedo_source().unwrap() == AlbedoSource::Footprint;
         let mut m = [0f32; 3];
         let mut reached = 0;
         for t in 0..4u64 {
             let mut f = random_frame(w, h, 70 + t);
+            f.background = Some(Background {
+                radiance: HostTensor::zeros(w, h, 3),
+                coverage: HostTensor::zeros(w, h, 1),
+                albedo: Some(common::random(7_000 + t, w, h, 3, 0.0, 1.0)),
+            });
+            let albedo = if footprint {
+                f.background.as_ref().unwrap().albedo.clone().unwrap()
+            } else {
+                f.albedo.clone()
+            };
             if t == 1 {
                 // a tiny bright emitter on a traced pixel
                 for c in 0..3 {
@@ -789,7 +803,7 @@ fn output_never_exceeds_the_brightest_recent_sample() {
                 for x in 0..w {
                     if f.mask.at(x, y, 0) > 0.5 {
                         for c in 0..3 {
-                            let d = f.color.at(x, y, c) / (f.albedo.at(x, y, c) + 0.00316);
+                            let d = f.color.at(x, y, c) / (albedo.at(x, y, c) + 0.00316);
                             frame_max[c as usize] = frame_max[c as usize].max(d);
                         }
                     }
@@ -806,7 +820,7 @@ fn output_never_exceeds_the_brightest_recent_sample() {
             for y in 0..h {
                 for x in 0..w {
                     for c in 0..3 {
-                        let bound = CEILING_GAIN * m[c as usize] * (f.albedo.at(x, y, c) + 0.00316);
+                        let bound = CEILING_GAIN * m[c as usize] * (albedo.at(x, y, c) + 0.00316);
                         let v = out.at(x, y, c);
                         assert!(
                             v.is_finite() && v <= bound * 1.0001,

@@ -9,7 +9,7 @@ use crate::error::{Error, Result};
 /// | buffer | x y z | w |
 /// |---|---|---|
 /// | `color_mask` | traced radiance (0 at untraced pixels) | mask (1 where traced) |
-/// | `albedo_depth` | first-hit albedo (sky 1) | linear depth / far (sky 1) |
+/// | `albedo_depth` | first-hit albedo (sky 1): at the pixel centre, or averaged over the pixel's footprint for a model of config albedo "footprint" | linear depth / far (sky 1) |
 /// | `normal_metallic` | world normal in [-1, 1] (sky 0) | metallic |
 /// | `shadow_roughness` | NEE light x visibility at traced pixels | perceptual roughness |
 /// | `transparent` | first transmissive tint (0 where none) | unused |
@@ -20,6 +20,13 @@ use crate::error::{Error, Result};
 /// environment part of each pixel comes from the background, the network reconstructs the
 /// rest (the background alone where the coverage is 1; [`crate::frame::Background`]);
 /// without one, every pixel is the network's reconstruction.
+///
+/// Which albedo goes in `albedo_depth` is the model's choice
+/// ([`crate::ssr::AlbedoSource`], `Weights::config.albedo_source()`): the G-buffer's at the
+/// pixel centre, or the first-hit base colour averaged over the pixel's footprint (the
+/// shipped model: what the reference sees where a pixel mixes surfaces; the tracer's
+/// background pass writes it, [`crate::render::FrameBuffers::albedo_footprint`], which the
+/// frame loop passes here).
 #[derive(Debug, Clone, Copy)]
 pub struct FrameInputs<'a> {
     /// Radiance rgb + mask.
