@@ -965,6 +965,37 @@ fn default_weights_follow_the_binary_and_the_environment() {
     std::fs::remove_dir_all(&root).ok();
 }
 
+/// A background of coverage 1 on the left half of a `w x h` frame (radiance 0.5 + channel
+/// there) and 0 on the right (radiance 0), with footprint albedo `albedo`.
+fn half_sky_background(w: u32, h: u32, albedo: Option<HostTensor>) -> subpixel::frame::Background {
+    subpixel::frame::Background {
+        radiance: HostTensor::from_fn(w, h, 3, |x, _, c| if x < w / 2 { 0.5 + c as f32 } else { 0.0 }),
+        coverage: HostTensor::from_fn(w, h, 1, |x, _, _| (x < w / 2) as u32 as f32),
+        albedo,
+    }
+}
+
+/// `composited` (frame `i`) is [`half_sky_background`]'s value on the left half and exactly
+/// `plain` on the right.
+fn assert_half_sky_composite(composited: &HostTensor, plain: &HostTensor, i: usize) {
+    for y in 0..plain.height {
+        for x in 0..plain.width {
+            for k in 0..3 {
+                let want = if x < plain.width / 2 {
+                    0.5 + k as f32
+                } else {
+                    plain.at(x, y, k)
+                };
+                assert_eq!(
+                    composited.at(x, y, k),
+                    want,
+                    "frame {i} pixel ({x}, {y}) channel {k}"
+                );
+            }
+        }
+    }
+}
+
 /// `subpixel denoise` reads a frame's background channels and the engine composites them
 /// (background + (1 - coverage) x reconstruction; `tests/ssr_api.rs` checks the rule), and
 /// `--no-background` ignores them: the golden frames given a background with coverage 1 on
@@ -980,12 +1011,7 @@ fn denoise_uses_the_frames_background() {
         let mut f = read_frame(&plain.join(&name)).unwrap();
         let frame = f.frame.as_mut().unwrap();
         let (w, h) = frame.size().unwrap();
-        let sky = |x: u32| x < w / 2;
-        frame.background = Some(subpixel::frame::Background {
-            radiance: HostTensor::from_fn(w, h, 3, |x, _, c| if sky(x) { 0.5 + c as f32 } else { 0.0 }),
-            coverage: HostTensor::from_fn(w, h, 1, |x, _, _| sky(x) as u32 as f32),
-            albedo: None,
-        });
+        frame.background = Some(half_sky_background(w, h, None));
         write_frame(&with.join(&name), &f).unwrap();
     }
     let denoise = |input: &Path, name: &str, extra: &[&str]| {
@@ -1008,18 +1034,7 @@ fn denoise_uses_the_frames_background() {
         };
         let (pa, pb, pc) = (pred(&a), pred(&b), pred(&c));
         assert_eq!(pc, pa, "--no-background: as without a background");
-        for y in 0..pa.height {
-            for x in 0..pa.width {
-                for k in 0..3 {
-                    let want = if x < pa.width / 2 {
-                        0.5 + k as f32
-                    } else {
-                        pa.at(x, y, k)
-                    };
-                    assert_eq!(pb.at(x, y, k), want, "frame {i} pixel ({x}, {y}) channel {k}");
-                }
-            }
-        }
+        assert_half_sky_composite(&pb, &pa, i);
     }
 }
 
@@ -1082,11 +1097,7 @@ fn denoise_feeds_a_footprint_model_the_frames_footprint_albedo() {
         let mut plain_swapped = f.clone();
         plain_swapped.frame.as_mut().unwrap().albedo = albedo.clone();
         write_frame(&swapped.join(&name), &plain_swapped).unwrap();
-        f.frame.as_mut().unwrap().background = Some(subpixel::frame::Background {
-            radiance: HostTensor::from_fn(w, h, 3, |x, _, c| if x < w / 2 { 0.5 + c as f32 } else { 0.0 }),
-            coverage: HostTensor::from_fn(w, h, 1, |x, _, _| (x < w / 2) as u32 as f32),
-            albedo: Some(albedo),
-        });
+        f.frame.as_mut().unwrap().background = Some(half_sky_background(w, h, Some(albedo)));
         write_frame(&with.join(&name), &f).unwrap();
     }
     let (a, o) = run(&weights, &with, "fp-out-nobg", &["--no-background"]);
@@ -1108,17 +1119,6 @@ fn denoise_feeds_a_footprint_model_the_frames_footprint_albedo() {
             pa, pb,
             "frame {i}: --no-background as the centre model on the swapped albedo"
         );
-        for y in 0..pa.height {
-            for x in 0..pa.width {
-                for k in 0..3 {
-                    let want = if x < pa.width / 2 {
-                        0.5 + k as f32
-                    } else {
-                        pa.at(x, y, k)
-                    };
-                    assert_eq!(pc.at(x, y, k), want, "frame {i} pixel ({x}, {y}) channel {k}");
-                }
-            }
-        }
+        assert_half_sky_composite(&pc, &pa, i);
     }
 }
