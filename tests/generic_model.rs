@@ -20,7 +20,9 @@
 //! 33.5 % with the same network and the fourteenth session's mean correction: procedural:
 //! 1000000 0.90-1.02x, 1000001 1.01x, 1000002 1.08 / 1.23 / 1.33x; 30.0 % with the
 //! eighteenth session's Y: 1000000 0.93-0.99x, 1000001 1.02x, 1000002 1.15 / 1.30 /
-//! 1.21x). The mean correction
+//! 1.21x; 29.0 % with the twentieth session's F0, Y on the footprint albedo, the frames
+//! rendered with the 2 x 2 background pass and composited: 1000000 0.92-0.98x, 1000001
+//! 1.01-1.02x, 1000002 1.15 / 1.29 / 1.19x). The mean correction
 //! follows the 1/4-spp samples, and on procedural:1000002 at 32x32 those are themselves far
 //! from the reference: the sum of a frame's samples (times 4) over the reference's is
 //! 0.69-1.95x per frame and channel, above 1 on 21 of its 24 frame-channels (heavy-tailed
