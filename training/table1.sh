@@ -1,7 +1,8 @@
 #!/usr/bin/env bash
 # Rebuilds the paper's Table 1 layout for our scenes (rows: input, hold-filled, accumulation,
-# RAE, NSRR, OIDN (a), OIDN (b), SSR (with the background rows below when the frames have
-# the background buffer), then SSR's other and per-scene models; columns: scenes;
+# RAE, NSRR, OIDN (a), OIDN (b) (and both given the footprint albedo when the frames have it),
+# SSR (with the background rows below when the frames have the background buffer), then SSR's
+# other and per-scene models; columns: scenes;
 # every cell PSNR / SSIM / temporal error; test sequences only) from a dataset rendered by
 # `subpixel dataset`.
 #
@@ -37,10 +38,21 @@ models=(input hold accumulation)
 models+=(oidn-a)
 seqs=("$data"/test/*/)
 first="${seqs[0]}frame_0000.exr"
+has_full=0
 if (cd "$here" && "$py" -m ssr.oidn --has-full "$first"); then
   models+=(oidn-b)
+  has_full=1
 else
   echo "table1.sh: skipping the OIDN (b) row (no 1-spp frame in the dataset)" >&2
+fi
+# Frames with the footprint albedo (`subpixel dataset --background N`): OIDN given it as its
+# albedo image too (oidn-a-footprint, oidn-b-footprint), like for like with an SSR model
+# that runs on it (config albedo "footprint", the shipped one).
+footprint=0
+if (cd "$here" && "$py" -c 'import sys; from ssr.data import exr_size; sys.exit("albedo_footprint.R" not in exr_size(sys.argv[1])[2])' "$first"); then
+  footprint=1
+  models+=(oidn-a-footprint)
+  [ "$has_full" = 1 ] && models+=(oidn-b-footprint)
 fi
 (cd "$here" && "$py" -m ssr.evaluate --data "$data" --split test --out "$pred" --models "${models[@]}" --no-metrics)
 cargo build --release --quiet --manifest-path "$root/Cargo.toml"
@@ -54,7 +66,7 @@ denoise() { "$bin" denoise --weights "$1" --input "$seq" --out "$pred/$2/test/$n
 background=0
 if (cd "$here" && "$py" -c 'import sys; from ssr.data import exr_size; sys.exit("coverage.Y" not in exr_size(sys.argv[1])[2])' "$first"); then
   background=1
-  for m in rae nsrr oidn-a; do
+  for m in rae nsrr oidn-a $([ "$footprint" = 1 ] && echo oidn-a-footprint); do
     if [ -d "$pred/$m/test" ]; then
       (cd "$here" && "$py" -m ssr.background_probe --data "$data" --pred "$pred" --write "$m" >/dev/null)
     fi

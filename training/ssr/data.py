@@ -115,6 +115,25 @@ written with the background since it existed, added to older frames by re-runnin
 same `dataset --background N` command)."""
 
 
+def read_extra_buffers(path: str, buffers: Sequence[str], why: str) -> Dict[str, "torch.Tensor"]:
+    """{buffer: CHW float32 tensor} of the EXTRA_SUFFIXES `buffers` in frame file `path`,
+    non-finite values as 0; a DatasetError naming the file, the missing channels and `why`
+    (what reads them) when it lacks some."""
+    import torch
+
+    out = {}
+    names = exr_size(path)[2] if buffers else []
+    for b in buffers:
+        channels = [f"{b}.{c}" for c in EXTRA_SUFFIXES[b]]
+        missing = [c for c in channels if c not in names]
+        if missing:
+            raise DatasetError(f"{path}: missing channel(s) {missing}: {why}")
+        arr = read_exr(path, channels)
+        arr[~np.isfinite(arr)] = 0.0
+        out[b] = torch.from_numpy(np.ascontiguousarray(arr.transpose(2, 0, 1)))
+    return out
+
+
 def layout(extra: Sequence[str] = ()) -> Tuple[Tuple[str, ...], Dict[str, Tuple[int, int]]]:
     """(EXR channels, buffer -> channel range) of frames with BUFFERS and then `extra`
     (names of EXTRA_SUFFIXES; a ValueError names an unknown one)."""

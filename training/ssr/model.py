@@ -49,7 +49,6 @@ import json
 from dataclasses import dataclass
 from typing import Dict, List, Optional, Sequence, Tuple
 
-import numpy as np
 import torch
 import torch.nn.functional as F
 from torch import nn
@@ -676,22 +675,13 @@ class SSRModel(nn.Module):
 
     def read_extra(self, path: str) -> Dict[str, torch.Tensor]:
         """The buffers beyond data.BUFFERS this model reads (`extra_buffers`), from frame file
-        `path` (for `ssr.evaluate`); a DatasetError naming the file when it lacks them."""
-        from .data import DatasetError, EXTRA_SUFFIXES, exr_size, read_exr
+        `path` (for `ssr.evaluate` and validation); a DatasetError naming the file when it
+        lacks them."""
+        from .data import read_extra_buffers
 
-        out = {}
-        for b in extra_buffers(self.cfg):
-            channels = [f"{b}.{c}" for c in EXTRA_SUFFIXES[b]]
-            missing = [c for c in channels if c not in exr_size(path)[2]]
-            if missing:
-                raise DatasetError(
-                    f"{path}: missing channel(s) {missing}: config albedo = {self.cfg.albedo!r} reads them "
-                    "(add them with `subpixel dataset --background N` over the same folder)"
-                )
-            arr = read_exr(path, channels)
-            arr[~np.isfinite(arr)] = 0.0
-            out[b] = torch.from_numpy(np.ascontiguousarray(arr.transpose(2, 0, 1)))
-        return out
+        why = (f"config albedo = {self.cfg.albedo!r} reads them (add them with `subpixel dataset "
+               "--background N` over the same folder)")
+        return read_extra_buffers(path, extra_buffers(self.cfg), why)
 
     def forward(self, frame: Dict[str, torch.Tensor], state: Optional[State] = None) -> Dict[str, object]:
         """Denoises one frame.

@@ -8,6 +8,11 @@ Two rows of the Table 1 command, both single-frame (no history of their own):
           samples): the channels `full.R full.G full.B` of each dataset frame. A frame
           without them is an error naming the file and the missing channels.
 
+`oidn-a-footprint` and `oidn-b-footprint` are the same with the footprint albedo
+(`albedo_footprint`, the first-hit albedo averaged over each pixel) as OIDN's albedo image:
+OIDN wants its auxiliary images filtered over the pixel like the colour, and the shipped
+SSR model runs on that albedo, so these are the like-for-like rows against it.
+
 Both use OIDN's "RT" filter with the clean auxiliary images every dataset frame has: the
 first-hit albedo (clamped to [0, 1], as OIDN expects) and the world-space shading normal
 (in [-1, 1], as it is; 0 on the sky), `hdr=True` (linear HDR radiance, negative and
@@ -35,10 +40,13 @@ import torch
 from torch import nn
 
 from .baselines import HoldBaseline, _clean
-from .data import DatasetError, exr_size, read_exr
+from .data import DatasetError, exr_size, read_exr, read_extra_buffers
 
 FULL_CHANNELS = ("full.R", "full.G", "full.B")
 """Channels of the 1-spp full-resolution colour that oidn-b denoises."""
+
+FOOTPRINT_CHANNELS = ("albedo_footprint.R", "albedo_footprint.G", "albedo_footprint.B")
+"""Channels of the footprint albedo the `-footprint` rows give OIDN as its albedo image."""
 
 PIP_INSTALL = "~/.cache/subpixel/venv/bin/pip install pyoidn==2.5.1.0"
 QUALITY = "high"
@@ -123,12 +131,15 @@ class OIDNBaseline(nn.Module):
 
     pad_multiple = 1  # OIDN takes any size: evaluate.py does not pad
 
-    def __init__(self, source: str):
+    def __init__(self, source: str, albedo: str = "centre"):
         super().__init__()
         if source not in ("hold", "full"):
             raise ValueError(f"OIDN source must be 'hold' or 'full', got {source!r}")
+        if albedo not in ("centre", "footprint"):
+            raise ValueError(f"OIDN albedo must be 'centre' or 'footprint', got {albedo!r}")
         self.source = source
-        self.NAME = "oidn-a" if source == "hold" else "oidn-b"
+        self.albedo = albedo
+        self.NAME = ("oidn-a" if source == "hold" else "oidn-b") + ("-footprint" if albedo == "footprint" else "")
         self.pyoidn = import_pyoidn()
         self.hold = HoldBaseline() if source == "hold" else None
 
@@ -137,25 +148,38 @@ class OIDNBaseline(nn.Module):
             "format": f"non-learned-{self.NAME}",
             "weights": None,
             "oidn": {**pyoidn_versions(), "device": "cpu", "filter": "RT", "hdr": True, "cleanAux": True,
-                     "quality": QUALITY, "aux": ["albedo", "normal"], "input": self.source},
+                     "quality": QUALITY, "aux": ["albedo" if self.albedo == "centre" else "albedo_footprint", "normal"],
+                     "input": self.source},
         }  # fmt: skip
 
     def read_extra(self, path: str) -> Dict[str, torch.Tensor]:
         """Buffers beyond the dataset's standard ones, read from frame file `path`."""
-        return read_full(path) if self.source == "full" else {}
+        out = read_full(path) if self.source == "full" else {}
+        if self.albedo == "footprint":
+            why = f"{self.NAME} uses the footprint albedo (`subpixel dataset --background N` adds it)"
+            out.update(read_extra_buffers(path, ["albedo_footprint"], why))
+        return out
 
     def check_frames(self, paths: List[str]) -> None:
         """Fails early (DatasetError naming the first file and its missing channels) when a
         frame lacks what this model reads."""
-        if self.source != "full":
+        want = (FULL_CHANNELS if self.source == "full" else ()) + (
+            FOOTPRINT_CHANNELS if self.albedo == "footprint" else ()
+        )
+        if not want:
             return
+
+        def lacking(p: str) -> List[str]:
+            names = exr_size(p)[2]
+            return [c for c in want if c not in names]
+
         for p in paths:
-            missing = missing_full_channels(p)
+            missing = lacking(p)
             if missing:
-                bad = sum(1 for q in paths if missing_full_channels(q))
+                bad = sum(1 for q in paths if lacking(q))
                 raise DatasetError(
-                    f"{p}: missing channel(s) {missing} ({bad} of {len(paths)} frames lack them): oidn-b denoises the "
-                    f"1-spp full-resolution frame stored as {' '.join(FULL_CHANNELS)}"
+                    f"{p}: missing channel(s) {missing} ({bad} of {len(paths)} frames lack them): {self.NAME} reads "
+                    f"{' '.join(want)} (the 1-spp frame: `full`; the footprint albedo: `subpixel dataset --background N`)"
                 )
 
     def forward(self, frame: Dict[str, torch.Tensor], state=None) -> Dict[str, object]:
@@ -168,7 +192,8 @@ class OIDNBaseline(nn.Module):
             color, new_state = frame["full"], None
         if color.dim() == 3:
             color = color.unsqueeze(0)
-        out = denoise(color, frame["albedo"], frame["normal"], self.pyoidn)
+        albedo = frame["albedo_footprint"] if self.albedo == "footprint" else frame["albedo"]
+        out = denoise(color, albedo, frame["normal"], self.pyoidn)
         return {"output": out, "input": color, "state": new_state}
 
 
@@ -180,7 +205,12 @@ def oidn_b() -> OIDNBaseline:
     return OIDNBaseline("full")
 
 
-OIDN_MODELS = {"oidn-a": oidn_a, "oidn-b": oidn_b}
+OIDN_MODELS = {
+    "oidn-a": oidn_a,
+    "oidn-b": oidn_b,
+    "oidn-a-footprint": lambda: OIDNBaseline("hold", "footprint"),
+    "oidn-b-footprint": lambda: OIDNBaseline("full", "footprint"),
+}
 
 
 def main(argv: Optional[List[str]] = None) -> int:

@@ -211,3 +211,29 @@ def test_missing_pyoidn_is_a_clear_error(monkeypatch, tmp_path, capsys):
     assert E.main(["--data", root, "--device", "cpu", "--models", "oidn-a"]) == 1
     msg = capsys.readouterr().err
     assert "pyoidn" in msg and "pip install" in msg
+
+
+@needs_oidn
+def test_oidn_footprint_rows_take_the_footprint_albedo(tmp_path, capsys):
+    """oidn-a-footprint / oidn-b-footprint are OIDN with the frame's footprint albedo as its
+    albedo image: exactly oidn-a / oidn-b on the frame with its albedo replaced by it; in
+    evaluate they read the channels, and a dataset without them fails first, naming them."""
+    frames, _ = _constant_frames(t_count=1, seed=3)
+    f = dict(frames[0])
+    g = torch.Generator().manual_seed(5)
+    f["albedo_footprint"] = torch.rand(f["albedo"].shape, generator=g)
+    swapped = {**f, "albedo": f["albedo_footprint"]}
+    for name, plain in (("oidn-a-footprint", O.oidn_a), ("oidn-b-footprint", O.oidn_b)):
+        fp = O.OIDN_MODELS[name]()
+        assert fp.NAME == name and fp.info()["oidn"]["aux"][0] == "albedo_footprint"
+        got = fp(f)["output"]
+        assert torch.equal(got, plain()(swapped)["output"])
+        assert not torch.equal(got, plain()(f)["output"])
+    root = write_dataset(str(tmp_path / "d"), {"test": 1}, 3, 16, 16, seed=2, full=True, background=True)
+    assert E.main(["--data", root, "--out", str(tmp_path / "p"), "--device", "cpu",
+                   "--models", "oidn-a-footprint", "oidn-b-footprint"]) == 0  # fmt: skip
+    bare = write_dataset(str(tmp_path / "b"), {"test": 1}, 2, 8, 8, seed=0, full=True)
+    capsys.readouterr()
+    assert E.main(["--data", bare, "--out", str(tmp_path / "q"), "--device", "cpu", "--models", "oidn-b-footprint"]) == 1
+    msg = capsys.readouterr().err
+    assert "frame_0000.exr" in msg and "albedo_footprint.R" in msg and "2 of 2 frames" in msg
