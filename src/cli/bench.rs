@@ -57,7 +57,8 @@ pub(super) struct FrameBenchArgs {
 #[derive(clap::Args)]
 pub(super) struct NetworkRunArgs {
     /// Weights file (default: the shipped weights, else random weights of the default
-    /// config; the values do not change the timing).
+    /// config; the values do not change the timing, the config may: a model of config albedo
+    /// "footprint", the shipped one, adds the background pass to every frame).
     #[arg(long)]
     weights: Option<std::path::PathBuf>,
     /// Timed frames (default 100 on a GPU; 3 for `frame`, 5 for `denoise` on a CPU adapter).
