@@ -115,7 +115,8 @@ def parse_args(argv=None) -> argparse.Namespace:
     ap.add_argument("--stop-at", type=int, default=None, help="checkpoint and stop at this iteration (time-limited jobs)")
     ap.add_argument(
         "--init", default=None,
-        help="start from this weights file (same model and config; e.g. the committed weights of an earlier "
+        help="start from this weights file (same model and config, but the albedo may differ; its output-pass "
+        "options and albedo carry over unless --model-config sets them; e.g. the committed weights of an earlier "
         "session) with a fresh optimizer",
     )
     ap.add_argument(
@@ -194,8 +195,9 @@ def run_config(args: argparse.Namespace) -> dict:
     """The settings a checkpoint must share to be resumed (not paths, logging, workers, device)."""
     model_cfg = json.loads(args.model_config) if args.model_config else {}
     if args.init is not None:
-        # Options of the engine's output pass follow the initial weights unless set here.
-        model_cfg = {**init_output_pass_options(args.init), **model_cfg}
+        # Options of the engine's output pass and the albedo follow the initial weights
+        # unless set here (continuing a model keeps its pipeline).
+        model_cfg = {**init_inherited_options(args.init), **model_cfg}
     model = build_model(args.model, model_cfg)
     cfg_dict = model.cfg.to_dict()
     return {
@@ -240,10 +242,11 @@ def init_identity(path: Optional[str]) -> Optional[dict]:
     return {"file": os.path.basename(path), "sha256": digest}
 
 
-def init_output_pass_options(path: str) -> dict:
-    """The config options of the engine's output pass (model.OUTPUT_PASS_OPTIONS) that the
-    weights file `path` sets; {} for a file without them or not readable as such (load_init
-    reports what is wrong with it)."""
+def init_inherited_options(path: str) -> dict:
+    """The config options a run started from weights file `path` takes from it unless
+    `--model-config` sets them: the engine's output pass (model.OUTPUT_PASS_OPTIONS) and the
+    albedo (model.FINE_TUNE_OPTIONS), as the file sets them; {} for a file without them or
+    not readable as such (load_init reports what is wrong with it)."""
     try:
         from safetensors import safe_open
 
@@ -251,7 +254,8 @@ def init_output_pass_options(path: str) -> dict:
             cfg = json.loads((f.metadata() or {}).get("config", "{}"))
     except Exception:  # noqa: BLE001 - load_init names the problem
         return {}
-    return {k: cfg[k] for k in OUTPUT_PASS_OPTIONS if isinstance(cfg, dict) and k in cfg}
+    inherited = OUTPUT_PASS_OPTIONS + FINE_TUNE_OPTIONS
+    return {k: cfg[k] for k in inherited if isinstance(cfg, dict) and k in cfg}
 
 
 def load_init(model: nn.Module, path: str, model_name: str) -> dict:

@@ -344,3 +344,16 @@ def test_footprint_albedo_fine_tune_from_centre_weights(tmp_path, capsys):
     assert T.main(args(bare, str(tmp_path / "h"), "--model-config", fp, iters=1)) == 1
     err = capsys.readouterr().err
     assert "frame_0000.exr: missing channel(s) ['albedo_footprint.R'" in err, err
+
+
+def test_a_run_from_weights_keeps_their_albedo_unless_told(tmp_path):
+    """Continuing weights of config albedo = "footprint" (the shipped model) trains on the
+    footprint albedo without saying so; --model-config can still set it back."""
+    from ssr.synth import write_dataset
+
+    data = write_dataset(str(tmp_path / "d"), {"train": 1, "val": 1}, 6, 16, 16, seed=6, background=True)
+    fp = T.train(args(data, str(tmp_path / "f"), "--model-config", '{"albedo": "footprint"}', iters=1))
+    cont = T.train(args(data, str(tmp_path / "c"), "--init", fp["weights"], iters=1))
+    assert load_weights(cont["weights"])[0].cfg.albedo == "footprint"
+    back = T.train(args(data, str(tmp_path / "b"), "--init", fp["weights"], "--model-config", '{"albedo": "centre"}', iters=1))
+    assert load_weights(back["weights"])[0].cfg.albedo == "centre"
