@@ -2,7 +2,21 @@
 
 use crate::error::{Error, Result};
 use crate::nn::HostTensor;
-use crate::ssr::AlbedoSource;
+
+/// Which albedo a model's pipeline uses (its config `albedo`,
+/// [`crate::ssr::SsrConfig::albedo_source`]; absent: `centre`): the one in
+/// [`FrameInputs::albedo_depth`](super::FrameInputs) demodulates, feeds the network, tests
+/// the history and remodulates, so it is the caller who provides it.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum AlbedoSource {
+    /// The G-buffer's first-hit base colour at the pixel centre (every model before the
+    /// option).
+    Centre,
+    /// The first-hit base colour averaged over the pixel's footprint (the background
+    /// pass's `albedo_footprint`, [`crate::frame::Background::albedo`]): the albedo the
+    /// reference sees, so remodulation reaches the reference where a pixel mixes surfaces.
+    Footprint,
+}
 
 /// One frame of inputs in host memory, one [`HostTensor`] per buffer of DESIGN §3.
 #[derive(Debug, Clone, PartialEq)]

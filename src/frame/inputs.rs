@@ -22,7 +22,7 @@ use crate::error::{Error, Result};
 /// without one, every pixel is the network's reconstruction.
 ///
 /// Which albedo goes in `albedo_depth` is the model's choice
-/// ([`crate::ssr::AlbedoSource`], `Weights::config.albedo_source()`): the G-buffer's at the
+/// ([`crate::frame::AlbedoSource`], `Weights::config.albedo_source()`): the G-buffer's at the
 /// pixel centre, or the first-hit base colour averaged over the pixel's footprint (the
 /// shipped model: what the reference sees where a pixel mixes surfaces; the tracer's
 /// background pass writes it, [`crate::render::FrameBuffers::albedo_footprint`], which the

@@ -3,6 +3,7 @@
 use serde::{Deserialize, Serialize};
 
 use crate::error::{Error, Result};
+pub use crate::frame::AlbedoSource;
 use crate::nn::ops::{Activation, PoolMode, UpsampleMode};
 
 /// Channels of the accumulated feature set A (DESIGN §4).
@@ -70,20 +71,6 @@ pub enum MeanCorrection {
     /// part of each pixel the network reconstructs). The samples are an unbiased estimate
     /// of the radiance, so the tiles' brightness follows them; the history is not changed.
     Tiles,
-}
-
-/// Which albedo the pipeline uses (config `albedo`, version 2; absent: `centre`): the one
-/// in [`crate::frame::FrameInputs::albedo_depth`] demodulates, feeds the network, tests the
-/// history and remodulates, so it is the caller who provides it.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub enum AlbedoSource {
-    /// The G-buffer's first-hit base colour at the pixel centre (every model before the
-    /// option).
-    Centre,
-    /// The first-hit base colour averaged over the pixel's footprint (the background
-    /// pass's `albedo_footprint`, [`crate::frame::Background::albedo`]): the albedo the
-    /// reference sees, so remodulation reaches the reference where a pixel mixes surfaces.
-    Footprint,
 }
 
 /// Config `mean_correction = "tiles"`: tile side in pixels.

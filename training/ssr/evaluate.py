@@ -34,7 +34,7 @@ import torch
 from torch import nn
 
 from .baselines import NON_LEARNED, load_model
-from .data import DatasetError, SequenceDataset, frame_name, pad_frame, write_exr
+from .data import DatasetError, SequenceDataset, frame_name, pad_frame, read_extra_buffers, write_exr
 from .export import WeightsError
 from .metrics import image_metrics, mean_metrics, temporal_error
 from .oidn import OIDN_MODELS, OIDNUnavailable
@@ -84,10 +84,11 @@ def run_model(
     returns per-sequence metric dicts {"sequence", "scene", "frames", psnr, ssim, ...}.
 
     A model may set `pad_multiple` (default 4: the engine's padding; 1: no padding) and
-    `read_extra(frame_path) -> {buffer: CHW tensor}` for buffers beyond data.BUFFERS."""
+    `extra_buffers` (names of data.EXTRA_SUFFIXES) for buffers beyond data.BUFFERS, read from
+    each frame file."""
     rows = []
     multiple = getattr(model, "pad_multiple", 4)
-    read_extra = getattr(model, "read_extra", None)
+    extra = tuple(getattr(model, "extra_buffers", ()))
     for si, seq in enumerate(ds.sequences):
         t0 = time.time()
         folder = os.path.join(out, name, seq.split, seq.name) if out else None
@@ -102,8 +103,8 @@ def run_model(
         n = seq.frames if frames is None else min(frames, seq.frames)
         for t in range(n):
             f = ds.full_frame(si, t)
-            if read_extra is not None:
-                f.update(read_extra(seq.frame_path(t)))
+            if extra:
+                f.update(read_extra_buffers(seq.frame_path(t), extra, f"{name} reads them"))
             fb = {k: v.unsqueeze(0).to(device) for k, v in f.items()}
             padded, (h, w) = pad_frame(fb, multiple)
             r = model(padded, state)

@@ -272,7 +272,7 @@ FOOTPRINT_ALBEDO = "albedo_footprint"
 
 def extra_buffers(cfg: SSRConfig) -> Tuple[str, ...]:
     """Buffers beyond data.BUFFERS a model of config `cfg` reads (load them with
-    `SequenceDataset(extra=...)`)."""
+    `SequenceDataset(extra=...)`, or per frame file with data.read_extra_buffers)."""
     return (FOOTPRINT_ALBEDO,) if cfg.albedo == "footprint" else ()
 
 
@@ -673,15 +673,11 @@ class SSRModel(nn.Module):
         self.tfa = TFA(self.cfg)
         self.unet = UNet(self.cfg)
 
-    def read_extra(self, path: str) -> Dict[str, torch.Tensor]:
-        """The buffers beyond data.BUFFERS this model reads (`extra_buffers`), from frame file
-        `path` (for `ssr.evaluate` and validation); a DatasetError naming the file when it
-        lacks them."""
-        from .data import read_extra_buffers
-
-        why = (f"config albedo = {self.cfg.albedo!r} reads them (add them with `subpixel dataset "
-               "--background N` over the same folder)")
-        return read_extra_buffers(path, extra_buffers(self.cfg), why)
+    @property
+    def extra_buffers(self) -> Tuple[str, ...]:
+        """The buffers beyond data.BUFFERS this model reads (`extra_buffers`): `ssr.evaluate`
+        and validation read them from each frame file (data.read_extra_buffers)."""
+        return extra_buffers(self.cfg)
 
     def forward(self, frame: Dict[str, torch.Tensor], state: Optional[State] = None) -> Dict[str, object]:
         """Denoises one frame.

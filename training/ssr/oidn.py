@@ -33,14 +33,14 @@ from __future__ import annotations
 
 import argparse
 import sys
-from typing import Dict, List, Optional
+from typing import Dict, List, Optional, Tuple
 
 import numpy as np
 import torch
 from torch import nn
 
 from .baselines import HoldBaseline, _clean
-from .data import DatasetError, exr_size, read_exr, read_extra_buffers
+from .data import DatasetError, exr_size, read_exr
 
 FULL_CHANNELS = ("full.R", "full.G", "full.B")
 """Channels of the 1-spp full-resolution colour that oidn-b denoises."""
@@ -127,7 +127,7 @@ def denoise(color: torch.Tensor, albedo: torch.Tensor, normal: torch.Tensor, pyo
 class OIDNBaseline(nn.Module):
     """OIDN per frame on the hold-filled 1/4-spp colour (`source="hold"`, oidn-a) or on the
     1-spp full-resolution colour (`source="full"`, oidn-b). forward(frame, state) like the
-    other models; the frame of oidn-b needs a `full` buffer (read_extra adds it)."""
+    other models; the frame of oidn-b needs a `full` buffer (`extra_buffers`)."""
 
     pad_multiple = 1  # OIDN takes any size: evaluate.py does not pad
 
@@ -152,13 +152,11 @@ class OIDNBaseline(nn.Module):
                      "input": self.source},
         }  # fmt: skip
 
-    def read_extra(self, path: str) -> Dict[str, torch.Tensor]:
-        """Buffers beyond the dataset's standard ones, read from frame file `path`."""
-        out = read_full(path) if self.source == "full" else {}
-        if self.albedo == "footprint":
-            why = f"{self.NAME} uses the footprint albedo (`subpixel dataset --background N` adds it)"
-            out.update(read_extra_buffers(path, ["albedo_footprint"], why))
-        return out
+    @property
+    def extra_buffers(self) -> Tuple[str, ...]:
+        """Buffers beyond the dataset's standard ones this model reads from each frame file:
+        the 1-spp frame (oidn-b), the footprint albedo (the `-footprint` rows)."""
+        return (("full",) if self.source == "full" else ()) + (("albedo_footprint",) if self.albedo == "footprint" else ())
 
     def check_frames(self, paths: List[str]) -> None:
         """Fails early (DatasetError naming the first file and its missing channels) when a

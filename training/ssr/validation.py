@@ -8,7 +8,7 @@ from __future__ import annotations
 import torch
 from torch import nn
 
-from .data import SequenceDataset, pad_frame
+from .data import SequenceDataset, pad_frame, read_extra_buffers
 from .metrics import image_metrics, mean_metrics
 from .model import MeanCorrection, composite_background
 
@@ -22,21 +22,23 @@ def validate(model: nn.Module, ds: SequenceDataset, device: torch.device, frames
     buffers loaded (`ds.store.extra`), the output is composited as the engine does, and with
     config `mean_correction = "tiles"` corrected as the engine does (model.MeanCorrection);
     `output_pass=False` scores the network's own output (neither). Buffers the model reads
-    beyond the dataset's (`model.read_extra`: config albedo = "footprint") come from each
+    beyond the dataset's (`model.extra_buffers`: config albedo = "footprint") come from each
     frame's file."""
     was_training = model.training
     model.eval()
     rows, per_scene = [], {}
     cfg = getattr(model, "cfg", None)
     tiles = output_pass and getattr(cfg, "mean_correction", "none") == "tiles"
-    read_extra = getattr(model, "read_extra", None)
+    extra = tuple(getattr(model, "extra_buffers", ()))
     for si, seq in enumerate(ds.sequences):
         state = None
         mc = MeanCorrection()
         for t in range(min(frames, seq.frames)):
             f = ds.full_frame(si, t)
-            if read_extra is not None:
-                f.update({k: v for k, v in read_extra(seq.frame_path(t)).items() if k not in f})
+            missing = [b for b in extra if b not in f]
+            if missing:
+                why = "the model reads them (config albedo \"footprint\": `subpixel dataset --background N` adds them)"
+                f.update(read_extra_buffers(seq.frame_path(t), missing, why))
             if size:
                 h, w = f["color"].shape[-2:]
                 ch, cw = min(h, size), min(w, size)
