@@ -36,7 +36,7 @@ from typing import Dict, List, Optional, Tuple
 import torch
 from torch import nn
 
-from .model import OPTION_VALUES, OUTPUT_PASS_OPTIONS, SSRConfig, SSRModel, flops_per_pixel
+from .model import OPTION_VALUES, SSRConfig, SSRModel, flops_per_pixel
 
 FORMAT = "subpixel-ssr"
 FORMAT_VERSION = "2"
@@ -254,10 +254,11 @@ def load_weights(path: str, device: str = "cpu") -> Tuple[SSRModel, dict]:
 def set_options(src: str, options: List[str], out: str, val_data: Optional[str] = None, frames: int = 8) -> dict:
     """Rewrites weights file `src` as `out` with config `options` (KEY=VALUE) changed: the
     tensors are kept; provenance gains an `options_set` entry (what changed, from what, when);
-    with `val_data` the val metrics are recomputed under the new config (validation.validate),
-    otherwise they are dropped (they described the old one), unless every changed option is
-    one the engine's output pass applies after the network (OUTPUT_PASS_OPTIONS), which leaves
-    the network's output and so its metrics as they were. Returns the new metrics."""
+    with `val_data` the val metrics are recomputed under the new config (validation.validate,
+    with the background composited when the val frames have it, as the trainer validates),
+    otherwise they are dropped: they described the old config (validation scores the
+    engine's output, its output pass included, so even an option of the output pass changes
+    them). Returns the new metrics."""
     import datetime
 
     model, meta = load_weights(src)
@@ -279,14 +280,14 @@ def set_options(src: str, options: List[str], out: str, val_data: Optional[str] 
     changed.load_state_dict(model.state_dict(), strict=True)
     changed.eval()
     metrics: dict = {}
-    if not val_data and all(c["option"] in OUTPUT_PASS_OPTIONS for c in changes):
-        # The network's output, which the val metrics describe, does not change.
-        metrics = dict(meta.get("metrics") or {})
     if val_data:
-        from .data import SequenceDataset
+        from .data import SequenceDataset, exr_size
         from .validation import validate
 
         ds = SequenceDataset(val_data, "val", window=1, crop=None, flips=False)
+        if ds.sequences and "coverage.Y" in exr_size(ds.sequences[0].frame_path(0))[2]:
+            # composited with the background as the engine (and the trainer's validation) does
+            ds = SequenceDataset(val_data, "val", window=1, crop=None, flips=False, extra=("background", "coverage"))
         with torch.no_grad():
             metrics = validate(changed, ds, torch.device("cpu"), frames)
     provenance = dict(meta["provenance"])

@@ -267,9 +267,10 @@ def test_set_options_rewrites_config_and_keeps_tensors(tmp_path):
     with pytest.raises(WeightsError, match="ceiling"):
         set_options(out, ["exposure=none"], str(tmp_path / "bad.safetensors"))  # the ceiling needs the exposure
 
-    # An option of the engine's output pass leaves the network's output, and so the metrics.
+    # An option of the engine's output pass changes the metrics too (validation scores the
+    # engine's output, the output pass included): dropped as well.
     kept = str(tmp_path / "kept.safetensors")
-    assert set_options(src, ["mean_correction=tiles"], kept) == {"psnr": 20.0}
+    assert set_options(src, ["mean_correction=tiles"], kept) == {}
     _, meta = load_weights(kept)
-    assert meta["config"].mean_correction == "tiles" and meta["metrics"] == {"psnr": 20.0}
+    assert meta["config"].mean_correction == "tiles" and meta["metrics"] == {}
     assert meta["config"].to_dict()["mean_correction"] == "tiles"
