@@ -88,7 +88,7 @@ def run_model(
     each frame file."""
     rows = []
     multiple = getattr(model, "pad_multiple", 4)
-    extra = tuple(getattr(model, "extra_buffers", ()))
+    extra_buffers = tuple(getattr(model, "extra_buffers", ()))
     for si, seq in enumerate(ds.sequences):
         t0 = time.time()
         folder = os.path.join(out, name, seq.split, seq.name) if out else None
@@ -103,8 +103,8 @@ def run_model(
         n = seq.frames if frames is None else min(frames, seq.frames)
         for t in range(n):
             f = ds.full_frame(si, t)
-            if extra:
-                f.update(read_extra_buffers(seq.frame_path(t), extra, f"{name} reads them"))
+            if extra_buffers:
+                f.update(read_extra_buffers(seq.frame_path(t), extra_buffers, f"{name} reads them"))
             fb = {k: v.unsqueeze(0).to(device) for k, v in f.items()}
             padded, (h, w) = pad_frame(fb, multiple)
             r = model(padded, state)

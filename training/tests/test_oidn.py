@@ -229,9 +229,11 @@ def test_oidn_footprint_rows_take_the_footprint_albedo(tmp_path, capsys):
         got = fp(f)["output"]
         assert torch.equal(got, plain()(swapped)["output"])
         assert not torch.equal(got, plain()(f)["output"])
-    root = write_dataset(str(tmp_path / "d"), {"test": 1}, 3, 16, 16, seed=2, full=True, background=True)
-    assert E.main(["--data", root, "--out", str(tmp_path / "p"), "--device", "cpu",
-                   "--models", "oidn-a-footprint", "oidn-b-footprint"]) == 0  # fmt: skip
+    # two sequences, with and without metrics: every sequence's frames get the buffers
+    root = write_dataset(str(tmp_path / "d"), {"test": 2}, 3, 16, 16, seed=2, full=True, background=True)
+    for extra in ([], ["--no-metrics"]):
+        assert E.main(["--data", root, "--out", str(tmp_path / "p"), "--device", "cpu",
+                       "--models", "oidn-a-footprint", "oidn-b-footprint", *extra]) == 0  # fmt: skip
     bare = write_dataset(str(tmp_path / "b"), {"test": 1}, 2, 8, 8, seed=0, full=True)
     capsys.readouterr()
     assert E.main(["--data", bare, "--out", str(tmp_path / "q"), "--device", "cpu", "--models", "oidn-b-footprint"]) == 1
