@@ -141,17 +141,18 @@ fn denoise_all(
     pb: &indicatif::ProgressBar,
 ) -> Result<usize> {
     let mut with_background = 0;
+    // With --no-background a footprint model keeps the background's albedo, composited
+    // with nothing (coverage 0); any other model drops the background.
+    let keep_albedo = den.network().config.albedo_source()? == AlbedoSource::Footprint;
     for path in frames {
         let mut file = read_frame(path)?;
-        if a.no_background {
-            if let Some(b) = file.frame.as_mut().and_then(|f| f.background.as_mut()) {
-                if b.albedo.is_some() && den.network().config.albedo_source()? == AlbedoSource::Footprint {
-                    // Nothing composited (coverage 0), the footprint albedo the model uses kept.
+        if let (true, Some(f)) = (a.no_background, file.frame.as_mut()) {
+            match &mut f.background {
+                Some(b) if keep_albedo => {
                     b.radiance.data.fill(0.0);
                     b.coverage.data.fill(0.0);
-                } else {
-                    file.frame.as_mut().expect("has a background").background = None;
                 }
+                _ => f.background = None,
             }
         }
         let Some(frame) = &file.frame else {
