@@ -928,13 +928,27 @@ fn background_composites_by_coverage() {
 /// uncorrected denoiser gives the reconstruction on every frame.
 #[test]
 fn mean_correction_scales_each_tile_to_its_samples() {
+    check_mean_correction("tiles", subpixel::ssr::MEAN_TILE, (2, 2));
+}
+
+/// The same with config `mean_correction = "tiles16"`: 16-pixel tiles (4 x 3 of them).
+#[test]
+fn mean_correction_tiles16_scales_each_16_pixel_tile() {
+    check_mean_correction("tiles16", 16, (4, 3));
+}
+
+fn check_mean_correction(option: &str, side: u32, tiles: (u32, u32)) {
     use subpixel::frame::Background;
     use subpixel::nn::reference::{mean_factor_at, mean_tile_factors, mean_tile_sums};
-    use subpixel::ssr::{MEAN_EPS, MEAN_HI, MEAN_LO, MEAN_RING, MEAN_TILE};
+    use subpixel::ssr::{MEAN_EPS, MEAN_HI, MEAN_LO, MEAN_RING, MeanCorrection};
     let gpu = common::gpu();
     let weights = Weights::load(golden_weights_path()).unwrap();
     let mut with_option = weights.clone();
-    with_option.config.mean_correction = Some("tiles".into());
+    with_option.config.mean_correction = Some(option.into());
+    assert_eq!(
+        with_option.config.mean_correction().unwrap(),
+        MeanCorrection::Tiles { side }
+    );
     let (w, h) = (64, 40);
     let mut plain = Denoiser::with_gpu(&gpu, &weights, w, h).unwrap();
     let mut corrected = Denoiser::with_gpu(&gpu, &with_option, w, h).unwrap();
@@ -967,10 +981,10 @@ fn mean_correction_scales_each_tile_to_its_samples() {
         let bg = |x, y, c| background.as_ref().map_or(0.0, |b| b.radiance.at(x, y, c));
         let part = HostTensor::from_fn(w, h, 3, |x, y, c| want.at(x, y, c) - bg(x, y, c));
         let sample = HostTensor::from_fn(w, h, 3, |x, y, c| f.color.at(x, y, c) - bg(x, y, c));
-        sums.push(mean_tile_sums(&part, &sample, &f.mask, MEAN_TILE));
+        sums.push(mean_tile_sums(&part, &sample, &f.mask, side));
         let recent = &sums[sums.len().saturating_sub(MEAN_RING as usize)..];
         let factors = mean_tile_factors(recent, MEAN_EPS, MEAN_LO, MEAN_HI);
-        assert_eq!((factors.width, factors.height), (2, 2));
+        assert_eq!((factors.width, factors.height), tiles);
         for k in 0..factors.data.len() {
             let v = factors.data[k];
             if v == MEAN_LO || v == MEAN_HI {
@@ -982,8 +996,7 @@ fn mean_correction_scales_each_tile_to_its_samples() {
         for y in 0..h {
             for x in 0..w {
                 for c in 0..3 {
-                    let expect =
-                        bg(x, y, c) + part.at(x, y, c) * mean_factor_at(&factors, MEAN_TILE, x, y, c);
+                    let expect = bg(x, y, c) + part.at(x, y, c) * mean_factor_at(&factors, side, x, y, c);
                     let g = got.at(x, y, c);
                     assert!(
                         (g - expect).abs() <= 2e-5 * (1.0 + expect.abs()),

@@ -19,6 +19,8 @@
 # SCENES=a,b,... restricts the table to those scene columns, in that order (`procedural` is
 # the mean over the procedural scenes), e.g. the held-out scenes:
 #   SCENES=living-room,flight-helmet,barn-lamp,procedural training/table1.sh ...
+# SSR_ROWS=NAME,... keeps only those of the other SSR models (e.g. SSR_ROWS=ssr-s20-F0;
+# SSR_ROWS=none: no other SSR model), for a shorter run.
 # PER_FRAME=1 also prints, for each of those scenes (or for all test sequences together
 # without SCENES), the table with a column per frame index (`subpixel eval --per-frame`):
 # the first frames have no history, the later ones show what the temporal accumulation adds.
@@ -79,7 +81,9 @@ for seq in "$data"/test/*/; do
     "$bin" denoise --no-background --weights "$ssr" --input "$seq" --out "$pred/ssr-no-background/test/$name" >/dev/null
   fi
   for extra in "$(dirname "$rae")"/ssr-*.safetensors; do
-    if [ -f "$extra" ]; then denoise "$extra" "$(basename "$extra" .safetensors)"; fi
+    row="$(basename "$extra" .safetensors)"
+    if [ -n "${SSR_ROWS:-}" ] && [[ ",$SSR_ROWS," != *",$row,"* ]]; then continue; fi
+    if [ -f "$extra" ]; then denoise "$extra" "$row"; fi
   done
   scene="${name%_test_*}"
   if [ -f "$per_scene/ssr-$scene.safetensors" ]; then

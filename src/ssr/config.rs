@@ -64,16 +64,21 @@ pub enum CeilingMode {
 pub enum MeanCorrection {
     /// The reconstruction as the network gives it.
     None,
-    /// Per tile of [`MEAN_TILE`] x [`MEAN_TILE`] pixels and per channel, the reconstruction
-    /// is scaled by the traced samples' sum over its own sum at the same pixels, both over
-    /// the last [`MEAN_RING`] frames, clamped to [[`MEAN_LO`], [`MEAN_HI`]] and interpolated
-    /// between tile centres (`wgsl/ssr/tile_means.wgsl`; with a background buffer, only the
-    /// part of each pixel the network reconstructs). The samples are an unbiased estimate
-    /// of the radiance, so the tiles' brightness follows them; the history is not changed.
-    Tiles,
+    /// Per tile of `side` x `side` pixels and per channel, the reconstruction is scaled by
+    /// the traced samples' sum over its own sum at the same pixels, both over the last
+    /// [`MEAN_RING`] frames, clamped to [[`MEAN_LO`], [`MEAN_HI`]] and interpolated between
+    /// tile centres (`wgsl/ssr/tile_means.wgsl`; with a background buffer, only the part of
+    /// each pixel the network reconstructs). The samples are an unbiased estimate of the
+    /// radiance, so the tiles' brightness follows them; the history is not changed.
+    /// `"tiles"`: 32-pixel tiles ([`MEAN_TILE`]); `"tiles16"`: 16-pixel tiles (smaller tiles
+    /// follow the samples more locally, with fewer samples per factor).
+    Tiles {
+        /// Tile side in pixels (a multiple of 8, the statistic's workgroup side).
+        side: u32,
+    },
 }
 
-/// Config `mean_correction = "tiles"`: tile side in pixels.
+/// Config `mean_correction = "tiles"`: tile side in pixels (`"tiles16"`: 16).
 pub const MEAN_TILE: u32 = 32;
 /// Config `mean_correction = "tiles"`: frames whose sums make a factor.
 pub const MEAN_RING: u32 = 4;
@@ -124,7 +129,8 @@ pub struct SsrConfig {
     /// Version 2, optional (absent: `"none"`): `"none"` or `"max"` ([`CeilingMode`]).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub ceiling: Option<String>,
-    /// Version 2, optional (absent: `"none"`): `"none"` or `"tiles"` ([`MeanCorrection`]).
+    /// Version 2, optional (absent: `"none"`): `"none"`, `"tiles"` or `"tiles16"`
+    /// ([`MeanCorrection`]).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub mean_correction: Option<String>,
     /// Version 2, optional (absent: `"centre"`): `"centre"` or `"footprint"`
@@ -289,7 +295,11 @@ impl SsrConfig {
 
     /// The output pass's mean correction (version 1 and files without the option: none).
     pub fn mean_correction(&self) -> Result<MeanCorrection> {
-        let choices = [("none", MeanCorrection::None), ("tiles", MeanCorrection::Tiles)];
+        let choices = [
+            ("none", MeanCorrection::None),
+            ("tiles", MeanCorrection::Tiles { side: MEAN_TILE }),
+            ("tiles16", MeanCorrection::Tiles { side: 16 }),
+        ];
         choose("mean_correction", self.mean_correction.as_deref(), &choices)
     }
 
@@ -492,7 +502,19 @@ mod tests {
         )
         .unwrap();
         tiles.validate().unwrap();
-        assert_eq!(tiles.mean_correction().unwrap(), MeanCorrection::Tiles);
+        assert_eq!(
+            tiles.mean_correction().unwrap(),
+            MeanCorrection::Tiles { side: MEAN_TILE }
+        );
+        let tiles16 = SsrConfig {
+            mean_correction: Some("tiles16".into()),
+            ..d.clone()
+        };
+        tiles16.validate().unwrap();
+        assert_eq!(
+            tiles16.mean_correction().unwrap(),
+            MeanCorrection::Tiles { side: 16 }
+        );
         let e = SsrConfig {
             mean_correction: Some("blocks".into()),
             ..d.clone()
@@ -501,7 +523,7 @@ mod tests {
         .unwrap_err()
         .to_string();
         assert!(
-            e.contains("mean_correction 'blocks', expected \"none\" or \"tiles\""),
+            e.contains("mean_correction 'blocks', expected \"none\", \"tiles\" or \"tiles16\""),
             "{e}"
         );
         let e = SsrConfig {

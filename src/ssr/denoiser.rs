@@ -89,6 +89,8 @@ struct OutputParams {
 /// The mean correction's state: the ring of per-tile sums of the last frames and the
 /// factors the output pass applies.
 struct MeanState {
+    /// Tile side in pixels.
+    side: u32,
     tiles: (u32, u32),
     ring: wgpu::Buffer,
     factors: wgpu::Buffer,
@@ -211,8 +213,8 @@ impl Denoiser {
         let output = Self::make_output(gpu, width, height);
         let mean = match weights.config.mean_correction()? {
             MeanCorrection::None => None,
-            MeanCorrection::Tiles => {
-                let tiles = (width.div_ceil(MEAN_TILE), height.div_ceil(MEAN_TILE));
+            MeanCorrection::Tiles { side } => {
+                let tiles = (width.div_ceil(side), height.div_ceil(side));
                 let n = tiles.0 as u64 * tiles.1 as u64;
                 let buffer = |label: &str, size: u64| {
                     gpu.device.create_buffer(&wgpu::BufferDescriptor {
@@ -223,6 +225,7 @@ impl Denoiser {
                     })
                 };
                 Some(MeanState {
+                    side,
                     tiles,
                     ring: buffer("subpixel.ssr.mean_ring", n * MEAN_RING as u64 * 32),
                     factors: buffer("subpixel.ssr.mean_factors", n * 16),
@@ -279,7 +282,7 @@ impl Denoiser {
             &Specialisation(vec![
                 ("BACKGROUND", background.is_some() as u32 as f64),
                 ("MEAN", self.mean.is_some() as u32 as f64),
-                ("TILE", MEAN_TILE as f64),
+                ("TILE", self.mean.as_ref().map_or(MEAN_TILE, |m| m.side) as f64),
             ]),
             bytemuck::bytes_of(&params),
             &resources,
@@ -313,7 +316,7 @@ impl Denoiser {
         };
         let spec = Specialisation(vec![
             ("BACKGROUND", background.is_some() as u32 as f64),
-            ("TILE", MEAN_TILE as f64),
+            ("TILE", m.side as f64),
             ("RING", MEAN_RING as f64),
             ("EPS", MEAN_EPS as f64),
             ("LO", MEAN_LO as f64),

@@ -104,7 +104,7 @@ OPTION_VALUES: Dict[str, Tuple[str, ...]] = {
     "remodulation": ("accumulated", "current"),
     "history": ("screen", "geometry"),
     "ceiling": ("none", "max"),
-    "mean_correction": ("none", "tiles"),
+    "mean_correction": ("none", "tiles", "tiles16"),
     "albedo": ("centre", "footprint"),
 }
 
@@ -166,9 +166,9 @@ class SSRConfig:
     remodulation: str = "current"  # "accumulated" | "current": albedo of the remodulation
     history: str = "geometry"  # "screen" | "geometry": which warped history is invalid
     ceiling: str = "max"  # "none" | "max": clamp the output to the brightest recent sample
-    # "none" | "tiles": the engine's output pass scales each 32x32 tile of the reconstruction
-    # to the traced samples' sum over the last 4 frames (`MeanCorrection` below, applied after
-    # the model like `composite_background`)
+    # "none" | "tiles" | "tiles16": the engine's output pass scales each 32x32 (16x16) tile of
+    # the reconstruction to the traced samples' sum over the last 4 frames (`MeanCorrection`
+    # below, applied after the model like `composite_background`)
     mean_correction: str = "none"
     # "centre" | "footprint": which albedo buffer the pipeline uses (`use_albedo`)
     albedo: str = "centre"
@@ -316,6 +316,10 @@ MEAN_TILE, MEAN_RING, MEAN_EPS, MEAN_LO, MEAN_HI = 32, 4, 1e-4, 0.67, 1.5
 """Config `mean_correction = "tiles"` (src/ssr/config.rs): tile side, frames of the ring, the
 epsilon of both sums, the clamp of the factor."""
 
+MEAN_TILES: Dict[str, int] = {"tiles": MEAN_TILE, "tiles16": 16}
+"""Tile side of each value of config `mean_correction` that corrects (src/ssr/config.rs
+`MeanCorrection::Tiles`)."""
+
 
 def tile_sums(x: torch.Tensor, tile: int = MEAN_TILE) -> torch.Tensor:
     """[N, C, H, W] -> [N, C, ceil(H / tile), ceil(W / tile)]: sums over tiles (zero-padded)."""
@@ -327,7 +331,8 @@ def tile_sums(x: torch.Tensor, tile: int = MEAN_TILE) -> torch.Tensor:
 
 class MeanCorrection:
     """The engine's output pass with config `mean_correction = "tiles"` (wgsl/ssr/tile_means.wgsl,
-    store_output.wgsl), frame by frame: per tile of MEAN_TILE^2 pixels and channel, over the
+    store_output.wgsl), frame by frame: per tile of `tile`^2 pixels (MEAN_TILE; "tiles16": 16,
+    `mean_correction_of`) and channel, over the
     traced pixels (mask > 1/2) of the last MEAN_RING frames, the factor
     `clamp((sum(color - B) + eps) / (sum((1 - a) output) + eps), MEAN_LO, MEAN_HI)`, interpolated
     bilinearly between tile centres (edges held), scales the reconstructed part:
@@ -335,7 +340,8 @@ class MeanCorrection:
     factor is differentiable in `output` (training through it sees the whole pass). A new
     instance (or `reset`) starts with an empty ring, as the engine after a reset."""
 
-    def __init__(self) -> None:
+    def __init__(self, tile: int = MEAN_TILE) -> None:
+        self.tile = int(tile)
         self.ring: List[Tuple[torch.Tensor, torch.Tensor]] = []
 
     def reset(self) -> None:
@@ -346,13 +352,19 @@ class MeanCorrection:
         part = (1.0 - cov) * output
         traced = (frame["mask"] > 0.5).to(output.dtype)
         sample = (_clean(frame["color"]).to(output.dtype) - bg) * traced
-        self.ring = (self.ring + [(tile_sums(sample), tile_sums(part * traced))])[-MEAN_RING:]
+        self.ring = (self.ring + [(tile_sums(sample, self.tile), tile_sums(part * traced, self.tile))])[-MEAN_RING:]
         s = sum(x for x, _ in self.ring)
         r = sum(x for _, x in self.ring)
         f = ((s + MEAN_EPS) / (r + MEAN_EPS)).clamp(MEAN_LO, MEAN_HI)
         h, w = output.shape[-2:]
-        up = F.interpolate(f, scale_factor=MEAN_TILE, mode="bilinear", align_corners=False)[..., :h, :w]
+        up = F.interpolate(f, scale_factor=self.tile, mode="bilinear", align_corners=False)[..., :h, :w]
         return bg + part * up
+
+
+def mean_correction_of(cfg: "SSRConfig") -> Optional[MeanCorrection]:
+    """A fresh MeanCorrection of config `cfg`'s tile side, or None for `mean_correction = "none"`."""
+    tile = MEAN_TILES.get(getattr(cfg, "mean_correction", "none"))
+    return None if tile is None else MeanCorrection(tile)
 
 
 def background_parts(frame: Dict[str, torch.Tensor], like: torch.Tensor) -> Tuple[torch.Tensor, torch.Tensor]:

@@ -52,7 +52,16 @@ from torch import nn
 from . import losses
 from .baselines import build_model, export_model, loss_aux
 from .data import THIN_KEEP_MIN, DatasetError, SequenceDataset, WindowSampler, collate
-from .model import FINE_TUNE_OPTIONS, OUTPUT_PASS_OPTIONS, MeanCorrection, SSRConfig, SSRModel, composite_background, extra_buffers
+from .model import (
+    FINE_TUNE_OPTIONS,
+    OUTPUT_PASS_OPTIONS,
+    MeanCorrection,
+    SSRConfig,
+    SSRModel,
+    composite_background,
+    extra_buffers,
+    mean_correction_of,
+)
 from .validation import validate
 
 CHECKPOINT_FORMAT = "subpixel-train-checkpoint"
@@ -262,7 +271,8 @@ def load_init(model: nn.Module, path: str, model_name: str) -> dict:
     """Loads `path` into `model`: the weights loader checks the file (format, every tensor's
     name and shape); its config must equal the run's but for model.FINE_TUNE_OPTIONS (what
     the network is fed, not its parameters: the run fine-tunes the weights to the new
-    value). Returns the file's metadata."""
+    value) and but for model.OUTPUT_PASS_OPTIONS (applied after the network). Returns the
+    file's metadata."""
     from .baselines import load_model
     from .export import WeightsError
 
@@ -271,7 +281,8 @@ def load_init(model: nn.Module, path: str, model_name: str) -> dict:
     except (WeightsError, ValueError, OSError) as err:
         raise CheckpointError(f"--init {path}: {err}") from err
     want, got = model.cfg.to_dict(), loaded.cfg.to_dict()
-    same = lambda d: {k: v for k, v in d.items() if k not in FINE_TUNE_OPTIONS}  # noqa: E731
+    free = FINE_TUNE_OPTIONS + OUTPUT_PASS_OPTIONS
+    same = lambda d: {k: v for k, v in d.items() if k not in free}  # noqa: E731
     if type(loaded) is not type(model) or same(got) != same(want):
         raise CheckpointError(
             f"--init {path}: its model config {json.dumps(got, sort_keys=True)} differs from the run's "
@@ -696,7 +707,9 @@ def _train(args, config: dict, dd: Dist) -> dict:
             frames = [{k: v.to(device, non_blocking=True) for k, v in f.items()} for f in batch]
             results = runner(frames)
             if args.mean_correction == "loss":
-                mc = MeanCorrection()  # one window: the ring starts empty, as after a reset
+                # one window: the ring starts empty, as after a reset; the tiles of the exported
+                # config's correction (32-pixel ones when it has none)
+                mc = mean_correction_of(getattr(model, "cfg", None)) or MeanCorrection()
                 results = [{**r, "output": mc(r["output"], f)} for r, f in zip(results, frames)]
             elif args.background == "loss":
                 results = [{**r, "output": composite_background(r["output"], f)} for r, f in zip(results, frames)]

@@ -10,7 +10,7 @@ from torch import nn
 
 from .data import SequenceDataset, pad_frame, read_extra_buffers
 from .metrics import image_metrics, mean_metrics
-from .model import MeanCorrection, composite_background
+from .model import composite_background, mean_correction_of
 
 
 @torch.no_grad()
@@ -20,7 +20,7 @@ def validate(model: nn.Module, ds: SequenceDataset, device: torch.device, frames
     multiple of 4 like the engine, optionally centre-cropped to `size`) and averages the
     per-frame metrics (PSNR/SSIM tonemapped 8-bit, RMSE/relMSE HDR). With the background
     buffers loaded (`ds.store.extra`), the output is composited as the engine does, and with
-    config `mean_correction = "tiles"` corrected as the engine does (model.MeanCorrection);
+    config `mean_correction = "tiles"` (or "tiles16") corrected as the engine does (model.MeanCorrection);
     `output_pass=False` scores the network's own output (neither). Buffers the model reads
     beyond the dataset's (`model.extra_buffers`: config albedo = "footprint") come from each
     frame's file."""
@@ -28,11 +28,10 @@ def validate(model: nn.Module, ds: SequenceDataset, device: torch.device, frames
     model.eval()
     rows, per_scene = [], {}
     cfg = getattr(model, "cfg", None)
-    tiles = output_pass and getattr(cfg, "mean_correction", "none") == "tiles"
     extra = tuple(getattr(model, "extra_buffers", ()))
     for si, seq in enumerate(ds.sequences):
         state = None
-        mc = MeanCorrection()
+        mc = mean_correction_of(cfg) if output_pass else None
         for t in range(min(frames, seq.frames)):
             f = ds.full_frame(si, t)
             missing = [b for b in extra if b not in f]
@@ -50,7 +49,7 @@ def validate(model: nn.Module, ds: SequenceDataset, device: torch.device, frames
             state = r["state"]
             out = r["output"][:, :, :h, :w]
             if output_pass:
-                out = mc(out, f) if tiles else composite_background(out, f)
+                out = mc(out, f) if mc is not None else composite_background(out, f)
             pred = out[0].float().cpu()
             m = image_metrics(pred, f["reference"][0].cpu())
             rows.append(m)

@@ -7,7 +7,7 @@ import pytest
 import torch
 
 from ssr.mean_probe import block_sums, tile_factors
-from ssr.model import MEAN_EPS, MEAN_HI, MEAN_LO, MEAN_RING, MEAN_TILE, MeanCorrection
+from ssr.model import MEAN_EPS, MEAN_HI, MEAN_LO, MEAN_RING, MEAN_TILE, MEAN_TILES, MeanCorrection, SSRConfig, mean_correction_of
 
 
 def frame(rng, h, w, t, background):
@@ -27,10 +27,13 @@ def torch_frame(f):
 
 
 @pytest.mark.parametrize("background", [False, True])
-def test_mean_correction_matches_the_probe(background):
+@pytest.mark.parametrize("option", ["tiles", "tiles16"])
+def test_mean_correction_matches_the_probe(background, option):
     rng = np.random.default_rng(3)
     h, w = 40, 72  # partial tiles on both axes
-    mc = MeanCorrection()
+    mc = mean_correction_of(SSRConfig(mean_correction=option))
+    tile = MEAN_TILES[option]
+    assert mc.tile == tile
     ring = []
     clamped = between = 0
     for t in range(7):
@@ -42,8 +45,8 @@ def test_mean_correction_matches_the_probe(background):
         bg = f.get("background", np.zeros((h, w, 3)))
         cov = f.get("coverage", np.zeros((h, w, 1)))
         part = (1 - cov) * out
-        ring = (ring + [(block_sums((f["color"] - bg) * f["mask"], MEAN_TILE), block_sums(part * f["mask"], MEAN_TILE))])[-MEAN_RING:]
-        fac, log_c = tile_factors(sum(s for s, _ in ring), sum(r for _, r in ring), h, w, MEAN_TILE,
+        ring = (ring + [(block_sums((f["color"] - bg) * f["mask"], tile), block_sums(part * f["mask"], tile))])[-MEAN_RING:]
+        fac, log_c = tile_factors(sum(s for s, _ in ring), sum(r for _, r in ring), h, w, tile,
                                   lo=MEAN_LO, hi=MEAN_HI, eps=MEAN_EPS)
         c = np.exp(log_c)
         clamped += int(np.isclose(c, MEAN_LO).sum() + np.isclose(c, MEAN_HI).sum())
@@ -66,3 +69,11 @@ def test_mean_correction_is_differentiable_and_follows_the_samples():
     f["color"] = torch.full_like(f["color"], 1.25)
     got = MeanCorrection()(out.detach(), f)
     assert torch.allclose(got, torch.full_like(got, 1.25))
+
+
+def test_mean_correction_of_each_config_value():
+    assert mean_correction_of(SSRConfig(mean_correction="none")) is None
+    assert mean_correction_of(SSRConfig(mean_correction="tiles")).tile == MEAN_TILE == 32
+    assert mean_correction_of(SSRConfig(mean_correction="tiles16")).tile == 16
+    with pytest.raises(ValueError, match="mean_correction"):
+        SSRConfig(mean_correction="tiles8")

@@ -283,7 +283,7 @@ def test_background_scores_val_and_trains_on_the_engines_output(tmp_path, capsys
     assert "background" in err and "frame_0000.exr" in err, err
 
 
-def test_mean_correction_in_the_loss_and_in_val(tmp_path, capsys):
+def test_mean_correction_in_the_loss_and_in_val(tmp_path, capsys, monkeypatch):
     """Weights with the engine's mean correction (`mean_correction = "tiles"`) start a run
     whose config, validation (model.MeanCorrection after the composite) and exported file keep
     it; `--mean-correction loss` trains through it, recorded in the checkpoint's config and the
@@ -317,6 +317,22 @@ def test_mean_correction_in_the_loss_and_in_val(tmp_path, capsys):
     assert ck["config"]["mean_correction"] == "loss"
     m_loss, _ = load_weights(loss["weights"])
     assert any(not torch.equal(m_loss.state_dict()[k], v) for k, v in m_run.state_dict().items())
+    # An output-pass option may differ from the initial weights' (it is applied after the
+    # network): 16-pixel tiles, in the file and in the loss.
+    used = []
+    real = T.mean_correction_of
+
+    def spy(cfg):
+        mc = real(cfg)
+        used.append(mc.tile)
+        return mc
+
+    monkeypatch.setattr(T, "mean_correction_of", spy)
+    sixteen = T.train(args(root, str(tmp_path / "sixteen"), "--background", "loss", "--mean-correction", "loss",
+                           "--init", tiles, "--model-config", '{"mean_correction": "tiles16"}', iters=1))
+    _, meta = load_weights(sixteen["weights"])
+    assert meta["config"].mean_correction == "tiles16"
+    assert used and set(used) == {16}, used
     capsys.readouterr()
     with pytest.raises(SystemExit):
         T.main(args(root, str(tmp_path / "e"), "--mean-correction", "loss"))
