@@ -691,7 +691,15 @@ fn the_main_job_writes_previews_a_person_can_judge() {
         "{stdout}{}",
         String::from_utf8_lossy(&o.stderr)
     );
-    assert_contains_all(&stdout, &["SSR PSNR", "time per frame at 24x20"]);
+    assert_contains_all(
+        &stdout,
+        &[
+            "SSR PSNR",
+            "time per frame at 24x20",
+            "weights: ",
+            "(version 2, enc [",
+        ],
+    );
     for f in 0..2 {
         let png = image::open(out.join(format!("frame_{f:04}.png")))
             .unwrap()

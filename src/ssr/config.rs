@@ -264,6 +264,24 @@ impl SsrConfig {
         ]
     }
 
+    /// One line naming the network and the options its pipeline runs with, e.g. `version 2,
+    /// enc [16, 32, 28], albedo footprint, mean correction tiles16, ceiling max` (what
+    /// `subpixel run` prints beside the weights' path). Absent late options read as their
+    /// defaults.
+    pub fn describe(&self) -> String {
+        let mut s = format!("version {}, enc {:?}", self.version, self.enc);
+        if self.version >= 2 {
+            for (name, value, default) in [
+                ("albedo", &self.albedo, "centre"),
+                ("mean correction", &self.mean_correction, "none"),
+                ("ceiling", &self.ceiling, "none"),
+            ] {
+                s += &format!(", {name} {}", value.as_deref().unwrap_or(default));
+            }
+        }
+        s
+    }
+
     /// The version-1 config of these widths (the pipeline of version-1 weights).
     pub fn legacy(&self) -> Self {
         Self {
@@ -508,9 +526,15 @@ mod tests {
         );
         let tiles16 = SsrConfig {
             mean_correction: Some("tiles16".into()),
+            albedo: Some("footprint".into()),
             ..d.clone()
         };
         tiles16.validate().unwrap();
+        assert_eq!(
+            tiles16.describe(),
+            "version 2, enc [16, 32, 28], albedo footprint, mean correction tiles16, ceiling max"
+        );
+        assert_eq!(d.legacy().describe(), "version 1, enc [16, 32, 28]");
         assert_eq!(
             tiles16.mean_correction().unwrap(),
             MeanCorrection::Tiles { side: 16 }
