@@ -84,7 +84,8 @@ pub(super) fn run(a: &RunArgs) -> Result<()> {
     );
     let spp = a.reference_spp.unwrap_or(if cpu { 128 } else { 1024 });
     println!("adapter: {}", gpu.describe());
-    println!("weights: {} ({})", wpath.display(), weights.config.describe());
+    let shown = std::fs::canonicalize(&wpath).unwrap_or_else(|_| wpath.clone());
+    println!("weights: {} ({})", shown.display(), weights.config.describe());
     if cpu {
         println!("CPU adapter: {w}x{h}, reference {spp} spp (a GPU runs 1280x720 by default)");
     }
