@@ -214,12 +214,7 @@ impl SsrConfig {
         }
         match self.version {
             1 => {
-                let late = [
-                    ("ceiling", &self.ceiling),
-                    ("mean_correction", &self.mean_correction),
-                    ("albedo", &self.albedo),
-                ];
-                for (key, v) in self.options().into_iter().chain(late) {
+                for (key, v) in self.options().into_iter().chain(self.late_options()) {
                     if v.is_some() {
                         return bad(format!(
                             "version 1 has no '{key}' option (it came with version 2)"
@@ -264,19 +259,24 @@ impl SsrConfig {
         ]
     }
 
-    /// One line naming the network and the options its pipeline runs with, e.g. `version 2,
+    /// The version-2 options that came after the first version-2 weights (optional: absent,
+    /// each reads as its first choice).
+    fn late_options(&self) -> [(&'static str, &Option<String>); 3] {
+        [
+            ("albedo", &self.albedo),
+            ("mean_correction", &self.mean_correction),
+            ("ceiling", &self.ceiling),
+        ]
+    }
+
+    /// One line naming the network and the late options its file sets, e.g. `version 2,
     /// enc [16, 32, 28], albedo footprint, mean correction tiles16, ceiling max` (what
-    /// `subpixel run` prints beside the weights' path). Absent late options read as their
-    /// defaults.
+    /// `subpixel run` prints beside the weights' path).
     pub fn describe(&self) -> String {
         let mut s = format!("version {}, enc {:?}", self.version, self.enc);
-        if self.version >= 2 {
-            for (name, value, default) in [
-                ("albedo", &self.albedo, "centre"),
-                ("mean correction", &self.mean_correction, "none"),
-                ("ceiling", &self.ceiling, "none"),
-            ] {
-                s += &format!(", {name} {}", value.as_deref().unwrap_or(default));
+        for (key, value) in self.late_options() {
+            if let Some(v) = value {
+                s += &format!(", {} {v}", key.replace('_', " "));
             }
         }
         s
