@@ -33,7 +33,7 @@
 use crate::error::{Error, Result};
 use crate::gpu::{Gpu, Profiler};
 use crate::render::{FrameSettings, GpuScene, Tracer};
-use crate::ssr::{AlbedoSource, Denoiser, Granularity, Weights};
+use crate::ssr::{AlbedoSource, Denoiser, EmissionSource, Granularity, Weights};
 
 /// Camera rays per pixel axis of the background pass a model of config albedo "footprint"
 /// needs in every frame, when the frame has no background of its own (2 x 2: the footprint
@@ -53,8 +53,18 @@ pub struct FrameLoop {
 }
 
 impl FrameLoop {
-    /// A tracer and a denoiser (with `weights`) for `width x height` frames.
+    /// A tracer and a denoiser (with `weights`) for `width x height` frames. Weights of
+    /// config emission "background" are refused: the GPU tracer does not yet write frames
+    /// with the directly seen emission moved into the background (`subpixel denoise` feeds
+    /// them from frame files, [`crate::frame::HostFrame::fold_direct_emission`]).
     pub fn new(gpu: &Gpu, weights: &Weights, width: u32, height: u32) -> Result<Self> {
+        if weights.config.emission_source()? == EmissionSource::Background {
+            return Err(Error::Invalid(
+                "frame loop: these weights take the directly seen emission from the background (config emission \
+                 \"background\"), which the GPU tracer does not write yet; denoise frame files with `subpixel denoise`"
+                    .into(),
+            ));
+        }
         Ok(Self {
             tracer: Tracer::new(gpu, width, height)?,
             denoiser: Denoiser::with_gpu(gpu, weights, width, height)?,

@@ -980,6 +980,7 @@ fn half_sky_background(w: u32, h: u32, albedo: Option<HostTensor>) -> subpixel::
         radiance: HostTensor::from_fn(w, h, 3, |x, _, c| if x < w / 2 { 0.5 + c as f32 } else { 0.0 }),
         coverage: HostTensor::from_fn(w, h, 1, |x, _, _| (x < w / 2) as u32 as f32),
         albedo,
+        emission: None,
     }
 }
 
@@ -1048,19 +1049,25 @@ fn denoise_uses_the_frames_background() {
 
 /// The golden weights rewritten with config albedo "footprint" (the same tensors), in `dir`.
 fn footprint_weights(dir: &Path) -> PathBuf {
+    weights_with(dir, "albedo", "footprint")
+}
+
+/// The golden weights rewritten with config option `key` = `value` (the same tensors), in
+/// `dir`.
+fn weights_with(dir: &Path, key: &str, value: &str) -> PathBuf {
     let bytes = std::fs::read(data("golden_weights.safetensors")).unwrap();
     let n = u64::from_le_bytes(bytes[..8].try_into().unwrap()) as usize;
     let mut header: serde_json::Value = serde_json::from_slice(&bytes[8..8 + n]).unwrap();
     let meta = header["__metadata__"].as_object_mut().unwrap();
     let mut config: serde_json::Value = serde_json::from_str(meta["config"].as_str().unwrap()).unwrap();
-    config["albedo"] = "footprint".into();
+    config[key] = value.into();
     meta["config"] = config.to_string().into();
     let mut head = serde_json::to_vec(&header).unwrap();
     head.resize(head.len().next_multiple_of(8), b' ');
     let mut out = (head.len() as u64).to_le_bytes().to_vec();
     out.extend(head);
     out.extend(&bytes[8 + n..]);
-    let path = dir.join("footprint.safetensors");
+    let path = dir.join(format!("{key}-{value}.safetensors"));
     std::fs::write(&path, out).unwrap();
     path
 }
@@ -1128,5 +1135,112 @@ fn denoise_feeds_a_footprint_model_the_frames_footprint_albedo() {
             "frame {i}: --no-background as the centre model on the swapped albedo"
         );
         assert_half_sky_composite(&pc, &pa, i);
+    }
+}
+
+/// `subpixel denoise` with a model of config emission "background": frames without the
+/// directly seen emission are refused before anything is written, naming the file and the
+/// channels; with it, the model runs on the frames with the emission folded into the
+/// background: exactly what the same weights as an emission-"network" model give on frames
+/// folded by hand (colour less the samples' emission, background plus the footprint's),
+/// and with `--no-background` on frames whose background is the footprint emission alone
+/// (no environment, coverage 0).
+#[test]
+fn denoise_folds_the_directly_seen_emission_for_an_emission_model() {
+    use subpixel::frame::DirectEmission;
+    let dir = tmp("em");
+    let weights = weights_with(&dir, "emission", "background");
+    let plain = tmp("em-plain");
+    golden_folder(&plain);
+    let run = |w: &Path, input: &Path, name: &str, extra: &[&str]| {
+        let out = tmp(name);
+        let o = bin()
+            .args(["denoise", "--weights"])
+            .arg(w)
+            .arg("--input")
+            .arg(input)
+            .arg("--out")
+            .arg(&out)
+            .args(extra)
+            .output()
+            .unwrap();
+        (out, o)
+    };
+    let (out, o) = run(&weights, &plain, "em-out-bare", &[]);
+    let e = failed(
+        &o,
+        "an emission model on frames without the directly seen emission",
+    );
+    assert_contains_all(
+        &e,
+        &[
+            "frame_0000.exr",
+            "emission.RGB",
+            "emission_footprint.RGB",
+            "--background",
+        ],
+    );
+    assert_eq!(std::fs::read_dir(&out).unwrap().count(), 0, "nothing written");
+    let (with, folded, folded_nobg) = (tmp("em-with"), tmp("em-folded"), tmp("em-folded-nobg"));
+    for i in 0..3 {
+        let name = frame_name(i);
+        let mut f = read_frame(&plain.join(&name)).unwrap();
+        let frame = f.frame.as_mut().unwrap();
+        let (w, h) = frame.size().unwrap();
+        let samples = HostTensor::from_fn(w, h, 3, |x, y, c| {
+            if (x + 2 * y + i as u32).is_multiple_of(5) {
+                0.25 * frame.color.at(x, y, c)
+            } else {
+                0.0
+            }
+        });
+        let footprint = HostTensor::from_fn(w, h, 3, |x, y, c| ((x * 3 + y + c) % 7) as f32 * 0.5);
+        let mut bg = half_sky_background(w, h, None);
+        let mut by_hand = frame.clone();
+        by_hand.color = HostTensor::from_fn(w, h, 3, |x, y, c| frame.color.at(x, y, c) - samples.at(x, y, c));
+        let mut hand_bg = bg.clone();
+        hand_bg.radiance =
+            HostTensor::from_fn(w, h, 3, |x, y, c| bg.radiance.at(x, y, c) + footprint.at(x, y, c));
+        let mut nobg = by_hand.clone();
+        nobg.background = Some(subpixel::frame::Background {
+            radiance: footprint.clone(),
+            coverage: HostTensor::zeros(w, h, 1),
+            albedo: None,
+            emission: None,
+        });
+        by_hand.background = Some(hand_bg);
+        bg.emission = Some(DirectEmission { footprint, samples });
+        frame.background = Some(bg);
+        write_frame(&with.join(&name), &f).unwrap();
+        for (folder, fr) in [(&folded, by_hand), (&folded_nobg, nobg)] {
+            let file = subpixel::io::exr::FrameFile {
+                frame: Some(fr),
+                ..f.clone()
+            };
+            write_frame(&folder.join(&name), &file).unwrap();
+        }
+    }
+    let golden = data("golden_weights.safetensors");
+    let pairs = [
+        (
+            run(&weights, &with, "em-out", &[]),
+            run(&golden, &folded, "em-out-hand", &[]),
+        ),
+        (
+            run(&weights, &with, "em-out-nobg", &["--no-background"]),
+            run(&golden, &folded_nobg, "em-out-hand-nobg", &[]),
+        ),
+    ];
+    for (k, ((a, oa), (b, ob))) in pairs.iter().enumerate() {
+        succeeded(oa);
+        succeeded(ob);
+        for i in 0..3 {
+            let pred = |d: &Path| read_frame(&d.join(frame_name(i))).unwrap().pred.unwrap();
+            assert_eq!(
+                pred(a),
+                pred(b),
+                "case {k}, frame {i}: as the network model on the frames folded by hand"
+            );
+        }
     }
 }

@@ -568,3 +568,168 @@ fn references_extend_to_a_noise_target() {
         assert_eq!(easy, 8, "{name}: a target already met renders the base count");
     }
 }
+
+/// A lone emissive square (double-sided, diffuse) facing the camera, nothing else and no
+/// environment: every path's radiance is the square's emission where its camera ray meets
+/// it and 0 elsewhere (nothing else emits or reflects light onto it).
+fn lone_emitter(emission: [f32; 3]) -> Scene {
+    use glam::Vec3;
+    use subpixel::render::Camera;
+    use subpixel::render::scene::Geometry;
+    let v = Vec3::new;
+    let mut g = Geometry::default();
+    g.push_quad(
+        [
+            v(-0.5, -0.5, -2.0),
+            v(0.5, -0.5, -2.0),
+            v(0.5, 0.5, -2.0),
+            v(-0.5, 0.5, -2.0),
+        ],
+        0,
+    );
+    Scene {
+        name: "lone emitter".into(),
+        geometry: g,
+        materials: vec![Material {
+            double_sided: true,
+            emissive: emission,
+            ..Material::diffuse("lamp", [0.8, 0.8, 0.8])
+        }],
+        textures: vec![],
+        environment: None,
+        camera: Camera {
+            position: Vec3::ZERO,
+            target: v(0.1, 0.05, -1.0),
+            up: Vec3::Y,
+            yfov: 1.0,
+        },
+        film: (24, 24),
+        camera_path: None,
+        approximations: vec![],
+    }
+}
+
+/// The directly seen emission ([`subpixel::frame::DirectEmission`]) on a scene where it is
+/// all the light there is ([`lone_emitter`]): each traced pixel's sample emission is its
+/// colour (the replayed camera ray meets what the path met), so a frame with the emission
+/// folded into the background has no colour left; untraced pixels hold 0; the footprint
+/// emission is the emission times the fraction of the 8 x 8 rays that meet the square:
+/// exactly the emission inside it, 0 outside, strictly between on its rim, and the share of
+/// the footprint rays that meet it (the same rays the footprint albedo averages: base
+/// colour 0.8 there, sky 1 elsewhere) says by how much.
+#[test]
+fn direct_emission_is_all_the_light_of_a_lone_emitter() {
+    let le = [3.0, 2.0, 1.0];
+    let scene = lone_emitter(le);
+    let p = packed(&scene);
+    let (w, h) = (24u32, 24u32);
+    let mut s = settings(&scene, Mode::Quarter, 1, 11);
+    s.background = 8;
+    let f = cpu_frame(&p, w, h, &s);
+    let b = f.background.as_ref().expect("background");
+    let e = b.emission.as_ref().expect("directly seen emission");
+    let (mut lit, mut traced) = (0, 0);
+    for i in 0..(w * h) as usize {
+        let sample = &e.samples.data[3 * i..3 * i + 3];
+        let color = &f.color.data[3 * i..3 * i + 3];
+        if f.mask.data[i] == 1.0 {
+            traced += 1;
+            for (c, s) in color.iter().zip(sample) {
+                assert!(
+                    (c - s).abs() <= 1e-6 * c.abs().max(1.0),
+                    "pixel {i}: colour {color:?}, sample emission {sample:?}"
+                );
+            }
+            lit += (sample[0] > 0.0) as usize;
+        } else {
+            assert_eq!(sample, [0.0; 3], "untraced pixel {i}");
+        }
+        // the share of the footprint on the square, from the footprint albedo (0.8 on it, 1 off)
+        let albedo = b.albedo.as_ref().unwrap().data[3 * i];
+        let share = (1.0 - albedo) / 0.2;
+        for (k, &l) in le.iter().enumerate() {
+            let fp = e.footprint.data[3 * i + k];
+            assert!(
+                (fp - share * l).abs() < 1e-4,
+                "pixel {i}: footprint emission {fp}, share {share} of {l}"
+            );
+        }
+    }
+    assert!(
+        traced == (w * h / 4) as usize && lit > 20 && lit < traced - 20,
+        "{lit} of {traced} traced pixels on the square"
+    );
+    let inside = e.footprint.data.chunks(3).filter(|c| c[0] == le[0]).count();
+    let rim = e
+        .footprint
+        .data
+        .chunks(3)
+        .filter(|c| c[0] > 0.0 && c[0] < le[0])
+        .count();
+    assert!(
+        inside > 50 && rim > 10,
+        "{inside} pixels inside the square, {rim} on its rim"
+    );
+    let folded = f
+        .fold_direct_emission(subpixel::frame::EmissionSource::Background)
+        .unwrap();
+    assert!(
+        folded.color.data.iter().all(|&c| c.abs() <= 1e-6),
+        "colour left after folding"
+    );
+    let fb = folded.background.unwrap();
+    assert_eq!(
+        fb.radiance.data, e.footprint.data,
+        "no environment: the folded background is the emission"
+    );
+    assert_eq!(fb.coverage.data, b.coverage.data);
+}
+
+/// On the Cornell box (its ceiling light in view, reflected light everywhere) the two
+/// estimates of the directly seen emission agree: the mean of 256 jittered samples' first-hit
+/// emission per pixel (a reference frame's `samples`) against the 8 x 8 stratified footprint:
+/// the same pixel-box integral. Both are exactly the light's emission inside it and 0 off it;
+/// on its rim they differ only by noise. The sample emission is part of the colour (never
+/// above it).
+#[test]
+fn direct_emission_samples_and_footprint_agree_on_the_cornell_box() {
+    let scene = load_scene("builtin:cornell").unwrap();
+    let le = scene
+        .materials
+        .iter()
+        .map(|m| m.emissive)
+        .find(|e| e[0] > 0.0)
+        .expect("an emitter");
+    let p = packed(&scene);
+    let (w, h) = (64u32, 64u32);
+    let mut s = settings(&scene, Mode::Reference, 256, 4);
+    s.background = 8;
+    let f = cpu_frame(&p, w, h, &s);
+    let e = f.background.unwrap().emission.unwrap();
+    let (mut inside, mut rim, mut diff) = (0, 0, 0f64);
+    for i in 0..(w * h) as usize {
+        let (fp, sm) = (e.footprint.data[3 * i], e.samples.data[3 * i]);
+        for k in 0..3 {
+            assert!(
+                e.samples.data[3 * i + k] <= f.color.data[3 * i + k] * (1.0 + 1e-5) + 1e-6,
+                "pixel {i}"
+            );
+        }
+        if fp == le[0] {
+            inside += 1;
+            assert_eq!(sm, le[0], "pixel {i} inside the light");
+        } else if fp == 0.0 {
+            // a sample may graze the light from a pixel whose 64 footprint rays all miss it
+            assert!(sm <= 0.05 * le[0], "pixel {i}: samples {sm}, footprint 0");
+        } else {
+            rim += 1;
+            diff += ((sm - fp) / le[0]).abs() as f64;
+        }
+    }
+    assert!(
+        inside >= 4 && rim >= 4,
+        "{inside} pixels inside the light, {rim} on its rim"
+    );
+    let mean = diff / rim as f64;
+    assert!(mean < 0.05, "rim pixels: mean difference {mean} of the emission");
+}

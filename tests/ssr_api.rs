@@ -786,6 +786,7 @@ fn output_never_exceeds_the_brightest_recent_sample() {
                 radiance: HostTensor::zeros(w, h, 3),
                 coverage: HostTensor::zeros(w, h, 1),
                 albedo: Some(common::random(7_000 + t, w, h, 3, 0.0, 1.0)),
+                emission: None,
             });
             let albedo = if footprint {
                 f.background.as_ref().unwrap().albedo.clone().unwrap()
@@ -870,6 +871,7 @@ fn background_composites_by_coverage() {
             radiance: radiance.clone(),
             coverage: coverage.clone(),
             albedo: None,
+            emission: None,
         }),
         ..f0.clone()
     };
@@ -912,6 +914,7 @@ fn background_composites_by_coverage() {
             radiance: HostTensor::zeros(w - 1, h, 3),
             coverage: HostTensor::zeros(w - 1, h, 1),
             albedo: None,
+            emission: None,
         }),
         ..f1
     };
@@ -973,6 +976,7 @@ fn check_mean_correction(option: &str, side: u32, tiles: (u32, u32)) {
                 radiance,
                 coverage,
                 albedo: None,
+                emission: None,
             }
         });
         f.background = background.clone();
@@ -1035,6 +1039,7 @@ fn footprint_albedo_models_take_the_frames_footprint_albedo() {
             radiance: HostTensor::zeros(w, h, 3),
             coverage: HostTensor::zeros(w, h, 1),
             albedo: Some(albedo.clone()),
+            emission: None,
         });
         let swapped = HostFrame {
             albedo: albedo.clone(),
@@ -1054,8 +1059,77 @@ fn footprint_albedo_models_take_the_frames_footprint_albedo() {
         radiance: HostTensor::zeros(w, h, 3),
         coverage: HostTensor::zeros(w, h, 1),
         albedo: None,
+        emission: None,
     });
     assert!(a.denoise_host(&bare).is_err());
+}
+
+/// Config emission "background": the model is fed the frame with the traced samples'
+/// first-hit emission taken out of the colour and the footprint's added to the background,
+/// so it gives exactly what the same weights as an emission-"network" model give on that
+/// frame folded by hand (over several frames: the history too), and not what they give on
+/// the frame as it is; a frame without the directly seen emission is refused, naming it,
+/// and so is the GPU frame loop, which does not write such frames yet.
+#[test]
+fn emission_background_models_take_the_emission_from_the_background() {
+    use subpixel::frame::{Background, DirectEmission};
+    let gpu = common::gpu();
+    let network = Weights::load(golden_weights_path()).unwrap();
+    let mut em = network.clone();
+    em.config.emission = Some("background".into());
+    let (w, h) = (20u32, 12u32);
+    let mut a = Denoiser::with_gpu(&gpu, &em, w, h).unwrap();
+    let mut b = Denoiser::with_gpu(&gpu, &network, w, h).unwrap();
+    let mut c = Denoiser::with_gpu(&gpu, &network, w, h).unwrap();
+    for t in 0..3 {
+        let mut f = random_frame(w, h, 120 + t);
+        // part of each traced sample is emission; an emitter's footprint spills around it
+        let samples = HostTensor::from_fn(w, h, 3, |x, y, k| {
+            if (x + y) % 3 == 0 {
+                0.5 * f.color.at(x, y, k)
+            } else {
+                0.0
+            }
+        });
+        let footprint = common::random(7_000 + t, w, h, 3, 0.0, 4.0);
+        let radiance = common::random(7_100 + t, w, h, 3, 0.0, 1.0);
+        let coverage = HostTensor::from_fn(w, h, 1, |x, _, _| if x < 3 { 1.0 } else { 0.0 });
+        f.background = Some(Background {
+            radiance: radiance.clone(),
+            coverage: coverage.clone(),
+            albedo: None,
+            emission: Some(DirectEmission {
+                footprint: footprint.clone(),
+                samples: samples.clone(),
+            }),
+        });
+        let folded = HostFrame {
+            color: HostTensor::from_fn(w, h, 3, |x, y, k| f.color.at(x, y, k) - samples.at(x, y, k)),
+            background: Some(Background {
+                radiance: HostTensor::from_fn(w, h, 3, |x, y, k| {
+                    radiance.at(x, y, k) + footprint.at(x, y, k)
+                }),
+                coverage,
+                albedo: None,
+                emission: None,
+            }),
+            ..f.clone()
+        };
+        let got = a.denoise_host(&f).unwrap();
+        assert_eq!(got, b.denoise_host(&folded).unwrap(), "frame {t}");
+        assert_ne!(got, c.denoise_host(&f).unwrap(), "frame {t}");
+    }
+    let bare = random_frame(w, h, 129);
+    let e = a.denoise_host(&bare).unwrap_err().to_string();
+    assert!(e.contains("emission") && e.contains("emission_footprint"), "{e}");
+    let e = subpixel::frame_loop::FrameLoop::new(&gpu, &em, 16, 16)
+        .err()
+        .expect("refused")
+        .to_string();
+    assert!(
+        e.contains("emission \"background\"") && e.contains("subpixel denoise"),
+        "{e}"
+    );
 }
 
 /// The frame loop with a footprint model (what `subpixel run` and the viewer run): on a

@@ -8,7 +8,7 @@ use crate::gpu::Gpu;
 use crate::io::exr::{FrameFile, read_frame, read_header, write_frame};
 use crate::io::frames::list_frames;
 use crate::io::png::write_png_row;
-use crate::ssr::{AlbedoSource, Denoiser, Weights};
+use crate::ssr::{AlbedoSource, Denoiser, EmissionSource, Weights};
 
 #[derive(clap::Args)]
 pub(super) struct DenoiseArgs {
@@ -29,7 +29,8 @@ pub(super) struct DenoiseArgs {
     /// Ignore the frames' background channels (`background`, `coverage`): reconstruct
     /// every pixel, the wholly sky ones included. By default a frame that has them is
     /// composited with its background (`background + (1 - coverage) x reconstruction`).
-    /// A model of config albedo "footprint" still takes the footprint albedo from them.
+    /// A model of config albedo "footprint" still takes the footprint albedo from them,
+    /// and one of config emission "background" the directly seen emission.
     #[arg(long)]
     no_background: bool,
 }
@@ -46,7 +47,8 @@ pub(super) fn run(a: &DenoiseArgs) -> Result<()> {
     let frames = list_frames(&a.input)?;
     super::refuse_overlap("--input", &a.input, "--out", &a.out)?;
     let footprint = weights.config.albedo_source()? == AlbedoSource::Footprint;
-    let (w, h) = check_frames(&frames, footprint)?;
+    let emission = weights.config.emission_source()? == EmissionSource::Background;
+    let (w, h) = check_frames(&frames, footprint, emission)?;
     std::fs::create_dir_all(&a.out).with_context(|| format!("cannot create {}", a.out.display()))?;
     let gpu = Gpu::new()?;
     let mut den = Denoiser::with_gpu(&gpu, &weights, w, h)?;
@@ -92,8 +94,9 @@ pub(super) fn run(a: &DenoiseArgs) -> Result<()> {
 
 /// Checks every frame's header before anything is written: each holds the renderer's
 /// buffers (and with `footprint`, a model of config albedo "footprint", the footprint
-/// albedo), all of one size. Returns that size.
-fn check_frames(frames: &[PathBuf], footprint: bool) -> Result<(u32, u32)> {
+/// albedo; with `emission`, a model of config emission "background", the directly seen
+/// emission), all of one size. Returns that size.
+fn check_frames(frames: &[PathBuf], footprint: bool, emission: bool) -> Result<(u32, u32)> {
     let mut size: Option<(u32, u32, &PathBuf)> = None;
     for path in frames {
         let header = read_header(path)?;
@@ -107,6 +110,15 @@ fn check_frames(frames: &[PathBuf], footprint: bool) -> Result<(u32, u32)> {
             bail!(
                 "{}: no footprint albedo (albedo_footprint.RGB), which this model uses (config albedo \"footprint\"); \
                  `subpixel dataset --background N` over the same folder adds it",
+                path.display()
+            );
+        }
+        let has = |c: &str| header.channels.iter().any(|h| h == c);
+        if emission && !(has("emission.R") && has("emission_footprint.R")) {
+            bail!(
+                "{}: no directly seen emission (emission.RGB, emission_footprint.RGB), which this model takes \
+                 from the background (config emission \"background\"); `subpixel dataset --background N` over the \
+                 same folder adds it",
                 path.display()
             );
         }
@@ -141,9 +153,12 @@ fn denoise_all(
     pb: &indicatif::ProgressBar,
 ) -> Result<usize> {
     let mut with_background = 0;
-    // With --no-background a footprint model keeps the background's albedo, composited
-    // with nothing (coverage 0); any other model drops the background.
-    let keep_albedo = den.network().config.albedo_source()? == AlbedoSource::Footprint;
+    // With --no-background a footprint model keeps the background's albedo, and a model of
+    // emission "background" its directly seen emission, composited with no environment
+    // (radiance and coverage 0); any other model drops the background.
+    let config = &den.network().config;
+    let keep_albedo = config.albedo_source()? == AlbedoSource::Footprint
+        || config.emission_source()? == EmissionSource::Background;
     for path in frames {
         let mut file = read_frame(path)?;
         if let (true, Some(f)) = (a.no_background, file.frame.as_mut()) {

@@ -378,25 +378,32 @@ fn write_frame_atomically(file: &Path, ff: &FrameFile) -> Result<()> {
     Ok(())
 }
 
-/// Adds the background (`background`, `coverage` and `albedo_footprint` channels,
-/// `CpuTracer::background` with `settings.background` lookups per pixel axis) to the frame
-/// file `file` when it lacks one (a frame rendered before `--background` existed), and the
-/// footprint albedo alone to a background without it (one written before the footprint
-/// albedo existed: its radiance and coverage are kept as they are), rewriting the file
-/// atomically; a frame that has both is left alone.
+/// Adds the background (`background`, `coverage`, `albedo_footprint`, `emission_footprint`
+/// and `emission` channels, `CpuTracer::background` with `settings.background` lookups per
+/// pixel axis) to the frame file `file` when it lacks one (a frame rendered before
+/// `--background` existed), and the parts a background written before them lacks (the
+/// footprint albedo, the directly seen emission: its radiance and coverage are kept as
+/// they are), rewriting the file atomically; a frame that has them all is left alone.
 fn add_background(file: &Path, packed: &PackedScene, settings: &FrameSettings) -> Result<()> {
     let mut ff = crate::io::exr::read_frame(file)?;
     let frame = ff
         .frame
         .as_mut()
         .with_context(|| format!("{}: a frame file without the renderer's buffers", file.display()))?;
-    if frame.background.as_ref().is_some_and(|b| b.albedo.is_some()) {
+    if frame
+        .background
+        .as_ref()
+        .is_some_and(|b| b.albedo.is_some() && b.emission.is_some())
+    {
         return Ok(());
     }
     let (w, h) = frame.size()?;
     let made = CpuTracer::new(w, h)?.background(packed, settings)?;
     match &mut frame.background {
-        Some(b) => b.albedo = made.albedo,
+        Some(b) => {
+            b.albedo = b.albedo.take().or(made.albedo);
+            b.emission = b.emission.take().or(made.emission);
+        }
         None => frame.background = Some(made),
     }
     write_frame_atomically(file, &ff)

@@ -18,6 +18,22 @@ pub enum AlbedoSource {
     Footprint,
 }
 
+/// Who reconstructs the emission of the surfaces the camera sees directly (a model's config
+/// `emission`, [`crate::ssr::SsrConfig::emission_source`]; absent: `network`). It sets what
+/// the caller feeds the denoiser as `color` and `background`.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum EmissionSource {
+    /// The network, from the samples: `color` is the traced radiance, emission included
+    /// (every model before the option).
+    Network,
+    /// The background: `color` leaves out the emission of the surfaces the camera rays meet
+    /// first, and the background buffer adds that emission averaged over the pixel's
+    /// footprint (premultiplied like its environment radiance), so the output pass
+    /// composites the emitters without noise and the network reconstructs only reflected
+    /// light ([`HostFrame::fold_direct_emission`] makes such a frame from a full one).
+    Background,
+}
+
 /// One frame of inputs in host memory, one [`HostTensor`] per buffer of DESIGN §3.
 #[derive(Debug, Clone, PartialEq)]
 pub struct HostFrame {
@@ -62,6 +78,24 @@ pub struct Background {
     /// the G-buffer's `albedo` is the value at the pixel centre. `None` in frame files
     /// written before it existed (`subpixel dataset --background N --resume` adds it).
     pub albedo: Option<HostTensor>,
+    /// The directly seen emission, optional ([`DirectEmission`]): what a model whose
+    /// config says `emission = "background"` takes out of the network's hands as the
+    /// environment is. `None` in frame files written before it existed (`subpixel dataset
+    /// --background N --resume` adds it) and from the GPU tracer.
+    pub emission: Option<DirectEmission>,
+}
+
+/// The emission of the surfaces a frame's camera rays meet first (emitters seen directly,
+/// not through a reflection): a pixel's radiance is that emission plus light the surfaces
+/// reflect, and the first part is known without noise from the geometry alone.
+#[derive(Debug, Clone, PartialEq)]
+pub struct DirectEmission {
+    /// First-hit emission averaged over the background's footprint rays, as its
+    /// environment radiance (3; channel `emission_footprint`).
+    pub footprint: HostTensor,
+    /// First-hit emission of each traced pixel's own samples (3; channel `emission`; 0
+    /// where not traced): the part of `color` that is emission seen directly.
+    pub samples: HostTensor,
 }
 
 impl HostFrame {
@@ -105,6 +139,12 @@ impl HostFrame {
             [("background", &b.radiance, 3), ("coverage", &b.coverage, 1)]
                 .into_iter()
                 .chain(b.albedo.iter().map(|a| ("albedo_footprint", a, 3)))
+                .chain(b.emission.iter().flat_map(|e| {
+                    [
+                        ("emission_footprint", &e.footprint, 3),
+                        ("emission", &e.samples, 3),
+                    ]
+                }))
         });
         for (name, t, c) in self.fields().into_iter().chain(background) {
             if (t.width, t.height, t.channels) != (w, h, c) {
@@ -157,6 +197,35 @@ impl HostFrame {
         put(&mut out[3], &self.roughness, 3);
         put(&mut out[4], &self.transparent, 0);
         put(&mut out[5], &self.motion, 0);
+        Ok(out)
+    }
+
+    /// The frame as a model of `source` is fed it: itself for
+    /// [`EmissionSource::Network`]; for [`EmissionSource::Background`], `color` without the
+    /// traced samples' first-hit emission (at least 0) and the background's radiance plus the
+    /// footprint's first-hit emission ([`DirectEmission`]), an error naming the buffers when
+    /// the frame has no directly seen emission.
+    pub fn fold_direct_emission(&self, source: EmissionSource) -> Result<HostFrame> {
+        self.size()?;
+        if source == EmissionSource::Network {
+            return Ok(self.clone());
+        }
+        let Some(e) = self.background.as_ref().and_then(|b| b.emission.as_ref()) else {
+            return Err(Error::shape(
+                "frame",
+                "the model takes the directly seen emission from the background (config emission \"background\") \
+                 and the frame has none (buffers 'emission' and 'emission_footprint', written with the background: \
+                 `subpixel dataset --background N`)",
+            ));
+        };
+        let mut out = self.clone();
+        for (c, s) in out.color.data.iter_mut().zip(&e.samples.data) {
+            *c = (*c - s).max(0.0);
+        }
+        let ob = out.background.as_mut().expect("cloned with a background");
+        for (r, f) in ob.radiance.data.iter_mut().zip(&e.footprint.data) {
+            *r += f;
+        }
         Ok(out)
     }
 

@@ -12,7 +12,7 @@ use std::path::Path;
 use exr::prelude::*;
 
 use crate::error::{Error, Result};
-use crate::frame::{Background, HostFrame};
+use crate::frame::{Background, DirectEmission, HostFrame};
 use crate::nn::HostTensor;
 
 /// Channel suffixes of a buffer with `c` channels named `name`.
@@ -265,6 +265,10 @@ pub fn write_frame(path: &Path, f: &FrameFile) -> Result<()> {
             if let Some(a) = &b.albedo {
                 tensors.push(("albedo_footprint", a));
             }
+            if let Some(e) = &b.emission {
+                tensors.push(("emission_footprint", &e.footprint));
+                tensors.push(("emission", &e.samples));
+            }
         }
     }
     if let Some(r) = &f.reference {
@@ -294,16 +298,41 @@ pub fn read_frame(path: &Path) -> Result<FrameFile> {
     let reference_half = get("reference_half", 3)?;
     let full = get("full", 3)?;
     let albedo = get("albedo_footprint", 3)?;
+    let emission = match (get("emission_footprint", 3)?, get("emission", 3)?) {
+        (Some(footprint), Some(samples)) => Some(DirectEmission { footprint, samples }),
+        (None, None) => None,
+        (f, _) => {
+            let (has, missing) = if f.is_none() {
+                ("emission.RGB", "emission_footprint.R")
+            } else {
+                ("emission_footprint.RGB", "emission.R")
+            };
+            return Err(Error::File {
+                path: path.to_path_buf(),
+                message: format!(
+                    "channels '{has}' without '{missing}': the directly seen emission needs both emission_footprint.RGB and emission.RGB"
+                ),
+            });
+        }
+    };
     let background = match (get("background", 3)?, get("coverage", 1)?) {
         (Some(radiance), Some(coverage)) => Some(Background {
             radiance,
             coverage,
             albedo,
+            emission,
         }),
-        (None, None) if albedo.is_some() => {
+        (None, None) if albedo.is_some() || emission.is_some() => {
+            let what = if albedo.is_some() {
+                "albedo_footprint.RGB"
+            } else {
+                "emission.RGB and emission_footprint.RGB"
+            };
             return Err(Error::File {
                 path: path.to_path_buf(),
-                message: "channels 'albedo_footprint.RGB' without the background they belong to (background.RGB, coverage.Y)".into(),
+                message: format!(
+                    "channels '{what}' without the background they belong to (background.RGB, coverage.Y)"
+                ),
             });
         }
         (None, None) => None,
@@ -419,6 +448,10 @@ mod tests {
                     radiance: HostTensor::from_fn(7, 5, 3, |x, y, c| (x * c + y) as f32 * 0.5),
                     coverage: HostTensor::from_fn(7, 5, 1, |x, _, _| x as f32 / 6.0),
                     albedo: Some(HostTensor::from_fn(7, 5, 3, |x, y, c| (x + y + c) as f32 * 0.1)),
+                    emission: Some(DirectEmission {
+                        footprint: HostTensor::from_fn(7, 5, 3, |x, y, c| (x * y + c) as f32 * 2.5),
+                        samples: HostTensor::from_fn(7, 5, 3, |x, y, c| ((x + y) % 2 * (c + 1)) as f32 * 4.0),
+                    }),
                 }),
                 ..frame(7, 5)
             }),
@@ -509,6 +542,28 @@ mod tests {
         let e = read_err(&path);
         assert!(
             e.contains("frame_0001.exr") && e.contains("'albedo_footprint.RGB' without the background"),
+            "{e}"
+        );
+        // Half of the directly seen emission, then all of it without the background.
+        let (coverage, zeros) = (HostTensor::zeros(4, 4, 1), HostTensor::zeros(4, 4, 3));
+        let mut with_bg: Vec<(&str, &HostTensor)> = fields.iter().map(|(n, t, _)| (*n, *t)).collect();
+        with_bg.extend([
+            ("background", &zeros),
+            ("coverage", &coverage),
+            ("emission", &zeros),
+        ]);
+        write_tensors(&path, &with_bg).unwrap();
+        let e = read_err(&path);
+        assert!(
+            e.contains("frame_0001.exr") && e.contains("'emission.RGB' without 'emission_footprint.R'"),
+            "{e}"
+        );
+        let mut no_bg: Vec<(&str, &HostTensor)> = fields.iter().map(|(n, t, _)| (*n, *t)).collect();
+        no_bg.extend([("emission", &zeros), ("emission_footprint", &zeros)]);
+        write_tensors(&path, &no_bg).unwrap();
+        let e = read_err(&path);
+        assert!(
+            e.contains("'emission.RGB and emission_footprint.RGB' without the background"),
             "{e}"
         );
         let e = read_err(&dir.join("nope.exr"));

@@ -137,6 +137,7 @@ impl FrameBuffers {
                     radiance: channels(&bc, &[0, 1, 2]),
                     coverage: channels(&bc, &[3]),
                     albedo,
+                    emission: None,
                 })
             }
             None => None,

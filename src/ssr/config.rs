@@ -3,7 +3,7 @@
 use serde::{Deserialize, Serialize};
 
 use crate::error::{Error, Result};
-pub use crate::frame::AlbedoSource;
+pub use crate::frame::{AlbedoSource, EmissionSource};
 use crate::nn::ops::{Activation, PoolMode, UpsampleMode};
 
 /// Channels of the accumulated feature set A (DESIGN §4).
@@ -137,6 +137,10 @@ pub struct SsrConfig {
     /// ([`AlbedoSource`]).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub albedo: Option<String>,
+    /// Version 2, optional (absent: `"network"`): `"network"` or `"background"`
+    /// ([`EmissionSource`]).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub emission: Option<String>,
 }
 
 impl Default for SsrConfig {
@@ -155,6 +159,7 @@ impl Default for SsrConfig {
             ceiling: Some("max".into()),
             mean_correction: Some("none".into()),
             albedo: Some("centre".into()),
+            emission: Some("network".into()),
         }
     }
 }
@@ -242,6 +247,7 @@ impl SsrConfig {
         self.history_test()?;
         self.mean_correction()?;
         self.albedo_source()?;
+        self.emission_source()?;
         if self.ceiling_mode()? == CeilingMode::Max && self.exposure_mode()? != ExposureMode::Channel {
             return bad(
                 "ceiling \"max\" needs exposure \"channel\" (the running max lives in the exposure state)"
@@ -261,9 +267,10 @@ impl SsrConfig {
 
     /// The version-2 options that came after the first version-2 weights (optional: absent,
     /// each reads as its first choice).
-    fn late_options(&self) -> [(&'static str, &Option<String>); 3] {
+    fn late_options(&self) -> [(&'static str, &Option<String>); 4] {
         [
             ("albedo", &self.albedo),
+            ("emission", &self.emission),
             ("mean_correction", &self.mean_correction),
             ("ceiling", &self.ceiling),
         ]
@@ -292,6 +299,7 @@ impl SsrConfig {
             ceiling: None,
             mean_correction: None,
             albedo: None,
+            emission: None,
             ..self.clone()
         }
     }
@@ -303,6 +311,16 @@ impl SsrConfig {
             ("footprint", AlbedoSource::Footprint),
         ];
         choose("albedo", self.albedo.as_deref(), &choices)
+    }
+
+    /// Who reconstructs the directly seen emission (version 1 and files without the option:
+    /// the network).
+    pub fn emission_source(&self) -> Result<EmissionSource> {
+        let choices = [
+            ("network", EmissionSource::Network),
+            ("background", EmissionSource::Background),
+        ];
+        choose("emission", self.emission.as_deref(), &choices)
     }
 
     /// The output ceiling (version 1 and files without the option: none).
@@ -474,7 +492,7 @@ mod tests {
         assert_eq!(d.ceiling_mode().unwrap(), CeilingMode::Max);
         // the engine's JSON is the trainer's (ssr/model.py SSRConfig.to_json, keys sorted)
         let back: SsrConfig = serde_json::from_str(
-            r#"{"albedo":"centre","ceiling":"max","enc":[16,32,28],"exposure":"channel","feature_pool":"max","history":"geometry","input_channels":37,"k":8,"mean_correction":"none","remodulation":"current","tfa_hidden":8,"upsample":"bilinear","version":2}"#,
+            r#"{"albedo":"centre","ceiling":"max","emission":"network","enc":[16,32,28],"exposure":"channel","feature_pool":"max","history":"geometry","input_channels":37,"k":8,"mean_correction":"none","remodulation":"current","tfa_hidden":8,"upsample":"bilinear","version":2}"#,
         )
         .unwrap();
         assert_eq!(back, d);
@@ -514,6 +532,34 @@ mod tests {
         .unwrap_err()
         .to_string();
         assert!(e.contains("version 1 has no 'albedo' option"), "{e}");
+        // the directly seen emission from the background (`--model-config '{"emission": "background"}'`)
+        assert_eq!(before.emission_source().unwrap(), EmissionSource::Network);
+        let em: SsrConfig = serde_json::from_str(
+            r#"{"emission":"background","enc":[16,32,28],"exposure":"channel","feature_pool":"max","history":"geometry","input_channels":37,"k":8,"remodulation":"current","tfa_hidden":8,"upsample":"bilinear","version":2}"#,
+        )
+        .unwrap();
+        em.validate().unwrap();
+        assert_eq!(em.emission_source().unwrap(), EmissionSource::Background);
+        assert!(em.describe().contains("emission background"), "{}", em.describe());
+        let e = SsrConfig {
+            emission: Some("both".into()),
+            ..d.clone()
+        }
+        .validate()
+        .unwrap_err()
+        .to_string();
+        assert!(
+            e.contains("emission 'both', expected \"network\" or \"background\""),
+            "{e}"
+        );
+        let e = SsrConfig {
+            emission: Some("background".into()),
+            ..d.legacy()
+        }
+        .validate()
+        .unwrap_err()
+        .to_string();
+        assert!(e.contains("version 1 has no 'emission' option"), "{e}");
         // the mean correction, written by `ssr.export --option mean_correction=tiles`
         let tiles: SsrConfig = serde_json::from_str(
             r#"{"ceiling":"max","enc":[16,32,28],"exposure":"channel","feature_pool":"max","history":"geometry","input_channels":37,"k":8,"mean_correction":"tiles","remodulation":"current","tfa_hidden":8,"upsample":"bilinear","version":2}"#,
@@ -532,7 +578,7 @@ mod tests {
         tiles16.validate().unwrap();
         assert_eq!(
             tiles16.describe(),
-            "version 2, enc [16, 32, 28], albedo footprint, mean correction tiles16, ceiling max"
+            "version 2, enc [16, 32, 28], albedo footprint, emission network, mean correction tiles16, ceiling max"
         );
         assert_eq!(d.legacy().describe(), "version 1, enc [16, 32, 28]");
         assert_eq!(

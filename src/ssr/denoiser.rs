@@ -620,7 +620,9 @@ impl Denoiser {
 
     /// Offline convenience: uploads a frame from host memory, denoises it, waits and
     /// returns the output (3 channels, `width x height`). A model of config albedo
-    /// `footprint` takes the frame's footprint albedo ([`HostFrame::pack`]).
+    /// `footprint` takes the frame's footprint albedo ([`HostFrame::pack`]); one of config
+    /// emission `background` is fed the frame with its directly seen emission moved into the
+    /// background ([`HostFrame::fold_direct_emission`]).
     pub fn denoise_host(&mut self, frame: &HostFrame) -> Result<HostTensor> {
         let (w, h) = frame.size()?;
         if (w, h) != (self.width, self.height) {
@@ -632,6 +634,9 @@ impl Denoiser {
                 ),
             ));
         }
+        // A model of config emission "background" gets the directly seen emission in the
+        // background, as the frame loop feeds it.
+        let frame = frame.fold_direct_emission(self.net.config.emission_source()?)?;
         let packed = frame.pack(self.net.config.albedo_source()?)?;
         let background = frame.pack_background()?;
         let bufs = self.host_buffers();

@@ -9,9 +9,9 @@ mod weights;
 
 pub use crate::frame::HostFrame;
 pub use config::{
-    AlbedoSource, CEILING_DECAY, CEILING_GAIN, CONFIG_VERSION, CeilingMode, ExposureMode, HistoryTest,
-    LayerSpec, MEAN_EPS, MEAN_HI, MEAN_LO, MEAN_RING, MEAN_TILE, MeanCorrection, RemodulationAlbedo,
-    SsrConfig,
+    AlbedoSource, CEILING_DECAY, CEILING_GAIN, CONFIG_VERSION, CeilingMode, EmissionSource, ExposureMode,
+    HistoryTest, LayerSpec, MEAN_EPS, MEAN_HI, MEAN_LO, MEAN_RING, MEAN_TILE, MeanCorrection,
+    RemodulationAlbedo, SsrConfig,
 };
 pub use denoiser::{Denoiser, FrameInputs, Granularity, KERNELS_USED, PARAM_SIZES, round_up4};
 pub use network::{INTERMEDIATES, Network, StepCost};

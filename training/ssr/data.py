@@ -105,6 +105,8 @@ EXTRA_SUFFIXES: Dict[str, Tuple[str, ...]] = {
     "background": ("R", "G", "B"),
     "coverage": ("Y",),
     "albedo_footprint": ("R", "G", "B"),
+    "emission": ("R", "G", "B"),
+    "emission_footprint": ("R", "G", "B"),
 }
 """Buffers some datasets also hold, loaded on request (`SequenceDataset(extra=...)`): `full`
 (the 1-spp frame of the recipe), `reference_half` (the mean of the reference's first half
@@ -112,7 +114,10 @@ of samples), `background` and `coverage` (the directly seen environment over eac
 footprint and the fraction that escapes: `subpixel dataset --background N`), and
 `albedo_footprint` (the first-hit base colour averaged over the same footprint, sky 1:
 written with the background since it existed, added to older frames by re-running the
-same `dataset --background N` command)."""
+same `dataset --background N` command), `emission` (the first-hit emission of each traced
+pixel's own samples: the part of `color` that is emission seen directly) and
+`emission_footprint` (the first-hit emission averaged over the background's footprint),
+written with the background, added to older frames the same way."""
 
 
 def read_extra_buffers(path: str, buffers: Sequence[str], why: str) -> Dict[str, "torch.Tensor"]:

@@ -37,6 +37,7 @@ from .baselines import NON_LEARNED, load_model
 from .data import DatasetError, SequenceDataset, frame_name, pad_frame, read_extra_buffers, write_exr
 from .export import WeightsError
 from .metrics import image_metrics, mean_metrics, temporal_error
+from .model import composite_background, fold_emission
 from .oidn import OIDN_MODELS, OIDNUnavailable
 
 REFERENCES = {**NON_LEARNED, **OIDN_MODELS}
@@ -85,10 +86,13 @@ def run_model(
 
     A model may set `pad_multiple` (default 4: the engine's padding; 1: no padding) and
     `extra_buffers` (names of data.EXTRA_SUFFIXES) for buffers beyond data.BUFFERS, read from
-    each frame file."""
+    each frame file. An SSR model of config emission = "background" is fed its frames as the
+    engine feeds it (model.fold_emission) and its output composited with the background
+    (the emitters are the background's); other models' outputs are their own."""
     rows = []
     multiple = getattr(model, "pad_multiple", 4)
     extra_buffers = tuple(getattr(model, "extra_buffers", ()))
+    cfg = getattr(model, "cfg", None)
     for si, seq in enumerate(ds.sequences):
         t0 = time.time()
         folder = os.path.join(out, name, seq.split, seq.name) if out else None
@@ -105,11 +109,15 @@ def run_model(
             f = ds.full_frame(si, t)
             if extra_buffers:
                 f.update(read_extra_buffers(seq.frame_path(t), extra_buffers, f"{name} reads them"))
-            fb = {k: v.unsqueeze(0).to(device) for k, v in f.items()}
+            fb = fold_emission({k: v.unsqueeze(0).to(device) for k, v in f.items()}, cfg)
             padded, (h, w) = pad_frame(fb, multiple)
             r = model(padded, state)
             state = r["state"]
-            pred = r["output"][0, :, :h, :w].float().cpu()
+            out = r["output"][:, :, :h, :w]
+            if getattr(cfg, "emission", "network") == "background":
+                # the emitters are the background's now: without the composite they are missing
+                out = composite_background(out, fb)
+            pred = out[0].float().cpu()
             if folder:
                 write_exr(os.path.join(folder, frame_name(t)), {"pred": pred.numpy()}, PRED_SUFFIXES)
             if metrics:

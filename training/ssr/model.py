@@ -94,7 +94,7 @@ CONFIG_VERSION = 2
 
 LEGACY_OPTIONS: Dict[str, str] = {
     "exposure": "none", "remodulation": "accumulated", "history": "screen", "ceiling": "none", "mean_correction": "none",
-    "albedo": "centre",
+    "albedo": "centre", "emission": "network",
 }
 """What version-1 weights were trained with: absolute radiance in, output remodulated with the
 accumulated albedo, history rejected only off screen, no output ceiling."""
@@ -106,12 +106,13 @@ OPTION_VALUES: Dict[str, Tuple[str, ...]] = {
     "ceiling": ("none", "max"),
     "mean_correction": ("none", "tiles", "tiles16"),
     "albedo": ("centre", "footprint"),
+    "emission": ("network", "background"),
 }
 
-LATE_OPTIONS: Dict[str, str] = {"ceiling": "none", "mean_correction": "none", "albedo": "centre"}
+LATE_OPTIONS: Dict[str, str] = {"ceiling": "none", "mean_correction": "none", "albedo": "centre", "emission": "network"}
 """Version-2 options added after the first version-2 weights: absent, they take this value."""
 
-FINE_TUNE_OPTIONS: Tuple[str, ...] = ("albedo",)
+FINE_TUNE_OPTIONS: Tuple[str, ...] = ("albedo", "emission")
 """Options that change what the network is fed but not its parameters: a run started from
 weights (`ssr.train --init`) may set them differently from the file, fine-tuning it."""
 
@@ -172,6 +173,10 @@ class SSRConfig:
     mean_correction: str = "none"
     # "centre" | "footprint": which albedo buffer the pipeline uses (`use_albedo`)
     albedo: str = "centre"
+    # "network" | "background": who reconstructs the emission of the surfaces the camera sees
+    # directly: the network, from the samples, or the background composite, from the
+    # footprint (`fold_emission`)
+    emission: str = "network"
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "enc", tuple(int(c) for c in self.enc))
@@ -270,10 +275,42 @@ FOOTPRINT_ALBEDO = "albedo_footprint"
 """The frame buffer (data.EXTRA_SUFFIXES) config `albedo = "footprint"` uses as the albedo."""
 
 
+DIRECT_EMISSION = ("emission", "emission_footprint")
+"""The frame buffers (data.EXTRA_SUFFIXES) config `emission = "background"` folds into the
+colour and the background (`fold_emission`)."""
+
+
 def extra_buffers(cfg: SSRConfig) -> Tuple[str, ...]:
     """Buffers beyond data.BUFFERS a model of config `cfg` reads (load them with
     `SequenceDataset(extra=...)`, or per frame file with data.read_extra_buffers)."""
-    return (FOOTPRINT_ALBEDO,) if cfg.albedo == "footprint" else ()
+    albedo = (FOOTPRINT_ALBEDO,) if cfg.albedo == "footprint" else ()
+    emission = DIRECT_EMISSION if getattr(cfg, "emission", "network") == "background" else ()
+    return albedo + emission
+
+
+def fold_emission(frame: Dict[str, torch.Tensor], cfg: Optional[SSRConfig]) -> Dict[str, torch.Tensor]:
+    """`frame` as a model of config `cfg` is fed it (the engine's frame loop, and `subpixel
+    denoise` on frame files, feed the same): itself for `emission = "network"`; for
+    "background", the directly seen emission moves from the samples to the background: the
+    colour without each traced sample's first-hit emission (`emission`, the part of `color`
+    that is emission seen directly), the background plus the first-hit emission averaged over
+    its footprint (`emission_footprint`). The network then reconstructs only reflected light,
+    and the output pass adds the emitters back without noise (`composite_background`). A
+    KeyError names a missing buffer and the command that writes it. Call it once per frame,
+    before the model and the output pass."""
+    if cfg is None or getattr(cfg, "emission", "network") == "network":
+        return frame
+    missing = [b for b in DIRECT_EMISSION + ("background", "coverage") if b not in frame]
+    if missing:
+        raise KeyError(
+            f"config emission = \"background\" needs the frames' {missing} buffer(s) (written by "
+            "`subpixel dataset --background N`; load them with SequenceDataset(extra=...))"
+        )
+    return {
+        **frame,
+        "color": (frame["color"] - frame["emission"]).clamp_min(0.0),
+        "background": frame["background"] + frame["emission_footprint"],
+    }
 
 
 def use_albedo(frame: Dict[str, torch.Tensor], cfg: SSRConfig) -> Dict[str, torch.Tensor]:

@@ -22,18 +22,25 @@ from typing import Dict, List, Optional
 
 import numpy as np
 
-from .data import frame_name, write_exr
+from .data import EXTRA_SUFFIXES, frame_name, write_exr
 from .model import TILE_OFFSETS
+
+EMITTER = (12.0, 9.0, 6.0)
+"""Radiance of the synthetic emitter (`make_sequence(emission=True)`)."""
 
 
 def make_sequence(
-    width: int, height: int, frames: int, seed: int, scene_seed: int = 0, full: bool = False, background: bool = False
+    width: int, height: int, frames: int, seed: int, scene_seed: int = 0, full: bool = False, background: bool = False,
+    emission: bool = False,
 ) -> List[Dict[str, np.ndarray]]:
     """Frames as dicts of float32 [C, H, W] arrays with every buffer of data.BUFFERS (and
     `full`, the 1-spp colour, with `full`; with `background`, the background buffer: the top
     quarter of the rows wholly sky, `coverage` 1 and `background` the reference there, the
     next row half covered, the rest none, and the footprint albedo `albedo_footprint`: the
-    albedo, as the reference here is the albedo times the light pixel by pixel)."""
+    albedo, as the reference here is the albedo times the light pixel by pixel); with
+    `emission` too, an emitter of radiance EMITTER seen directly over a 4 x 4 square below
+    the sky (whose pixels' reference and traced samples add it), with its directly seen
+    emission buffers `emission` (the traced samples') and `emission_footprint`."""
     rng = np.random.default_rng(seed)
     frng = np.random.default_rng(20_000 + seed)
     srng = np.random.default_rng(10_000 + scene_seed)
@@ -87,6 +94,13 @@ def make_sequence(
             frame["coverage"] = cov
             frame["background"] = (frame["reference"] * cov).astype(np.float32)
             frame["albedo_footprint"] = frame["albedo"].copy()
+            if emission:
+                lamp = np.zeros((3, height, width), np.float32)
+                lamp[:, sky + 2 : sky + 6, 2:6] = np.asarray(EMITTER, np.float32)[:, None, None]
+                frame["emission_footprint"] = lamp
+                frame["emission"] = lamp * mask
+                frame["reference"] = frame["reference"] + lamp
+                frame["color"] = frame["color"] + lamp * mask
         out.append(frame)
     return out
 
@@ -103,6 +117,7 @@ def write_sequence(
     scene_seed: int = 0,
     full: bool = False,
     background: bool = False,
+    emission: bool = False,
 ) -> str:
     os.makedirs(folder, exist_ok=True)
     meta = {
@@ -118,8 +133,8 @@ def write_sequence(
     }
     with open(os.path.join(folder, "sequence.json"), "w") as f:
         json.dump(meta, f, indent=2)
-    for t, fr in enumerate(make_sequence(width, height, frames, seed, scene_seed, full, background)):
-        write_exr(os.path.join(folder, frame_name(t)), fr, {"full": ("R", "G", "B"), "background": ("R", "G", "B"), "coverage": ("Y",), "albedo_footprint": ("R", "G", "B")})
+    for t, fr in enumerate(make_sequence(width, height, frames, seed, scene_seed, full, background, emission)):
+        write_exr(os.path.join(folder, frame_name(t)), fr, EXTRA_SUFFIXES)
     return folder
 
 
@@ -133,6 +148,7 @@ def write_dataset(
     seed: int = 0,
     full: bool = False,
     background: bool = False,
+    emission: bool = False,
 ) -> str:
     """Writes ROOT/{split}/{scene}_{i:03d}/ for every scene and split; returns root."""
     splits = splits if splits is not None else {"train": 2, "val": 1, "test": 1}
@@ -142,7 +158,7 @@ def write_dataset(
         for split, count in splits.items():
             for i in range(count):
                 folder = os.path.join(root, split, f"{scene}_{i:03d}")
-                write_sequence(folder, split, i, frames, width, height, seed * 1000 + k, scene, si, full, background)
+                write_sequence(folder, split, i, frames, width, height, seed * 1000 + k, scene, si, full, background, emission)
                 k += 1
     return root
 

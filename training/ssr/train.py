@@ -60,6 +60,7 @@ from .model import (
     SSRModel,
     composite_background,
     extra_buffers,
+    fold_emission,
     mean_correction_of,
 )
 from .validation import validate
@@ -209,6 +210,11 @@ def run_config(args: argparse.Namespace) -> dict:
         model_cfg = {**init_inherited_options(args.init), **model_cfg}
     model = build_model(args.model, model_cfg)
     cfg_dict = model.cfg.to_dict()
+    if getattr(model.cfg, "emission", "network") == "background" and args.background != "loss":
+        raise SystemExit(
+            'error: config emission = "background" needs --background loss (the emitters are the '
+            "background's: the loss must see the composited output)"
+        )
     return {
         "model": args.model,
         "model_config": cfg_dict,
@@ -705,6 +711,7 @@ def _train(args, config: dict, dd: Dist) -> dict:
             for g in opt.param_groups:
                 g["lr"] = lr
             frames = [{k: v.to(device, non_blocking=True) for k, v in f.items()} for f in batch]
+            frames = [fold_emission(f, getattr(model, "cfg", None)) for f in frames]
             results = runner(frames)
             if args.mean_correction == "loss":
                 # one window: the ring starts empty, as after a reset; the tiles of the exported

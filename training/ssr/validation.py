@@ -10,7 +10,7 @@ from torch import nn
 
 from .data import SequenceDataset, pad_frame, read_extra_buffers
 from .metrics import image_metrics, mean_metrics
-from .model import composite_background, mean_correction_of
+from .model import composite_background, fold_emission, mean_correction_of
 
 
 @torch.no_grad()
@@ -23,7 +23,8 @@ def validate(model: nn.Module, ds: SequenceDataset, device: torch.device, frames
     config `mean_correction = "tiles"` (or "tiles16") corrected as the engine does (model.MeanCorrection);
     `output_pass=False` scores the network's own output (neither). Buffers the model reads
     beyond the dataset's (`model.extra_buffers`: config albedo = "footprint") come from each
-    frame's file."""
+    frame's file; config emission = "background" folds the directly seen emission into the
+    background (model.fold_emission) as the engine's frame loop does."""
     was_training = model.training
     model.eval()
     rows, per_scene = [], {}
@@ -36,8 +37,9 @@ def validate(model: nn.Module, ds: SequenceDataset, device: torch.device, frames
             f = ds.full_frame(si, t)
             missing = [b for b in extra if b not in f]
             if missing:
-                why = "the model reads them (config albedo \"footprint\": `subpixel dataset --background N` adds them)"
+                why = "the model reads them (config albedo \"footprint\" or emission \"background\": `subpixel dataset --background N` adds them)"
                 f.update(read_extra_buffers(seq.frame_path(t), missing, why))
+            f = fold_emission(f, cfg)
             if size:
                 h, w = f["color"].shape[-2:]
                 ch, cw = min(h, size), min(w, size)

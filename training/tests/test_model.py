@@ -10,10 +10,12 @@ from ssr.model import (
     LEGACY_OPTIONS,
     SSRConfig,
     SSRModel,
+    composite_background,
     conv_layers,
     demodulate,
     extra_buffers,
     flops_per_pixel,
+    fold_emission,
     history_consistent,
     pool2x2,
     prepare_inputs,
@@ -187,6 +189,7 @@ def test_config_json_round_trip():
         "ceiling": "max",
         "mean_correction": "none",
         "albedo": "centre",
+        "emission": "network",
     }
     with pytest.raises(ValueError, match="feature_pool"):
         SSRConfig(feature_pool="median")
@@ -201,7 +204,7 @@ def test_config_json_round_trip():
     with pytest.raises(ValueError, match="unsupported `version` 3"):
         SSRConfig.from_dict({**d, "version": 3})
     # version 1 (the shipped weights'): no option keys, the legacy pipeline
-    v1 = {k: v for k, v in d.items() if k not in ("exposure", "remodulation", "history", "ceiling", "mean_correction", "albedo")}
+    v1 = {k: v for k, v in d.items() if k not in ("exposure", "remodulation", "history", "ceiling", "mean_correction", "albedo", "emission")}
     v1["version"] = 1
     c1 = SSRConfig.from_dict(v1)
     assert (c1.exposure, c1.remodulation, c1.history, c1.ceiling) == ("none", "accumulated", "screen", "none")
@@ -510,3 +513,38 @@ def test_composite_background_mirrors_the_engines_output_pass():
     got.sum().backward()  # the network's gradient is scaled by the uncovered part
     assert torch.equal(out.grad, (1.0 - c).expand(1, 3, 2, 3))
     assert composite_background(out, {}) is out
+
+
+def test_fold_emission_moves_the_directly_seen_emission_into_the_background():
+    """Config emission = "background": the frame the model and the output pass get has the
+    traced samples' first-hit emission out of the colour and the footprint's in the
+    background (an emitter wholly covering pixels comes back exactly through the composite,
+    whatever the network makes of the rest); "network" leaves the frame as it is; a frame
+    without the buffers is a KeyError naming them."""
+    from ssr.synth import EMITTER, make_sequence
+
+    f = {k: torch.from_numpy(v)[None] for k, v in make_sequence(16, 16, 1, 3, background=True, emission=True)[0].items()}
+    cfg = SSRConfig(emission="background")
+    assert extra_buffers(cfg) == ("emission", "emission_footprint")
+    assert fold_emission(f, SSRConfig()) is f and fold_emission(f, None) is f
+    g = fold_emission(f, cfg)
+    lamp = f["emission_footprint"][0, 0] > 0
+    assert lamp.sum() == 16
+    # the colour keeps only the reflected light (the lamp's traced pixels: what the light
+    # makes of its base colour), the background adds the lamp to the sky
+    torch.testing.assert_close(g["color"], (f["color"] - f["emission"]).clamp_min(0))
+    assert torch.all(g["color"][0, :, lamp] < min(EMITTER))
+    torch.testing.assert_close(g["background"], f["background"] + f["emission_footprint"])
+    # where the lamp is, the composite of any reconstruction adds exactly the lamp
+    zero = composite_background(torch.zeros_like(f["reference"]), g)
+    torch.testing.assert_close(zero[0, :, lamp], torch.tensor(EMITTER)[:, None].expand(3, 16))
+    model = random_model(2, cfg)
+    with torch.no_grad():
+        out = model(g)["output"]
+    assert torch.isfinite(out).all()
+    with pytest.raises(KeyError, match=r"emission.*emission_footprint.*subpixel dataset --background"):
+        fold_emission({k: v for k, v in f.items() if not k.startswith("emission")}, cfg)
+    d = cfg.to_dict()
+    assert d["emission"] == "background" and SSRConfig.from_dict({k: v for k, v in d.items() if k != "emission"}).emission == "network"
+    with pytest.raises(ValueError, match="`emission` must be one of"):
+        SSRConfig(emission="both")

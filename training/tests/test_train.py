@@ -373,3 +373,28 @@ def test_a_run_from_weights_keeps_their_albedo_unless_told(tmp_path):
     assert load_weights(cont["weights"])[0].cfg.albedo == "footprint"
     back = T.train(args(data, str(tmp_path / "b"), "--init", fp["weights"], "--model-config", '{"albedo": "centre"}', iters=1))
     assert load_weights(back["weights"])[0].cfg.albedo == "centre"
+
+
+def test_emission_fine_tune_from_weights(tmp_path, capsys):
+    """A run with config emission = "background" may start from weights trained with the
+    emission left to the network (the option changes what the network is fed, not its
+    parameters), loads the frames' directly seen emission, trains and validates on the
+    composited output and writes the option into its weights; without --background loss it
+    stops saying so; on a dataset without the buffers it stops naming them."""
+    from ssr.synth import write_dataset
+
+    data = write_dataset(str(tmp_path / "d"), {"train": 1, "val": 1}, 6, 16, 16, seed=7, background=True, emission=True)
+    plain = T.train(args(data, str(tmp_path / "p"), "--background", "loss", iters=1))
+    em = '{"emission": "background"}'
+    res = T.train(
+        args(data, str(tmp_path / "e"), "--init", plain["weights"], "--model-config", em, "--background", "loss", "--val-every", "1", iters=2)
+    )
+    model, meta = load_weights(res["weights"])
+    assert model.cfg.emission == "background" and meta["provenance"]["init"]["file"] == "weights.safetensors"
+    capsys.readouterr()
+    with pytest.raises(SystemExit, match="--background loss"):
+        T.train(args(data, str(tmp_path / "n"), "--model-config", em, iters=1))
+    bare = write_dataset(str(tmp_path / "bare"), {"train": 1, "val": 1}, 6, 16, 16, seed=7, background=True)
+    assert T.main(args(bare, str(tmp_path / "h"), "--model-config", em, "--background", "loss", iters=1)) == 1
+    err = capsys.readouterr().err
+    assert "missing channel(s) ['emission.R'" in err, err

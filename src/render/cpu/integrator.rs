@@ -277,11 +277,24 @@ pub(crate) fn primary_dir(p: &Params, x: u32, y: u32) -> Vec3 {
     camera_dir(&p.cam, Vec2::new(x as f32 + 0.5, y as f32 + 0.5), size)
 }
 
+/// The footprint values of one pixel ([`background_pixel`]).
+#[derive(Debug, Clone, Copy)]
+pub(crate) struct FootprintPixel {
+    /// The directly seen environment: the mean of the environment radiance along the
+    /// camera rays that escape, 0 for those that hit anything (transmissive surfaces
+    /// included).
+    pub environment: Vec3,
+    /// The fraction of the rays that escape.
+    pub coverage: f32,
+    /// The mean first-hit base colour (the G-buffer's albedo, sky 1).
+    pub albedo: Vec3,
+    /// The mean first-hit emission (0 for rays that escape or hit a surface that does not
+    /// emit towards the camera).
+    pub emission: Vec3,
+}
+
 /// The footprint values of pixel (x, y) (WGSL `background.wgsl`), over `n x n` stratified
-/// positions in the pixel: the directly seen environment (the mean of the environment
-/// radiance along the camera rays that escape, 0 for those that hit anything, transmissive
-/// surfaces included), the fraction that escape, and the mean first-hit base colour (the
-/// G-buffer's albedo, sky 1).
+/// positions in the pixel.
 pub(crate) fn background_pixel(
     sc: &PackedScene,
     ei: &EnvInfo,
@@ -290,10 +303,11 @@ pub(crate) fn background_pixel(
     y: u32,
     n: u32,
     rays: &mut u64,
-) -> (Vec3, f32, Vec3) {
+) -> FootprintPixel {
     let size = Vec2::new(p.width as f32, p.height as f32);
     let o = v3(p.cam.pos);
     let (mut sum, mut escaped, mut albedo) = (Vec3::ZERO, 0u32, Vec3::ZERO);
+    let mut emission = Vec3::ZERO;
     for j in 0..n {
         for i in 0..n {
             let px = Vec2::new(
@@ -307,12 +321,47 @@ pub(crate) fn background_pixel(
                 sum += env_radiance(sc, ei, d); // 0 without an environment
                 albedo += Vec3::ONE;
             } else {
-                albedo += surface_at(sc, &hit, d).base;
+                let s = surface_at(sc, &hit, d);
+                albedo += s.base;
+                emission += s.emission;
             }
         }
     }
     let count = (n * n) as f32;
-    (sum / count, escaped as f32 / count, albedo / count)
+    FootprintPixel {
+        environment: sum / count,
+        coverage: escaped as f32 / count,
+        albedo: albedo / count,
+        emission: emission / count,
+    }
+}
+
+/// The first-hit emission of samples `first .. first + count` of pixel (x, y), averaged:
+/// the emission of the surface each sample's camera ray meets first (before any scattering
+/// or straight-through passing), which [`trace_path`] adds to the sample's radiance with
+/// weight 1. Replays only the camera rays, with the same random numbers.
+#[allow(clippy::too_many_arguments)]
+pub(crate) fn first_hit_emission(
+    sc: &PackedScene,
+    p: &Params,
+    x: u32,
+    y: u32,
+    first: u32,
+    count: u32,
+    rays: &mut u64,
+) -> Vec3 {
+    let size = Vec2::new(p.width as f32, p.height as f32);
+    let mut sum = Vec3::ZERO;
+    for k in 0..count {
+        let mut rng = Rng(rng_seed(y * p.width + x, p.frame, first + k, p.seed));
+        let [jx, jy] = rng.next2();
+        let d = camera_dir(&p.cam, Vec2::new(x as f32 + jx, y as f32 + jy), size);
+        let hit = traverse(sc, v3(p.cam.pos), d, BIG, false, NO_HIT, rays);
+        if hit.prim != NO_HIT {
+            sum += surface_at(sc, &hit, d).emission;
+        }
+    }
+    sum / count.max(1) as f32
 }
 
 /// The G-buffer values of pixel (x, y) whose primary ray (direction `d`) has hit `hit`.

@@ -35,7 +35,7 @@ use rayon::prelude::*;
 use super::packed::PackedScene;
 use super::settings::{FrameSettings, FrameStats, Mode, REFERENCE_SEED_XOR, ReferenceHalves, tile_offset};
 use crate::error::{Error, Result};
-use crate::frame::{Background, HostFrame};
+use crate::frame::{Background, DirectEmission, HostFrame};
 use crate::nn::HostTensor;
 use integrator::{Params, gbuffer_of_hit, gbuffer_pixel, pixel_samples, primary_dir};
 use lights::EnvInfo;
@@ -278,11 +278,12 @@ impl CpuTracer {
     /// The background buffer of frame `s` ([`crate::frame::Background`]): per pixel, over
     /// `s.background x s.background` stratified positions in the pixel, the mean of the
     /// environment radiance along the camera rays that escape the scene (0 for rays that
-    /// hit anything, glass included), the fraction that escape (coverage) and the mean
-    /// first-hit base colour (the footprint albedo, sky 1). Where the coverage is 1 the
-    /// background is the pixel's radiance, estimated with lookups instead of path samples.
-    /// The reference of the WGSL tracer's `trace/background` pass; an error when
-    /// `s.background` is 0.
+    /// hit anything, glass included), the fraction that escape (coverage), the mean
+    /// first-hit base colour (the footprint albedo, sky 1) and the directly seen emission
+    /// ([`DirectEmission`]: the mean first-hit emission over the same rays, and that of the
+    /// frame's own samples, replayed). Where the coverage is 1 the background is the pixel's
+    /// radiance, estimated with lookups instead of path samples. The reference of the WGSL
+    /// tracer's `trace/background` pass; an error when `s.background` is 0.
     pub fn background(&self, scene: &PackedScene, s: &FrameSettings) -> Result<Background> {
         let n = s.background;
         if n == 0 {
@@ -293,21 +294,55 @@ impl CpuTracer {
         let (w, h) = (self.width, self.height);
         let p = self.params(s, s.seed);
         let ei = EnvInfo::new(scene);
-        let px: Vec<(glam::Vec3A, f32, glam::Vec3A)> = (0..h)
+        let px: Vec<integrator::FootprintPixel> = (0..h)
             .into_par_iter()
             .flat_map_iter(|y| {
                 let (p, ei) = (&p, &ei);
                 (0..w).map(move |x| integrator::background_pixel(scene, ei, p, x, y, n, &mut 0))
             })
             .collect();
-        let radiance = px.iter().flat_map(|(b, _, _)| b.to_array()).collect();
-        let coverage = px.iter().map(|(_, c, _)| *c).collect();
-        let albedo = px.iter().flat_map(|(_, _, a)| a.to_array()).collect();
+        let gather = |f: fn(&integrator::FootprintPixel) -> glam::Vec3A| {
+            HostTensor::from_vec(w, h, 3, px.iter().flat_map(|q| f(q).to_array()).collect())
+        };
+        let coverage = px.iter().map(|q| q.coverage).collect();
         Ok(Background {
-            radiance: HostTensor::from_vec(w, h, 3, radiance),
+            radiance: gather(|q| q.environment),
             coverage: HostTensor::from_vec(w, h, 1, coverage),
-            albedo: Some(HostTensor::from_vec(w, h, 3, albedo)),
+            albedo: Some(gather(|q| q.albedo)),
+            emission: Some(DirectEmission {
+                footprint: gather(|q| q.emission),
+                samples: self.sample_emission(scene, s),
+            }),
         })
+    }
+
+    /// First-hit emission of the samples frame `s` traces (one per traced pixel in quarter
+    /// and full frames, `s.spp` in reference frames, averaged; 0 where not traced): the part
+    /// of the frame's `color` that is emission seen directly. Replays the camera rays only.
+    pub fn sample_emission(&self, scene: &PackedScene, s: &FrameSettings) -> HostTensor {
+        let (w, h) = (self.width, self.height);
+        let p = self.params(s, s.seed);
+        let (dx, dy) = tile_offset(s.frame);
+        let spp = match s.mode {
+            Mode::Reference => s.spp.max(1),
+            _ => 1,
+        };
+        let data: Vec<f32> = (0..h)
+            .into_par_iter()
+            .flat_map_iter(|y| {
+                let p = &p;
+                (0..w).flat_map(move |x| {
+                    let traced = s.mode != Mode::Quarter || (x % 2 == dx && y % 2 == dy);
+                    let e = if traced {
+                        integrator::first_hit_emission(scene, p, x, y, 0, spp, &mut 0)
+                    } else {
+                        glam::Vec3A::ZERO
+                    };
+                    e.to_array()
+                })
+            })
+            .collect();
+        HostTensor::from_vec(w, h, 3, data)
     }
 
     /// Radiance of samples `first .. first + count` per pixel of frame `s` with `seed`.
