@@ -33,7 +33,7 @@
 use crate::error::{Error, Result};
 use crate::gpu::{Gpu, Profiler};
 use crate::render::{FrameSettings, GpuScene, Tracer};
-use crate::ssr::{AlbedoSource, Denoiser, EmissionSource, Granularity, Weights};
+use crate::ssr::{AlbedoSource, Denoiser, EmissionFold, EmissionSource, Granularity, Weights};
 
 /// Camera rays per pixel axis of the background pass a model of config albedo "footprint"
 /// needs in every frame, when the frame has no background of its own (2 x 2: the footprint
@@ -50,24 +50,23 @@ pub struct FrameLoop {
     pub tracer: Tracer,
     /// The SSR denoiser (its output holds the last frame's reconstruction).
     pub denoiser: Denoiser,
+    /// For a model of config emission "background": the frame it is fed.
+    fold: Option<EmissionFold>,
 }
 
 impl FrameLoop {
-    /// A tracer and a denoiser (with `weights`) for `width x height` frames. Weights of
-    /// config emission "background" are refused: the GPU tracer does not yet write frames
-    /// with the directly seen emission moved into the background (`subpixel denoise` feeds
-    /// them from frame files, [`crate::frame::HostFrame::fold_direct_emission`]).
+    /// A tracer and a denoiser (with `weights`) for `width x height` frames (and, for
+    /// weights of config emission "background", the pass that folds the tracer's directly
+    /// seen emission into the frame they are fed, [`EmissionFold`]).
     pub fn new(gpu: &Gpu, weights: &Weights, width: u32, height: u32) -> Result<Self> {
-        if weights.config.emission_source()? == EmissionSource::Background {
-            return Err(Error::Invalid(
-                "frame loop: these weights take the directly seen emission from the background (config emission \
-                 \"background\"), which the GPU tracer does not write yet; denoise frame files with `subpixel denoise`"
-                    .into(),
-            ));
-        }
+        let fold = match weights.config.emission_source()? {
+            EmissionSource::Background => Some(EmissionFold::new(gpu, width, height)?),
+            EmissionSource::Network => None,
+        };
         Ok(Self {
             tracer: Tracer::new(gpu, width, height)?,
             denoiser: Denoiser::with_gpu(gpu, weights, width, height)?,
+            fold,
         })
     }
 
@@ -76,8 +75,10 @@ impl FrameLoop {
     /// `unet` and `output` passes, each timed by `profiler` when given (the output pass
     /// composites the background, [`crate::frame::FrameInputs`]). A model of config albedo
     /// "footprint" reads the background pass's footprint albedo in place of the G-buffer's,
-    /// so its frames always have that pass (at least [`FOOTPRINT_RAYS`] rays per axis).
-    /// Submit the encoder (e.g. [`Profiler::submit`]) to run it.
+    /// so its frames always have that pass (at least [`FOOTPRINT_RAYS`] rays per axis); so
+    /// does a model of config emission "background", which is fed the frame with the
+    /// directly seen emission folded into the background ([`EmissionFold`], a pass timed
+    /// with `background`). Submit the encoder (e.g. [`Profiler::submit`]) to run it.
     pub fn encode(
         &mut self,
         encoder: &mut wgpu::CommandEncoder,
@@ -87,7 +88,7 @@ impl FrameLoop {
     ) -> Result<()> {
         let footprint = self.denoiser.network().config.albedo_source()? == AlbedoSource::Footprint;
         let s = &FrameSettings {
-            background: if footprint {
+            background: if footprint || self.fold.is_some() {
                 s.background.max(FOOTPRINT_RAYS)
             } else {
                 s.background
@@ -106,6 +107,22 @@ impl FrameLoop {
                     Error::Invalid("frame loop: the background pass made no footprint albedo".into())
                 })?
                 .buffer;
+        }
+        if let Some(fold) = &self.fold {
+            let missing =
+                || Error::Invalid("frame loop: the background pass made no directly seen emission".into());
+            let (Some(bg), Some(se), Some(ef)) = (&b.background, &b.sample_emission, &b.emission_footprint)
+            else {
+                return Err(missing());
+            };
+            let d = fold.dispatch(&b.color_mask.buffer, &se.buffer, &bg.buffer, &ef.buffer)?;
+            d.record(&mut Profiler::pass(
+                encoder,
+                "background",
+                profiler.as_deref_mut(),
+            ));
+            inputs.color_mask = &fold.color_mask.buffer;
+            inputs.background = Some(&fold.background.buffer);
         }
         self.denoiser
             .denoise_profiled(encoder, &inputs, profiler, Granularity::Stage)?;

@@ -733,3 +733,12 @@ fn direct_emission_samples_and_footprint_agree_on_the_cornell_box() {
     let mean = diff / rim as f64;
     assert!(mean < 0.05, "rim pixels: mean difference {mean} of the emission");
 }
+
+/// The directly seen emission on both backends ([`assert_same_seed_frames_match`]: the
+/// footprint's over the background rays, the samples' along the same paths): on the lone
+/// emitter, where a quarter of the pixels see it (the builtin scenes' test covers the
+/// Cornell box's light).
+#[test]
+fn direct_emission_matches_the_gpu() {
+    assert_same_seed_frames_match(&lone_emitter([3.0, 2.0, 1.0]), 24, 24);
+}

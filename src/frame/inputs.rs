@@ -27,6 +27,14 @@ use crate::error::{Error, Result};
 /// shipped model: what the reference sees where a pixel mixes surfaces; the tracer's
 /// background pass writes it, [`crate::render::FrameBuffers::albedo_footprint`], which the
 /// frame loop passes here).
+///
+/// So is who reconstructs the emission of the surfaces the camera sees directly
+/// ([`crate::frame::EmissionSource`], `Weights::config.emission_source()`): for a model of
+/// config emission "background", `color_mask` leaves out each traced sample's first-hit
+/// emission and `background` adds the first-hit emission averaged over the pixel's
+/// footprint (a background is then required, even without an environment), so emitters
+/// come back through the composite without noise. The frame loop makes such a frame from
+/// the tracer's directly seen emission with `ssr/fold_emission` ([`crate::ssr::EmissionFold`]).
 #[derive(Debug, Clone, Copy)]
 pub struct FrameInputs<'a> {
     /// Radiance rgb + mask.

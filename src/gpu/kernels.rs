@@ -174,6 +174,7 @@ pub const KERNELS: &[KernelSource] = &[
     kernel!("ssr/exposure_partial", ["ssr/lib/sanitize", "ssr/lib/exposure"]),
     kernel!("ssr/exposure_final", ["ssr/lib/exposure"]),
     kernel!("ssr/warp_history", ["nn/lib/grid"]),
+    kernel!("ssr/fold_emission", ["nn/lib/grid"]),
     kernel!("view/display"),
     trace_kernel!("trace/query"),
     trace_kernel!("trace/gbuffer"),

@@ -11,7 +11,7 @@ pub use super::settings::{
     DEFAULT_MAX_DEPTH, FrameSettings, FrameStats, Mode, REFERENCE_SEED_XOR, TILE_OFFSETS, tile_offset,
 };
 use crate::error::{Error, Result};
-use crate::frame::{Background, HostFrame};
+use crate::frame::{Background, DirectEmission, HostFrame};
 use crate::gpu::{Bound, Dispatch, Gpu, Grid, Profiler, Specialisation};
 use crate::nn::{HostTensor, Tensor};
 
@@ -77,6 +77,13 @@ pub struct FrameBuffers {
     /// 1; the G-buffer's depth), present with the background: [`FrameBuffers::albedo_depth`]
     /// with the footprint albedo, for models that use it (config `albedo`).
     pub albedo_footprint: Option<Tensor>,
+    /// (first-hit emission of the traced samples, the part of `color_mask` that is emission
+    /// seen directly, 0 where not traced; 0), present with the background
+    /// ([`crate::frame::DirectEmission::samples`]).
+    pub sample_emission: Option<Tensor>,
+    /// (first-hit emission averaged over the background's footprint rays; 0), present with
+    /// the background ([`crate::frame::DirectEmission::footprint`]).
+    pub emission_footprint: Option<Tensor>,
 }
 
 impl FrameBuffers {
@@ -105,6 +112,8 @@ impl FrameBuffers {
             motion: t("frame.motion")?,
             background: None,
             albedo_footprint: None,
+            sample_emission: None,
+            emission_footprint: None,
         })
     }
 
@@ -133,11 +142,18 @@ impl FrameBuffers {
                     Some(a) => Some(channels(&a.read(gpu)?, &[0, 1, 2])),
                     None => None,
                 };
+                let emission = match (&self.sample_emission, &self.emission_footprint) {
+                    (Some(e), Some(f)) => Some(DirectEmission {
+                        footprint: channels(&f.read(gpu)?, &[0, 1, 2]),
+                        samples: channels(&e.read(gpu)?, &[0, 1, 2]),
+                    }),
+                    _ => None,
+                };
                 Some(Background {
                     radiance: channels(&bc, &[0, 1, 2]),
                     coverage: channels(&bc, &[3]),
                     albedo,
-                    emission: None,
+                    emission,
                 })
             }
             None => None,
@@ -171,6 +187,9 @@ pub struct Tracer {
     /// The frame's buffers.
     pub buffers: FrameBuffers,
     counters: wgpu::Buffer,
+    /// Bound in place of [`FrameBuffers::sample_emission`] in trace passes of frames
+    /// without a background (the kernel writes nothing there).
+    stand_in: wgpu::Buffer,
     scratch: Option<(Tensor, Tensor)>,
     /// G-buffer, trace and background dispatches of `encode_frame`, for (scene BVH
     /// buffer, mode, with a background).
@@ -224,6 +243,7 @@ impl Tracer {
             gpu: gpu.clone(),
             buffers: FrameBuffers::new(gpu, width, height)?,
             counters: gpu.counter_buffer("subpixel.trace.counters"),
+            stand_in: gpu.counter_buffer("subpixel.trace.stand_in"),
             scratch: None,
             paths_per_pass: PATHS_PER_PASS,
             frame_dispatches: Bound::new(),
@@ -279,18 +299,24 @@ impl Tracer {
         )
     }
 
-    /// Makes [`FrameBuffers::background`] and [`FrameBuffers::albedo_footprint`] when frame
-    /// `s` has a background (`s.background` > 0), drops them when not, so the denoiser
-    /// never reads a stale one.
+    /// Makes [`FrameBuffers::background`], [`FrameBuffers::albedo_footprint`] and the
+    /// directly seen emission ([`FrameBuffers::sample_emission`],
+    /// [`FrameBuffers::emission_footprint`]) when frame `s` has a background (`s.background`
+    /// > 0), drops them when not, so the denoiser never reads a stale one.
     fn prepare_background(&mut self, s: &FrameSettings) -> Result<()> {
         let b = &mut self.buffers;
         if s.background == 0 {
             b.background = None;
             b.albedo_footprint = None;
-        } else if b.background.is_none() || b.albedo_footprint.is_none() {
+            b.sample_emission = None;
+            b.emission_footprint = None;
+        } else if b.background.is_none() || b.albedo_footprint.is_none() || b.sample_emission.is_none() {
             let (w, h) = (b.width(), b.height());
-            b.background = Some(Tensor::new(&self.gpu, "frame.background", w, h, 4)?);
-            b.albedo_footprint = Some(Tensor::new(&self.gpu, "frame.albedo_footprint", w, h, 4)?);
+            let t = |name: &str| Tensor::new(&self.gpu, name, w, h, 4);
+            b.background = Some(t("frame.background")?);
+            b.albedo_footprint = Some(t("frame.albedo_footprint")?);
+            b.sample_emission = Some(t("frame.sample_emission")?);
+            b.emission_footprint = Some(t("frame.emission_footprint")?);
         }
         Ok(())
     }
@@ -300,7 +326,9 @@ impl Tracer {
     /// a frame with a background first).
     pub fn background_dispatch(&self, scene: &GpuScene, s: &FrameSettings) -> Result<Dispatch> {
         let (w, h) = (self.width(), self.height());
-        let (Some(b), Some(a)) = (&self.buffers.background, &self.buffers.albedo_footprint) else {
+        let fb = &self.buffers;
+        let (Some(b), Some(a), Some(e)) = (&fb.background, &fb.albedo_footprint, &fb.emission_footprint)
+        else {
             return Err(Error::Invalid(
                 "background_dispatch: the frame buffers have no background (settings.background is 0)".into(),
             ));
@@ -309,13 +337,15 @@ impl Tracer {
             "trace/background",
             &Specialisation::none(),
             bytemuck::bytes_of(&self.params(s, [0, 1])),
-            &scene.bindings(&[&b.buffer, &a.buffer, &self.buffers.albedo_depth.buffer]),
+            &scene.bindings(&[&b.buffer, &a.buffer, &fb.albedo_depth.buffer, &e.buffer]),
             Grid::pixels(w, h),
         )
     }
 
     /// A path-tracing dispatch writing `color` and `shadow` (4-channel tensors of the frame
     /// size); `accum` = (samples already in `color`, samples of this pass) in reference mode.
+    /// In a frame with a background it also writes [`FrameBuffers::sample_emission`] (made
+    /// by [`Tracer::prepare_background`]).
     pub fn trace_dispatch(
         &self,
         scene: &GpuScene,
@@ -330,11 +360,17 @@ impl Tracer {
         } else {
             Grid::pixels(w, h)
         };
+        // Without the frame's emission buffer the kernel writes none (accum.z, the
+        // background's lookups, is its flag) and gets a stand-in binding.
+        let (emission, s) = match (&self.buffers.sample_emission, s.background > 0) {
+            (Some(e), true) => (&e.buffer, *s),
+            _ => (&self.stand_in, FrameSettings { background: 0, ..*s }),
+        };
         self.gpu.kernels.dispatch(
             "trace/pathtrace",
             &Specialisation::none(),
-            bytemuck::bytes_of(&self.params(s, accum)),
-            &scene.bindings(&[&color.buffer, &shadow.buffer, &self.counters]),
+            bytemuck::bytes_of(&self.params(&s, accum)),
+            &scene.bindings(&[&color.buffer, &shadow.buffer, &self.counters, emission]),
             g,
         )
     }
@@ -590,6 +626,7 @@ fn reference_settings(s: &FrameSettings) -> FrameSettings {
     FrameSettings {
         mode: Mode::Reference,
         seed: s.seed ^ REFERENCE_SEED_XOR,
+        background: 0,
         ..*s
     }
 }

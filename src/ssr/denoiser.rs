@@ -131,6 +131,7 @@ pub const PARAM_SIZES: &[(&str, usize)] = &[
         "ssr/warp_history",
         std::mem::size_of::<super::network::WarpHistoryParams>(),
     ),
+    ("ssr/fold_emission", std::mem::size_of::<super::FoldParams>()),
 ];
 
 /// The SSR denoiser, embeddable in any wgpu renderer.

@@ -3,6 +3,7 @@
 
 mod config;
 mod denoiser;
+mod fold;
 pub mod graph;
 mod network;
 mod weights;
@@ -14,5 +15,6 @@ pub use config::{
     RemodulationAlbedo, SsrConfig,
 };
 pub use denoiser::{Denoiser, FrameInputs, Granularity, KERNELS_USED, PARAM_SIZES, round_up4};
+pub use fold::{EmissionFold, FoldParams};
 pub use network::{INTERMEDIATES, Network, StepCost};
 pub use weights::{WEIGHTS_FORMAT, WEIGHTS_VERSION, Weights};

@@ -317,6 +317,26 @@ pub fn assert_backgrounds_match(what: &str, g: &Background, c: &Background, n: u
         albedo_close * 100 >= same_coverage * 95 && albedo_diff < 1e-3,
         "{what}: footprint albedo close at {albedo_close} of {same_coverage} pixels of equal coverage, mean absolute difference {albedo_diff:.2e}"
     );
+    // The footprint's first-hit emission: the same rays, so the same surfaces but where a
+    // ray grazes an edge (as the albedo).
+    let (ge, ce) = (
+        g.emission.as_ref().expect("GPU directly seen emission"),
+        c.emission.as_ref().expect("CPU directly seen emission"),
+    );
+    let close = (0..all)
+        .filter(|&i| {
+            (0..3).all(|k| {
+                let (a, b) = (ge.footprint.data[3 * i + k], ce.footprint.data[3 * i + k]);
+                (a - b).abs() <= 1e-4 * (1.0 + b.abs())
+            })
+        })
+        .count();
+    let lit = ce.footprint.data.iter().filter(|&&v| v > 0.0).count() / 3;
+    eprintln!("{what}: footprint emission close at {close} of {all} ({lit} pixels see an emitter)");
+    assert!(
+        close * 100 >= all * 95,
+        "{what}: footprint emission close at only {close} of {all} pixels"
+    );
 }
 
 /// PSNR from the mean MSE of several PSNRs (one pair's PSNR is itself noisy).
@@ -368,7 +388,16 @@ pub fn assert_same_seed_frames_match(scene: &Scene, w: u32, h: u32) {
         );
         // Colour and NEE shadow: the same random numbers give the same paths, up to paths
         // that diverge through float rounding (a different branch taken).
-        for (name, gt, ct) in [("color", &g.color, &c.color), ("shadow", &g.shadow, &c.shadow)] {
+        // The samples' first-hit emission (the GPU's from its paths, the twin's replayed).
+        let (ge, ce) = (
+            &g.background.as_ref().unwrap().emission.as_ref().unwrap().samples,
+            &c.background.as_ref().unwrap().emission.as_ref().unwrap().samples,
+        );
+        for (name, gt, ct) in [
+            ("color", &g.color, &c.color),
+            ("shadow", &g.shadow, &c.shadow),
+            ("sample emission", ge, ce),
+        ] {
             let same = (0..n)
                 .filter(|&i| {
                     (0..3).all(|k| {

@@ -11,6 +11,10 @@
 // 2 = direct lighting, 3 = one indirect bounce, ... (Mitsuba's convention).
 // shadow_roughness.xyz gets the NEE sample of the first hit: the light's radiance times its
 // visibility (0 when occluded or when no light could be sampled).
+// In frames with a background (accum.z > 0), sample_emission.xyz gets the samples' first-hit
+// emission (the part of color_mask.xyz that is emission seen directly; 0 where not traced):
+// the `emission` half of the directly seen emission (DESIGN.md section 3; CPU twin:
+// `first_hit_emission` in src/render/cpu/integrator.rs).
 
 @group(0) @binding(0) var<uniform> p: FrameParams;
 // The scene at bindings 1-7 (trace/lib/scene.wgsl).
@@ -18,10 +22,13 @@
 @group(0) @binding(9) var<storage, read_write> shadow_roughness: array<vec4<f32>>;
 // counters[0]: rays traced (camera, bounce and shadow rays), summed over invocations.
 @group(0) @binding(10) var<storage, read_write> counters: array<atomic<u32>, 4>;
+@group(0) @binding(11) var<storage, read_write> sample_emission: array<vec4<f32>>;
 
 struct PathResult {
     radiance: vec3<f32>,
     shadow: vec3<f32>,
+    // The emission of the surface the camera ray meets first (part of radiance).
+    emission: vec3<f32>,
 }
 
 fn rand3(state: ptr<function, u32>) -> vec3<f32> {
@@ -68,7 +75,7 @@ fn transmittance(o: vec3<f32>, d: vec3<f32>, dist: f32, skip: u32) -> vec4<f32> 
 }
 
 fn trace_path(o: vec3<f32>, d0: vec3<f32>, rng: ptr<function, u32>) -> PathResult {
-    var res = PathResult(vec3<f32>(0.0), vec3<f32>(0.0));
+    var res = PathResult(vec3<f32>(0.0), vec3<f32>(0.0), vec3<f32>(0.0));
     var ro = o;
     var rd = d0;
     var skip = NO_HIT;
@@ -111,6 +118,9 @@ fn trace_path(o: vec3<f32>, d0: vec3<f32>, rng: ptr<function, u32>) -> PathResul
                 w = mis_power(prev_pdf, tri_light_pdf(hit.prim, seg, dot(s.ng, -rd)));
             }
             res.radiance += thr * s.emission * w;
+        }
+        if (depth == 1u && passes == 0u) {
+            res.emission = s.emission;
         }
         let wo = -rd;
         let pt = pass_through(s, wo);
@@ -197,7 +207,7 @@ fn trace_path(o: vec3<f32>, d0: vec3<f32>, rng: ptr<function, u32>) -> PathResul
 fn pixel_samples(x: u32, y: u32, first: u32, count: u32) -> PathResult {
     let w = p.size.x;
     let size = vec2<f32>(f32(w), f32(p.size.y));
-    var sum = PathResult(vec3<f32>(0.0), vec3<f32>(0.0));
+    var sum = PathResult(vec3<f32>(0.0), vec3<f32>(0.0), vec3<f32>(0.0));
     for (var k = 0u; k < count; k++) {
         var rng = rng_seed(y * w + x, p.size.z, first + k, p.size.w);
         let jitter = rand2(&rng);
@@ -205,9 +215,10 @@ fn pixel_samples(x: u32, y: u32, first: u32, count: u32) -> PathResult {
         let r = trace_path(p.cam.pos.xyz, d, &rng);
         sum.radiance += r.radiance;
         sum.shadow += r.shadow;
+        sum.emission += r.emission;
     }
     let inv = 1.0 / f32(max(count, 1u));
-    return PathResult(sum.radiance * inv, sum.shadow * inv);
+    return PathResult(sum.radiance * inv, sum.shadow * inv, sum.emission * inv);
 }
 
 @compute @workgroup_size(8, 8, 1)
@@ -229,6 +240,9 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>) {
                 let ci = cy * w + cx;
                 color_mask[ci] = vec4<f32>(0.0);
                 shadow_roughness[ci] = vec4<f32>(0.0, 0.0, 0.0, shadow_roughness[ci].w);
+                if (p.accum.z > 0u) {
+                    sample_emission[ci] = vec4<f32>(0.0);
+                }
             }
         }
         x = 2u * gid.x + p.mode.y;
@@ -243,12 +257,19 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>) {
     let r = pixel_samples(x, y, done, count);
     var c = r.radiance;
     var sh = r.shadow;
+    var e = r.emission;
     if (done > 0u) {
         let a = f32(done) / f32(done + count);
         c = mix(c, color_mask[i].rgb, a);
         sh = mix(sh, shadow_roughness[i].xyz, a);
+        if (p.accum.z > 0u) {
+            e = mix(e, sample_emission[i].xyz, a);
+        }
     }
     color_mask[i] = vec4<f32>(c, 1.0);
     shadow_roughness[i] = vec4<f32>(sh, shadow_roughness[i].w);
+    if (p.accum.z > 0u) {
+        sample_emission[i] = vec4<f32>(e, 0.0);
+    }
     atomicAdd(&counters[0], rays_traced);
 }

@@ -1,0 +1,74 @@
+//! The frame a model of config emission "background" is fed, on the GPU: the tracer's
+//! frame with its directly seen emission folded into the background (`ssr/fold_emission`;
+//! CPU reference [`crate::frame::HostFrame::fold_direct_emission`]).
+
+use bytemuck::{Pod, Zeroable};
+
+use crate::error::Result;
+use crate::gpu::{Dispatch, Gpu, Grid, Specialisation};
+use crate::nn::Tensor;
+
+/// Uniform parameters of `ssr/fold_emission`.
+#[repr(C)]
+#[derive(Debug, Clone, Copy, Pod, Zeroable)]
+pub struct FoldParams {
+    /// Frame width.
+    pub width: u32,
+    /// Frame height.
+    pub height: u32,
+    /// Padding.
+    pub pad: [u32; 2],
+}
+
+/// The folded colour and background of one frame size, and the pass that writes them.
+#[derive(Debug)]
+pub struct EmissionFold {
+    gpu: Gpu,
+    /// Colour without the traced samples' first-hit emission (rgb, at least 0) + mask.
+    pub color_mask: Tensor,
+    /// Background plus the footprint's first-hit emission (rgb) + coverage.
+    pub background: Tensor,
+}
+
+impl EmissionFold {
+    /// Output buffers for `width x height` frames.
+    pub fn new(gpu: &Gpu, width: u32, height: u32) -> Result<Self> {
+        Ok(Self {
+            gpu: gpu.clone(),
+            color_mask: Tensor::new(gpu, "fold.color_mask", width, height, 4)?,
+            background: Tensor::new(gpu, "fold.background", width, height, 4)?,
+        })
+    }
+
+    /// The pass folding a frame's `color_mask` and `background` with its directly seen
+    /// emission (`sample_emission`, `emission_footprint`; each `width x height` vec4) into
+    /// [`EmissionFold::color_mask`] and [`EmissionFold::background`].
+    pub fn dispatch(
+        &self,
+        color_mask: &wgpu::Buffer,
+        sample_emission: &wgpu::Buffer,
+        background: &wgpu::Buffer,
+        emission_footprint: &wgpu::Buffer,
+    ) -> Result<Dispatch> {
+        let (width, height) = (self.color_mask.width, self.color_mask.height);
+        let params = FoldParams {
+            width,
+            height,
+            pad: [0; 2],
+        };
+        self.gpu.kernels.dispatch(
+            "ssr/fold_emission",
+            &Specialisation::none(),
+            bytemuck::bytes_of(&params),
+            &[
+                color_mask,
+                sample_emission,
+                background,
+                emission_footprint,
+                &self.color_mask.buffer,
+                &self.background.buffer,
+            ],
+            Grid::pixels(width, height),
+        )
+    }
+}
