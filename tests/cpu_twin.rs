@@ -616,7 +616,8 @@ fn lone_emitter(emission: [f32; 3]) -> Scene {
 /// emission is the emission times the fraction of the 8 x 8 rays that meet the square:
 /// exactly the emission inside it, 0 outside, strictly between on its rim, and the share of
 /// the footprint rays that meet it (the same rays the footprint albedo averages: base
-/// colour 0.8 there, sky 1 elsewhere) says by how much.
+/// colour 0.8 there, sky 1 elsewhere) says by how much; with 2 x 2 background rays the
+/// footprint emission is the same (its outline traced again with 8 x 8 rays).
 #[test]
 fn direct_emission_is_all_the_light_of_a_lone_emitter() {
     let le = [3.0, 2.0, 1.0];
@@ -670,6 +671,19 @@ fn direct_emission_is_all_the_light_of_a_lone_emitter() {
         inside > 50 && rim > 10,
         "{inside} pixels inside the square, {rim} on its rim"
     );
+    // With 2 x 2 background rays the outline is traced again with 8 x 8: the footprint
+    // emission is then that of an 8 x 8 background at every pixel (inside and outside the
+    // square 2 x 2 rays are exact; on its outline the 8 x 8 rays are the same rays).
+    let mut s2 = s;
+    s2.background = 2;
+    let coarse = cpu_frame(&p, w, h, &s2).background.unwrap().emission.unwrap();
+    for (i, (a, b)) in coarse.footprint.data.iter().zip(&e.footprint.data).enumerate() {
+        assert!(
+            (a - b).abs() <= 1e-5 * le[0],
+            "pixel {}: 2 x 2 rays {a}, 8 x 8 rays {b}",
+            i / 3
+        );
+    }
     let folded = f
         .fold_direct_emission(subpixel::frame::EmissionSource::Background)
         .unwrap();

@@ -782,11 +782,15 @@ fn output_never_exceeds_the_brightest_recent_sample() {
         let mut reached = 0;
         for t in 0..4u64 {
             let mut f = random_frame(w, h, 70 + t);
+            // no emitter seen directly (what a model of config emission "background" reads)
             f.background = Some(Background {
                 radiance: HostTensor::zeros(w, h, 3),
                 coverage: HostTensor::zeros(w, h, 1),
                 albedo: Some(common::random(7_000 + t, w, h, 3, 0.0, 1.0)),
-                emission: None,
+                emission: Some(subpixel::frame::DirectEmission {
+                    footprint: HostTensor::zeros(w, h, 3),
+                    samples: HostTensor::zeros(w, h, 3),
+                }),
             });
             let albedo = if footprint {
                 f.background.as_ref().unwrap().albedo.clone().unwrap()

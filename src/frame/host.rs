@@ -91,11 +91,45 @@ pub struct Background {
 #[derive(Debug, Clone, PartialEq)]
 pub struct DirectEmission {
     /// First-hit emission averaged over the background's footprint rays, as its
-    /// environment radiance (3; channel `emission_footprint`).
+    /// environment radiance, and over [`crate::render::EMISSION_OUTLINE_RAYS`] per axis on
+    /// emitters' outlines ([`DirectEmission::outline`]) when the background traces fewer
+    /// (3; channel `emission_footprint`).
     pub footprint: HostTensor,
     /// First-hit emission of each traced pixel's own samples (3; channel `emission`; 0
     /// where not traced): the part of `color` that is emission seen directly.
     pub samples: HostTensor,
+}
+
+impl DirectEmission {
+    /// Per pixel (row-major), whether it lies on an emitter's outline: its 3 x 3
+    /// neighbourhood (within the frame) holds both pixels whose footprint sees an emitter
+    /// (`footprint` above 0 in some channel) and pixels whose footprint sees none. There a
+    /// few footprint rays measure an emitter's coverage coarsely, so the tracers trace these
+    /// pixels' footprint again with more rays
+    /// ([`crate::render::EMISSION_OUTLINE_RAYS`]).
+    pub fn outline(&self) -> Vec<bool> {
+        let (w, h) = (self.footprint.width as usize, self.footprint.height as usize);
+        let lit: Vec<bool> = self
+            .footprint
+            .data
+            .chunks_exact(3)
+            .map(|c| c.iter().any(|&v| v > 0.0))
+            .collect();
+        (0..w * h)
+            .map(|i| {
+                let (x, y) = (i % w, i / w);
+                let (mut any_lit, mut any_dark) = (false, false);
+                for ny in y.saturating_sub(1)..(y + 2).min(h) {
+                    for nx in x.saturating_sub(1)..(x + 2).min(w) {
+                        let l = lit[ny * w + nx];
+                        any_lit |= l;
+                        any_dark |= !l;
+                    }
+                }
+                any_lit && any_dark
+            })
+            .collect()
+    }
 }
 
 impl HostFrame {

@@ -180,6 +180,7 @@ pub const KERNELS: &[KernelSource] = &[
     trace_kernel!("trace/gbuffer"),
     trace_kernel!("trace/pathtrace"),
     trace_kernel!("trace/background"),
+    trace_kernel!("trace/emission_outline"),
 ];
 
 /// Every library file under `wgsl/` that kernels include (not kernels themselves).

@@ -37,8 +37,8 @@ pub use load::{load_scene, load_scene_with};
 pub use loader::SceneOptions;
 pub use packed::PackedScene;
 pub use scene::{Material, Scene};
-pub use settings::DEFAULT_BACKGROUND;
 pub use settings::ReferenceHalves;
+pub use settings::{DEFAULT_BACKGROUND, EMISSION_OUTLINE_RAYS};
 pub use tracer::{
     DEFAULT_MAX_DEPTH, FrameBuffers, FrameSettings, FrameStats, Mode, PARAM_SIZES, REFERENCE_SEED_XOR,
     TILE_OFFSETS, Tracer, query_rays, tile_offset,

@@ -51,6 +51,14 @@ pub const DEFAULT_MAX_DEPTH: u32 = 8;
 /// whole network per 128x128 frame and a 2 x 2 one about a tenth of that.
 pub const DEFAULT_BACKGROUND: u32 = 2;
 
+/// Camera rays per pixel axis of the directly seen emission ([`crate::frame::DirectEmission`])
+/// on emitters' outlines ([`crate::frame::DirectEmission::outline`]) when the background has
+/// fewer: there a few rays measure an emitter's coverage coarsely (2 x 2 rays miss an emitter
+/// that covers a fifth of the pixel, which at an emitter's radiance is far from nothing), so
+/// the outline's pixels are traced again with 8 x 8 rays, as the datasets' 8 x 8 background
+/// traces every pixel. Outlines are a thin band, so this costs little.
+pub const EMISSION_OUTLINE_RAYS: u32 = 8;
+
 /// What one frame is rendered with.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct FrameSettings {

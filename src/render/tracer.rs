@@ -51,6 +51,7 @@ pub const PARAM_SIZES: &[(&str, usize)] = &[
     ("trace/gbuffer", std::mem::size_of::<FrameParams>()),
     ("trace/pathtrace", std::mem::size_of::<FrameParams>()),
     ("trace/background", std::mem::size_of::<FrameParams>()),
+    ("trace/emission_outline", std::mem::size_of::<FrameParams>()),
 ];
 
 /// The per-frame GPU buffers of the denoiser contract: W x H `vec4<f32>` each.
@@ -81,9 +82,12 @@ pub struct FrameBuffers {
     /// seen directly, 0 where not traced; 0), present with the background
     /// ([`crate::frame::DirectEmission::samples`]).
     pub sample_emission: Option<Tensor>,
-    /// (first-hit emission averaged over the background's footprint rays; 0), present with
-    /// the background ([`crate::frame::DirectEmission::footprint`]).
+    /// (first-hit emission averaged over the background's footprint rays, and over
+    /// [`super::EMISSION_OUTLINE_RAYS`] per axis on emitters' outlines; 0), present with the
+    /// background ([`crate::frame::DirectEmission::footprint`]).
     pub emission_footprint: Option<Tensor>,
+    /// The background pass's first-hit emission before the outline pass refines it.
+    emission_coarse: Option<Tensor>,
 }
 
 impl FrameBuffers {
@@ -114,6 +118,7 @@ impl FrameBuffers {
             albedo_footprint: None,
             sample_emission: None,
             emission_footprint: None,
+            emission_coarse: None,
         })
     }
 
@@ -209,7 +214,7 @@ impl std::fmt::Debug for Tracer {
 }
 
 /// The G-buffer, trace and (optional) background dispatches of one frame.
-type FrameDispatches = (Dispatch, Dispatch, Option<Dispatch>);
+type FrameDispatches = (Dispatch, Dispatch, Option<[Dispatch; 2]>);
 
 /// Default bound on the paths of one reference dispatch (see [`Tracer::paths_per_pass`]).
 pub const PATHS_PER_PASS: u64 = 1 << 18;
@@ -310,6 +315,7 @@ impl Tracer {
             b.albedo_footprint = None;
             b.sample_emission = None;
             b.emission_footprint = None;
+            b.emission_coarse = None;
         } else if b.background.is_none() || b.albedo_footprint.is_none() || b.sample_emission.is_none() {
             let (w, h) = (b.width(), b.height());
             let t = |name: &str| Tensor::new(&self.gpu, name, w, h, 4);
@@ -317,29 +323,46 @@ impl Tracer {
             b.albedo_footprint = Some(t("frame.albedo_footprint")?);
             b.sample_emission = Some(t("frame.sample_emission")?);
             b.emission_footprint = Some(t("frame.emission_footprint")?);
+            b.emission_coarse = Some(t("frame.emission_coarse")?);
         }
         Ok(())
     }
 
-    /// The background dispatch of frame `s` (`s.background` lookups per pixel axis),
-    /// writing [`FrameBuffers::background`] and [`FrameBuffers::albedo_footprint`] (made by
-    /// a frame with a background first).
-    pub fn background_dispatch(&self, scene: &GpuScene, s: &FrameSettings) -> Result<Dispatch> {
+    /// The background dispatches of frame `s` (`s.background` lookups per pixel axis): the
+    /// background pass, writing [`FrameBuffers::background`], [`FrameBuffers::albedo_footprint`]
+    /// and the coarse first-hit emission, then the outline pass (`trace/emission_outline`),
+    /// writing [`FrameBuffers::emission_footprint`] (all made by a frame with a background
+    /// first).
+    pub fn background_dispatches(&self, scene: &GpuScene, s: &FrameSettings) -> Result<[Dispatch; 2]> {
         let (w, h) = (self.width(), self.height());
         let fb = &self.buffers;
-        let (Some(b), Some(a), Some(e)) = (&fb.background, &fb.albedo_footprint, &fb.emission_footprint)
-        else {
+        let (Some(b), Some(a), Some(c), Some(e)) = (
+            &fb.background,
+            &fb.albedo_footprint,
+            &fb.emission_coarse,
+            &fb.emission_footprint,
+        ) else {
             return Err(Error::Invalid(
-                "background_dispatch: the frame buffers have no background (settings.background is 0)".into(),
+                "background_dispatches: the frame buffers have no background (settings.background is 0)"
+                    .into(),
             ));
         };
-        self.gpu.kernels.dispatch(
+        let params = self.params(s, [0, 1]);
+        let background = self.gpu.kernels.dispatch(
             "trace/background",
             &Specialisation::none(),
-            bytemuck::bytes_of(&self.params(s, [0, 1])),
-            &scene.bindings(&[&b.buffer, &a.buffer, &fb.albedo_depth.buffer, &e.buffer]),
+            bytemuck::bytes_of(&params),
+            &scene.bindings(&[&b.buffer, &a.buffer, &fb.albedo_depth.buffer, &c.buffer]),
             Grid::pixels(w, h),
-        )
+        )?;
+        let outline = self.gpu.kernels.dispatch(
+            "trace/emission_outline",
+            &Specialisation::none(),
+            bytemuck::bytes_of(&params),
+            &scene.bindings(&[&c.buffer, &e.buffer]),
+            Grid::pixels(w, h),
+        )?;
+        Ok([background, outline])
     }
 
     /// A path-tracing dispatch writing `color` and `shadow` (4-channel tensors of the frame
@@ -413,7 +436,7 @@ impl Tracer {
             let b = &self.buffers;
             let tr = self.trace_dispatch(scene, s, [0, 1], &b.color_mask, &b.shadow_roughness)?;
             let bg = if with_background {
-                Some(self.background_dispatch(scene, s)?)
+                Some(self.background_dispatches(scene, s)?)
             } else {
                 None
             };
@@ -430,8 +453,10 @@ impl Tracer {
         Self::pass(encoder, gb, profiler.as_deref_mut(), "gbuffer");
         Self::pass(encoder, tr, profiler.as_deref_mut(), "trace");
         if let Some(bg) = bg {
-            self.write_params(bg, s, [0, 1]);
-            Self::pass(encoder, bg, profiler, "background");
+            for d in bg {
+                self.write_params(d, s, [0, 1]);
+                Self::pass(encoder, d, profiler.as_deref_mut(), "background");
+            }
         }
         Ok(())
     }
@@ -458,7 +483,9 @@ impl Tracer {
         let gb = self.gbuffer_dispatch(scene, s)?;
         Self::pass(&mut enc, &gb, None, "gbuffer");
         if s.background > 0 {
-            Self::pass(&mut enc, &self.background_dispatch(scene, s)?, None, "background");
+            for d in &self.background_dispatches(scene, s)? {
+                Self::pass(&mut enc, d, None, "background");
+            }
         }
         self.gpu.queue.submit([enc.finish()]);
         let b = &self.buffers;

@@ -6,8 +6,9 @@
 // albedo_footprint = (albedo, depth): the layout of albedo_depth, so a model that uses the
 // footprint albedo reads this buffer in its place. Where the coverage is 1 the background
 // is the pixel's radiance, estimated with n x n environment lookups instead of path samples.
-// emission_footprint.xyz gets the mean first-hit emission over the same rays (the
-// `emission_footprint` half of the directly seen emission, DESIGN.md section 3).
+// emission_coarse.xyz gets the mean first-hit emission over the same rays, which
+// trace/emission_outline refines on emitters' outlines into the `emission_footprint` half of
+// the directly seen emission (DESIGN.md section 3).
 // Runs after the G-buffer pass.
 // CPU twin: `background_pixel` in src/render/cpu/integrator.rs.
 
@@ -16,7 +17,7 @@
 @group(0) @binding(8) var<storage, read_write> background: array<vec4<f32>>;
 @group(0) @binding(9) var<storage, read_write> albedo_footprint: array<vec4<f32>>;
 @group(0) @binding(10) var<storage, read> albedo_depth: array<vec4<f32>>;
-@group(0) @binding(11) var<storage, read_write> emission_footprint: array<vec4<f32>>;
+@group(0) @binding(11) var<storage, read_write> emission_coarse: array<vec4<f32>>;
 
 @compute @workgroup_size(8, 8, 1)
 fn main(@builtin(global_invocation_id) gid: vec3<u32>) {
@@ -53,5 +54,5 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>) {
     let at = gid.y * p.size.x + gid.x;
     background[at] = vec4<f32>(sum / count, f32(escaped) / count);
     albedo_footprint[at] = vec4<f32>(albedo / count, albedo_depth[at].w);
-    emission_footprint[at] = vec4<f32>(emission / count, 0.0);
+    emission_coarse[at] = vec4<f32>(emission / count, 0.0);
 }

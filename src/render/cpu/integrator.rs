@@ -336,6 +336,35 @@ pub(crate) fn background_pixel(
     }
 }
 
+/// The mean first-hit emission over the `n x n` stratified camera rays of pixel (x, y)
+/// ([`background_pixel`]'s rays; WGSL `trace/emission_outline`).
+pub(crate) fn footprint_emission(
+    sc: &PackedScene,
+    p: &Params,
+    x: u32,
+    y: u32,
+    n: u32,
+    rays: &mut u64,
+) -> Vec3 {
+    let size = Vec2::new(p.width as f32, p.height as f32);
+    let o = v3(p.cam.pos);
+    let mut emission = Vec3::ZERO;
+    for j in 0..n {
+        for i in 0..n {
+            let px = Vec2::new(
+                x as f32 + (i as f32 + 0.5) / n as f32,
+                y as f32 + (j as f32 + 0.5) / n as f32,
+            );
+            let d = camera_dir(&p.cam, px, size);
+            let hit = traverse(sc, o, d, BIG, false, NO_HIT, rays);
+            if hit.prim != NO_HIT {
+                emission += surface_at(sc, &hit, d).emission;
+            }
+        }
+    }
+    emission / (n * n) as f32
+}
+
 /// The first-hit emission of samples `first .. first + count` of pixel (x, y), averaged:
 /// the emission of the surface each sample's camera ray meets first (before any scattering
 /// or straight-through passing), which [`trace_path`] adds to the sample's radiance with

@@ -33,7 +33,9 @@ mod traverse;
 use rayon::prelude::*;
 
 use super::packed::PackedScene;
-use super::settings::{FrameSettings, FrameStats, Mode, REFERENCE_SEED_XOR, ReferenceHalves, tile_offset};
+use super::settings::{
+    EMISSION_OUTLINE_RAYS, FrameSettings, FrameStats, Mode, REFERENCE_SEED_XOR, ReferenceHalves, tile_offset,
+};
 use crate::error::{Error, Result};
 use crate::frame::{Background, DirectEmission, HostFrame};
 use crate::nn::HostTensor;
@@ -280,8 +282,9 @@ impl CpuTracer {
     /// environment radiance along the camera rays that escape the scene (0 for rays that
     /// hit anything, glass included), the fraction that escape (coverage), the mean
     /// first-hit base colour (the footprint albedo, sky 1) and the directly seen emission
-    /// ([`DirectEmission`]: the mean first-hit emission over the same rays, and that of the
-    /// frame's own samples, replayed). Where the coverage is 1 the background is the pixel's
+    /// ([`DirectEmission`]: the mean first-hit emission over the same rays, over
+    /// [`EMISSION_OUTLINE_RAYS`] per axis on emitters' outlines when `s.background` is
+    /// fewer, and that of the frame's own samples, replayed). Where the coverage is 1 the background is the pixel's
     /// radiance, estimated with lookups instead of path samples. The reference of the WGSL
     /// tracer's `trace/background` pass; an error when `s.background` is 0.
     pub fn background(&self, scene: &PackedScene, s: &FrameSettings) -> Result<Background> {
@@ -305,14 +308,32 @@ impl CpuTracer {
             HostTensor::from_vec(w, h, 3, px.iter().flat_map(|q| f(q).to_array()).collect())
         };
         let coverage = px.iter().map(|q| q.coverage).collect();
+        let mut emission = DirectEmission {
+            footprint: gather(|q| q.emission),
+            samples: self.sample_emission(scene, s),
+        };
+        if n < EMISSION_OUTLINE_RAYS {
+            // The outline's pixels again with more rays (WGSL `trace/emission_outline`).
+            let outline = emission.outline();
+            let refined: Vec<(usize, glam::Vec3A)> = outline
+                .par_iter()
+                .enumerate()
+                .filter(|(_, rim)| **rim)
+                .map(|(i, _)| {
+                    let (x, y) = (i as u32 % w, i as u32 / w);
+                    let e = integrator::footprint_emission(scene, &p, x, y, EMISSION_OUTLINE_RAYS, &mut 0);
+                    (i, e)
+                })
+                .collect();
+            for (i, e) in refined {
+                emission.footprint.data[3 * i..3 * i + 3].copy_from_slice(&e.to_array());
+            }
+        }
         Ok(Background {
             radiance: gather(|q| q.environment),
             coverage: HostTensor::from_vec(w, h, 1, coverage),
             albedo: Some(gather(|q| q.albedo)),
-            emission: Some(DirectEmission {
-                footprint: gather(|q| q.emission),
-                samples: self.sample_emission(scene, s),
-            }),
+            emission: Some(emission),
         })
     }
 
