@@ -56,8 +56,8 @@ pub struct FrameLoop {
 
 impl FrameLoop {
     /// A tracer and a denoiser (with `weights`) for `width x height` frames (and, for
-    /// weights of config emission "background", the pass that folds the tracer's directly
-    /// seen emission into the frame they are fed, [`EmissionFold`]).
+    /// weights of config emission "background", the pass that takes the tracer's directly
+    /// seen emission out of the colour they are fed, [`EmissionFold`]).
     pub fn new(gpu: &Gpu, weights: &Weights, width: u32, height: u32) -> Result<Self> {
         let fold = match weights.config.emission_source()? {
             EmissionSource::Background => Some(EmissionFold::new(gpu, width, height)?),
@@ -76,9 +76,9 @@ impl FrameLoop {
     /// composites the background, [`crate::frame::FrameInputs`]). A model of config albedo
     /// "footprint" reads the background pass's footprint albedo in place of the G-buffer's,
     /// so its frames always have that pass (at least [`FOOTPRINT_RAYS`] rays per axis); so
-    /// does a model of config emission "background", which is fed the frame with the
-    /// directly seen emission folded into the background ([`EmissionFold`], a pass timed
-    /// with `background`). Submit the encoder (e.g. [`Profiler::submit`]) to run it.
+    /// does a model of config emission "background", which is fed the colour without the
+    /// samples' directly seen emission ([`EmissionFold`], a pass timed with `background`)
+    /// and the footprint's as [`crate::frame::FrameInputs::emission`]. Submit the encoder (e.g. [`Profiler::submit`]) to run it.
     pub fn encode(
         &mut self,
         encoder: &mut wgpu::CommandEncoder,
@@ -115,14 +115,15 @@ impl FrameLoop {
             else {
                 return Err(missing());
             };
-            let d = fold.dispatch(&b.color_mask.buffer, &se.buffer, &bg.buffer, &ef.buffer)?;
+            let d = fold.dispatch(&b.color_mask.buffer, &se.buffer)?;
             d.record(&mut Profiler::pass(
                 encoder,
                 "background",
                 profiler.as_deref_mut(),
             ));
             inputs.color_mask = &fold.color_mask.buffer;
-            inputs.background = Some(&fold.background.buffer);
+            inputs.background = Some(&bg.buffer);
+            inputs.emission = Some(&ef.buffer);
         }
         self.denoiser
             .denoise_profiled(encoder, &inputs, profiler, Granularity::Stage)?;

@@ -1140,11 +1140,11 @@ fn denoise_feeds_a_footprint_model_the_frames_footprint_albedo() {
 
 /// `subpixel denoise` with a model of config emission "background": frames without the
 /// directly seen emission are refused before anything is written, naming the file and the
-/// channels; with it, the model runs on the frames with the emission folded into the
-/// background: exactly what the same weights as an emission-"network" model give on frames
-/// folded by hand (colour less the samples' emission, background plus the footprint's),
-/// and with `--no-background` on frames whose background is the footprint emission alone
-/// (no environment, coverage 0).
+/// channels; with it, the model runs on the colour without the samples' emission and adds
+/// the footprint's: what the same weights as an emission-"network" model (no mean
+/// correction) give on frames folded by hand (colour less the samples' emission, background
+/// plus the footprint's), up to the order of the sums, and with `--no-background` on frames
+/// whose background is the footprint emission alone (no environment, coverage 0).
 #[test]
 fn denoise_folds_the_directly_seen_emission_for_an_emission_model() {
     use subpixel::frame::DirectEmission;
@@ -1236,6 +1236,14 @@ fn denoise_folds_the_directly_seen_emission_for_an_emission_model() {
         succeeded(ob);
         for i in 0..3 {
             let pred = |d: &Path| read_frame(&d.join(frame_name(i))).unwrap().pred.unwrap();
+            let (pa, pb) = (pred(a), pred(b));
+            // the same sums in another order (emission added after the composite)
+            for (v, w) in pa.data.iter().zip(&pb.data) {
+                assert!(
+                    (v - w).abs() <= 1e-5 * (1.0 + w.abs()),
+                    "case {k}, frame {i}: {v} against {w}, the network model on the frames folded by hand"
+                );
+            }
             assert_eq!(
                 pred(a),
                 pred(b),

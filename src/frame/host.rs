@@ -26,11 +26,11 @@ pub enum EmissionSource {
     /// The network, from the samples: `color` is the traced radiance, emission included
     /// (every model before the option).
     Network,
-    /// The background: `color` leaves out the emission of the surfaces the camera rays meet
-    /// first, and the background buffer adds that emission averaged over the pixel's
-    /// footprint (premultiplied like its environment radiance), so the output pass
-    /// composites the emitters without noise and the network reconstructs only reflected
-    /// light ([`HostFrame::fold_direct_emission`] makes such a frame from a full one).
+    /// The output pass: `color` leaves out the emission of the surfaces the camera rays meet
+    /// first, and the denoiser's `emission` input holds that emission averaged over the
+    /// pixel's footprint, which the output pass adds, so the emitters come without noise
+    /// and the network reconstructs only reflected light ([`HostFrame::fold_direct_emission`]
+    /// and [`HostFrame::pack_emission`] make such a frame from a full one).
     Background,
 }
 
@@ -236,9 +236,9 @@ impl HostFrame {
 
     /// The frame as a model of `source` is fed it: itself for
     /// [`EmissionSource::Network`]; for [`EmissionSource::Background`], `color` without the
-    /// traced samples' first-hit emission (at least 0) and the background's radiance plus the
-    /// footprint's first-hit emission ([`DirectEmission`]), an error naming the buffers when
-    /// the frame has no directly seen emission.
+    /// traced samples' first-hit emission (at least 0), whose footprint average
+    /// ([`DirectEmission::footprint`], [`HostFrame::pack_emission`]) the output pass adds
+    /// instead; an error naming the buffers when the frame has no directly seen emission.
     pub fn fold_direct_emission(&self, source: EmissionSource) -> Result<HostFrame> {
         self.size()?;
         if source == EmissionSource::Network {
@@ -247,7 +247,7 @@ impl HostFrame {
         let Some(e) = self.background.as_ref().and_then(|b| b.emission.as_ref()) else {
             return Err(Error::shape(
                 "frame",
-                "the model takes the directly seen emission from the background (config emission \"background\") \
+                "the model takes the directly seen emission from the output pass (config emission \"background\") \
                  and the frame has none (buffers 'emission' and 'emission_footprint', written with the background: \
                  `subpixel dataset --background N`)",
             ));
@@ -256,11 +256,20 @@ impl HostFrame {
         for (c, s) in out.color.data.iter_mut().zip(&e.samples.data) {
             *c = (*c - s).max(0.0);
         }
-        let ob = out.background.as_mut().expect("cloned with a background");
-        for (r, f) in ob.radiance.data.iter_mut().zip(&e.footprint.data) {
-            *r += f;
-        }
         Ok(out)
+    }
+
+    /// The footprint's directly seen emission packed as
+    /// [`FrameInputs::emission`](super::FrameInputs) wants it (rgb, 0), when the frame has one.
+    pub fn pack_emission(&self) -> Option<Vec<[f32; 4]>> {
+        let e = self.background.as_ref()?.emission.as_ref()?;
+        Some(
+            e.footprint
+                .data
+                .chunks_exact(3)
+                .map(|c| [c[0], c[1], c[2], 0.0])
+                .collect(),
+        )
     }
 
     /// The background packed as [`FrameInputs::background`](super::FrameInputs) wants it

@@ -15,6 +15,7 @@ use crate::error::{Error, Result};
 /// | `transparent` | first transmissive tint (0 where none) | unused |
 /// | `motion` | x, y: motion in pixels, `prev = pos + motion` | unused |
 /// | `background` (optional) | directly seen environment over the pixel's footprint (rays that hit anything count 0) | coverage: fraction of the footprint that escapes |
+/// | `emission` (optional, with a background) | directly seen emission over the pixel's footprint (the first-hit emission of the footprint's rays) | unused |
 ///
 /// With a `background`, the output is `background + (1 - coverage) x reconstruction`: the
 /// environment part of each pixel comes from the background, the network reconstructs the
@@ -29,12 +30,13 @@ use crate::error::{Error, Result};
 /// frame loop passes here).
 ///
 /// So is who reconstructs the emission of the surfaces the camera sees directly
-/// ([`crate::frame::EmissionSource`], `Weights::config.emission_source()`): for a model of
-/// config emission "background", `color_mask` leaves out each traced sample's first-hit
-/// emission and `background` adds the first-hit emission averaged over the pixel's
-/// footprint (a background is then required, even without an environment), so emitters
-/// come back through the composite without noise. The frame loop makes such a frame from
-/// the tracer's directly seen emission with `ssr/fold_emission` ([`crate::ssr::EmissionFold`]).
+/// ([`crate::frame::EmissionSource`], `Weights::config.emission_source()`): a model of
+/// config emission "background" wants `color_mask` without each traced sample's first-hit
+/// emission, and the first-hit emission averaged over the pixel's footprint in `emission`
+/// (with a `background`, even without an environment); the output pass adds it, so
+/// emitters come back without noise: `emission + background + (1 - coverage) x
+/// reconstruction`. The frame loop takes the colour without the samples' emission from the
+/// tracer's directly seen emission with `ssr/fold_emission` ([`crate::ssr::EmissionFold`]).
 #[derive(Debug, Clone, Copy)]
 pub struct FrameInputs<'a> {
     /// Radiance rgb + mask.
@@ -51,17 +53,21 @@ pub struct FrameInputs<'a> {
     pub motion: &'a wgpu::Buffer,
     /// Background rgb + coverage, optional.
     pub background: Option<&'a wgpu::Buffer>,
+    /// Directly seen emission rgb, optional (with a background; models of config emission
+    /// "background").
+    pub emission: Option<&'a wgpu::Buffer>,
 }
 
 impl<'a> FrameInputs<'a> {
-    /// The six buffers in the order of the table above (e.g. a `Vec` of them), or seven
-    /// with the background last; an error naming the count for any other number.
+    /// The six buffers in the order of the table above (e.g. a `Vec` of them), seven with
+    /// the background, eight with the background and the emission; an error naming the
+    /// count for any other number.
     pub fn from_slice(buffers: &'a [wgpu::Buffer]) -> Result<Self> {
-        if !(6..=7).contains(&buffers.len()) {
+        if !(6..=8).contains(&buffers.len()) {
             return Err(Error::shape(
                 "denoiser input",
                 format!(
-                    "{} buffers, expected 6 ({}) or 7 (and background)",
+                    "{} buffers, expected 6 ({}), 7 (and background) or 8 (and emission)",
                     buffers.len(),
                     Self::NAMES.join(", ")
                 ),
@@ -75,6 +81,7 @@ impl<'a> FrameInputs<'a> {
             transparent: &buffers[4],
             motion: &buffers[5],
             background: buffers.get(6),
+            emission: buffers.get(7),
         })
     }
 

@@ -101,6 +101,7 @@ impl FrameBuffers {
             transparent: &self.transparent.buffer,
             motion: &self.motion.buffer,
             background: self.background.as_ref().map(|t| &t.buffer),
+            emission: None,
         }
     }
 

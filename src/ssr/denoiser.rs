@@ -4,7 +4,8 @@
 use bytemuck::{Pod, Zeroable};
 
 use super::config::{
-    CEILING_DECAY, ExposureMode, MEAN_EPS, MEAN_HI, MEAN_LO, MEAN_RING, MEAN_TILE, MeanCorrection,
+    CEILING_DECAY, EmissionSource, ExposureMode, MEAN_EPS, MEAN_HI, MEAN_LO, MEAN_RING, MEAN_TILE,
+    MeanCorrection,
 };
 pub use super::network::Granularity;
 use super::network::StepCost;
@@ -55,8 +56,9 @@ struct ExposureFinalParams {
 /// exposure, as on a first frame (`[1]`) or a later one (`[2]`).
 type ExposureDispatches = [Dispatch; 3];
 
-/// The caller's buffers a bound [`InputPasses`] reads: the six, and the background.
-type InputKey = ([wgpu::Buffer; 6], Option<wgpu::Buffer>);
+/// The caller's buffers a bound [`InputPasses`] reads: the six, the background and the
+/// emission.
+type InputKey = ([wgpu::Buffer; 6], Option<wgpu::Buffer>, Option<wgpu::Buffer>);
 
 /// The dispatches bound to the caller's buffers: exposure, input packing, and the output
 /// store (which reads the optional background).
@@ -263,7 +265,29 @@ impl Denoiser {
     /// The output store: the network's output, cropped, into the output texture, composited
     /// with the background (`background + (1 - coverage) x output`) when the caller gives one,
     /// the output first scaled by the mean correction's factors when the config has it.
-    fn store_dispatch(&self, background: Option<&wgpu::Buffer>) -> Result<Dispatch> {
+    /// The directly seen emission the output pass adds: the caller's `emission` for a model
+    /// of config emission "background" (an error naming the buffers without it or without a
+    /// background), none for others.
+    fn emission_input<'b>(&self, inputs: &FrameInputs<'b>) -> Result<Option<&'b wgpu::Buffer>> {
+        if self.net.config.emission_source()? == EmissionSource::Network {
+            return Ok(None);
+        }
+        match (inputs.background, inputs.emission) {
+            (Some(_), Some(e)) => Ok(Some(e)),
+            _ => Err(Error::shape(
+                "denoiser input",
+                "the model takes the directly seen emission from the output pass (config emission \"background\"): \
+                 give FrameInputs::emission and FrameInputs::background (and a colour without the samples' \
+                 first-hit emission)",
+            )),
+        }
+    }
+
+    fn store_dispatch(
+        &self,
+        background: Option<&wgpu::Buffer>,
+        emission: Option<&wgpu::Buffer>,
+    ) -> Result<Dispatch> {
         let params = self.output_params(0, false);
         let view = self.output.create_view(&Default::default());
         let mut resources = vec![
@@ -275,13 +299,21 @@ impl Denoiser {
         let b = background.unwrap_or(&self.sanitized);
         resources.push(b.as_entire_binding());
         resources.push(self.sanitized.as_entire_binding());
-        if let Some(m) = &self.mean {
-            resources.push(m.factors.as_entire_binding());
+        // Binding 5 (factors) holds its place for the emission (binding 6) without a mean
+        // correction.
+        match (&self.mean, emission) {
+            (Some(m), _) => resources.push(m.factors.as_entire_binding()),
+            (None, Some(_)) => resources.push(self.sanitized.as_entire_binding()),
+            (None, None) => {}
+        }
+        if let Some(e) = emission {
+            resources.push(e.as_entire_binding());
         }
         self.gpu.kernels.dispatch_with(
             "ssr/store_output",
             &Specialisation(vec![
                 ("BACKGROUND", background.is_some() as u32 as f64),
+                ("EMISSION", emission.is_some() as u32 as f64),
                 ("MEAN", self.mean.is_some() as u32 as f64),
                 ("TILE", self.mean.as_ref().map_or(MEAN_TILE, |m| m.side) as f64),
             ]),
@@ -484,7 +516,11 @@ impl Denoiser {
     }
 
     fn bind_inputs(&mut self, inputs: &FrameInputs<'_>) -> Result<()> {
-        let key = (inputs.buffers().map(|b| b.clone()), inputs.background.cloned());
+        let key = (
+            inputs.buffers().map(|b| b.clone()),
+            inputs.background.cloned(),
+            inputs.emission.cloned(),
+        );
         let mut bound = std::mem::take(&mut self.inputs);
         let built = bound.get_or_build(key, || self.input_passes(inputs)).map(|_| ());
         // (Taken out so the build can borrow the denoiser; put back before any return.)
@@ -500,7 +536,8 @@ impl Denoiser {
             .buffers()
             .into_iter()
             .zip(FrameInputs::NAMES)
-            .chain(inputs.background.map(|b| (b, "background")));
+            .chain(inputs.background.map(|b| (b, "background")))
+            .chain(inputs.emission.map(|b| (b, "emission")));
         for (b, name) in named {
             if b.size() < need {
                 return Err(Error::shape(
@@ -604,7 +641,7 @@ impl Denoiser {
             exposure: e,
             pack: [pack_a, pack_mt],
             mean: self.mean_dispatches(inputs.color_mask, inputs.background)?,
-            store: self.store_dispatch(inputs.background)?,
+            store: self.store_dispatch(inputs.background, self.emission_input(inputs)?)?,
             background: inputs.background.is_some(),
         })
     }
@@ -622,8 +659,8 @@ impl Denoiser {
     /// Offline convenience: uploads a frame from host memory, denoises it, waits and
     /// returns the output (3 channels, `width x height`). A model of config albedo
     /// `footprint` takes the frame's footprint albedo ([`HostFrame::pack`]); one of config
-    /// emission `background` is fed the frame with its directly seen emission moved into the
-    /// background ([`HostFrame::fold_direct_emission`]).
+    /// emission `background` is fed the colour without the samples' directly seen emission
+    /// ([`HostFrame::fold_direct_emission`]) and the footprint's as `emission`.
     pub fn denoise_host(&mut self, frame: &HostFrame) -> Result<HostTensor> {
         let (w, h) = frame.size()?;
         if (w, h) != (self.width, self.height) {
@@ -635,16 +672,23 @@ impl Denoiser {
                 ),
             ));
         }
-        // A model of config emission "background" gets the directly seen emission in the
-        // background, as the frame loop feeds it.
-        let frame = frame.fold_direct_emission(self.net.config.emission_source()?)?;
+        // A model of config emission "background" gets the colour without the samples'
+        // directly seen emission, and the footprint's for the output pass, as the frame
+        // loop feeds it.
+        let source = self.net.config.emission_source()?;
+        let frame = frame.fold_direct_emission(source)?;
         let packed = frame.pack(self.net.config.albedo_source()?)?;
         let background = frame.pack_background()?;
+        let emission = match source {
+            EmissionSource::Background => frame.pack_emission(),
+            EmissionSource::Network => None,
+        };
         let bufs = self.host_buffers();
-        for (b, data) in bufs.iter().zip(packed.iter().chain(&background)) {
+        let data = packed.iter().chain(&background).chain(&emission);
+        for (b, data) in bufs.iter().zip(data) {
             self.gpu.queue.write_buffer(b, 0, bytemuck::cast_slice(data));
         }
-        let used = if background.is_some() { 7 } else { 6 };
+        let used = 6 + background.is_some() as usize + emission.is_some() as usize;
         let mut enc = self.gpu.device.create_command_encoder(&Default::default());
         let inputs = FrameInputs::from_slice(&bufs[..used])?;
         self.denoise(&mut enc, &inputs)?;
@@ -654,7 +698,7 @@ impl Denoiser {
     }
 
     /// Input buffers owned by the denoiser for [`Denoiser::denoise_host`] (made once): the
-    /// six of [`FrameInputs::NAMES`], then the background.
+    /// six of [`FrameInputs::NAMES`], then the background and the emission.
     fn host_buffers(&mut self) -> Vec<wgpu::Buffer> {
         let size = self.width as u64 * self.height as u64 * 16;
         let gpu = &self.gpu;
@@ -662,7 +706,7 @@ impl Denoiser {
             .get_or_insert_with(|| {
                 FrameInputs::NAMES
                     .iter()
-                    .chain(&["background"])
+                    .chain(&["background", "emission"])
                     .map(|n| {
                         gpu.device.create_buffer(&wgpu::BufferDescriptor {
                             label: Some(&format!("subpixel.ssr.host.{n}")),

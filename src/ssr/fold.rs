@@ -1,6 +1,7 @@
-//! The frame a model of config emission "background" is fed, on the GPU: the tracer's
-//! frame with its directly seen emission folded into the background (`ssr/fold_emission`;
-//! CPU reference [`crate::frame::HostFrame::fold_direct_emission`]).
+//! The colour a model of config emission "background" is fed, on the GPU: the tracer's
+//! colour without the traced samples' first-hit emission (`ssr/fold_emission`; CPU reference
+//! [`crate::frame::HostFrame::fold_direct_emission`]); the denoiser's output pass adds the
+//! footprint's emission instead ([`crate::frame::FrameInputs::emission`]).
 
 use bytemuck::{Pod, Zeroable};
 
@@ -20,14 +21,12 @@ pub struct FoldParams {
     pub pad: [u32; 2],
 }
 
-/// The folded colour and background of one frame size, and the pass that writes them.
+/// The folded colour of one frame size, and the pass that writes it.
 #[derive(Debug)]
 pub struct EmissionFold {
     gpu: Gpu,
     /// Colour without the traced samples' first-hit emission (rgb, at least 0) + mask.
     pub color_mask: Tensor,
-    /// Background plus the footprint's first-hit emission (rgb) + coverage.
-    pub background: Tensor,
 }
 
 impl EmissionFold {
@@ -36,20 +35,12 @@ impl EmissionFold {
         Ok(Self {
             gpu: gpu.clone(),
             color_mask: Tensor::new(gpu, "fold.color_mask", width, height, 4)?,
-            background: Tensor::new(gpu, "fold.background", width, height, 4)?,
         })
     }
 
-    /// The pass folding a frame's `color_mask` and `background` with its directly seen
-    /// emission (`sample_emission`, `emission_footprint`; each `width x height` vec4) into
-    /// [`EmissionFold::color_mask`] and [`EmissionFold::background`].
-    pub fn dispatch(
-        &self,
-        color_mask: &wgpu::Buffer,
-        sample_emission: &wgpu::Buffer,
-        background: &wgpu::Buffer,
-        emission_footprint: &wgpu::Buffer,
-    ) -> Result<Dispatch> {
+    /// The pass writing a frame's `color_mask` without its samples' first-hit emission
+    /// (`sample_emission`; each `width x height` vec4) into [`EmissionFold::color_mask`].
+    pub fn dispatch(&self, color_mask: &wgpu::Buffer, sample_emission: &wgpu::Buffer) -> Result<Dispatch> {
         let (width, height) = (self.color_mask.width, self.color_mask.height);
         let params = FoldParams {
             width,
@@ -60,14 +51,7 @@ impl EmissionFold {
             "ssr/fold_emission",
             &Specialisation::none(),
             bytemuck::bytes_of(&params),
-            &[
-                color_mask,
-                sample_emission,
-                background,
-                emission_footprint,
-                &self.color_mask.buffer,
-                &self.background.buffer,
-            ],
+            &[color_mask, sample_emission, &self.color_mask.buffer],
             Grid::pixels(width, height),
         )
     }

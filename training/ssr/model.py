@@ -288,16 +288,21 @@ def extra_buffers(cfg: SSRConfig) -> Tuple[str, ...]:
     return albedo + emission
 
 
+COMPOSITE_EMISSION = "composite_emission"
+"""The frame key `fold_emission` sets: the emission the output pass adds (the engine's
+`FrameInputs::emission`)."""
+
+
 def fold_emission(frame: Dict[str, torch.Tensor], cfg: Optional[SSRConfig]) -> Dict[str, torch.Tensor]:
     """`frame` as a model of config `cfg` is fed it (the engine's frame loop, and `subpixel
     denoise` on frame files, feed the same): itself for `emission = "network"`; for
-    "background", the directly seen emission moves from the samples to the background: the
-    colour without each traced sample's first-hit emission (`emission`, the part of `color`
-    that is emission seen directly), the background plus the first-hit emission averaged over
-    its footprint (`emission_footprint`). The network then reconstructs only reflected light,
-    and the output pass adds the emitters back without noise (`composite_background`). A
-    KeyError names a missing buffer and the command that writes it. Call it once per frame,
-    before the model and the output pass."""
+    "background", the colour without each traced sample's first-hit emission (`emission`, the
+    part of `color` that is emission seen directly), and the first-hit emission averaged over
+    the background's footprint (`emission_footprint`) under COMPOSITE_EMISSION, which the
+    output pass adds (`composite_background`, `MeanCorrection`). The network then
+    reconstructs only reflected light, and the emitters come back without noise. A KeyError
+    names a missing buffer and the command that writes it. Call it once per frame, before the
+    model and the output pass."""
     if cfg is None or getattr(cfg, "emission", "network") == "network":
         return frame
     missing = [b for b in DIRECT_EMISSION + ("background", "coverage") if b not in frame]
@@ -309,7 +314,7 @@ def fold_emission(frame: Dict[str, torch.Tensor], cfg: Optional[SSRConfig]) -> D
     return {
         **frame,
         "color": (frame["color"] - frame["emission"]).clamp_min(0.0),
-        "background": frame["background"] + frame["emission_footprint"],
+        COMPOSITE_EMISSION: frame["emission_footprint"],
     }
 
 
@@ -373,7 +378,8 @@ class MeanCorrection:
     traced pixels (mask > 1/2) of the last MEAN_RING frames, the factor
     `clamp((sum(color - B) + eps) / (sum((1 - a) output) + eps), MEAN_LO, MEAN_HI)`, interpolated
     bilinearly between tile centres (edges held), scales the reconstructed part:
-    `B + (1 - a) output factor` (B, a the background and coverage, 0 without them). The
+    `B + (1 - a) output factor + E` (B, a the background and coverage, 0 without them; E the
+    directly seen emission of `fold_emission`, which the samples `color` no longer hold). The
     factor is differentiable in `output` (training through it sees the whole pass). A new
     instance (or `reset`) starts with an empty ring, as the engine after a reset."""
 
@@ -395,7 +401,7 @@ class MeanCorrection:
         f = ((s + MEAN_EPS) / (r + MEAN_EPS)).clamp(MEAN_LO, MEAN_HI)
         h, w = output.shape[-2:]
         up = F.interpolate(f, scale_factor=self.tile, mode="bilinear", align_corners=False)[..., :h, :w]
-        return bg + part * up
+        return bg + part * up + emission_part(frame, output)
 
 
 def mean_correction_of(cfg: "SSRConfig") -> Optional[MeanCorrection]:
@@ -425,7 +431,16 @@ def composite_background(output: torch.Tensor, frame: Dict[str, torch.Tensor]) -
     if "background" not in frame or "coverage" not in frame:
         return output
     bg, cov = background_parts(frame, output)
-    return bg + (1.0 - cov) * output
+    return bg + (1.0 - cov) * output + emission_part(frame, output)
+
+
+def emission_part(frame: Dict[str, torch.Tensor], like: torch.Tensor) -> torch.Tensor:
+    """The directly seen emission the output pass adds (COMPOSITE_EMISSION, set by
+    `fold_emission`; sanitised as the background), 0 without it, in `like`'s dtype."""
+    e = frame.get(COMPOSITE_EMISSION)
+    if e is None:
+        return torch.zeros((), dtype=like.dtype, device=like.device)
+    return torch.nan_to_num(e, nan=0.0, posinf=0.0, neginf=0.0).clamp(0.0, 1e12).to(like.dtype)
 
 
 def quarter_mask(height: int, width: int, t: int, *, dtype=torch.float32) -> torch.Tensor:

@@ -38,7 +38,7 @@ def make_sequence(
     quarter of the rows wholly sky, `coverage` 1 and `background` the reference there, the
     next row half covered, the rest none, and the footprint albedo `albedo_footprint`: the
     albedo, as the reference here is the albedo times the light pixel by pixel); with
-    `emission` too, an emitter of radiance EMITTER seen directly over a 4 x 4 square below
+    `emission` too, an emitter of radiance EMITTER seen directly over a 6 x 6 square below
     the sky (whose pixels' reference and traced samples add it), with its directly seen
     emission buffers `emission` (the traced samples') and `emission_footprint`."""
     rng = np.random.default_rng(seed)
@@ -96,7 +96,7 @@ def make_sequence(
             frame["albedo_footprint"] = frame["albedo"].copy()
             if emission:
                 lamp = np.zeros((3, height, width), np.float32)
-                lamp[:, sky + 2 : sky + 6, 2:6] = np.asarray(EMITTER, np.float32)[:, None, None]
+                lamp[:, sky + 2 : sky + 8, 2:8] = np.asarray(EMITTER, np.float32)[:, None, None]
                 frame["emission_footprint"] = lamp
                 frame["emission"] = lamp * mask
                 frame["reference"] = frame["reference"] + lamp

@@ -516,11 +516,13 @@ def test_composite_background_mirrors_the_engines_output_pass():
 
 
 def test_fold_emission_moves_the_directly_seen_emission_into_the_background():
-    """Config emission = "background": the frame the model and the output pass get has the
-    traced samples' first-hit emission out of the colour and the footprint's in the
-    background (an emitter wholly covering pixels comes back exactly through the composite,
-    whatever the network makes of the rest); "network" leaves the frame as it is; a frame
-    without the buffers is a KeyError naming them."""
+    """Config emission = "background": the model gets the colour without the traced samples'
+    first-hit emission, and the output pass (`composite_background`, `MeanCorrection`) adds
+    the footprint's, so an emitter wholly covering pixels comes back exactly whatever the
+    network makes of the rest, and the mean correction compares the reconstruction with
+    samples that hold no emission; "network" leaves the frame as it is; a frame without the
+    buffers is a KeyError naming them."""
+    from ssr.model import COMPOSITE_EMISSION, MeanCorrection
     from ssr.synth import EMITTER, make_sequence
 
     f = {k: torch.from_numpy(v)[None] for k, v in make_sequence(16, 16, 1, 3, background=True, emission=True)[0].items()}
@@ -529,15 +531,21 @@ def test_fold_emission_moves_the_directly_seen_emission_into_the_background():
     assert fold_emission(f, SSRConfig()) is f and fold_emission(f, None) is f
     g = fold_emission(f, cfg)
     lamp = f["emission_footprint"][0, 0] > 0
-    assert lamp.sum() == 16
+    assert lamp.sum() == 36
     # the colour keeps only the reflected light (the lamp's traced pixels: what the light
-    # makes of its base colour), the background adds the lamp to the sky
+    # makes of its base colour); the background is untouched
     torch.testing.assert_close(g["color"], (f["color"] - f["emission"]).clamp_min(0))
-    assert torch.all(g["color"][0, :, lamp] < min(EMITTER))
-    torch.testing.assert_close(g["background"], f["background"] + f["emission_footprint"])
-    # where the lamp is, the composite of any reconstruction adds exactly the lamp
-    zero = composite_background(torch.zeros_like(f["reference"]), g)
-    torch.testing.assert_close(zero[0, :, lamp], torch.tensor(EMITTER)[:, None].expand(3, 16))
+    assert torch.all(g["color"][0][:, lamp] < min(EMITTER))
+    assert torch.equal(g["background"], f["background"]) and torch.equal(g[COMPOSITE_EMISSION], f["emission_footprint"])
+    # the composite of any reconstruction adds exactly the lamp
+    zero = torch.zeros_like(f["reference"])
+    torch.testing.assert_close(composite_background(zero, g)[0][:, lamp], torch.tensor(EMITTER)[:, None].expand(3, 36))
+    # the mean correction sees the same samples as on the scene without the lamp (the same
+    # frame rendered without it) and adds the lamp after the correction
+    bare = {k: torch.from_numpy(v)[None] for k, v in make_sequence(16, 16, 1, 3, background=True)[0].items()}
+    torch.testing.assert_close(g["color"], bare["color"])
+    recon = torch.rand(f["reference"].shape, generator=torch.Generator().manual_seed(4))
+    torch.testing.assert_close(MeanCorrection(8)(recon, g), MeanCorrection(8)(recon, bare) + f["emission_footprint"])
     model = random_model(2, cfg)
     with torch.no_grad():
         out = model(g)["output"]

@@ -1,9 +1,8 @@
-// The frame a model of config emission = "background" is fed (DESIGN §3, the directly seen
-// emission): from a frame with the directly seen emission, the colour without the traced
-// samples' first-hit emission (at least 0; the mask kept) and the background plus the
-// first-hit emission averaged over its footprint (the coverage kept), so the network
-// reconstructs only reflected light and the output pass composites the emitters.
-// CPU reference: HostFrame::fold_direct_emission (src/frame/host.rs).
+// The colour a model of config emission = "background" is fed (DESIGN §3, the directly seen
+// emission): the traced radiance without each traced sample's first-hit emission (at least
+// 0; the mask kept). The output pass adds the first-hit emission averaged over the pixel's
+// footprint instead (ssr/store_output, EMISSION), so the network reconstructs only
+// reflected light. CPU reference: HostFrame::fold_direct_emission (src/frame/host.rs).
 
 struct Params {
     width: u32,
@@ -15,10 +14,7 @@ struct Params {
 @group(0) @binding(0) var<uniform> p: Params;
 @group(0) @binding(1) var<storage, read> color_mask: array<vec4<f32>>;
 @group(0) @binding(2) var<storage, read> sample_emission: array<vec4<f32>>;
-@group(0) @binding(3) var<storage, read> background: array<vec4<f32>>;
-@group(0) @binding(4) var<storage, read> emission_footprint: array<vec4<f32>>;
-@group(0) @binding(5) var<storage, read_write> folded_color_mask: array<vec4<f32>>;
-@group(0) @binding(6) var<storage, read_write> folded_background: array<vec4<f32>>;
+@group(0) @binding(3) var<storage, read_write> folded_color_mask: array<vec4<f32>>;
 
 @compute @workgroup_size(8, 8, 1)
 fn main(@builtin(global_invocation_id) gid: vec3<u32>) {
@@ -28,6 +24,4 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>) {
     }
     let c = color_mask[pix];
     folded_color_mask[pix] = vec4<f32>(max(c.xyz - sample_emission[pix].xyz, vec3<f32>(0.0)), c.w);
-    let b = background[pix];
-    folded_background[pix] = vec4<f32>(b.xyz + emission_footprint[pix].xyz, b.w);
 }

@@ -11,8 +11,13 @@
 // multiplied by the mean correction's factors (ssr/tile_means, one per tile of TILE x TILE
 // pixels), interpolated bilinearly between tile centres (edges held).
 //
+// With template flag EMISSION too (a model of config emission "background"), the directly
+// seen emission over the pixel's footprint (`emission`, xyz; sanitised as colour) is added:
+// emission + background + (1 - coverage) * reconstruction.
+//
 //#param BACKGROUND 0
 //#param MEAN 0
+//#param EMISSION 0
 
 // Params, TILE: ssr/lib/output.
 
@@ -22,6 +27,9 @@
 //#if BACKGROUND
 @group(0) @binding(3) var<storage, read> background: array<vec4<f32>>;
 @group(0) @binding(4) var<storage, read_write> sanitized: array<atomic<u32>>;
+//#end
+//#if EMISSION
+@group(0) @binding(6) var<storage, read> emission: array<vec4<f32>>;
 //#end
 //#if MEAN
 @group(0) @binding(5) var<storage, read> factors: array<vec4<f32>>;
@@ -60,6 +68,9 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>) {
     var bad = 0u;
     let coverage = in_range(b.w, 0.0, 1.0, &bad);
     rgb = sanitize_radiance(b.xyz, &bad) + (1.0 - coverage) * rgb;
+//#if EMISSION
+    rgb += sanitize_radiance(emission[gid.y * p.width + gid.x].xyz, &bad);
+//#end
     if (bad > 0u) {
         atomicAdd(&sanitized[0], bad);
     }
