@@ -87,8 +87,8 @@ def run_model(
     A model may set `pad_multiple` (default 4: the engine's padding; 1: no padding) and
     `extra_buffers` (names of data.EXTRA_SUFFIXES) for buffers beyond data.BUFFERS, read from
     each frame file. An SSR model of config emission = "background" is fed its frames as the
-    engine feeds it (model.fold_emission) and its output composited with the background
-    (the emitters are the background's); other models' outputs are their own."""
+    engine feeds it (model.fold_emission) and its output composited as the engine's output
+    pass does (the emitters are added there); other models' outputs are their own."""
     rows = []
     multiple = getattr(model, "pad_multiple", 4)
     extra_buffers = tuple(getattr(model, "extra_buffers", ()))
@@ -113,11 +113,11 @@ def run_model(
             padded, (h, w) = pad_frame(fb, multiple)
             r = model(padded, state)
             state = r["state"]
-            out = r["output"][:, :, :h, :w]
+            y = r["output"][:, :, :h, :w]
             if getattr(cfg, "emission", "network") == "background":
-                # the emitters are the background's now: without the composite they are missing
-                out = composite_background(out, fb)
-            pred = out[0].float().cpu()
+                # the emitters are the output pass's: without the composite they are missing
+                y = composite_background(y, fb)
+            pred = y[0].float().cpu()
             if folder:
                 write_exr(os.path.join(folder, frame_name(t)), {"pred": pred.numpy()}, PRED_SUFFIXES)
             if metrics:
