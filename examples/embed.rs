@@ -6,9 +6,11 @@
 //! ```
 //!
 //! It fills the six input buffers of the data contract with a synthetic 1/4-spp frame of a
-//! lit gradient, denoises 4 frames and prints the mean of the output.
+//! lit gradient (and, for a model that draws the directly seen emission itself, as the
+//! shipped one does, the background and emission buffers: no sky and no light in view),
+//! denoises 4 frames and prints the mean of the output.
 
-use subpixel::ssr::{Denoiser, FrameInputs, Weights};
+use subpixel::ssr::{Denoiser, EmissionSource, FrameInputs, Weights};
 
 fn main() -> anyhow::Result<()> {
     // 1. Your renderer's device (here: the default adapter).
@@ -48,7 +50,13 @@ fn main() -> anyhow::Result<()> {
             mapped_at_creation: false,
         })
     };
-    let bufs = FrameInputs::NAMES.map(buf);
+    let mut bufs: Vec<wgpu::Buffer> = FrameInputs::NAMES.iter().map(|n| buf(n)).collect();
+    // A model of config emission "background" also takes the background (environment seen
+    // directly, coverage) and the directly seen emission, and wants the colour without the
+    // emission of what the camera sees directly: here there is none, so both stay zero.
+    if weights.config.emission_source()? == EmissionSource::Background {
+        bufs.extend([buf("background"), buf("emission")]);
+    }
     let mut denoiser = Denoiser::new(&device, &queue, &weights, w, h)?;
 
     for t in 0..4u32 {

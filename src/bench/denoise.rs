@@ -107,7 +107,15 @@ pub fn bench_denoise(
         ..Default::default()
     };
     let mut den = Denoiser::with_options(gpu, weights, w, h, options)?;
-    let packed = synthetic_frame(w, h, 0).pack(crate::ssr::AlbedoSource::Centre)?;
+    let mut packed: Vec<Vec<[f32; 4]>> = synthetic_frame(w, h, 0)
+        .pack(crate::ssr::AlbedoSource::Centre)?
+        .into();
+    if weights.config.emission_source()? == crate::ssr::EmissionSource::Background {
+        // A model that draws the directly seen emission takes it with a background: none
+        // in view (zero environment, coverage 0, zero emission).
+        let zeros = vec![[0f32; 4]; (w * h) as usize];
+        packed.extend([zeros.clone(), zeros]);
+    }
     let bufs: Vec<wgpu::Buffer> = packed
         .iter()
         .map(|d| {
