@@ -108,7 +108,7 @@ impl FrameLoop {
                 })?
                 .buffer;
         }
-        if let Some(fold) = &self.fold {
+        if let Some(fold) = &mut self.fold {
             let missing =
                 || Error::Invalid("frame loop: the background pass made no directly seen emission".into());
             let (Some(bg), Some(se), Some(ef)) = (&b.background, &b.sample_emission, &b.emission_footprint)

@@ -33,11 +33,7 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>) {
     var escaped = 0u;
     for (var j = 0u; j < n; j++) {
         for (var i = 0u; i < n; i++) {
-            let px = vec2<f32>(
-                f32(gid.x) + (f32(i) + 0.5) / f32(n),
-                f32(gid.y) + (f32(j) + 0.5) / f32(n),
-            );
-            let d = camera_dir(p.cam, px, size);
+            let d = footprint_dir(p.cam, gid.xy, i, j, n, size);
             let hit = traverse(o, d, BIG, false, NO_HIT);
             if (hit.prim == NO_HIT) {
                 escaped += 1u;

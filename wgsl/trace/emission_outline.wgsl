@@ -45,11 +45,7 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>) {
     var emission = vec3<f32>(0.0);
     for (var j = 0u; j < OUTLINE; j++) {
         for (var i = 0u; i < OUTLINE; i++) {
-            let px = vec2<f32>(
-                f32(gid.x) + (f32(i) + 0.5) / f32(OUTLINE),
-                f32(gid.y) + (f32(j) + 0.5) / f32(OUTLINE),
-            );
-            let d = camera_dir(p.cam, px, size);
+            let d = footprint_dir(p.cam, gid.xy, i, j, OUTLINE, size);
             let hit = traverse(o, d, BIG, false, NO_HIT);
             if (hit.prim != NO_HIT) {
                 emission += surface_at(hit, d).emission;

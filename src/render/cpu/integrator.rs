@@ -237,12 +237,9 @@ pub(crate) fn pixel_samples(
     count: u32,
     rays: &mut u64,
 ) -> PathResult {
-    let size = Vec2::new(p.width as f32, p.height as f32);
     let mut sum = PathResult::default();
     for k in 0..count {
-        let mut rng = Rng(rng_seed(y * p.width + x, p.frame, first + k, p.seed));
-        let [jx, jy] = rng.next2();
-        let d = camera_dir(&p.cam, Vec2::new(x as f32 + jx, y as f32 + jy), size);
+        let (mut rng, d) = sample_ray(p, x, y, first + k);
         let r = trace_path(sc, ei, p.max_depth, v3(p.cam.pos), d, &mut rng, rays);
         sum.radiance += r.radiance;
         sum.shadow += r.shadow;
@@ -252,6 +249,30 @@ pub(crate) fn pixel_samples(
         radiance: sum.radiance * inv,
         shadow: sum.shadow * inv,
     }
+}
+
+/// Sample `k` of pixel (x, y): its random number generator, after the pixel jitter it drew,
+/// and its camera ray's direction (WGSL `pixel_samples`).
+fn sample_ray(p: &Params, x: u32, y: u32, k: u32) -> (Rng, Vec3) {
+    let size = Vec2::new(p.width as f32, p.height as f32);
+    let mut rng = Rng(rng_seed(y * p.width + x, p.frame, k, p.seed));
+    let [jx, jy] = rng.next2();
+    let d = camera_dir(&p.cam, Vec2::new(x as f32 + jx, y as f32 + jy), size);
+    (rng, d)
+}
+
+/// The directions of the `n x n` stratified camera rays of pixel (x, y) (the background's
+/// footprint; WGSL `footprint_dir`).
+fn footprint_dirs(p: &Params, x: u32, y: u32, n: u32) -> impl Iterator<Item = Vec3> + '_ {
+    let size = Vec2::new(p.width as f32, p.height as f32);
+    (0..n * n).map(move |k| {
+        let (i, j) = (k % n, k / n);
+        let px = Vec2::new(
+            x as f32 + (i as f32 + 0.5) / n as f32,
+            y as f32 + (j as f32 + 0.5) / n as f32,
+        );
+        camera_dir(&p.cam, px, size)
+    })
 }
 
 /// The G-buffer values of one pixel (WGSL `gbuffer.wgsl`): albedo+depth, normal+metallic,
@@ -304,27 +325,19 @@ pub(crate) fn background_pixel(
     n: u32,
     rays: &mut u64,
 ) -> FootprintPixel {
-    let size = Vec2::new(p.width as f32, p.height as f32);
     let o = v3(p.cam.pos);
     let (mut sum, mut escaped, mut albedo) = (Vec3::ZERO, 0u32, Vec3::ZERO);
     let mut emission = Vec3::ZERO;
-    for j in 0..n {
-        for i in 0..n {
-            let px = Vec2::new(
-                x as f32 + (i as f32 + 0.5) / n as f32,
-                y as f32 + (j as f32 + 0.5) / n as f32,
-            );
-            let d = camera_dir(&p.cam, px, size);
-            let hit = traverse(sc, o, d, BIG, false, NO_HIT, rays);
-            if hit.prim == NO_HIT {
-                escaped += 1;
-                sum += env_radiance(sc, ei, d); // 0 without an environment
-                albedo += Vec3::ONE;
-            } else {
-                let s = surface_at(sc, &hit, d);
-                albedo += s.base;
-                emission += s.emission;
-            }
+    for d in footprint_dirs(p, x, y, n) {
+        let hit = traverse(sc, o, d, BIG, false, NO_HIT, rays);
+        if hit.prim == NO_HIT {
+            escaped += 1;
+            sum += env_radiance(sc, ei, d); // 0 without an environment
+            albedo += Vec3::ONE;
+        } else {
+            let s = surface_at(sc, &hit, d);
+            albedo += s.base;
+            emission += s.emission;
         }
     }
     let count = (n * n) as f32;
@@ -346,20 +359,12 @@ pub(crate) fn footprint_emission(
     n: u32,
     rays: &mut u64,
 ) -> Vec3 {
-    let size = Vec2::new(p.width as f32, p.height as f32);
     let o = v3(p.cam.pos);
     let mut emission = Vec3::ZERO;
-    for j in 0..n {
-        for i in 0..n {
-            let px = Vec2::new(
-                x as f32 + (i as f32 + 0.5) / n as f32,
-                y as f32 + (j as f32 + 0.5) / n as f32,
-            );
-            let d = camera_dir(&p.cam, px, size);
-            let hit = traverse(sc, o, d, BIG, false, NO_HIT, rays);
-            if hit.prim != NO_HIT {
-                emission += surface_at(sc, &hit, d).emission;
-            }
+    for d in footprint_dirs(p, x, y, n) {
+        let hit = traverse(sc, o, d, BIG, false, NO_HIT, rays);
+        if hit.prim != NO_HIT {
+            emission += surface_at(sc, &hit, d).emission;
         }
     }
     emission / (n * n) as f32
@@ -379,12 +384,9 @@ pub(crate) fn first_hit_emission(
     count: u32,
     rays: &mut u64,
 ) -> Vec3 {
-    let size = Vec2::new(p.width as f32, p.height as f32);
     let mut sum = Vec3::ZERO;
     for k in 0..count {
-        let mut rng = Rng(rng_seed(y * p.width + x, p.frame, first + k, p.seed));
-        let [jx, jy] = rng.next2();
-        let d = camera_dir(&p.cam, Vec2::new(x as f32 + jx, y as f32 + jy), size);
+        let (_, d) = sample_ray(p, x, y, first + k);
         let hit = traverse(sc, v3(p.cam.pos), d, BIG, false, NO_HIT, rays);
         if hit.prim != NO_HIT {
             sum += surface_at(sc, &hit, d).emission;

@@ -27,6 +27,16 @@ fn camera_dir(c: Camera, px: vec2<f32>, size: vec2<f32>) -> vec3<f32> {
     return normalize(c.fwd.xyz + x * c.right.xyz + y * c.up.xyz);
 }
 
+// Direction of stratified camera ray (i, j) of the n x n rays through pixel `pix` of a
+// width x height image (the background's footprint).
+fn footprint_dir(c: Camera, pix: vec2<u32>, i: u32, j: u32, n: u32, size: vec2<f32>) -> vec3<f32> {
+    let px = vec2<f32>(
+        f32(pix.x) + (f32(i) + 0.5) / f32(n),
+        f32(pix.y) + (f32(j) + 0.5) / f32(n),
+    );
+    return camera_dir(c, px, size);
+}
+
 // Continuous pixel position of world point p (or of direction p at infinity when is_dir);
 // z = 1 when in front of the camera, 0 behind it.
 fn camera_project(c: Camera, p: vec3<f32>, is_dir: bool, size: vec2<f32>) -> vec3<f32> {
