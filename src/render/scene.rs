@@ -55,10 +55,14 @@ impl Texture {
         if self.texels.is_empty() {
             return Vec3::ZERO;
         }
+        let lut = &*SRGB_BYTE_TO_LINEAR;
         let mut sum = glam::DVec3::ZERO;
         for t in &self.texels {
-            let c = Vec3::new(t[0] as f32, t[1] as f32, t[2] as f32) / 255.0;
-            let c = if self.srgb { srgb_to_linear(c) } else { c };
+            let c = if self.srgb {
+                Vec3::new(lut[t[0] as usize], lut[t[1] as usize], lut[t[2] as usize])
+            } else {
+                Vec3::new(t[0] as f32, t[1] as f32, t[2] as f32) / 255.0
+            };
             sum += c.as_dvec3();
         }
         (sum / self.texels.len() as f64).as_vec3()
@@ -96,15 +100,25 @@ impl Texture {
 
 /// sRGB transfer function decode.
 pub fn srgb_to_linear(c: Vec3) -> Vec3 {
-    let f = |v: f32| {
-        if v <= 0.04045 {
-            v / 12.92
-        } else {
-            ((v + 0.055) / 1.055).powf(2.4)
-        }
-    };
-    Vec3::new(f(c.x), f(c.y), f(c.z))
+    Vec3::new(srgb_decode(c.x), srgb_decode(c.y), srgb_decode(c.z))
 }
+
+/// sRGB transfer function decode of one channel.
+#[inline]
+pub fn srgb_decode(v: f32) -> f32 {
+    if v <= 0.04045 {
+        v / 12.92
+    } else {
+        ((v + 0.055) / 1.055).powf(2.4)
+    }
+}
+
+/// `srgb_decode(b / 255)` of every byte `b`: the decode of an sRGB texel channel, looked up
+/// instead of evaluated (a `powf` per channel and texel was a few percent of a textured
+/// scene's render time, and most of a procedural scene's construction); the same values to
+/// the bit.
+pub(crate) static SRGB_BYTE_TO_LINEAR: std::sync::LazyLock<[f32; 256]> =
+    std::sync::LazyLock::new(|| std::array::from_fn(|b| srgb_decode(b as f32 / 255.0)));
 
 /// How a material's alpha is used.
 #[derive(Debug, Clone, Copy, PartialEq, Default)]

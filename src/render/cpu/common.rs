@@ -115,15 +115,6 @@ pub(crate) fn offset_ray(p: Vec3, n: Vec3) -> Vec3 {
     Vec3::new(one(p.x, n.x), one(p.y, n.y), one(p.z, n.z))
 }
 
-#[inline]
-pub(crate) fn srgb_to_linear(c: f32) -> f32 {
-    if c <= 0.04045 {
-        c / 12.92
-    } else {
-        ((c + 0.055) / 1.055).powf(2.4)
-    }
-}
-
 /// Every component is finite and at most [`BIG`] in magnitude.
 #[inline]
 pub(crate) fn finite3(v: Vec3) -> bool {

@@ -3,10 +3,11 @@
 
 use glam::{Vec2, Vec3A as Vec3, Vec4};
 
-use super::common::{Hit, finite3, srgb_to_linear};
+use super::common::{Hit, finite3};
 use crate::render::packed::{
     GpuMaterial, MAT_THIN, NO_TEX, PackedScene, TRI_FLAG_HAS_TANGENT, TRI_FLAG_TANGENT_NEG, TRI_MATERIAL_MASK,
 };
+use crate::render::scene::SRGB_BYTE_TO_LINEAR;
 
 const TEX_SRGB: u32 = 1;
 const WRAP_CLAMP: u32 = 1;
@@ -34,17 +35,11 @@ fn unpack(c: u32) -> Vec4 {
     ) / 255.0
 }
 
-/// `srgb_to_linear(b / 255)` of every byte `b`: the decode of an sRGB texel channel, looked
-/// up instead of evaluated (a `powf` per channel and texel was a few percent of a textured
-/// scene's render time); the same values to the bit.
-static SRGB_TO_LINEAR: std::sync::LazyLock<[f32; 256]> =
-    std::sync::LazyLock::new(|| std::array::from_fn(|b| srgb_to_linear(b as f32 / 255.0)));
-
 #[inline]
 fn texel(sc: &PackedScene, offset: u32, w: i32, x: i32, y: i32, srgb: bool) -> Vec4 {
     let c = sc.texels[(offset + (y * w + x) as u32) as usize];
     if srgb {
-        let lut = &*SRGB_TO_LINEAR;
+        let lut = &*SRGB_BYTE_TO_LINEAR;
         let ch = |k: u32| lut[((c >> k) & 0xff) as usize];
         Vec4::new(ch(0), ch(8), ch(16), (c >> 24) as f32 / 255.0)
     } else {
@@ -281,8 +276,12 @@ mod tests {
     #[test]
     fn srgb_lookup_is_the_decode() {
         for b in 0..=255u32 {
-            let want = srgb_to_linear(unpack(b).x);
-            assert_eq!(SRGB_TO_LINEAR[b as usize].to_bits(), want.to_bits(), "byte {b}");
+            let want = crate::render::scene::srgb_decode(unpack(b).x);
+            assert_eq!(
+                SRGB_BYTE_TO_LINEAR[b as usize].to_bits(),
+                want.to_bits(),
+                "byte {b}"
+            );
         }
     }
 }
