@@ -655,6 +655,22 @@ fn range_arguments_are_refused() {
             ],
             "--first-sequence",
         ),
+        (
+            vec![
+                "render",
+                "--scene",
+                "builtin:cornell",
+                "--backend",
+                "cpu",
+                "--width",
+                "100000",
+                "--height",
+                "100000",
+                "--out",
+                out_s,
+            ],
+            "image size 100000x100000: 10000000000 pixels, more than the 67108864",
+        ),
     ] {
         let r = o(&args);
         let stderr = failed(&r, format!("{args:?}"));

@@ -79,12 +79,25 @@ pub struct CpuTracer {
     height: u32,
 }
 
+/// Most pixels a CPU frame may have (8192 x 8192): a frame of the data contract (about 40
+/// f32 channels with the background) then takes about 10 GiB, and larger sizes are far more
+/// likely a typo than a render this machine can hold.
+pub const MAX_PIXELS: u64 = 1 << 26;
+
 impl CpuTracer {
-    /// A tracer for `width x height` frames.
+    /// A tracer for `width x height` frames (each positive, at most [`MAX_PIXELS`] in all).
     pub fn new(width: u32, height: u32) -> Result<Self> {
         if width == 0 || height == 0 {
             return Err(Error::Invalid(format!(
                 "image size {width}x{height}: width and height must be positive"
+            )));
+        }
+        let pixels = width as u64 * height as u64;
+        if pixels > MAX_PIXELS {
+            return Err(Error::Invalid(format!(
+                "image size {width}x{height}: {pixels} pixels, more than the {MAX_PIXELS} (8192 x 8192) a CPU \
+                 frame may have (its buffers would take about {} GiB)",
+                pixels * 160 >> 30
             )));
         }
         Ok(Self { width, height })
