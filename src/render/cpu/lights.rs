@@ -136,7 +136,8 @@ pub(crate) fn env_pdf(sc: &PackedScene, ei: &EnvInfo, d: Vec3) -> f32 {
     env_pixel_pdf(sc, ei, env_pixel(sc, ei, d), sin_t)
 }
 
-/// First index in `[0, n)` whose inclusive CDF `cdf(i)` exceeds `u`.
+/// First index in `[0, n)` whose inclusive CDF `cdf(i)` exceeds `u` (`n - 1` when none
+/// does), for a non-decreasing `cdf`.
 #[inline]
 fn search(n: u32, u: f32, cdf: impl Fn(u32) -> f32) -> u32 {
     let (mut lo, mut hi) = (0u32, n - 1);
@@ -447,6 +448,32 @@ mod tests {
                     let want = search(w as u32, u, |i| row[i as usize]);
                     assert_eq!(guided_search(&row, &guide, u), want, "w {w} kind {kind} u {u}");
                 }
+            }
+        }
+    }
+
+    /// The search finds what a linear scan finds (the first entry above `u`, else the last)
+    /// for every length up to 70, on CDFs with flat stretches and repeated values, at random
+    /// `u` and at every entry's value exactly.
+    #[test]
+    fn search_is_the_first_entry_above_u() {
+        let mut rng = Rng(11);
+        for n in 1..=70usize {
+            let mut acc = 0.0f32;
+            let cdf: Vec<f32> = (0..n)
+                .map(|_| {
+                    if rng.next() < 0.6 {
+                        acc += rng.next();
+                    }
+                    acc
+                })
+                .collect();
+            let mut us: Vec<f32> = (0..200).map(|_| rng.next() * (acc + 0.5)).collect();
+            us.extend(cdf.iter().copied());
+            us.extend([0.0, -1.0, acc, acc + 1.0]);
+            for u in us {
+                let want = cdf.iter().position(|&c| c > u).unwrap_or(n - 1) as u32;
+                assert_eq!(search(n as u32, u, |i| cdf[i as usize]), want, "n {n} u {u}");
             }
         }
     }
