@@ -97,7 +97,7 @@ impl CpuTracer {
             return Err(Error::Invalid(format!(
                 "image size {width}x{height}: {pixels} pixels, more than the {MAX_PIXELS} (8192 x 8192) a CPU \
                  frame may have (its buffers would take about {} GiB)",
-                pixels * 160 >> 30
+                (pixels * 160) >> 30
             )));
         }
         Ok(Self { width, height })
