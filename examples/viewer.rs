@@ -23,7 +23,7 @@ use glam::Vec3;
 use subpixel::frame_loop::FrameLoop;
 use subpixel::gpu::{AdapterKind, Bound, Dispatch, Gpu, Profiler};
 use subpixel::nn::{Tensor, ops};
-use subpixel::render::{Camera, CameraPath, FrameSettings, GpuScene, Mode, load_scene};
+use subpixel::render::{Camera, CameraPath, FrameSettings, GpuScene, Mode, SceneOptions, load_scene_with};
 use subpixel::ssr::Weights;
 use subpixel::view::{Display, DisplayMode, Source, View};
 use winit::application::ApplicationHandler;
@@ -35,9 +35,13 @@ use winit::window::{Window, WindowId};
 #[derive(Parser)]
 #[command(about = "subpixel viewer: live 1/4-spp path tracing + SSR")]
 struct Args {
-    /// Scene: builtin:NAME, a .gltf/.glb or a scene.json.
+    /// Scene: builtin:NAME (builtin:procedural:SEED among them), a .gltf/.glb or a
+    /// scene.json.
     #[arg(default_value = "builtin:cornell")]
     scene: String,
+    /// How the scene is built (`--props`).
+    #[command(flatten)]
+    scene_options: SceneOptions,
     /// SSR weights (default: weights/ssr.safetensors).
     #[arg(long)]
     weights: Option<PathBuf>,
@@ -526,7 +530,7 @@ fn main() -> Result<()> {
     env_logger::Builder::from_env(env_logger::Env::default().default_filter_or("warn")).init();
     let args = Args::parse();
     let gpu = Gpu::new()?;
-    let scene = load_scene(&args.scene)?;
+    let scene = load_scene_with(&args.scene, &args.scene_options)?;
     let weights_path = args
         .weights
         .clone()

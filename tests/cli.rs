@@ -363,6 +363,74 @@ fn bad_input_gives_clear_errors() {
     std::fs::remove_dir_all(&input).ok();
 }
 
+/// Every command that loads a scene takes `--props` (one option, `SceneOptions`): a props
+/// folder that does not exist is an error naming it, from each of them.
+#[test]
+fn every_command_that_loads_a_scene_takes_props() {
+    let out = tmp("props-everywhere");
+    let tiny = ["--width", "16", "--height", "16"];
+    let props = [
+        "--scene",
+        "builtin:procedural:3",
+        "--props",
+        "/nonexistent/props-dir",
+    ];
+    let runs: [(&str, Vec<&str>); 4] = [
+        ("render", vec!["render", "--frames", "1", "--backend", "cpu"]),
+        (
+            "dataset",
+            vec!["dataset", "--split", "val", "--frames", "1", "--backend", "cpu"],
+        ),
+        (
+            "bench render",
+            vec!["bench", "render", "--backend", "cpu", "--spp", "1"],
+        ),
+        ("run", vec!["run", "--frames", "1", "--reference-spp", "1"]),
+    ];
+    for (what, args) in runs {
+        let mut cmd = bin();
+        cmd.args(&args).args(tiny).args(props);
+        if what != "bench render" {
+            cmd.arg("--out").arg(out.join(what.replace(' ', "-")));
+        }
+        let o = cmd.env("SUBPIXEL_CONV_KERNEL", "px16-cob1").output().unwrap();
+        let stderr = failed(&o, format!("{what} with a missing props folder"));
+        assert!(stderr.contains("/nonexistent/props-dir"), "{what}: {stderr}");
+    }
+    std::fs::remove_dir_all(&out).ok();
+}
+
+/// On a machine without a Wayland session (no `XDG_RUNTIME_DIR`, as on CI and headless
+/// servers) a command prints no display-probing noise: Mesa's device-select layer used to
+/// make libwayland print "error: XDG_RUNTIME_DIR is invalid or not set" at every GPU
+/// instance.
+#[test]
+fn a_headless_machine_sees_no_display_probing_errors() {
+    let out = tmp("headless");
+    let o = bin()
+        .args([
+            "render",
+            "--scene",
+            "builtin:cornell",
+            "--frames",
+            "1",
+            "--width",
+            "16",
+        ])
+        .args(["--height", "16", "--backend", "gpu", "--out"])
+        .arg(&out)
+        .env_remove("XDG_RUNTIME_DIR")
+        .env_remove("WAYLAND_DISPLAY")
+        .env_remove("WAYLAND_SOCKET")
+        .env_remove("NODEVICE_SELECT")
+        .output()
+        .unwrap();
+    let stderr = succeeded(&o);
+    assert!(!stderr.contains("XDG_RUNTIME_DIR"), "{stderr}");
+    assert!(!stderr.to_lowercase().contains("error"), "{stderr}");
+    std::fs::remove_dir_all(&out).ok();
+}
+
 /// Runs `cmd`, asserts it succeeded and printed every one of `keys`; returns stdout.
 fn prints_all(cmd: &mut Command, keys: &[&str]) -> String {
     let o = cmd.output().unwrap();

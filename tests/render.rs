@@ -614,7 +614,7 @@ fn cli_render_args(
         backend,
         full_spp: true,
         background: None,
-        props: Vec::new(),
+        scene_options: Default::default(),
         fallback_path: None,
         sequence_json: None,
         out,

@@ -10,7 +10,7 @@ use crate::gpu::{Gpu, Profiler, StageStats};
 use crate::render::CameraPath;
 use crate::render::backend::{Backend, FrameRenderer};
 use crate::render::gpu_scene::GpuScene;
-use crate::render::load_scene;
+use crate::render::load_scene_with;
 use crate::render::scene::Scene;
 use crate::render::tracer::{DEFAULT_MAX_DEPTH, FrameSettings, Mode, Tracer};
 
@@ -20,6 +20,9 @@ pub struct BenchRenderArgs {
     /// Scene (as for `render`).
     #[arg(long, default_value = "builtin:cornell")]
     pub scene: String,
+    /// How the scene is built (`--props`).
+    #[command(flatten)]
+    pub scene_options: crate::render::SceneOptions,
     /// Image width (default: 1920 on a GPU, 256 on a CPU adapter).
     #[arg(long)]
     pub width: Option<u32>,
@@ -115,7 +118,7 @@ pub fn bench_render_command(args: &BenchRenderArgs) -> Result<()> {
     let cpu_adapter = gpu.as_ref().is_none_or(|g| g.kind() == AdapterKind::Cpu);
     let width = args.width.unwrap_or(if cpu_adapter { 256 } else { 1920 });
     let height = args.height.unwrap_or(if cpu_adapter { 144 } else { 1080 });
-    let scene = load_scene(&args.scene)?;
+    let scene = load_scene_with(&args.scene, &args.scene_options)?;
     let stages = match &gpu {
         Some(g) => Some(gpu_stage_timing(args, g, &scene, width, height)?),
         None => None,

@@ -64,10 +64,9 @@ pub(super) struct DatasetArgs {
     /// CPU driver or there is none), cpu or gpu.
     #[arg(long, value_enum, default_value_t = Backend::Auto)]
     backend: Backend,
-    /// Props for procedural scenes (glTF files, environment maps or folders of them;
-    /// repeatable). Name only scenes allowed in training: held-out scenes must not be props.
-    #[arg(long)]
-    props: Vec<PathBuf>,
+    /// How the scene is built (`--props`: name only scenes allowed in training).
+    #[command(flatten)]
+    scene_options: crate::render::SceneOptions,
     /// Output root.
     #[arg(long)]
     out: PathBuf,
@@ -185,7 +184,7 @@ pub(super) fn run(a: &DatasetArgs) -> Result<()> {
             // baselines (OIDN on 1 spp); cheap next to the reference.
             full_spp: true,
             background: a.background,
-            props: a.props.clone(),
+            scene_options: a.scene_options.clone(),
             // The keys of the training loader (training/ssr/data.py).
             sequence_json: Some(
                 serde_json::json!({

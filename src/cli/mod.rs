@@ -50,6 +50,8 @@ enum Command {
 
 /// Runs the CLI; errors are printed with their causes.
 pub fn main() -> ExitCode {
+    // SAFETY: first thing in `main`, before any other thread exists.
+    unsafe { quiet_headless_device_select() };
     env_logger::Builder::from_env(
         env_logger::Env::default().default_filter_or("warn,subpixel::nn::autotune=info"),
     )
@@ -71,6 +73,30 @@ pub fn main() -> ExitCode {
             eprintln!("error: {e:#}");
             ExitCode::FAILURE
         }
+    }
+}
+
+/// Turns Mesa's Vulkan device-select layer off on a machine without a Wayland session.
+///
+/// wgpu enables the Wayland surface extension wherever the Vulkan loader offers it; Mesa's
+/// implicit device-select layer then connects to a Wayland display to order the GPUs, and
+/// without `XDG_RUNTIME_DIR` (a headless server, CI, a container) libwayland prints "error:
+/// XDG_RUNTIME_DIR is invalid or not set in the environment." for every instance: noise
+/// that reads as a failure. The layer only orders adapters, which `Gpu` ranks itself, so
+/// there (`XDG_RUNTIME_DIR`, `WAYLAND_DISPLAY` and `WAYLAND_SOCKET` unset) this sets the
+/// layer's own switch `NODEVICE_SELECT=1`, unless the user set it.
+///
+/// # Safety
+/// Changes the process environment: only while no other thread exists.
+unsafe fn quiet_headless_device_select() {
+    let unset = |k: &str| std::env::var_os(k).is_none_or(|v| v.is_empty());
+    if ["XDG_RUNTIME_DIR", "WAYLAND_DISPLAY", "WAYLAND_SOCKET"]
+        .iter()
+        .all(|k| unset(k))
+        && std::env::var_os("NODEVICE_SELECT").is_none()
+    {
+        // SAFETY: the caller guarantees no other thread reads the environment meanwhile.
+        unsafe { std::env::set_var("NODEVICE_SELECT", "1") };
     }
 }
 

@@ -95,10 +95,9 @@ pub struct RenderArgs {
     /// writes the same complete `sequence.json` before rendering its frames.
     #[arg(skip)]
     pub sequence_json: Option<serde_json::Map<String, serde_json::Value>>,
-    /// Props for procedural scenes: glTF/glb files, `.hdr`/`.exr` environment maps, or
-    /// folders searched for them (repeatable; nothing is scanned unless named here).
-    #[arg(long)]
-    pub props: Vec<PathBuf>,
+    /// How the scene is built (`--props`).
+    #[command(flatten)]
+    pub scene_options: crate::render::SceneOptions,
     /// Output folder.
     #[arg(long)]
     pub out: PathBuf,
@@ -185,12 +184,7 @@ pub fn render_command(args: &RenderArgs) -> Result<()> {
             u32::MAX
         );
     };
-    let scene = crate::render::load_scene_with(
-        &args.scene,
-        &crate::render::SceneOptions {
-            props: args.props.clone(),
-        },
-    )?;
+    let scene = crate::render::load_scene_with(&args.scene, &args.scene_options)?;
     scene.warn_approximations();
     let (w, h) = (
         args.width.unwrap_or(scene.film.0),
@@ -508,7 +502,7 @@ fn write_sequence_json(
         "backend": args.backend.name(),
         "full_spp": args.full_spp,
         "background_lookups": args.background.map(|n| n * n),
-        "props": args.props.iter().map(|p| p.display().to_string()).collect::<Vec<_>>(),
+        "props": args.scene_options.props.iter().map(|p| p.display().to_string()).collect::<Vec<_>>(),
     });
     if let (Some(extra), Some(o)) = (&args.sequence_json, json.as_object_mut()) {
         o.remove("first_frame");

@@ -9,7 +9,7 @@ use crate::frame_loop::{FrameLoop, STAGES};
 use crate::gpu::{AdapterKind, Gpu, Profiler};
 use crate::io::png::{scale_for_height, write_png_row_scaled};
 use crate::metrics;
-use crate::render::{Backend, FrameRenderer, FrameSettings, GpuScene, Mode, PackedScene, load_scene};
+use crate::render::{Backend, FrameRenderer, FrameSettings, GpuScene, Mode, PackedScene, load_scene_with};
 use crate::ssr::Weights;
 
 /// The smallest height of the main job's preview images, in pixels.
@@ -17,9 +17,13 @@ pub const PREVIEW_MIN_HEIGHT: u32 = 256;
 
 #[derive(clap::Args)]
 pub(super) struct RunArgs {
-    /// Scene: builtin:NAME, a scene.json, a scene folder or a .gltf/.glb.
+    /// Scene: builtin:NAME (builtin:procedural:SEED among them), a scene.json, a scene
+    /// folder or a .gltf/.glb.
     #[arg(long, default_value = "builtin:cornell")]
     scene: String,
+    /// How the scene is built (`--props`).
+    #[command(flatten)]
+    scene_options: crate::render::SceneOptions,
     /// Frames to render.
     #[arg(long, default_value_t = 8)]
     frames: u32,
@@ -89,7 +93,7 @@ pub(super) fn run(a: &RunArgs) -> Result<()> {
     if cpu {
         println!("CPU adapter: {w}x{h}, reference {spp} spp (a GPU runs 1280x720 by default)");
     }
-    let scene = load_scene(&a.scene)?;
+    let scene = load_scene_with(&a.scene, &a.scene_options)?;
     scene.warn_approximations();
     // The camera path is checked against the CPU BVH before anything is uploaded.
     let packed = std::sync::Arc::new(PackedScene::new(

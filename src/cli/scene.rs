@@ -19,10 +19,9 @@ pub(super) struct SceneArgs {
     /// .gltf/.glb.
     #[arg(long)]
     scene: String,
-    /// Props for procedural scenes: a .gltf/.glb file, a .hdr/.exr environment map, or a
-    /// folder searched for them (repeatable). Only what is named here is used.
-    #[arg(long)]
-    props: Vec<PathBuf>,
+    /// How the scene is built (`--props`).
+    #[command(flatten)]
+    scene_options: SceneOptions,
     /// Write a path-traced preview PNG here.
     #[arg(long)]
     preview: Option<PathBuf>,
@@ -217,9 +216,7 @@ pub(super) fn run(a: &SceneArgs) -> Result<()> {
     if a.width == 0 || a.height == 0 || a.spp == 0 {
         bail!("--width, --height and --spp must be positive");
     }
-    let options = SceneOptions {
-        props: a.props.clone(),
-    };
+    let options = &a.scene_options;
     let (scene, generated) = match a.scene.strip_prefix("builtin:procedural:") {
         Some(seed) => {
             let seed = procedural::parse_seed(seed)?;
@@ -227,7 +224,7 @@ pub(super) fn run(a: &SceneArgs) -> Result<()> {
             let g = procedural::generate_with(seed, &mut lib)?;
             (g.scene.clone(), Some(g))
         }
-        None => (load_scene_with(&a.scene, &options)?, None),
+        None => (load_scene_with(&a.scene, options)?, None),
     };
     scene.validate()?;
     summary(&scene, generated.as_ref())?;

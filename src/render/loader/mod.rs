@@ -32,13 +32,16 @@ pub(super) fn file_err(path: &Path, message: impl Into<String>) -> Error {
     }
 }
 
-/// Options of [`super::load_scene_with`].
-#[derive(Debug, Clone, Default, PartialEq)]
+/// Options of [`super::load_scene_with`]; also the `--props` option of every command that
+/// loads a scene (flattened into its arguments).
+#[derive(Debug, Clone, Default, PartialEq, clap::Args)]
 pub struct SceneOptions {
     /// Props for `builtin:procedural:SEED`: `.gltf`/`.glb` files (their meshes become
     /// objects), `.hdr`/`.exr` lat-long environment maps, or folders searched recursively for
-    /// both. Only these paths are used (never an implicit scan of a scenes folder), so
-    /// held-out scenes stay out by not naming them. Ignored, with a warning, by other scenes.
+    /// both (repeatable). Only these paths are used (never an implicit scan of a scenes
+    /// folder), so held-out scenes stay out of training data by not naming them. Ignored,
+    /// with a warning, by other scenes.
+    #[arg(long)]
     pub props: Vec<PathBuf>,
 }
 
