@@ -10,7 +10,7 @@
 //! shipped one does, the background and emission buffers: no sky and no light in view),
 //! denoises 4 frames and prints the mean of the output.
 
-use subpixel::ssr::{Denoiser, EmissionSource, FrameInputs, Weights};
+use subpixel::ssr::{Denoiser, FrameInputs, Weights};
 
 fn main() -> anyhow::Result<()> {
     // 1. Your renderer's device (here: the default adapter).
@@ -50,13 +50,11 @@ fn main() -> anyhow::Result<()> {
             mapped_at_creation: false,
         })
     };
-    let mut bufs: Vec<wgpu::Buffer> = FrameInputs::NAMES.iter().map(|n| buf(n)).collect();
-    // A model of config emission "background" also takes the background (environment seen
-    // directly, coverage) and the directly seen emission, and wants the colour without the
-    // emission of what the camera sees directly: here there is none, so both stay zero.
-    if weights.config.emission_source()? == EmissionSource::Background {
-        bufs.extend([buf("background"), buf("emission")]);
-    }
+    // The six of `FrameInputs::NAMES`; a model of config emission "background" (the shipped
+    // one) also takes the background (environment seen directly, coverage) and the directly
+    // seen emission, and wants the colour without the emission of what the camera sees
+    // directly: here there is none, so those two stay zero.
+    let bufs: Vec<wgpu::Buffer> = weights.config.input_names()?.iter().map(|n| buf(n)).collect();
     let mut denoiser = Denoiser::new(&device, &queue, &weights, w, h)?;
 
     for t in 0..4u32 {

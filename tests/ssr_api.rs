@@ -1135,6 +1135,82 @@ fn emission_background_models_take_the_emission_from_the_background() {
     assert!(e.contains("emission") && e.contains("emission_footprint"), "{e}");
 }
 
+/// `Config::input_names` is the embedding contract: the caller's own buffers, one per name in
+/// that order (six for a model whose network reconstructs the emission, eight with the
+/// background and the emission for one of config emission "background"), give exactly what
+/// the host API gives on the same frame; the six alone are refused by the emission model,
+/// naming the emission.
+#[test]
+fn a_configs_input_names_are_the_buffers_its_denoiser_takes() {
+    use subpixel::frame::{AlbedoSource, Background, DirectEmission};
+    use wgpu::util::DeviceExt;
+    let gpu = common::gpu();
+    let network = Weights::load(golden_weights_path()).unwrap();
+    let mut em = network.clone();
+    em.config.emission = Some("background".into());
+    let (w, h) = (20u32, 12u32);
+    for (weights, n, seed) in [(&network, 6, 140u64), (&em, 8, 150)] {
+        let names = weights.config.input_names().unwrap();
+        assert_eq!(names, &FrameInputs::ALL_NAMES[..n]);
+        let mut host = Denoiser::with_gpu(&gpu, weights, w, h).unwrap();
+        let mut own = Denoiser::with_gpu(&gpu, weights, w, h).unwrap();
+        for t in 0..2 {
+            let mut f = random_frame(w, h, seed + t);
+            let radiance = common::random(7_200 + seed + t, w, h, 3, 0.0, 1.0);
+            let coverage = HostTensor::from_fn(w, h, 1, |x, _, _| if x < 3 { 1.0 } else { 0.0 });
+            let footprint = common::random(7_300 + seed + t, w, h, 3, 0.0, 4.0);
+            let mut data: Vec<Vec<[f32; 4]>> = f.pack(AlbedoSource::Centre).unwrap().into();
+            if n == 8 {
+                let px = |t: &HostTensor, x, y, k| t.at(x, y, k);
+                let rgbw = |t: &HostTensor, w4: &dyn Fn(u32, u32) -> f32| -> Vec<[f32; 4]> {
+                    (0..w * h)
+                        .map(|i| {
+                            let (x, y) = (i % w, i / w);
+                            [px(t, x, y, 0), px(t, x, y, 1), px(t, x, y, 2), w4(x, y)]
+                        })
+                        .collect()
+                };
+                data.push(rgbw(&radiance, &|x, y| coverage.at(x, y, 0)));
+                data.push(rgbw(&footprint, &|_, _| 0.0));
+                f.background = Some(Background {
+                    radiance: radiance.clone(),
+                    coverage: coverage.clone(),
+                    albedo: None,
+                    emission: Some(DirectEmission {
+                        footprint: footprint.clone(),
+                        samples: HostTensor::zeros(w, h, 3),
+                    }),
+                });
+            }
+            assert_eq!(data.len(), names.len());
+            let bufs: Vec<wgpu::Buffer> = names
+                .iter()
+                .zip(&data)
+                .map(|(name, d)| {
+                    gpu.device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
+                        label: Some(name),
+                        contents: bytemuck::cast_slice(d),
+                        usage: wgpu::BufferUsages::STORAGE,
+                    })
+                })
+                .collect();
+            let mut enc = gpu.device.create_command_encoder(&Default::default());
+            own.denoise(&mut enc, &FrameInputs::from_slice(&bufs).unwrap())
+                .unwrap();
+            gpu.queue.submit([enc.finish()]);
+            let want = host.denoise_host(&f).unwrap();
+            assert_eq!(own.read_output().unwrap(), want, "{n} buffers, frame {t}");
+            if n == 8 && t == 1 {
+                let mut fresh = Denoiser::with_gpu(&gpu, weights, w, h).unwrap();
+                let mut enc = gpu.device.create_command_encoder(&Default::default());
+                let six = FrameInputs::from_slice(&bufs[..6]).unwrap();
+                let e = fresh.denoise(&mut enc, &six).unwrap_err().to_string();
+                assert!(e.contains("FrameInputs::emission"), "{e}");
+            }
+        }
+    }
+}
+
 /// The frame loop with a footprint model (what `subpixel run` and the viewer run): on a
 /// scene without an environment (no background of its own) it still runs the background
 /// pass and feeds the pass's footprint albedo, with the G-buffer's depth, in place of the

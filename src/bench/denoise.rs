@@ -110,12 +110,12 @@ pub fn bench_denoise(
     let mut packed: Vec<Vec<[f32; 4]>> = synthetic_frame(w, h, 0)
         .pack(crate::ssr::AlbedoSource::Centre)?
         .into();
-    if weights.config.emission_source()? == crate::ssr::EmissionSource::Background {
-        // A model that draws the directly seen emission takes it with a background: none
-        // in view (zero environment, coverage 0, zero emission).
-        let zeros = vec![[0f32; 4]; (w * h) as usize];
-        packed.extend([zeros.clone(), zeros]);
-    }
+    // Any further buffer the model needs (background and emission for one that draws the
+    // directly seen emission): none in view (zero environment, coverage 0, zero emission).
+    packed.resize(
+        weights.config.input_names()?.len(),
+        vec![[0f32; 4]; (w * h) as usize],
+    );
     let bufs: Vec<wgpu::Buffer> = packed
         .iter()
         .map(|d| {

@@ -107,4 +107,17 @@ impl<'a> FrameInputs<'a> {
         "transparent",
         "motion",
     ];
+
+    /// Every buffer's name, the optional two last, in [`FrameInputs::from_slice`]'s order;
+    /// [`crate::ssr::Config::input_names`] says how many of them a model needs.
+    pub const ALL_NAMES: [&'static str; 8] = [
+        Self::NAMES[0],
+        Self::NAMES[1],
+        Self::NAMES[2],
+        Self::NAMES[3],
+        Self::NAMES[4],
+        Self::NAMES[5],
+        "background",
+        "emission",
+    ];
 }

@@ -323,6 +323,24 @@ impl SsrConfig {
         choose("emission", self.emission.as_deref(), &choices)
     }
 
+    /// The input buffers every frame of this model needs, in [`FrameInputs::from_slice`]'s
+    /// order (a prefix of [`FrameInputs::ALL_NAMES`]): the six of [`FrameInputs::NAMES`], and
+    /// `background` and `emission` for a model of config emission "background" (which draws
+    /// the directly seen emission itself; zero buffers where no sky and no emitter are in
+    /// view). The background stays optional for the others: with it, the output is
+    /// composited over the directly seen environment.
+    ///
+    /// [`FrameInputs::from_slice`]: crate::frame::FrameInputs::from_slice
+    /// [`FrameInputs::ALL_NAMES`]: crate::frame::FrameInputs::ALL_NAMES
+    /// [`FrameInputs::NAMES`]: crate::frame::FrameInputs::NAMES
+    pub fn input_names(&self) -> Result<&'static [&'static str]> {
+        use crate::frame::FrameInputs;
+        Ok(match self.emission_source()? {
+            EmissionSource::Network => &FrameInputs::ALL_NAMES[..FrameInputs::NAMES.len()],
+            EmissionSource::Background => &FrameInputs::ALL_NAMES,
+        })
+    }
+
     /// The output ceiling (version 1 and files without the option: none).
     pub fn ceiling_mode(&self) -> Result<CeilingMode> {
         let choices = [("none", CeilingMode::None), ("max", CeilingMode::Max)];
