@@ -34,6 +34,13 @@ Augmentation:
     every pixel is unchanged, so the reference stays right: this is Russian roulette on the
     input samples. It shows the network scenes where most traced samples carry no light
     (an interior lit through its windows), which the rendered scenes rarely are.
+  * colour permutation (`color_permute`, off by default): each window's RGB channels are
+    permuted (one of the six orders, uniformly, one per window) in every RGB buffer alike
+    (colour, albedo, shadow, tint, reference and the extra RGB buffers), the other buffers
+    unchanged. Rendering is linear and per channel, so a permuted window is the render of a
+    scene whose spectra are permuted: the reference stays right, and the network sees
+    every colour of wall, light and sky in every channel (the losses and the tonemap treat
+    the channels alike, `test_losses_do_not_see_a_colour_permutation`).
 
 Non-finite values in every buffer but `motion` become 0 (the engine sanitises its inputs
 the same way); non-finite motion is kept (the warp treats it as invalid).
@@ -118,6 +125,13 @@ same `dataset --background N` command), `emission` (the first-hit emission of ea
 pixel's own samples: the part of `color` that is emission seen directly) and
 `emission_footprint` (the first-hit emission averaged over the background's footprint),
 written with the background, added to older frames the same way."""
+
+
+RGB_BUFFERS = frozenset(b for b, s in {**SUFFIXES, **EXTRA_SUFFIXES}.items() if s == ("R", "G", "B"))
+"""The buffers that hold colours (R, G, B), which a colour permutation permutes."""
+
+RGB_PERMUTATIONS: Tuple[Tuple[int, int, int], ...] = ((0, 1, 2), (0, 2, 1), (1, 0, 2), (1, 2, 0), (2, 0, 1), (2, 1, 0))
+"""The six channel orders of a colour permutation; index 0 is the identity."""
 
 
 def read_extra_buffers(path: str, buffers: Sequence[str], why: str) -> Dict[str, "torch.Tensor"]:
@@ -467,6 +481,16 @@ def flip_frame(frame: Dict[str, torch.Tensor], hflip: bool, vflip: bool) -> Dict
     return out
 
 
+def permute_colors(frame: Dict[str, torch.Tensor], perm: int) -> Dict[str, torch.Tensor]:
+    """Reorders the channels of every RGB buffer (RGB_BUFFERS) of a CHW (or NCHW) frame by
+    RGB_PERMUTATIONS[perm] (channel c of the result is channel order[c] of the input); the
+    other buffers are returned as they are."""
+    if perm == 0:
+        return frame
+    order = list(RGB_PERMUTATIONS[perm])
+    return {k: (v[..., order, :, :] if k in RGB_BUFFERS else v) for k, v in frame.items()}
+
+
 def pad_frame(frame: Dict[str, torch.Tensor], multiple: int = 4) -> Tuple[Dict[str, torch.Tensor], Tuple[int, int]]:
     """Pads NCHW buffers on the right/bottom to a multiple of `multiple` by replicating the edge
     (as wgsl/ssr/pack_inputs.wgsl does). Returns (padded frame, (h, w) of the original)."""
@@ -495,6 +519,7 @@ class WindowKey(NamedTuple):
     vflip: bool
     keep: float = 1.0  # sample thinning: probability of keeping a traced sample (1: off)
     thin_seed: int = 0  # seeds the keep/drop choices of a thinned window
+    perm: int = 0  # colour permutation: index into RGB_PERMUTATIONS (0: none)
 
 
 # Smallest fraction of traced samples a thinned window keeps.
@@ -581,8 +606,10 @@ class SequenceDataset(torch.utils.data.Dataset):
         thin_keep_min: float = THIN_KEEP_MIN,
         extra: Sequence[str] = (),
         min_reference_psnr: Optional[float] = None,
+        color_permute: bool = False,
     ):
         self.root = root
+        self.color_permute = bool(color_permute)
         self.split = split
         self.window = int(window)
         self.flips = flips
@@ -631,8 +658,9 @@ class SequenceDataset(torch.utils.data.Dataset):
 
     def random_key(self, g: torch.Generator) -> WindowKey:
         """A uniformly random window (over every window of every sequence), crop, flips and,
-        with `thin` > 0, sample thinning (drawn after the rest, so thin = 0 draws exactly
-        what it always did)."""
+        with `thin` > 0, sample thinning, then with `color_permute` a colour permutation
+        (each drawn after the rest, so with them off the draws are exactly what they always
+        were)."""
         si, start = self.windows[int(torch.randint(len(self.windows), (1,), generator=g))]
         s = self.sequences[si]
         ch, cw = self.crop_hw
@@ -648,7 +676,8 @@ class SequenceDataset(torch.utils.data.Dataset):
             if u < self.thin:
                 keep = float(self.thin_keep_min ** (1.0 - v))  # log-uniform in [thin_keep_min, 1]
                 thin_seed = int(torch.randint(1 << 62, (1,), generator=g))
-        return WindowKey(si, start, y0, x0, hf, vf, keep, thin_seed)
+        perm = int(torch.randint(len(RGB_PERMUTATIONS), (1,), generator=g)) if self.color_permute else 0
+        return WindowKey(si, start, y0, x0, hf, vf, keep, thin_seed, perm)
 
     def load(self, key: WindowKey) -> List[Dict[str, torch.Tensor]]:
         s = self.sequences[key.seq]
@@ -664,13 +693,14 @@ class SequenceDataset(torch.utils.data.Dataset):
             frame = to_frame(arr, self.store.offsets)
             if g is not None:
                 frame = thin_frame(frame, key.keep, g)
+            frame = permute_colors(frame, key.perm)
             frames.append(flip_frame(frame, key.hflip, key.vflip))
         return frames
 
     def __getitem__(self, index) -> List[Dict[str, torch.Tensor]]:
         if isinstance(index, WindowKey):
             return self.load(index)
-        if isinstance(index, (tuple, list)) and len(index) in (6, 8):
+        if isinstance(index, (tuple, list)) and len(index) in (6, 8, 9):
             return self.load(WindowKey(*index))
         si, start = self.windows[int(index)]
         return self.load(WindowKey(si, start, 0, 0, False, False))

@@ -97,6 +97,11 @@ def parse_args(argv=None) -> argparse.Namespace:
     ap.add_argument("--scenes", nargs="+", default=None, help="train (and validate) on these scenes only")
     ap.add_argument("--no-flips", action="store_true", help="no random flips")
     ap.add_argument(
+        "--color-permute", action="store_true",
+        help="permute each window's RGB channels (one of the six orders) in every RGB buffer alike "
+        "(ssr/data.py: the render of a scene with permuted spectra; off by default)",
+    )
+    ap.add_argument(
         "--thin", type=float, default=0.0,
         help="probability of sample thinning per window (ssr/data.py: Russian roulette on the input samples; 0: off)",
     )
@@ -240,6 +245,8 @@ def run_config(args: argparse.Namespace) -> dict:
         # Only present when sample thinning is on (older checkpoints have no such key).
         **({"thin": args.thin} if args.thin > 0 else {}),
         **({"thin_keep_min": args.thin_keep_min} if args.thin > 0 and args.thin_keep_min != THIN_KEEP_MIN else {}),
+        # Only present when colour permutation is on (older checkpoints have no such key).
+        **({"color_permute": True} if args.color_permute else {}),
         # Only present when noisy training sequences are left out (older checkpoints have no such key).
         **({"min_reference_psnr": args.min_reference_psnr} if args.min_reference_psnr is not None else {}),
     }
@@ -580,7 +587,7 @@ def _train(args, config: dict, dd: Dist) -> dict:
     train_ds = SequenceDataset(
         args.data, "train", window=args.window, crop=args.crop, flips=not args.no_flips, scenes=args.scenes,
         cache=args.cache, cache_mb=args.cache_mb, cache_dir=args.cache_dir, thin=args.thin,
-        thin_keep_min=args.thin_keep_min, extra=(background if args.background == "loss" else ()) + model_extra,
+        thin_keep_min=args.thin_keep_min, color_permute=args.color_permute, extra=(background if args.background == "loss" else ()) + model_extra,
         min_reference_psnr=args.min_reference_psnr,
     )
     if train_ds.noisy:
@@ -790,7 +797,10 @@ def _train(args, config: dict, dd: Dist) -> dict:
             "batch": args.batch,
             "crop": list(train_ds.crop_hw),
             "window": args.window,
-            "augmentation": {"flips": not args.no_flips, "thin": args.thin, "thin_keep_min": args.thin_keep_min},
+            "augmentation": {
+                "flips": not args.no_flips, "thin": args.thin, "thin_keep_min": args.thin_keep_min,
+                "color_permute": args.color_permute,
+            },
             "background": args.background,
             "mean_correction": args.mean_correction,
             "lr": args.lr,

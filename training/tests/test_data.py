@@ -383,3 +383,42 @@ def test_noisy_reference_sequences_are_left_out_on_request(tmp_path):
         SequenceDataset(root, "train", window=3, crop=16, min_reference_psnr=20.0)
     # Without the threshold the record is not needed.
     assert len(SequenceDataset(root, "train", window=3, crop=16).sequences) == 3
+
+
+def test_colour_permutation_permutes_every_rgb_buffer_alike(dataset):
+    from ssr.data import RGB_BUFFERS, RGB_PERMUTATIONS, permute_colors
+
+    ds = SequenceDataset(dataset, "train", crop=16)
+    plain = ds[WindowKey(1, 1, 4, 10, True, False)]
+    assert {"color", "albedo", "shadow", "transparent", "reference"} <= set(RGB_BUFFERS)
+    assert not {"normal", "motion", "mask", "depth", "metallic", "roughness", "coverage"} & set(RGB_BUFFERS)
+    assert sorted(RGB_PERMUTATIONS) == sorted(
+        (a, b, c) for a in range(3) for b in range(3) for c in range(3) if len({a, b, c}) == 3
+    )
+    for perm, order in enumerate(RGB_PERMUTATIONS):
+        got = ds[WindowKey(1, 1, 4, 10, True, False, 1.0, 0, perm)]
+        for f, p in zip(got, plain):
+            for k, v in f.items():
+                want = p[k][list(order)] if k in RGB_BUFFERS else p[k]
+                assert torch.equal(v, want), f"{k} perm {perm}"
+        # the same on a batch (NCHW), and 0 is the identity
+        batch = collate([plain])[0]
+        permuted = permute_colors(batch, perm)
+        for k in batch:
+            want = batch[k][:, list(order)] if k in RGB_BUFFERS else batch[k]
+            assert torch.equal(permuted[k], want), k
+    assert permute_colors(plain[0], 0) is plain[0]
+
+
+def test_colour_permutation_is_drawn_last_and_off_by_default(dataset):
+    plain = SequenceDataset(dataset, "train", crop=16)
+    perm = SequenceDataset(dataset, "train", crop=16, color_permute=True)
+    g1, g2 = torch.Generator().manual_seed(9), torch.Generator().manual_seed(9)
+    k_plain = [plain.random_key(g1) for _ in range(60)]
+    k_perm = [perm.random_key(g2) for _ in range(60)]
+    assert all(k.perm == 0 for k in k_plain)
+    assert {k.perm for k in k_perm} == set(range(6))
+    # the choices before the permutation are those of the plain dataset
+    assert k_perm[0][:8] == k_plain[0][:8]
+    # resumable: the keys of an iteration follow from (seed, rank, iteration) alone
+    assert WindowSampler(perm, 4, 3, 4, seed=2).keys(3) == list(WindowSampler(perm, 4, 0, 5, seed=2))[3]

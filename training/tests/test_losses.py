@@ -232,3 +232,25 @@ def test_ssim_term_only_when_weighted():
     assert total.item() == pytest.approx(base.item() + 0.5 * parts["l_ssim"].item(), rel=1e-6)
     with pytest.raises(KeyError, match="unknown loss weight"):
         L.total_loss(preds, refs, _aux(refs, motion, albedo), lambdas={"q": 1.0})
+
+
+def test_losses_do_not_see_a_colour_permutation():
+    # What makes colour permutation (ssr/data.py) a label-preserving augmentation on the loss
+    # side: every term treats the RGB channels alike, so permuting the channels of
+    # prediction, reference, network output and albedo together leaves each term as it was
+    # (the SSIM term included), while permuting the prediction alone changes it.
+    refs, motion, albedo = _seq(3)
+    g = torch.Generator().manual_seed(8)
+    preds = refs * torch.exp(0.3 * torch.randn(refs.shape, generator=g))
+    aux = _aux(refs, motion, albedo)
+    aux["o"] = aux["o"] * (1.0 + 0.2 * torch.rand(aux["o"].shape, generator=g))
+    lam = {**L.LAMBDAS, "ssim": 10.0}
+    total, parts = L.total_loss(preds, refs, aux, lambdas=lam)
+    for order in ([0, 2, 1], [1, 2, 0], [2, 1, 0]):
+        pa = {"motion": motion, "o": aux["o"][:, order], "albedo_mod": albedo[:, order]}
+        t_p, parts_p = L.total_loss(preds[:, :, order], refs[:, :, order], pa, lambdas=lam)
+        for k in parts:
+            torch.testing.assert_close(parts_p[k], parts[k], rtol=1e-5, atol=1e-7, msg=f"{k} {order}")
+        torch.testing.assert_close(t_p, total, rtol=1e-5, atol=1e-7)
+        wrong, _ = L.total_loss(preds[:, :, order], refs, aux, lambdas=lam)
+        assert abs(wrong.item() - total.item()) > 1e-3 * total.item()

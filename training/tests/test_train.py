@@ -103,6 +103,21 @@ def test_train_checkpoint_resume_export(dataset, tmp_path, capsys):
     assert "differing keys: lr" in capsys.readouterr().err
 
 
+def test_colour_permutation_trains_records_and_is_part_of_the_config(dataset, tmp_path, capsys):
+    # --color-permute changes what the network is shown (other weights than the same run
+    # without it), is recorded in the provenance, and a resume without it is refused.
+    plain = T.train(args(dataset, str(tmp_path / "plain"), iters=2))
+    perm_dir = str(tmp_path / "perm")
+    perm = T.train(args(dataset, perm_dir, "--color-permute", iters=2))
+    mp, _ = load_weights(plain["weights"])
+    mc, meta = load_weights(perm["weights"])
+    assert any(not torch.equal(mp.state_dict()[k], v) for k, v in mc.state_dict().items())
+    assert meta["provenance"]["augmentation"]["color_permute"] is True
+    assert load_weights(plain["weights"])[1]["provenance"]["augmentation"]["color_permute"] is False
+    with pytest.raises(T.CheckpointError, match="color_permute"):
+        T.train(args(dataset, perm_dir, "--resume", iters=4))
+
+
 def test_a_signal_stops_after_the_iteration_with_a_checkpoint(dataset, tmp_path, capsys, monkeypatch):
     """kill (SIGTERM) during iteration 2 of 3: the run writes a checkpoint at 2 (not at the
     last --ckpt-every, 0) and returns; --resume ends with the weights of a straight run."""
