@@ -14,6 +14,9 @@
 # and a second call adds rows. EXTRA=DIR,... adds rows already in other folders (e.g. OIDN's
 # val output from `python -m ssr.evaluate --split val --out DIR`: its method folders are
 # linked into PRED). PER_FRAME=1 also prints the table with a column per frame index.
+# SPLIT=train (or test) scores another split the same way (default val), e.g. a root of links
+# to training sequences for how a model does on scenes it was trained on (training/README,
+# Generalisation 21); the rules only ever read val.
 set -euo pipefail
 here="$(cd "$(dirname "$0")" && pwd)"
 root="$(cd "$here/.." && pwd)"
@@ -22,7 +25,8 @@ data="$(realpath "${1:?$usage}")"
 pred="$(realpath -m "${2:?$usage}")"
 shift 2
 [ $# -gt 0 ] || { echo "engine_val.sh: name at least one weights file ($usage)" >&2; exit 2; }
-[ -d "$data/val" ] || { echo "engine_val.sh: $data/val: no such folder (a dataset with a val split)" >&2; exit 2; }
+split="${SPLIT:-val}"
+[ -d "$data/$split" ] || { echo "engine_val.sh: $data/$split: no such folder (a dataset with a $split split)" >&2; exit 2; }
 bin="${SUBPIXEL:-$root/target/release/subpixel}"
 if [ -z "${SUBPIXEL:-}" ]; then
   cargo build --release --quiet --manifest-path "$root/Cargo.toml"
@@ -32,9 +36,9 @@ for arg in "$@"; do
   if [[ "$arg" == *=* ]]; then name="${arg%%=*}"; weights="${arg#*=}"; else
     weights="$arg"; name="$(basename "$arg" .safetensors)"; fi
   [ -f "$weights" ] || { echo "engine_val.sh: $weights: no such weights file" >&2; exit 2; }
-  for seq in "$data"/val/*/; do
+  for seq in "$data/$split"/*/; do
     [ -f "$seq/sequence.json" ] || continue
-    out="$pred/$name/val/$(basename "$seq")"
+    out="$pred/$name/$split/$(basename "$seq")"
     n_ref=$(find "$seq" -maxdepth 1 -name 'frame_*.exr' | wc -l)
     if [ -d "$out" ] && [ "$(find "$out" -maxdepth 1 -name 'frame_*.exr' | wc -l)" = "$n_ref" ]; then
       continue
@@ -48,13 +52,13 @@ if [ -n "${EXTRA:-}" ]; then
   IFS=, read -ra extra <<<"$EXTRA"
   for dir in "${extra[@]}"; do
     for m in "$dir"/*/; do
-      [ -d "$m/val" ] && [ ! -e "$pred/$(basename "$m")" ] && ln -s "$(realpath "$m")" "$pred/$(basename "$m")"
+      [ -d "$m/$split" ] && [ ! -e "$pred/$(basename "$m")" ] && ln -s "$(realpath "$m")" "$pred/$(basename "$m")"
     done
   done
 fi
-"$bin" eval --table --pred "$pred" --ref "$data" --split val
+"$bin" eval --table --pred "$pred" --ref "$data" --split "$split"
 if [ -n "${PER_FRAME:-}" ]; then
   echo
   echo "Per frame:"
-  "$bin" eval --table --per-frame --pred "$pred" --ref "$data" --split val
+  "$bin" eval --table --per-frame --pred "$pred" --ref "$data" --split "$split"
 fi

@@ -29,15 +29,15 @@ esac
 """
 
 
-def _dataset(root, names, frames=3):
+def _dataset(root, names, frames=3, split="val"):
     for n in names:
-        d = os.path.join(root, "val", n)
+        d = os.path.join(root, split, n)
         os.makedirs(d)
         for i in range(frames):
             open(os.path.join(d, f"frame_{i:04d}.exr"), "w").close()
         open(os.path.join(d, "sequence.json"), "w").write("{}")
     # A sequence still rendering (no sequence.json) is left out.
-    os.makedirs(os.path.join(root, "val", "partial_val_000"))
+    os.makedirs(os.path.join(root, split, f"partial_{split}_000"))
 
 
 def _env(tmp_path):
@@ -112,3 +112,19 @@ def test_missing_weights_and_datasets_are_named(tmp_path):
     assert r.returncode == 2 and "val" in r.stderr
     r = _run(env, data, str(tmp_path / "pred"))
     assert r.returncode == 2 and "weights" in r.stderr
+
+
+def test_another_split_is_scored_the_same_way(tmp_path):
+    # SPLIT=train: the train sequences are denoised into PRED/NAME/train and scored with
+    # --split train; the val split is not touched (here there is none).
+    data, pred = str(tmp_path / "ds"), str(tmp_path / "pred")
+    _dataset(data, ["procedural_3_train_000", "cbox_train_000"], split="train")
+    env = _env(tmp_path)
+    w = tmp_path / "w.safetensors"
+    w.write_text("w")
+    r = _run(env, data, pred, str(w), SPLIT="train")
+    assert r.returncode == 0, r.stderr
+    assert sorted(os.listdir(os.path.join(pred, "w", "train"))) == ["cbox_train_000", "procedural_3_train_000"]
+    assert f"--split train" in r.stdout and "--split val" not in r.stdout
+    r = _run(env, data, pred, str(w))
+    assert r.returncode == 2 and f"{os.path.realpath(data)}/val" in r.stderr
