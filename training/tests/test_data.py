@@ -391,6 +391,8 @@ def test_colour_permutation_permutes_every_rgb_buffer_alike(dataset):
     ds = SequenceDataset(dataset, "train", crop=16)
     plain = ds[WindowKey(1, 1, 4, 10, True, False)]
     assert {"color", "albedo", "shadow", "transparent", "reference"} <= set(RGB_BUFFERS)
+    # the extra buffers the background loss and the emission and footprint models read
+    assert {"background", "emission", "emission_footprint", "albedo_footprint", "full", "reference_half"} <= set(RGB_BUFFERS)
     assert not {"normal", "motion", "mask", "depth", "metallic", "roughness", "coverage"} & set(RGB_BUFFERS)
     assert sorted(RGB_PERMUTATIONS) == sorted(
         (a, b, c) for a in range(3) for b in range(3) for c in range(3) if len({a, b, c}) == 3
