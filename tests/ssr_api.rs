@@ -1161,26 +1161,17 @@ fn a_configs_input_names_are_the_buffers_its_denoiser_takes() {
             let footprint = common::random(7_300 + seed + t, w, h, 3, 0.0, 4.0);
             let mut data: Vec<Vec<[f32; 4]>> = f.pack(AlbedoSource::Centre).unwrap().into();
             if n == 8 {
-                let px = |t: &HostTensor, x, y, k| t.at(x, y, k);
-                let rgbw = |t: &HostTensor, w4: &dyn Fn(u32, u32) -> f32| -> Vec<[f32; 4]> {
-                    (0..w * h)
-                        .map(|i| {
-                            let (x, y) = (i % w, i / w);
-                            [px(t, x, y, 0), px(t, x, y, 1), px(t, x, y, 2), w4(x, y)]
-                        })
-                        .collect()
-                };
-                data.push(rgbw(&radiance, &|x, y| coverage.at(x, y, 0)));
-                data.push(rgbw(&footprint, &|_, _| 0.0));
                 f.background = Some(Background {
-                    radiance: radiance.clone(),
-                    coverage: coverage.clone(),
+                    radiance,
+                    coverage,
                     albedo: None,
                     emission: Some(DirectEmission {
-                        footprint: footprint.clone(),
+                        footprint,
                         samples: HostTensor::zeros(w, h, 3),
                     }),
                 });
+                data.push(f.pack_background().unwrap().unwrap());
+                data.push(f.pack_emission().unwrap());
             }
             assert_eq!(data.len(), names.len());
             let bufs: Vec<wgpu::Buffer> = names
