@@ -37,7 +37,7 @@ from .baselines import NON_LEARNED, load_model
 from .data import DatasetError, SequenceDataset, frame_name, pad_frame, read_extra_buffers, write_exr
 from .export import WeightsError
 from .metrics import image_metrics, mean_metrics, temporal_error
-from .model import composite_background, fold_emission
+from .model import composite_background, fold_emission, mean_correction_of
 from .oidn import OIDN_MODELS, OIDNUnavailable
 
 REFERENCES = {**NON_LEARNED, **OIDN_MODELS}
@@ -88,11 +88,16 @@ def run_model(
     `extra_buffers` (names of data.EXTRA_SUFFIXES) for buffers beyond data.BUFFERS, read from
     each frame file. An SSR model of config emission = "background" is fed its frames as the
     engine feeds it (model.fold_emission) and its output composited as the engine's output
-    pass does (the emitters are added there); other models' outputs are their own."""
+    pass does (the emitters are added there); one with a `mean_correction` gets the whole
+    output pass (model.MeanCorrection over each sequence from its first frame, with the
+    background and the emitters), as the engine and the trainer's validation; other models'
+    outputs are their own."""
     rows = []
     multiple = getattr(model, "pad_multiple", 4)
-    extra_buffers = tuple(getattr(model, "extra_buffers", ()))
     cfg = getattr(model, "cfg", None)
+    extra_buffers = tuple(getattr(model, "extra_buffers", ()))
+    if getattr(cfg, "emission", "network") == "background":
+        extra_buffers += ("background", "coverage")  # the output pass composites the emitters over them
     for si, seq in enumerate(ds.sequences):
         t0 = time.time()
         folder = os.path.join(out, name, seq.split, seq.name) if out else None
@@ -102,6 +107,7 @@ def run_model(
             with open(os.path.join(folder, "prediction.json"), "w") as f:
                 json.dump({"model": name, **{k: v for k, v in info.items() if k != "provenance"}}, f, indent=2)
         state = None
+        mc = mean_correction_of(cfg) if cfg is not None else None
         per_frame, temporal = [], []
         prev = None
         n = seq.frames if frames is None else min(frames, seq.frames)
@@ -114,7 +120,9 @@ def run_model(
             r = model(padded, state)
             state = r["state"]
             y = r["output"][:, :, :h, :w]
-            if getattr(cfg, "emission", "network") == "background":
+            if mc is not None:
+                y = mc(y, fb)  # the engine's output pass: the correction, background and emitters
+            elif getattr(cfg, "emission", "network") == "background":
                 # the emitters are the output pass's: without the composite they are missing
                 y = composite_background(y, fb)
             pred = y[0].float().cpu()

@@ -158,7 +158,9 @@ class SSRConfig:
 
     tfa_hidden: int = 8
     k: int = 8
-    enc: Tuple[int, int, int] = (16, 32, 28)
+    # encoder widths, one per U-Net level: 3 levels (the engine's), or 4 (PyTorch only: a
+    # fourth level at 1/8 resolution, UNet below)
+    enc: Tuple[int, ...] = (16, 32, 28)
     feature_pool: str = "max"  # "max" | "avg": pooling of encoder features
     upsample: str = "bilinear"  # "bilinear" | "nearest": upsampling of I3, I2
     input_channels: int = A_CHANNELS + MT_CHANNELS + A_CHANNELS + RGB  # 37
@@ -189,8 +191,8 @@ class SSRConfig:
 
         positive("tfa_hidden", self.tfa_hidden)
         positive("k", self.k)
-        if len(self.enc) != 3:
-            raise ValueError(f"config: `enc` must hold 3 widths [c1, c2, c3], got {list(self.enc)}")
+        if len(self.enc) not in (3, 4):
+            raise ValueError(f"config: `enc` must hold 3 widths [c1, c2, c3] (or 4, a fourth level), got {list(self.enc)}")
         for i, c in enumerate(self.enc):
             positive(f"enc[{i}]", c)
         if self.feature_pool not in ("max", "avg"):
@@ -694,18 +696,27 @@ class TFA(nn.Module):
 
 
 class UNet(nn.Module):
-    """3-level U-Net fed with the warped previous output at every scale."""
+    """3-level U-Net fed with the warped previous output at every scale. With a fourth width
+    in `enc` (PyTorch only), a fourth level at 1/8 resolution below the third, built alike:
+    enc4 on the pooled enc3 and W(o) at 1/8, dec4 giving I4, and dec3 reading I4 upsampled
+    between enc3 and W(o) at 1/4 (as dec2 reads I3); `grow_unet` makes one from a 3-level
+    model's tensors that computes the same."""
 
     def __init__(self, cfg: SSRConfig):
         super().__init__()
-        c1, c2, c3 = cfg.enc
+        c1, c2, c3 = cfg.enc[:3]
+        self.levels = len(cfg.enc)
         self.feature_pool = cfg.feature_pool
         self.upsample = cfg.upsample
         relu = nn.ReLU
         self.enc1 = nn.Sequential(_conv(cfg.input_channels, c1), relu(), _conv(c1, c1), relu())
         self.enc2 = nn.Sequential(_conv(c1 + RGB, c2), relu(), _conv(c2, c2), relu())
         self.enc3 = nn.Sequential(_conv(c2 + RGB, c3), relu(), _conv(c3, c3), relu())
-        self.dec3 = nn.Sequential(_conv(c3 + RGB, c3), relu(), _conv(c3, RGB))
+        if self.levels == 4:
+            c4 = cfg.enc[3]
+            self.enc4 = nn.Sequential(_conv(c3 + RGB, c4), relu(), _conv(c4, c4), relu())
+            self.dec4 = nn.Sequential(_conv(c4 + RGB, c4), relu(), _conv(c4, RGB))
+        self.dec3 = nn.Sequential(_conv(c3 + RGB * (self.levels - 2), c3), relu(), _conv(c3, RGB))
         self.dec2 = nn.Sequential(_conv(c2 + RGB + RGB, c2), relu(), _conv(c2, RGB))
         self.dec1 = nn.Sequential(_conv(c1 + RGB + RGB, c1), relu(), _conv(c1, RGB))
 
@@ -717,10 +728,45 @@ class UNet(nn.Module):
         enc1 = self.enc1(torch.cat([a_t, mt, a_acc, wo], dim=1))
         enc2 = self.enc2(torch.cat([pool2x2(enc1, self.feature_pool), wo2], dim=1))
         enc3 = self.enc3(torch.cat([pool2x2(enc2, self.feature_pool), wo4], dim=1))
-        i3 = self.dec3(torch.cat([enc3, wo4], dim=1))
+        deep: Dict[str, torch.Tensor] = {}
+        if self.levels == 4:
+            wo8 = F.avg_pool2d(wo4, 2)
+            enc4 = self.enc4(torch.cat([pool2x2(enc3, self.feature_pool), wo8], dim=1))
+            i4 = self.dec4(torch.cat([enc4, wo8], dim=1))
+            deep = {"enc4": enc4, "i4": i4}
+            i3 = self.dec3(torch.cat([enc3, upsample2x(i4, self.upsample), wo4], dim=1))
+        else:
+            i3 = self.dec3(torch.cat([enc3, wo4], dim=1))
         i2 = self.dec2(torch.cat([enc2, upsample2x(i3, self.upsample), wo2], dim=1))
         o = self.dec1(torch.cat([enc1, upsample2x(i2, self.upsample), wo], dim=1))
-        return {"enc1": enc1, "enc2": enc2, "enc3": enc3, "i3": i3, "i2": i2, "o": o}
+        return {"enc1": enc1, "enc2": enc2, "enc3": enc3, **deep, "i3": i3, "i2": i2, "o": o}
+
+
+def grow_unet(state: Dict[str, torch.Tensor], model: "SSRModel") -> Dict[str, torch.Tensor]:
+    """A 3-level model's `state` (state_dict) as a state_dict for 4-level `model` that computes
+    the same: every tensor kept, the new level's as `model` has them, and dec3's first conv
+    given zero weights for the upsampled I4 it now reads (its other input channels keep
+    theirs), so the fourth level starts without effect and training brings it in."""
+    if getattr(model.unet, "levels", 3) != 4:
+        raise ValueError("grow_unet: the model has no fourth U-Net level (config `enc` with 4 widths)")
+    out = {k: v.clone() for k, v in model.state_dict().items()}
+    for k, v in state.items():
+        if k not in out:
+            raise ValueError(f"grow_unet: tensor {k} of the 3-level weights has no place in the 4-level model")
+        if k == "unet.dec3.0.weight":
+            c3 = model.cfg.enc[2]
+            want = out[k].shape
+            if v.shape != (want[0], c3 + RGB, *want[2:]):
+                raise ValueError(f"grow_unet: {k} is {list(v.shape)}, expected {[want[0], c3 + RGB, *want[2:]]}")
+            w = torch.zeros(want, dtype=v.dtype)
+            w[:, :c3] = v[:, :c3]  # enc3
+            w[:, c3 + RGB :] = v[:, c3:]  # W(o) at 1/4; the upsampled I4 between them stays 0
+            out[k] = w
+        elif v.shape != out[k].shape:
+            raise ValueError(f"grow_unet: {k} is {list(v.shape)} in the 3-level weights, {list(out[k].shape)} here")
+        else:
+            out[k] = v.clone()
+    return out
 
 
 State = Tuple[torch.Tensor, torch.Tensor, torch.Tensor]
@@ -736,6 +782,12 @@ class SSRModel(nn.Module):
         self.cfg = cfg if cfg is not None else SSRConfig()
         self.tfa = TFA(self.cfg)
         self.unet = UNet(self.cfg)
+
+    @property
+    def pad_multiple(self) -> int:
+        """What frame sides must be a multiple of (each U-Net level halves them): 4 with 3
+        levels (as the engine pads), 8 with 4; `ssr.evaluate` and validation pad to it."""
+        return 2 ** (len(self.cfg.enc) - 1)
 
     @property
     def extra_buffers(self) -> Tuple[str, ...]:
@@ -854,11 +906,14 @@ class SSRModel(nn.Module):
 def conv_layers(cfg: SSRConfig) -> List[Tuple[str, int, int, int, int]]:
     """Every 3x3 conv evaluation per frame: (name, cin, cout, level, evaluations).
 
-    level: 0 full resolution, 1 half, 2 quarter. The embedding net runs twice per frame
+    level: 0 full resolution, 1 half, 2 quarter, 3 eighth. The embedding net runs twice per frame
     (on A_t and on W(A_acc_prev)).
     """
     h, k = cfg.tfa_hidden, cfg.k
-    c1, c2, c3 = cfg.enc
+    c1, c2, c3 = cfg.enc[:3]
+    deep = cfg.enc[3:]
+    level4 = [("unet.enc4.0", c3 + RGB, deep[0], 3, 1), ("unet.enc4.2", deep[0], deep[0], 3, 1),
+              ("unet.dec4.0", deep[0] + RGB, deep[0], 3, 1), ("unet.dec4.2", deep[0], RGB, 3, 1)] if deep else []
     return [
         ("tfa.ref.0", A_CHANNELS + MT_CHANNELS, h, 0, 1),
         ("tfa.ref.2", h, k, 0, 1),
@@ -870,7 +925,8 @@ def conv_layers(cfg: SSRConfig) -> List[Tuple[str, int, int, int, int]]:
         ("unet.enc2.2", c2, c2, 1, 1),
         ("unet.enc3.0", c2 + RGB, c3, 2, 1),
         ("unet.enc3.2", c3, c3, 2, 1),
-        ("unet.dec3.0", c3 + RGB, c3, 2, 1),
+        *level4,
+        ("unet.dec3.0", c3 + RGB + (RGB if deep else 0), c3, 2, 1),
         ("unet.dec3.2", c3, RGB, 2, 1),
         ("unet.dec2.0", c2 + RGB + RGB, c2, 1, 1),
         ("unet.dec2.2", c2, RGB, 1, 1),

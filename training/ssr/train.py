@@ -61,6 +61,7 @@ from .model import (
     composite_background,
     extra_buffers,
     fold_emission,
+    grow_unet,
     mean_correction_of,
 )
 from .validation import validate
@@ -284,7 +285,9 @@ def load_init(model: nn.Module, path: str, model_name: str) -> dict:
     """Loads `path` into `model`: the weights loader checks the file (format, every tensor's
     name and shape); its config must equal the run's but for model.FINE_TUNE_OPTIONS (what
     the network is fed, not its parameters: the run fine-tunes the weights to the new
-    value) and but for model.OUTPUT_PASS_OPTIONS (applied after the network). Returns the
+    value), but for model.OUTPUT_PASS_OPTIONS (applied after the network), and but for a
+    fourth U-Net level the file lacks (its `enc` the run's first three widths: the file's
+    tensors grown into the run's model by model.grow_unet, computing the same). Returns the
     file's metadata."""
     from .baselines import load_model
     from .export import WeightsError
@@ -295,13 +298,15 @@ def load_init(model: nn.Module, path: str, model_name: str) -> dict:
         raise CheckpointError(f"--init {path}: {err}") from err
     want, got = model.cfg.to_dict(), loaded.cfg.to_dict()
     free = FINE_TUNE_OPTIONS + OUTPUT_PASS_OPTIONS
-    same = lambda d: {k: v for k, v in d.items() if k not in free}  # noqa: E731
-    if type(loaded) is not type(model) or same(got) != same(want):
+    same = lambda d: {k: v for k, v in d.items() if k not in free + ("enc",)}  # noqa: E731
+    # a 3-level file starts a 4-level run of the same first three widths (model.grow_unet)
+    grow = len(got.get("enc", ())) == 3 and len(want.get("enc", ())) == 4 and want["enc"][:3] == got["enc"]
+    if type(loaded) is not type(model) or same(got) != same(want) or (got.get("enc") != want.get("enc") and not grow):
         raise CheckpointError(
             f"--init {path}: its model config {json.dumps(got, sort_keys=True)} differs from the run's "
             f"{json.dumps(want, sort_keys=True)} (model {model_name})"
         )
-    model.load_state_dict(loaded.state_dict())
+    model.load_state_dict(grow_unet(loaded.state_dict(), model) if grow else loaded.state_dict())
     return meta
 
 
@@ -616,6 +621,12 @@ def _train(args, config: dict, dd: Dist) -> dict:
         if isinstance(prov, dict):
             init_iterations = int(prov.get("campaign_iterations", prov.get("iterations", 0)) or 0)
         say(f"initialised from {args.init} ({init_iterations} iterations of training before this run)")
+    multiple = getattr(model, "pad_multiple", 4)
+    if any(c % multiple for c in train_ds.crop_hw):
+        raise SystemExit(
+            f"error: crops of {train_ds.crop_hw[1]}x{train_ds.crop_hw[0]} are not a multiple of {multiple}, which the "
+            f"model's {len(model.cfg.enc)} U-Net levels need: choose --crop a multiple of {multiple}"
+        )
     opt = torch.optim.Adam(model.parameters(), lr=args.lr)
     start, wall, history = args.init_at, 0.0, []
     fresh = True

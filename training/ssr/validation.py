@@ -46,7 +46,7 @@ def validate(model: nn.Module, ds: SequenceDataset, device: torch.device, frames
                 y0, x0 = (h - ch) // 2, (w - cw) // 2
                 f = {k: v[:, y0 : y0 + ch, x0 : x0 + cw] for k, v in f.items()}
             f = {k: v.unsqueeze(0).to(device) for k, v in f.items()}
-            padded, (h, w) = pad_frame(f)
+            padded, (h, w) = pad_frame(f, getattr(model, "pad_multiple", 4))
             r = model(padded, state)
             state = r["state"]
             out = r["output"][:, :, :h, :w]

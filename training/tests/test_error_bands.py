@@ -7,7 +7,7 @@ import torch
 import torch.nn.functional as F
 
 from ssr.data import write_exr
-from ssr.error_bands import bands, gaussian_blur, main, measure, scene_column
+from ssr.error_bands import band_errors, band_names, bands, gaussian_blur, main, measure, scene_column
 from ssr.metrics import tonemap
 
 
@@ -33,15 +33,55 @@ def test_the_blur_is_a_normalised_gaussian_with_reflected_borders():
 def test_a_flat_offset_is_all_low_and_a_checkerboard_all_high():
     h, w = 32, 32
     ref = np.full((h, w, 3), 0.2, dtype=np.float32)
-    a, lo, hi = bands(np.full((h, w, 3), 0.3, dtype=np.float32), ref, 4.0)
+    a, (hi, lo) = bands(np.full((h, w, 3), 0.3, dtype=np.float32), ref, [4.0])
     assert a > 0 and np.isclose(lo, a) and hi < 1e-20
     yy, xx = np.mgrid[0:h, 0:w]
     check = np.where((yy + xx)[..., None] % 2 == 0, 0.3, 0.1).astype(np.float32) * np.ones((1, 1, 3), np.float32)
-    a, lo, hi = bands(check, ref, 4.0)
+    a, (hi, lo) = bands(check, ref, [4.0])
     # the checkerboard's mean error is small against its swing: nearly all of it is high
     e = tonemap(check) - tonemap(ref)
     assert np.isclose(a, (e.astype(np.float64) ** 2).mean())
     assert hi > 0.9 * a and lo < 0.1 * a
+
+
+def test_a_sinusoid_lands_in_the_band_of_its_scale():
+    # cos(w x) with extrema at both borders (81 pixels, period 40) continues exactly under the
+    # reflection, so each blur scales it by the discrete Gaussian's response at w
+    n, period = 81, 40.0
+    w = 2 * np.pi / period
+    x = np.arange(n)
+    e = np.cos(w * x)[None, :, None] * np.ones((3, 1, 3))
+
+    def response(sigma):
+        r = int(np.ceil(3 * sigma))
+        k = np.arange(-r, r + 1)
+        g = np.exp(-k * k / (2 * sigma * sigma))
+        return float((g * np.cos(w * k)).sum() / g.sum())
+
+    fine, mid, coarse = band_errors(e, [2.0, 24.0])
+    power = float((e * e).mean())
+    r2, r24 = response(2.0), response(24.0)
+    assert np.isclose(fine, power * (1 - r2) ** 2, rtol=1e-9)
+    assert np.isclose(mid, power * (r2 - r24) ** 2, rtol=1e-9)
+    assert np.isclose(coarse, power * r24 ** 2, rtol=1e-9, atol=1e-15)
+    assert mid > 0.85 * power and fine < 0.01 * power and coarse < 1e-4 * power
+    assert band_names([2, 8, 24]) == ["below 2", "2-8", "8-24", "above 24"]
+    assert band_names([4]) == ["high (below sigma 4)", "low (sigma 4)"]
+
+
+def test_bad_sigmas_are_refused(tmp_path, capsys):
+    ref_root, pred_root = _dataset(tmp_path)
+    for bad in ("0", "2,x", "4,4", "-1"):
+        with pytest.raises(SystemExit):
+            main(["--pred", str(pred_root), "--ref", str(ref_root), "--methods", "m", "--sigmas", bad])
+        assert "--sigmas" in capsys.readouterr().err
+
+
+def test_several_bands_print_a_column_each(tmp_path, capsys):
+    ref_root, pred_root = _dataset(tmp_path)
+    assert main(["--pred", str(pred_root), "--ref", str(ref_root), "--methods", "m", "--sigmas", "1,2"]) == 0
+    out = capsys.readouterr().out
+    assert "| below 1 | 1-2 | above 2 |" in out and "| living-room | m |" in out
 
 
 def test_columns_group_the_procedural_seeds():
@@ -68,15 +108,16 @@ def _dataset(tmp_path):
 
 def test_measure_averages_each_column_and_the_reference_noise(tmp_path):
     ref_root, pred_root = _dataset(tmp_path)
-    rows = measure(str(pred_root), str(ref_root), "test", ["m"], None, 2.0)
+    rows = measure(str(pred_root), str(ref_root), "test", ["m"], None, [2.0])
     assert set(rows) == {("m", "living-room"), ("m", "procedural")}
     assert rows[("m", "procedural")]["frames"] == 4 and rows[("m", "living-room")]["frames"] == 2
     # halves at 30 and 40 dB: the full reference's noise is their mean squared error over 4
     want = -10 * np.log10((10 ** -3 + 10 ** -4) / 2 / 4)
     assert np.isclose(rows[("m", "living-room")]["ref_noise"], want)
     r = rows[("m", "procedural")]
-    assert np.isfinite(r["all"]) and r["low"] > r["all"] and r["high"] > r["all"]
-    only = measure(str(pred_root), str(ref_root), "test", ["m"], ["living-room"], 2.0)
+    high, low = r["bands"]
+    assert np.isfinite(r["all"]) and low > r["all"] and high > r["all"]
+    only = measure(str(pred_root), str(ref_root), "test", ["m"], ["living-room"], [2.0])
     assert set(only) == {("m", "living-room")}
 
 
@@ -84,6 +125,6 @@ def test_a_missing_prediction_is_named(tmp_path, capsys):
     ref_root, pred_root = _dataset(tmp_path)
     os.remove(pred_root / "m" / "test" / "living-room_test_000" / "frame_0001.exr")
     with pytest.raises(FileNotFoundError, match="living-room_test_000/frame_0001"):
-        measure(str(pred_root), str(ref_root), "test", ["m"], None, 2.0)
+        measure(str(pred_root), str(ref_root), "test", ["m"], None, [2.0])
     assert main(["--pred", str(pred_root), "--ref", str(ref_root), "--methods", "m"]) == 1
     assert "frame_0001" in capsys.readouterr().err

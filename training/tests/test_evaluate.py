@@ -56,6 +56,36 @@ def test_evaluate_writes_predictions_and_table(dataset, tmp_path, capsys):
     assert all(r["frames"] == DATASET_FRAMES for r in m["sequences"])
 
 
+def test_a_mean_corrected_model_gets_the_engines_whole_output_pass(tmp_path):
+    from ssr.data import SequenceDataset, pad_frame
+    from ssr.model import MeanCorrection, composite_background, fold_emission
+    from ssr.synth import write_dataset
+
+    root = write_dataset(str(tmp_path / "ds"), {"test": 1}, frames=4, width=32, height=32, seed=4, background=True, emission=True)
+    torch.manual_seed(5)
+    model = build_model("ssr", {"mean_correction": "tiles16", "emission": "background", "albedo": "footprint"})
+    path = str(tmp_path / "ssr.safetensors")
+    export_model(model, path, {})
+    out = str(tmp_path / "pred")
+    assert E.main(["--data", root, "--split", "test", "--out", out, "--device", "cpu", "--models", f"ssr={path}"]) == 0
+    # expected: the model's output through MeanCorrection over 16-pixel tiles from frame 0
+    model.eval()
+    ds = SequenceDataset(root, "test", window=1, crop=None, flips=False, extra=model.extra_buffers + ("background", "coverage"))
+    mc, state = MeanCorrection(16), None
+    seq = ds.sequences[0]
+    with torch.no_grad():
+        for t in range(seq.frames):
+            fb = fold_emission({k: v.unsqueeze(0) for k, v in ds.full_frame(0, t).items()}, model.cfg)
+            padded, (h, w) = pad_frame(fb, 4)
+            r = model(padded, state)
+            state = r["state"]
+            y = r["output"][:, :, :h, :w]
+            want, plain = mc(y, fb)[0].permute(1, 2, 0).numpy(), composite_background(y, fb)[0].permute(1, 2, 0).numpy()
+            got = read_exr(os.path.join(out, "ssr", "test", seq.name, f"frame_{t:04d}.exr"), ["pred.R", "pred.G", "pred.B"])
+            np.testing.assert_allclose(got, want, rtol=1e-6, atol=1e-7)
+    assert np.abs(want - plain).max() > 1e-4  # the correction changed the output
+
+
 def test_evaluate_errors(dataset, tmp_path, capsys):
     assert E.main(["--data", dataset, "--models", f"x={tmp_path / 'none.safetensors'}", "--device", "cpu"]) == 1
     assert "none.safetensors" in capsys.readouterr().err
