@@ -95,6 +95,18 @@ pub const CEILING_GAIN: f32 = 1.0;
 /// traced pixels of clean(color) / (clean(albedo) + 0.00316); M_0 = m_0.
 pub const CEILING_DECAY: f32 = 0.9;
 
+/// `enc` as this engine runs it: three widths, one per U-Net level. The trainer also knows a
+/// fourth level (training/README, Tensor contract), which this engine refuses by name.
+fn three_levels<'de, D: serde::Deserializer<'de>>(d: D) -> std::result::Result<[u32; 3], D::Error> {
+    let v = Vec::<u32>::deserialize(d)?;
+    <[u32; 3]>::try_from(v.as_slice()).map_err(|_| {
+        serde::de::Error::custom(format!(
+            "`enc` holds {} widths {v:?}: this engine runs the 3-level U-Net ([c1, c2, c3]; a fourth level is a PyTorch-only configuration so far)",
+            v.len()
+        ))
+    })
+}
+
 /// Widths and options of the SSR network. A key this engine does not know (an option of a
 /// later trainer) is an error, never silently ignored: the engine would run another pipeline
 /// than the one the weights were trained with.
@@ -106,6 +118,7 @@ pub struct SsrConfig {
     /// TFA feature width K.
     pub k: u32,
     /// Encoder widths at 1/1, 1/2, 1/4 resolution.
+    #[serde(deserialize_with = "three_levels")]
     pub enc: [u32; 3],
     /// Feature pooling: `"max"` or `"avg"`.
     pub feature_pool: String,
@@ -629,6 +642,16 @@ mod tests {
         .unwrap_err()
         .to_string();
         assert!(e.contains("unknown field `sky`"), "{e}");
+        // a fourth U-Net level (the trainer's) is refused by name
+        let e = serde_json::from_str::<SsrConfig>(
+            r#"{"enc":[16,32,28,24],"exposure":"channel","feature_pool":"max","history":"geometry","input_channels":37,"k":8,"remodulation":"current","tfa_hidden":8,"upsample":"bilinear","version":2}"#,
+        )
+        .unwrap_err()
+        .to_string();
+        assert!(
+            e.contains("`enc` holds 4 widths [16, 32, 28, 24]") && e.contains("3-level U-Net"),
+            "{e}"
+        );
         let bad = SsrConfig {
             exposure: Some("none".into()),
             ..d.clone()

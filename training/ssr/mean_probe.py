@@ -9,7 +9,8 @@ the previous frame's), and interpolated bilinearly between tile centres.
         [--block 32] [--frames 4] [--smooth 1] [--geometry] [--decay D]
 
 `--composite` (fourteenth session) takes the predictions as the network's output before the
-engine's output pass (what `ssr.evaluate` writes) and applies that pass first: B + (1 - a) x
+engine's output pass (what `ssr.evaluate` writes for a model without `mean_correction`;
+with one it writes the output after the whole pass) and applies that pass first: B + (1 - a) x
 prediction, with the dataset's `background` buffer B (the directly seen environment,
 weighted by its coverage a) and `coverage`. `--geometry` (implies `--composite`) corrects
 only the reconstructed part: B + (1 - a) x prediction x factor, the factor comparing the sums
