@@ -37,7 +37,7 @@ from .baselines import NON_LEARNED, load_model
 from .data import DatasetError, SequenceDataset, frame_name, pad_frame, read_extra_buffers, write_exr
 from .export import WeightsError
 from .metrics import image_metrics, mean_metrics, temporal_error
-from .model import composite_background, fold_emission, mean_correction_of
+from .model import fold_emission, mean_correction_of, output_pass
 from .oidn import OIDN_MODELS, OIDNUnavailable
 
 REFERENCES = {**NON_LEARNED, **OIDN_MODELS}
@@ -107,7 +107,7 @@ def run_model(
             with open(os.path.join(folder, "prediction.json"), "w") as f:
                 json.dump({"model": name, **{k: v for k, v in info.items() if k != "provenance"}}, f, indent=2)
         state = None
-        mc = mean_correction_of(cfg) if cfg is not None else None
+        mc = mean_correction_of(cfg)
         per_frame, temporal = [], []
         prev = None
         n = seq.frames if frames is None else min(frames, seq.frames)
@@ -120,11 +120,9 @@ def run_model(
             r = model(padded, state)
             state = r["state"]
             y = r["output"][:, :, :h, :w]
-            if mc is not None:
-                y = mc(y, fb)  # the engine's output pass: the correction, background and emitters
-            elif getattr(cfg, "emission", "network") == "background":
-                # the emitters are the output pass's: without the composite they are missing
-                y = composite_background(y, fb)
+            # the engine's output pass (the emitters are its: without it they are missing); a
+            # frame without a background (any model but emission = "background") passes unchanged
+            y = output_pass(y, fb, mc)
             pred = y[0].float().cpu()
             if folder:
                 write_exr(os.path.join(folder, frame_name(t)), {"pred": pred.numpy()}, PRED_SUFFIXES)

@@ -436,6 +436,14 @@ def composite_background(output: torch.Tensor, frame: Dict[str, torch.Tensor]) -
     return bg + (1.0 - cov) * output + emission_part(frame, output)
 
 
+def output_pass(output: torch.Tensor, frame: Dict[str, torch.Tensor], mc: Optional[MeanCorrection]) -> torch.Tensor:
+    """The engine's output pass over the network's output: with a mean correction `mc` (a
+    fresh one per sequence, its ring carried over the frames) the correction with the
+    background and the emitters; without, `composite_background` (the output unchanged where
+    the frame has no background)."""
+    return mc(output, frame) if mc is not None else composite_background(output, frame)
+
+
 def emission_part(frame: Dict[str, torch.Tensor], like: torch.Tensor) -> torch.Tensor:
     """The directly seen emission the output pass adds (COMPOSITE_EMISSION, set by
     `fold_emission`; sanitised as the background), 0 without it, in `like`'s dtype."""

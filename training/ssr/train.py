@@ -58,11 +58,11 @@ from .model import (
     MeanCorrection,
     SSRConfig,
     SSRModel,
-    composite_background,
     extra_buffers,
     fold_emission,
     grow_unet,
     mean_correction_of,
+    output_pass,
 )
 from .validation import validate
 
@@ -300,8 +300,8 @@ def load_init(model: nn.Module, path: str, model_name: str) -> dict:
     free = FINE_TUNE_OPTIONS + OUTPUT_PASS_OPTIONS
     same = lambda d: {k: v for k, v in d.items() if k not in free + ("enc",)}  # noqa: E731
     # a 3-level file starts a 4-level run of the same first three widths (model.grow_unet)
-    grow = len(got.get("enc", ())) == 3 and len(want.get("enc", ())) == 4 and want["enc"][:3] == got["enc"]
-    if type(loaded) is not type(model) or same(got) != same(want) or (got.get("enc") != want.get("enc") and not grow):
+    grow = len(got["enc"]) == 3 and len(want["enc"]) == 4 and want["enc"][:3] == got["enc"]
+    if type(loaded) is not type(model) or same(got) != same(want) or (got["enc"] != want["enc"] and not grow):
         raise CheckpointError(
             f"--init {path}: its model config {json.dumps(got, sort_keys=True)} differs from the run's "
             f"{json.dumps(want, sort_keys=True)} (model {model_name})"
@@ -731,13 +731,11 @@ def _train(args, config: dict, dd: Dist) -> dict:
             frames = [{k: v.to(device, non_blocking=True) for k, v in f.items()} for f in batch]
             frames = [fold_emission(f, getattr(model, "cfg", None)) for f in frames]
             results = runner(frames)
-            if args.mean_correction == "loss":
+            if args.mean_correction == "loss" or args.background == "loss":
                 # one window: the ring starts empty, as after a reset; the tiles of the exported
                 # config's correction (32-pixel ones when it has none)
-                mc = mean_correction_of(getattr(model, "cfg", None)) or MeanCorrection()
-                results = [{**r, "output": mc(r["output"], f)} for r, f in zip(results, frames)]
-            elif args.background == "loss":
-                results = [{**r, "output": composite_background(r["output"], f)} for r, f in zip(results, frames)]
+                mc = (mean_correction_of(getattr(model, "cfg", None)) or MeanCorrection()) if args.mean_correction == "loss" else None
+                results = [{**r, "output": output_pass(r["output"], f, mc)} for r, f in zip(results, frames)]
             loss, parts = compute_loss(model, results, frames, weights, args.lambdas)
             opt.zero_grad(set_to_none=True)
             loss.backward()

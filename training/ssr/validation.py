@@ -10,7 +10,8 @@ from torch import nn
 
 from .data import SequenceDataset, pad_frame, read_extra_buffers
 from .metrics import image_metrics, mean_metrics
-from .model import composite_background, fold_emission, mean_correction_of
+from .model import fold_emission, mean_correction_of
+from .model import output_pass as engine_output_pass  # `output_pass` is validate's flag
 
 
 @torch.no_grad()
@@ -51,7 +52,7 @@ def validate(model: nn.Module, ds: SequenceDataset, device: torch.device, frames
             state = r["state"]
             out = r["output"][:, :, :h, :w]
             if output_pass:
-                out = mc(out, f) if mc is not None else composite_background(out, f)
+                out = engine_output_pass(out, f, mc)
             pred = out[0].float().cpu()
             m = image_metrics(pred, f["reference"][0].cpu())
             rows.append(m)
