@@ -196,14 +196,20 @@ fn fixed_kernels_fall_back_to_generic_where_they_cannot_run() {
 #[test]
 fn odd_sizes_are_padded_internally() {
     let gpu = common::gpu();
-    let weights = Weights::load(golden_weights_path()).unwrap();
-    for (w, h) in [(1, 1), (7, 5), (33, 17)] {
-        let mut den = Denoiser::with_gpu(&gpu, &weights, w, h).unwrap();
-        assert_eq!((den.network().width % 4, den.network().height % 4), (0, 0));
-        for t in 0..2 {
-            let out = den.denoise_host(&random_frame(w, h, t)).unwrap();
-            assert_eq!((out.width, out.height, out.channels), (w, h, 3));
-            assert!(out.data.iter().all(|v| v.is_finite() && *v >= 0.0));
+    // 3 levels pad to multiples of 4, a fourth level to multiples of 8
+    let deep = golden_weights_path().with_file_name("golden_l4_weights.safetensors");
+    for (path, m) in [(golden_weights_path(), 4), (deep, 8)] {
+        let weights = Weights::load(&path).unwrap();
+        assert_eq!(weights.config.pad_multiple(), m);
+        for (w, h) in [(1, 1), (7, 5), (33, 17)] {
+            let mut den = Denoiser::with_gpu(&gpu, &weights, w, h).unwrap();
+            let net = den.network();
+            assert_eq!((net.width, net.height), (w.div_ceil(m) * m, h.div_ceil(m) * m));
+            for t in 0..2 {
+                let out = den.denoise_host(&random_frame(w, h, t)).unwrap();
+                assert_eq!((out.width, out.height, out.channels), (w, h, 3));
+                assert!(out.data.iter().all(|v| v.is_finite() && *v >= 0.0));
+            }
         }
     }
 }

@@ -2,7 +2,8 @@
 //! three consecutive 40x24 frames (so the history path runs), every intermediate compared
 //! in execution order so a failure names the layer that diverged. Two sets: `golden_*`
 //! (version-2 config: exposure normalisation, remodulation with the current albedo,
-//! geometric history test; the light brightens 3x per frame and a block is disoccluded) and
+//! geometric history test; the light brightens 3x per frame and a block is disoccluded),
+//! `golden_l4_*` (the same with a fourth U-Net level, enc [16, 32, 28, 24]) and
 //! `golden_v1_*` (a version-1 config: the pipeline of version-1 weights files).
 
 mod common;
@@ -71,6 +72,15 @@ fn denoiser_matches_pytorch_on_golden_frames() {
 fn pooling_on_load_and_pooling_passes_match_pytorch() {
     for pooling in [Pooling::OnLoad, Pooling::Pass] {
         golden_parity_with("golden_", 2, Precision::F32, pooling);
+    }
+}
+
+/// A fourth U-Net level (1/8 resolution; dec3 reads I4 upsampled), both ways of reading the
+/// pooled levels.
+#[test]
+fn fourth_unet_level_matches_pytorch() {
+    for pooling in [Pooling::OnLoad, Pooling::Pass] {
+        golden_parity_with("golden_l4_", 2, Precision::F32, pooling);
     }
 }
 
@@ -174,10 +184,12 @@ fn golden_parity_with(prefix: &str, version: u32, precision: Precision, pooling:
             };
             common::assert_close(&format!("{prefix} frame {i} layer '{golden}'"), &got, want, tol);
         }
-        // Version 2 golden files hold 17 intermediates, version 1 16 (no exposure).
+        // Version 2 golden files hold 17 intermediates, version 1 16 (no exposure), and a
+        // fourth level's two more (enc4, i4).
+        let deep = 2 * (weights.config.levels() as usize - 3);
         assert_eq!(
             compared,
-            if version == 1 { 16 } else { 17 },
+            if version == 1 { 16 } else { 17 } + deep,
             "{prefix}: intermediates compared"
         );
         let tol = common::Tol {
@@ -200,7 +212,12 @@ fn golden_parity_with(prefix: &str, version: u32, precision: Precision, pooling:
 fn golden_names_are_engine_tensor_names() {
     let py = std::fs::read_to_string(concat!(env!("CARGO_MANIFEST_DIR"), "/training/ssr/golden.py")).unwrap();
     let mut names = Vec::new();
-    for list in ["GOLDEN_INTERMEDIATES = [", "GOLDEN_EXTRAS = [", "GOLDEN_V2 = ["] {
+    for list in [
+        "GOLDEN_INTERMEDIATES = [",
+        "GOLDEN_EXTRAS = [",
+        "GOLDEN_L4 = [",
+        "GOLDEN_V2 = [",
+    ] {
         let start = py.find(list).unwrap_or_else(|| panic!("golden.py has no {list}")) + list.len();
         let body = &py[start..start + py[start..].find(']').unwrap()];
         names.extend(
@@ -209,7 +226,7 @@ fn golden_names_are_engine_tensor_names() {
                 .filter(|n| !n.is_empty()),
         );
     }
-    assert!(names.len() >= 17, "{names:?}");
+    assert!(names.len() >= 19, "{names:?}");
     let engine: Vec<&str> = subpixel::ssr::graph::TensorId::ALL
         .iter()
         .map(|t| t.name())

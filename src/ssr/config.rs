@@ -95,17 +95,23 @@ pub const CEILING_GAIN: f32 = 1.0;
 /// traced pixels of clean(color) / (clean(albedo) + 0.00316); M_0 = m_0.
 pub const CEILING_DECAY: f32 = 0.9;
 
-/// `enc` as this engine runs it: three widths, one per U-Net level. The trainer also knows a
-/// fourth level (training/README, Tensor contract), which this engine refuses by name.
-fn three_levels<'de, D: serde::Deserializer<'de>>(d: D) -> std::result::Result<[u32; 3], D::Error> {
+/// `enc`: one width per U-Net level, three or four (the fourth level at 1/8 resolution;
+/// training/README, Tensor contract). Any other count is refused by name.
+fn unet_levels<'de, D: serde::Deserializer<'de>>(d: D) -> std::result::Result<Vec<u32>, D::Error> {
     let v = Vec::<u32>::deserialize(d)?;
-    <[u32; 3]>::try_from(v.as_slice()).map_err(|_| {
-        serde::de::Error::custom(format!(
-            "`enc` holds {} widths {v:?}: this engine runs the 3-level U-Net ([c1, c2, c3]; a fourth level is a PyTorch-only configuration so far)",
+    if !(MIN_LEVELS..=MAX_LEVELS).contains(&v.len()) {
+        return Err(serde::de::Error::custom(format!(
+            "`enc` holds {} widths {v:?}: this engine runs U-Nets of {MIN_LEVELS} or {MAX_LEVELS} levels (one width per level)",
             v.len()
-        ))
-    })
+        )));
+    }
+    Ok(v)
 }
+
+/// The fewest U-Net levels a config may have.
+pub const MIN_LEVELS: usize = 3;
+/// The most U-Net levels a config may have.
+pub const MAX_LEVELS: usize = 4;
 
 /// Widths and options of the SSR network. A key this engine does not know (an option of a
 /// later trainer) is an error, never silently ignored: the engine would run another pipeline
@@ -117,9 +123,9 @@ pub struct SsrConfig {
     pub tfa_hidden: u32,
     /// TFA feature width K.
     pub k: u32,
-    /// Encoder widths at 1/1, 1/2, 1/4 resolution.
-    #[serde(deserialize_with = "three_levels")]
-    pub enc: [u32; 3],
+    /// Encoder widths at 1/1, 1/2, 1/4 (and, with a fourth, 1/8) resolution.
+    #[serde(deserialize_with = "unet_levels")]
+    pub enc: Vec<u32>,
     /// Feature pooling: `"max"` or `"avg"`.
     pub feature_pool: String,
     /// Upsampling of the coarse RGB images: `"bilinear"` or `"nearest"`.
@@ -161,7 +167,7 @@ impl Default for SsrConfig {
         Self {
             tfa_hidden: 8,
             k: 8,
-            enc: [16, 32, 28],
+            enc: vec![16, 32, 28],
             feature_pool: "max".into(),
             upsample: "bilinear".into(),
             input_channels: 2 * A_CHANNELS + MT_CHANNELS + RGB,
@@ -188,7 +194,7 @@ pub struct LayerSpec {
     pub cout: u32,
     /// Activation after the conv.
     pub act: Activation,
-    /// Resolution level: 0 full, 1 half, 2 quarter.
+    /// Resolution level: 0 full, 1 half, 2 quarter, 3 eighth.
     pub level: u32,
     /// How many times it runs per frame (the embedding net runs twice).
     pub runs: u32,
@@ -218,6 +224,13 @@ impl SsrConfig {
     /// Checks the options; errors name the field.
     pub fn validate(&self) -> Result<()> {
         let bad = |m: String| Err(Error::Invalid(format!("SSR config: {m}")));
+        if !(MIN_LEVELS..=MAX_LEVELS).contains(&self.enc.len()) {
+            return bad(format!(
+                "enc {:?}: {} widths, expected {MIN_LEVELS} or {MAX_LEVELS} (one per U-Net level)",
+                self.enc,
+                self.enc.len()
+            ));
+        }
         if self.tfa_hidden == 0 || self.k == 0 || self.enc.contains(&0) {
             return bad(format!(
                 "widths must be > 0 (tfa_hidden {}, k {}, enc {:?})",
@@ -413,10 +426,21 @@ impl SsrConfig {
         choose("upsample", Some(&self.upsample), &choices)
     }
 
+    /// U-Net levels (3 or 4: the widths of `enc`).
+    pub fn levels(&self) -> u32 {
+        self.enc.len() as u32
+    }
+
+    /// What the padded frame's sides are a multiple of: each U-Net level below the first
+    /// halves them (4 with three levels, 8 with four).
+    pub fn pad_multiple(&self) -> u32 {
+        1 << (self.levels() - 1)
+    }
+
     /// Every conv layer in execution order.
     pub fn layers(&self) -> Vec<LayerSpec> {
         let (h, k) = (self.tfa_hidden, self.k);
-        let [c1, c2, c3] = self.enc;
+        let (c1, c2, c3) = (self.enc[0], self.enc[1], self.enc[2]);
         let relu = Activation::Relu;
         let none = Activation::None;
         let l = |name: &str, inputs: &[u32], cout, act, level, runs| LayerSpec {
@@ -427,7 +451,7 @@ impl SsrConfig {
             level,
             runs,
         };
-        vec![
+        let mut layers = vec![
             l("tfa.ref.0", &[A_CHANNELS, MT_CHANNELS], h, relu, 0, 1),
             l("tfa.ref.2", &[h], k, none, 0, 1),
             l("tfa.emb.0", &[A_CHANNELS], h, relu, 0, 2),
@@ -445,13 +469,29 @@ impl SsrConfig {
             l("unet.enc2.2", &[c2], c2, relu, 1, 1),
             l("unet.enc3.0", &[c2, RGB], c3, relu, 2, 1),
             l("unet.enc3.2", &[c3], c3, relu, 2, 1),
-            l("unet.dec3.0", &[c3, RGB], c3, relu, 2, 1),
+        ];
+        // dec3 reads enc3 and W(o) at 1/4, with a fourth level I4 upsampled between them.
+        let dec3_inputs = match self.enc.get(3) {
+            Some(&c4) => {
+                layers.extend([
+                    l("unet.enc4.0", &[c3, RGB], c4, relu, 3, 1),
+                    l("unet.enc4.2", &[c4], c4, relu, 3, 1),
+                    l("unet.dec4.0", &[c4, RGB], c4, relu, 3, 1),
+                    l("unet.dec4.2", &[c4], RGB, none, 3, 1),
+                ]);
+                vec![c3, RGB, RGB]
+            }
+            None => vec![c3, RGB],
+        };
+        layers.extend([
+            l("unet.dec3.0", &dec3_inputs, c3, relu, 2, 1),
             l("unet.dec3.2", &[c3], RGB, none, 2, 1),
             l("unet.dec2.0", &[c2, RGB, RGB], c2, relu, 1, 1),
             l("unet.dec2.2", &[c2], RGB, none, 1, 1),
             l("unet.dec1.0", &[c1, RGB, RGB], c1, relu, 0, 1),
             l("unet.dec1.2", &[c1], RGB, none, 0, 1),
-        ]
+        ]);
+        layers
     }
 
     /// FLOPs per full-resolution pixel of one layer (18 Cin Cout per output pixel, /4 per
@@ -476,6 +516,13 @@ mod tests {
         let f = SsrConfig::default().flops_per_pixel();
         assert!(f <= 50_000.0, "{f} FLOP/px");
         assert!(f > 40_000.0, "{f} FLOP/px");
+        // the fourth level [16, 32, 28, 24]: what `python -m ssr.flops` measures on the
+        // PyTorch model (training/README, Generalisation 22)
+        let deep = SsrConfig {
+            enc: vec![16, 32, 28, 24],
+            ..SsrConfig::default()
+        };
+        assert_eq!(deep.flops_per_pixel().round(), 49_948.0);
     }
 
     #[test]
@@ -642,16 +689,31 @@ mod tests {
         .unwrap_err()
         .to_string();
         assert!(e.contains("unknown field `sky`"), "{e}");
-        // a fourth U-Net level (the trainer's) is refused by name
-        let e = serde_json::from_str::<SsrConfig>(
+        // a fourth U-Net level (the trainer's `enc` of four widths) is read; five are refused by name
+        let deep: SsrConfig = serde_json::from_str(
             r#"{"enc":[16,32,28,24],"exposure":"channel","feature_pool":"max","history":"geometry","input_channels":37,"k":8,"remodulation":"current","tfa_hidden":8,"upsample":"bilinear","version":2}"#,
+        )
+        .unwrap();
+        deep.validate().unwrap();
+        assert_eq!((deep.levels(), deep.pad_multiple()), (4, 8));
+        assert_eq!((d.levels(), d.pad_multiple()), (3, 4));
+        let e = serde_json::from_str::<SsrConfig>(
+            r#"{"enc":[16,32,28,24,20],"exposure":"channel","feature_pool":"max","history":"geometry","input_channels":37,"k":8,"remodulation":"current","tfa_hidden":8,"upsample":"bilinear","version":2}"#,
         )
         .unwrap_err()
         .to_string();
         assert!(
-            e.contains("`enc` holds 4 widths [16, 32, 28, 24]") && e.contains("3-level U-Net"),
+            e.contains("`enc` holds 5 widths [16, 32, 28, 24, 20]") && e.contains("3 or 4 levels"),
             "{e}"
         );
+        let e = SsrConfig {
+            enc: vec![16, 32],
+            ..d.clone()
+        }
+        .validate()
+        .unwrap_err()
+        .to_string();
+        assert!(e.contains("enc [16, 32]: 2 widths, expected 3 or 4"), "{e}");
         let bad = SsrConfig {
             exposure: Some("none".into()),
             ..d.clone()

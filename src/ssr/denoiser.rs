@@ -18,9 +18,11 @@ use crate::gpu::{Bound, Dispatch, Gpu, Grid, Profiler, Specialisation};
 use crate::nn::HostTensor;
 use crate::nn::autotune::EngineOptions;
 
-/// Rounds up to a multiple of 4 (the U-Net depth): the engine pads internally.
-pub fn round_up4(n: u32) -> u32 {
-    n.div_ceil(4) * 4
+/// `n` rounded up to a multiple of `multiple`: the engine pads frames internally to
+/// [`SsrConfig::pad_multiple`](super::SsrConfig::pad_multiple) (4 for a 3-level U-Net, 8
+/// for 4 levels).
+pub fn round_up(n: u32, multiple: u32) -> u32 {
+    n.div_ceil(multiple) * multiple
 }
 
 #[repr(C)]
@@ -212,7 +214,8 @@ impl Denoiser {
             ));
         }
         gpu.kernels.check_limits("the denoiser", KERNELS_USED)?;
-        let net = Network::new(gpu, weights, round_up4(width), round_up4(height), options)?;
+        let pad = weights.config.pad_multiple();
+        let net = Network::new(gpu, weights, round_up(width, pad), round_up(height, pad), options)?;
         let output = Self::make_output(gpu, width, height);
         let mean = match weights.config.mean_correction()? {
             MeanCorrection::None => None,

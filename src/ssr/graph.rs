@@ -97,6 +97,8 @@ tensor_ids! {
     Wo2 = "wo2": Transient,
     /// W(o) at quarter resolution.
     Wo4 = "wo4": Transient,
+    /// W(o) at eighth resolution (a fourth U-Net level only).
+    Wo8 = "wo8": Transient,
     /// U-Net encoder level 1, hidden layer.
     Enc1Hidden = "enc1_hidden": Transient F16,
     /// U-Net encoder level 1.
@@ -113,6 +115,19 @@ tensor_ids! {
     Enc3Hidden = "enc3_hidden": Transient F16,
     /// Encoder level 3.
     Enc3 = "enc3": F16,
+    /// Its pooling (a view; a fourth U-Net level only).
+    Pool3 = "pool3": Transient F16,
+    /// Encoder level 4, hidden layer (a fourth U-Net level only, as are the tensors down
+    /// to [`TensorId::Up4`]).
+    Enc4Hidden = "enc4_hidden": Transient F16,
+    /// Encoder level 4.
+    Enc4 = "enc4": F16,
+    /// Decoder level 4, hidden layer.
+    Dec4Hidden = "dec4_hidden": Transient F16,
+    /// Decoder level 4 output I4.
+    I4 = "i4",
+    /// I4 upsampled (a view).
+    Up4 = "up4": Transient,
     /// Decoder level 3, hidden layer.
     Dec3Hidden = "dec3_hidden": Transient F16,
     /// Decoder level 3 output I3.
@@ -138,7 +153,7 @@ tensor_ids! {
 /// Where a tensor's size comes from.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum Extent {
-    /// The padded image at resolution level `l` (0 full, 1 half, 2 quarter).
+    /// The padded image at resolution level `l` (0 full, 1 half, 2 quarter, 3 eighth).
     Level(u32),
     /// One pixel.
     Single,
@@ -167,17 +182,28 @@ impl TensorId {
         Ok(match self {
             Pool1 if !pool_pass => (Enc1, Fetch::Pool(config.pool_mode()?)),
             Pool2 if !pool_pass => (Enc2, Fetch::Pool(config.pool_mode()?)),
+            Pool3 if !pool_pass => (Enc3, Fetch::Pool(config.pool_mode()?)),
+            Up4 => (I4, Fetch::Upsample(config.upsample_mode()?)),
             Up3 => (I3, Fetch::Upsample(config.upsample_mode()?)),
             Up2 => (I2, Fetch::Upsample(config.upsample_mode()?)),
             _ => (self, Fetch::Direct),
         })
     }
 
-    /// Its extent and channel count under `config`.
+    /// Whether `config`'s network has it: the tensors of a fourth U-Net level only with
+    /// four widths in `enc`.
+    pub fn in_config(self, config: &SsrConfig) -> bool {
+        use TensorId::*;
+        config.levels() >= 4 || !matches!(self, Wo8 | Pool3 | Enc4Hidden | Enc4 | Dec4Hidden | I4 | Up4)
+    }
+
+    /// Its extent and channel count under `config` (0 channels for a tensor the config's
+    /// network does not have: [`TensorId::in_config`]).
     pub fn shape(self, config: &SsrConfig) -> (Extent, u32) {
         use Extent::*;
         use TensorId::*;
-        let [c1, c2, c3] = config.enc;
+        let (c1, c2, c3) = (config.enc[0], config.enc[1], config.enc[2]);
+        let c4 = config.enc.get(3).copied().unwrap_or(0);
         let (h, k) = (config.tfa_hidden, config.k);
         match self {
             Exposure => (Single, 3 * RGB),
@@ -192,12 +218,15 @@ impl TensorId {
             TfaWeights => (Level(0), 4),
             WarpOut | Up2 | O | OPrev | Output => (Level(0), RGB),
             Wo2 | Up3 | I2 => (Level(1), RGB),
-            Wo4 | I3 => (Level(2), RGB),
+            Wo4 | I3 | Up4 => (Level(2), RGB),
+            Wo8 | I4 => (Level(3), RGB),
             Enc1Hidden | Enc1 | Dec1Hidden => (Level(0), c1),
             Pool1 => (Level(1), c1),
             Enc2Hidden | Enc2 | Dec2Hidden => (Level(1), c2),
             Pool2 => (Level(2), c2),
             Enc3Hidden | Enc3 | Dec3Hidden => (Level(2), c3),
+            Pool3 => (Level(3), c3),
+            Enc4Hidden | Enc4 | Dec4Hidden => (Level(3), c4),
         }
     }
 }
@@ -334,12 +363,34 @@ pub fn steps(config: &SsrConfig, pool_pass: bool) -> Result<Vec<StepSpec>> {
             &[Pool2, Wo4, Enc3Hidden],
         ),
         step("unet", "unet.enc3.2", Conv("unet.enc3.2"), &[Enc3Hidden, Enc3]),
-        step(
-            "unet",
-            "unet.dec3.0",
-            Conv("unet.dec3.0"),
-            &[Enc3, Wo4, Dec3Hidden],
-        ),
+    ]);
+    // A fourth level below the third, built alike; dec3 then reads I4 upsampled between
+    // enc3 and W(o) at 1/4.
+    let dec3_inputs: &[TensorId] = if config.levels() == 4 {
+        all.extend([
+            step("unet", "pool W(o)/8", Pool(PoolMode::Average), &[Wo4, Wo8]),
+            step("unet", "pool enc3", Pool(config.pool_mode()?), &[Enc3, Pool3]),
+            step(
+                "unet",
+                "unet.enc4.0",
+                Conv("unet.enc4.0"),
+                &[Pool3, Wo8, Enc4Hidden],
+            ),
+            step("unet", "unet.enc4.2", Conv("unet.enc4.2"), &[Enc4Hidden, Enc4]),
+            step(
+                "unet",
+                "unet.dec4.0",
+                Conv("unet.dec4.0"),
+                &[Enc4, Wo8, Dec4Hidden],
+            ),
+            step("unet", "unet.dec4.2", Conv("unet.dec4.2"), &[Dec4Hidden, I4]),
+        ]);
+        &[Enc3, Up4, Wo4, Dec3Hidden]
+    } else {
+        &[Enc3, Wo4, Dec3Hidden]
+    };
+    all.extend([
+        step("unet", "unet.dec3.0", Conv("unet.dec3.0"), dec3_inputs),
         step("unet", "unet.dec3.2", Conv("unet.dec3.2"), &[Dec3Hidden, I3]),
         step(
             "unet",
@@ -358,7 +409,7 @@ pub fn steps(config: &SsrConfig, pool_pass: bool) -> Result<Vec<StepSpec>> {
         step("unet", "remodulate", Remodulate, &[O, albedo, Exposure, Output]),
     ]);
     if !pool_pass {
-        all.retain(|s| !matches!(s.tensors[..], [_, Pool1 | Pool2]));
+        all.retain(|s| !matches!(s.tensors[..], [_, Pool1 | Pool2 | Pool3]));
     }
     // Production order: each stage's history steps, then its other steps.
     let mut ordered = Vec::with_capacity(all.len());
@@ -378,13 +429,24 @@ mod tests {
     /// split of the tensors the graph gives it, at its level.
     #[test]
     fn graph_matches_the_layer_list() {
-        for pool_pass in [false, true] {
-            graph_matches_the_layer_list_with(pool_pass);
+        for config in configs() {
+            for pool_pass in [false, true] {
+                graph_matches_the_layer_list_with(&config, pool_pass);
+            }
         }
     }
 
-    fn graph_matches_the_layer_list_with(pool_pass: bool) {
-        let config = SsrConfig::default();
+    /// The default 3-level network and one with a fourth U-Net level.
+    fn configs() -> [SsrConfig; 2] {
+        let deep = SsrConfig {
+            enc: vec![16, 32, 28, 24],
+            ..SsrConfig::default()
+        };
+        [SsrConfig::default(), deep]
+    }
+
+    fn graph_matches_the_layer_list_with(config: &SsrConfig, pool_pass: bool) {
+        let config = config.clone();
         let steps = steps(&config, pool_pass).unwrap();
         for l in config.layers() {
             let uses: Vec<&StepSpec> = steps
@@ -409,13 +471,42 @@ mod tests {
         }
         let convs = steps.iter().filter(|s| matches!(s.op, Op::Conv(_))).count() as u32;
         assert_eq!(convs, config.layers().iter().map(|l| l.runs).sum::<u32>());
+        // every tensor a step takes is the config's, with channels, read after it is written
+        // (but for the history, written by the last frame, and the frame's own inputs)
+        let mut written = vec![TensorId::AAccPrev, TensorId::OPrev, TensorId::ACur, TensorId::Mt];
+        written.extend([TensorId::Motion, TensorId::Exposure, TensorId::ExposureRatio]);
+        for s in &steps {
+            let outputs = match s.op {
+                Op::WarpHistory { .. } => 3,
+                Op::TfaBlend => 2,
+                _ => 1,
+            };
+            let (ins, outs) = s.tensors.split_at(s.tensors.len() - outputs);
+            for t in &s.tensors {
+                assert!(
+                    t.in_config(&config) && t.shape(&config).1 > 0,
+                    "{}: {t:?}",
+                    s.label
+                );
+            }
+            for t in ins {
+                let (stored, _) = t.stored(&config, pool_pass).unwrap();
+                assert!(
+                    written.contains(&stored),
+                    "{}: {t:?} read before it is written",
+                    s.label
+                );
+            }
+            written.extend(outs);
+        }
     }
 
     /// Tensors that may be f16 are touched by convolutions and pooling only, and each
     /// layer sees the same storage in every step that runs it (one kernel per layer).
     #[test]
     fn f16_tensors_meet_only_kernels_with_f16_variants() {
-        let steps = steps(&SsrConfig::default(), true).unwrap();
+        let [_, deep] = configs();
+        let steps = steps(&deep, true).unwrap();
         let mut seen = std::collections::HashMap::new();
         for s in &steps {
             let f16: Vec<bool> = s.tensors.iter().map(|t| t.may_store_f16()).collect();
@@ -441,10 +532,10 @@ mod tests {
     #[test]
     fn pooled_levels_are_written_before_they_are_read() {
         use TensorId::*;
-        let config = SsrConfig::default();
+        let [_, config] = configs();
         for pool_pass in [false, true] {
             let steps = steps(&config, pool_pass).unwrap();
-            for (pooled, source) in [(Pool1, Enc1), (Pool2, Enc2)] {
+            for (pooled, source) in [(Pool1, Enc1), (Pool2, Enc2), (Pool3, Enc3)] {
                 let (stored, fetch) = pooled.stored(&config, pool_pass).unwrap();
                 let writes: Vec<usize> = (0..steps.len())
                     .filter(|&i| steps[i].tensors.last() == Some(&pooled))

@@ -39,7 +39,8 @@ pub enum Granularity {
     Layer,
 }
 
-/// The network at one padded resolution (a multiple of 4 in both dimensions), built from
+/// The network at one padded resolution (a multiple of [`SsrConfig::pad_multiple`] in both
+/// dimensions), built from
 /// the declaration in [`super::graph`].
 pub struct Network {
     /// Its configuration.
@@ -83,6 +84,8 @@ pub const INTERMEDIATES: &[&str] = &[
     "enc1",
     "enc2",
     "enc3",
+    "enc4",
+    "i4",
     "i3",
     "i2",
     "o",
@@ -250,14 +253,18 @@ impl Network {
         height: u32,
         options: EngineOptions,
     ) -> Result<Self> {
-        if width == 0 || height == 0 || !width.is_multiple_of(4) || !height.is_multiple_of(4) {
-            return Err(Error::shape(
-                "ssr network",
-                format!("padded size {width}x{height} must be a non-zero multiple of 4"),
-            ));
-        }
         let config = weights.config.clone();
         config.validate()?;
+        let m = config.pad_multiple();
+        if width == 0 || height == 0 || !width.is_multiple_of(m) || !height.is_multiple_of(m) {
+            return Err(Error::shape(
+                "ssr network",
+                format!(
+                    "padded size {width}x{height} must be a non-zero multiple of {m} (a {}-level U-Net)",
+                    config.levels()
+                ),
+            ));
+        }
         let layers = config.layers();
         let mut convs = BTreeMap::new();
         for l in &layers {
@@ -324,6 +331,7 @@ impl Network {
                 id,
                 TensorId::AAcc | TensorId::AAccPrev | TensorId::O | TensorId::OPrev
             ) || stored[&id].0 != id
+                || !id.in_config(&config)
             {
                 continue;
             }
@@ -489,12 +497,13 @@ impl Network {
 
     /// A tensor of the last recorded frame by name ([`INTERMEDIATES`], or any
     /// [`TensorId::name`] that is not transient: transient tensors share memory, so their
-    /// contents after the frame are not theirs).
+    /// contents after the frame are not theirs); `None` for other names and for the
+    /// tensors of a fourth U-Net level this network does not have.
     pub fn tensor(&self, name: &str) -> Option<&Tensor> {
         let cur = 1 - self.parity; // parity was advanced after recording
         TensorId::ALL
             .iter()
-            .find(|id| id.name() == name && !id.is_transient())
+            .find(|id| id.name() == name && !id.is_transient() && id.in_config(&self.config))
             .map(|&id| self.at(id, cur))
     }
 

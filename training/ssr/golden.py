@@ -9,6 +9,9 @@ writes
     golden_frame{0,1,2}.safetensors
                                  three consecutive 40x24 frames: inputs, every intermediate
                                  and the output, run as one sequence (frame 0 has no history)
+    golden_l4_weights.safetensors, golden_l4_frame{0,1,2}.safetensors
+                                 the same for the default config with a fourth U-Net level
+                                 (enc [16, 32, 28, 24]: L4_ENC), on the same inputs
     golden_v1_weights.safetensors, golden_v1_frame{0,1,2}.safetensors
                                  the same for a version-1 config (the pipeline of version-1
                                  weights files: no exposure normalisation, remodulation with the
@@ -51,6 +54,11 @@ WEIGHTS_FILE = "golden_weights.safetensors"
 MAX_FILE_BYTES = 1 << 20
 LEGACY_PREFIX = "golden_v1_"
 """File name prefix of the version-1 set (golden_v1_weights, golden_v1_frame{t})."""
+L4_PREFIX = "golden_l4_"
+"""File name prefix of the set with a fourth U-Net level."""
+L4_ENC = [16, 32, 28, 24]
+"""Its widths (the default's three, and a fourth at 1/8 resolution); WIDTH and HEIGHT are
+multiples of 8, as a 4-level U-Net needs."""
 
 GOLDEN_INPUTS = list(FRAME_CHANNELS)  # color mask albedo normal shadow transparent depth metallic roughness motion
 GOLDEN_INTERMEDIATES = [
@@ -69,6 +77,8 @@ GOLDEN_INTERMEDIATES = [
     "output",
 ]
 GOLDEN_EXTRAS = ["enc1", "enc2", "enc3"]
+GOLDEN_L4 = ["enc4", "i4"]
+"""A fourth U-Net level only: its encoder output and its decoder output I4."""
 GOLDEN_V2 = ["exposure"]
 """Version 2 only: the frame's exposure state: s (colour rgb, shadow rgb) and the ceiling's running max M (rgb), [1, 1, 9]."""
 
@@ -167,7 +177,8 @@ def hwc(t: torch.Tensor) -> torch.Tensor:
 
 def golden_names(cfg: SSRConfig) -> List[str]:
     """The intermediates a golden frame of this config holds (beyond the inputs)."""
-    return GOLDEN_INTERMEDIATES + GOLDEN_EXTRAS + (GOLDEN_V2 if cfg.version >= 2 else [])
+    deep = GOLDEN_L4 if len(cfg.enc) == 4 else []
+    return GOLDEN_INTERMEDIATES + GOLDEN_EXTRAS + deep + (GOLDEN_V2 if cfg.version >= 2 else [])
 
 
 @torch.no_grad()
@@ -230,8 +241,10 @@ def check_spread(tensors: Dict[str, torch.Tensor], t: int) -> None:
 
 
 def generate(out_dir: str, weights_seed: int = WEIGHTS_SEED, input_seed: int = INPUT_SEED, verbose: bool = True) -> List[str]:
-    """Writes both sets (version 2, then the version-1 set) into out_dir; returns their paths."""
+    """Writes the three sets (version 2, with a fourth level, then the version-1 set) into
+    out_dir; returns their paths."""
     paths = _generate_set(out_dir, "golden_", SSRConfig(), "coherent", weights_seed, input_seed, verbose)
+    paths += _generate_set(out_dir, L4_PREFIX, SSRConfig(enc=L4_ENC), "coherent", weights_seed, input_seed, verbose)
     legacy = SSRConfig(version=1, **LEGACY_OPTIONS)
     return paths + _generate_set(out_dir, LEGACY_PREFIX, legacy, "random", weights_seed, input_seed, verbose)
 

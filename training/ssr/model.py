@@ -158,8 +158,8 @@ class SSRConfig:
 
     tfa_hidden: int = 8
     k: int = 8
-    # encoder widths, one per U-Net level: 3 levels (the engine's), or 4 (PyTorch only: a
-    # fourth level at 1/8 resolution, UNet below)
+    # encoder widths, one per U-Net level: 3 levels (the default), or 4 (a fourth level at
+    # 1/8 resolution, UNet below; the engine runs both)
     enc: Tuple[int, ...] = (16, 32, 28)
     feature_pool: str = "max"  # "max" | "avg": pooling of encoder features
     upsample: str = "bilinear"  # "bilinear" | "nearest": upsampling of I3, I2
@@ -705,7 +705,7 @@ class TFA(nn.Module):
 
 class UNet(nn.Module):
     """3-level U-Net fed with the warped previous output at every scale. With a fourth width
-    in `enc` (PyTorch only), a fourth level at 1/8 resolution below the third, built alike:
+    in `enc`, a fourth level at 1/8 resolution below the third, built alike:
     enc4 on the pooled enc3 and W(o) at 1/8, dec4 giving I4, and dec3 reading I4 upsampled
     between enc3 and W(o) at 1/4 (as dec2 reads I3); `grow_unet` makes one from a 3-level
     model's tensors that computes the same."""

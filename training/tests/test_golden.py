@@ -43,8 +43,10 @@ SHAPES = {
     "enc3": (H // 4, W // 4, 28),
 }
 SHAPES_V2 = {**SHAPES, "exposure": (1, 1, 9)}
-SETS = {"golden_": SHAPES_V2, "golden_v1_": SHAPES}
-"""File prefix -> the tensors of its frames (version 2: the default config; version 1: legacy)."""
+SHAPES_L4 = {**SHAPES_V2, "enc4": (H // 8, W // 8, 24), "i4": (H // 8, W // 8, 3)}
+SETS = {"golden_": SHAPES_V2, "golden_l4_": SHAPES_L4, "golden_v1_": SHAPES}
+"""File prefix -> the tensors of its frames (version 2: the default config; with a fourth
+U-Net level; version 1: legacy)."""
 FILES = [f"{p}{n}.safetensors" for p in SETS for n in ["weights"] + [f"frame{t}" for t in range(3)]]
 
 
@@ -80,7 +82,7 @@ def test_sizes_names_shapes(generated):
             assert all(v.dtype == torch.float32 for v in tensors.values())
             assert meta["frame"] == str(t) and meta["width"] == str(W) and meta["height"] == str(H)
             assert meta["weights"] == f"{prefix}weights.safetensors"
-            assert meta["version"] == ("2" if prefix == "golden_" else "1")
+            assert meta["version"] == ("1" if prefix == "golden_v1_" else "2")
             assert meta["tile_offset"] == str(list(TILE_OFFSETS[t]))
 
 
@@ -155,7 +157,7 @@ def test_outputs_have_spread(generated, prefix):
         d, _ = _read(os.path.join(a, f"{prefix}frame{t}.safetensors"))
         golden.check_spread(d, t)
         assert (d["output"] == 0).any() and (d["output"] > 0).float().mean() > 0.5
-        for k in ("enc1", "enc2", "enc3"):
+        for k in ("enc1", "enc2", "enc3", "enc4")[: 4 if "enc4" in d else 3]:
             frac = (d[k] == 0).float().mean()
             assert 0.2 < frac < 0.8, (t, k, frac)
 
@@ -166,7 +168,9 @@ def test_files_replay_through_loaded_weights(generated, prefix):
     a, _ = generated
     model, meta = load_weights(os.path.join(a, f"{prefix}weights.safetensors"))
     assert meta["provenance"].startswith("random-init")
-    assert meta["version"] == ("2" if prefix == "golden_" else "1")
+    assert meta["version"] == ("1" if prefix == "golden_v1_" else "2")
+    if prefix == "golden_l4_":
+        assert list(model.cfg.enc) == golden.L4_ENC
     state = None
     for t in range(3):
         d, _ = _read(os.path.join(a, f"{prefix}frame{t}.safetensors"))
@@ -176,3 +180,15 @@ def test_files_replay_through_loaded_weights(generated, prefix):
         state = r["state"]
         for k in golden.golden_names(model.cfg):
             torch.testing.assert_close(golden.hwc(r[k]), d[k], rtol=1e-6, atol=1e-6, msg=f"frame {t}: {k}")
+
+
+def test_fourth_level_carries_signal(generated):
+    """The 4-level set tests its level: I4 varies, and dec3 reads it (dec3's weights on the
+    upsampled I4 are not zero, unlike a grown model's), so the engine's I4 path is checked."""
+    a, _ = generated
+    model, _ = load_weights(os.path.join(a, "golden_l4_weights.safetensors"))
+    c3 = golden.L4_ENC[2]
+    assert model.unet.dec3[0].weight[:, c3 : c3 + 3].abs().min() > 0
+    for t in range(3):
+        d, _ = _read(os.path.join(a, f"golden_l4_frame{t}.safetensors"))
+        assert d["i4"].std() > 0.01, t
