@@ -4,12 +4,14 @@ same numbers every time instead of by eye:
 
     subpixel eval --table --json --pred PRED --ref DATASET --split val > val.json
     python -m ssr.rule val.json --incumbent F1t16e --challenger F3 [--columns procedural]
+        [--guard-columns cbox,cornell,... --guard-db 0.3]
 
 The challenger is picked over the incumbent when its SSIM is higher and its PSNR is at
 least the incumbent's minus the margin (0.05 dB); otherwise the incumbent stays. Both are
 read from the mean over the chosen scene columns (default: every column of the table, the
-table's `mean`). Exit status 0 either way; the decision is printed (and with --json
-written as JSON).
+table's `mean`). With a guard, the challenger must also keep the mean PSNR of the guard
+columns no more than `--guard-db` below the incumbent's. Exit status 0 either way; the
+decision is printed (and with --json written as JSON).
 """
 
 from __future__ import annotations
@@ -58,6 +60,13 @@ def decide(
     return True, f"SSIM {sc:.4f} above {si:.4f} and PSNR {pc:.2f} not below {pi:.2f} - {margin:g}"
 
 
+def guard(incumbent_psnr: float, challenger_psnr: float, max_drop_db: float) -> Tuple[bool, str]:
+    """(passed, reason): the challenger's guard-column PSNR at most `max_drop_db` below."""
+    ok = challenger_psnr >= incumbent_psnr - max_drop_db
+    word = "not more" if ok else "more"
+    return ok, f"guard PSNR {challenger_psnr:.2f} {word} than {max_drop_db:g} dB below {incumbent_psnr:.2f}"
+
+
 def main(argv: Optional[List[str]] = None) -> int:
     ap = argparse.ArgumentParser(prog="python -m ssr.rule", description=__doc__.split("\n\n")[0])
     ap.add_argument("table", help="JSON of `subpixel eval --table --json` ('-' for stdin)")
@@ -65,6 +74,8 @@ def main(argv: Optional[List[str]] = None) -> int:
     ap.add_argument("--challenger", required=True)
     ap.add_argument("--columns", default=None, help="comma-separated scene columns to average (default: all)")
     ap.add_argument("--margin", type=float, default=MARGIN_DB, help="PSNR the challenger may give up (dB)")
+    ap.add_argument("--guard-columns", default=None, help="comma-separated columns whose mean PSNR may not drop much")
+    ap.add_argument("--guard-db", type=float, default=0.3, help="how far the guard columns' PSNR may drop (dB)")
     ap.add_argument("--json", action="store_true", help="print the decision as JSON")
     args = ap.parse_args(argv)
     try:
@@ -75,10 +86,17 @@ def main(argv: Optional[List[str]] = None) -> int:
         cols = [c for c in args.columns.split(",") if c] if args.columns else None
         inc = column_means(table, args.incumbent, cols)
         cha = column_means(table, args.challenger, cols)
+        gcols = [c for c in args.guard_columns.split(",") if c] if args.guard_columns else None
+        if gcols:
+            g_inc = column_means(table, args.incumbent, gcols)[0]
+            g_cha = column_means(table, args.challenger, gcols)[0]
     except (OSError, json.JSONDecodeError, RuleError, KeyError, TypeError) as err:
         print(f"error: {args.table}: {err}", file=sys.stderr)
         return 2
     picked, reason = decide(inc, cha, args.margin)
+    if picked and gcols:
+        picked, why = guard(g_inc, g_cha, args.guard_db)
+        reason = f"{reason}; {why}"
     winner = args.challenger if picked else args.incumbent
     over = ", ".join(cols) if cols else "every column"
     if args.json:
@@ -86,6 +104,7 @@ def main(argv: Optional[List[str]] = None) -> int:
             "winner": winner,
             "reason": reason,
             "columns": cols or "all",
+            **({"guard_columns": gcols, "guard_db": args.guard_db} if gcols else {}),
             args.incumbent: {"psnr": inc[0], "ssim": inc[1]},
             args.challenger: {"psnr": cha[0], "ssim": cha[1]},
         }

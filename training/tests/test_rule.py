@@ -62,3 +62,20 @@ def test_cli_prints_the_winner_and_names_bad_input(tmp_path, capsys):
     (tmp_path / "bad.json").write_text("{}")
     assert rule.main([str(tmp_path / "bad.json"), "--incumbent", "inc", "--challenger", "up"]) == 2
     assert "expected the JSON list" in capsys.readouterr().err
+
+
+def test_guard_columns_limit_the_drop(tmp_path, capsys):
+    t = table(
+        inc={"p": (25.0, 0.70), "f1": (30.0, 0.9), "f2": (28.0, 0.8)},
+        ok={"p": (25.2, 0.72), "f1": (29.8, 0.9), "f2": (27.8, 0.8)},  # fixed mean -0.20 dB
+        bad={"p": (25.2, 0.72), "f1": (29.5, 0.9), "f2": (27.8, 0.8)},  # fixed mean -0.35 dB
+    )
+    path = tmp_path / "val.json"
+    path.write_text(json.dumps(t))
+    args = ["--incumbent", "inc", "--columns", "p", "--guard-columns", "f1,f2", "--guard-db", "0.3", "--json"]
+    assert rule.main([str(path), "--challenger", "ok", *args]) == 0
+    assert json.loads(capsys.readouterr().out)["winner"] == "ok"
+    assert rule.main([str(path), "--challenger", "bad", *args]) == 0
+    out = json.loads(capsys.readouterr().out)
+    assert out["winner"] == "inc" and "more than 0.3 dB below" in out["reason"]
+    assert rule.guard(28.0, 27.7, 0.3)[0] and not rule.guard(28.0, 27.69, 0.3)[0]
