@@ -18,13 +18,6 @@ use crate::gpu::{Bound, Dispatch, Gpu, Grid, Profiler, Specialisation};
 use crate::nn::HostTensor;
 use crate::nn::autotune::EngineOptions;
 
-/// `n` rounded up to a multiple of `multiple`: the engine pads frames internally to
-/// [`SsrConfig::pad_multiple`](super::SsrConfig::pad_multiple) (4 for a 3-level U-Net, 8
-/// for 4 levels).
-pub fn round_up(n: u32, multiple: u32) -> u32 {
-    n.div_ceil(multiple) * multiple
-}
-
 #[repr(C)]
 #[derive(Clone, Copy, Pod, Zeroable)]
 struct PackParams {
@@ -214,8 +207,15 @@ impl Denoiser {
             ));
         }
         gpu.kernels.check_limits("the denoiser", KERNELS_USED)?;
+        // The engine pads frames internally (4 for a 3-level U-Net, 8 for 4 levels).
         let pad = weights.config.pad_multiple();
-        let net = Network::new(gpu, weights, round_up(width, pad), round_up(height, pad), options)?;
+        let net = Network::new(
+            gpu,
+            weights,
+            width.next_multiple_of(pad),
+            height.next_multiple_of(pad),
+            options,
+        )?;
         let output = Self::make_output(gpu, width, height);
         let mean = match weights.config.mean_correction()? {
             MeanCorrection::None => None,

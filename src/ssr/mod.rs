@@ -14,7 +14,7 @@ pub use config::{
     HistoryTest, LayerSpec, MEAN_EPS, MEAN_HI, MEAN_LO, MEAN_RING, MEAN_TILE, MeanCorrection,
     RemodulationAlbedo, SsrConfig,
 };
-pub use denoiser::{Denoiser, FrameInputs, Granularity, KERNELS_USED, PARAM_SIZES, round_up};
+pub use denoiser::{Denoiser, FrameInputs, Granularity, KERNELS_USED, PARAM_SIZES};
 pub use fold::{EmissionFold, FoldParams};
 pub use network::{INTERMEDIATES, Network, StepCost};
 pub use weights::{WEIGHTS_FORMAT, WEIGHTS_VERSION, Weights};
