@@ -1026,6 +1026,118 @@ fn check_mean_correction(option: &str, side: u32, tiles: (u32, u32)) {
     );
 }
 
+/// Config `mean_correction = "atrous"`: per pixel and channel, the reconstruction is scaled
+/// by the ratio of the traced samples to its own values at the same pixels over the last 4
+/// frames, both filtered by the edge-aware a-trous filter of the frame's normals and depths,
+/// against the CPU reference (`nn::reference::mean_pixel_sums`, `mean_atrous_factors`, in
+/// f64) applied to the output of the same weights without the option. The frame holds two
+/// surfaces (left: facing the camera, near; right: turned away, farther) with samples
+/// brighter on the left, and noisy normals within each; with a background only the
+/// reconstructed part is scaled; a reset forgets the earlier frames' sums.
+#[test]
+fn mean_correction_atrous_follows_each_surfaces_samples() {
+    use subpixel::frame::Background;
+    use subpixel::nn::reference::{mean_atrous_factors, mean_pixel_sums};
+    use subpixel::ssr::{
+        ATROUS_DEPTH_SIGMA, ATROUS_EPS, ATROUS_LEVELS, ATROUS_NORMAL_SQUARINGS, MEAN_HI, MEAN_LO, MEAN_RING,
+        MeanCorrection,
+    };
+    let gpu = common::gpu();
+    let weights = Weights::load(golden_weights_path()).unwrap();
+    let mut with_option = weights.clone();
+    with_option.config.mean_correction = Some("atrous".into());
+    assert_eq!(
+        with_option.config.mean_correction().unwrap(),
+        MeanCorrection::Atrous
+    );
+    let (w, h) = (48, 36);
+    let mut plain = Denoiser::with_gpu(&gpu, &weights, w, h).unwrap();
+    let mut corrected = Denoiser::with_gpu(&gpu, &with_option, w, h).unwrap();
+    let mut sums: Vec<HostTensor> = Vec::new();
+    let (mut clamped, mut between) = (0, 0);
+    for t in 0..7u64 {
+        if t == 5 {
+            plain.reset();
+            corrected.reset();
+            sums.clear();
+        }
+        let mut f = random_frame(w, h, 90 + t);
+        let left = |x: u32| x < 20;
+        let jitter = f.normal.clone();
+        f.normal = unit_normals(&HostTensor::from_fn(w, h, 3, |x, y, c| {
+            let base = if left(x) { [0.0, 0.0, 1.0] } else { [0.8, 0.0, 0.6] };
+            base[c as usize] + 0.3 * jitter.at(x, y, c)
+        }));
+        f.depth = HostTensor::from_fn(w, h, 1, |x, y, _| {
+            if left(x) {
+                0.2 + 0.002 * y as f32
+            } else {
+                0.5 + 0.01 * x as f32
+            }
+        });
+        // Samples brighter on the left: the two surfaces' factors differ.
+        f.color = HostTensor::from_fn(w, h, 3, |x, y, c| {
+            f.color.at(x, y, c) * if left(x) { 8.0 } else { 1.0 }
+        });
+        // Every pixel traced once over 4 frames, as the tracer's quarter pattern.
+        let (ox, oy) = [(0, 0), (1, 1), (1, 0), (0, 1)][(t % 4) as usize];
+        f.mask = HostTensor::from_fn(w, h, 1, |x, y, _| (x % 2 == ox && y % 2 == oy) as u32 as f32);
+        let background = (t % 2 == 1).then(|| {
+            let coverage = HostTensor::from_fn(w, h, 1, |x, y, _| [0.0, 0.5, 1.0][((x + y) % 3) as usize]);
+            let radiance =
+                HostTensor::from_fn(w, h, 3, |x, y, c| 0.3 * (c + 1) as f32 * coverage.at(x, y, 0));
+            Background {
+                radiance,
+                coverage,
+                albedo: None,
+                emission: None,
+            }
+        });
+        f.background = background.clone();
+        let want = plain.denoise_host(&f).unwrap();
+        let got = corrected.denoise_host(&f).unwrap();
+        let bg = |x, y, c| background.as_ref().map_or(0.0, |b| b.radiance.at(x, y, c));
+        let part = HostTensor::from_fn(w, h, 3, |x, y, c| want.at(x, y, c) - bg(x, y, c));
+        let sample = HostTensor::from_fn(w, h, 3, |x, y, c| f.color.at(x, y, c) - bg(x, y, c));
+        sums.push(mean_pixel_sums(&part, &sample, &f.mask));
+        let recent = &sums[sums.len().saturating_sub(MEAN_RING as usize)..];
+        let factors = mean_atrous_factors(
+            recent,
+            &f.normal,
+            &f.depth,
+            ATROUS_LEVELS,
+            ATROUS_NORMAL_SQUARINGS,
+            ATROUS_DEPTH_SIGMA,
+            ATROUS_EPS,
+            MEAN_LO,
+            MEAN_HI,
+        );
+        for &v in &factors.data {
+            if v == MEAN_LO || v == MEAN_HI {
+                clamped += 1;
+            } else if (v - 1.0).abs() > 0.02 {
+                between += 1;
+            }
+        }
+        for y in 0..h {
+            for x in 0..w {
+                for c in 0..3 {
+                    let expect = bg(x, y, c) + part.at(x, y, c) * factors.at(x, y, c);
+                    let g = got.at(x, y, c);
+                    assert!(
+                        (g - expect).abs() <= 1e-4 * (1.0 + expect.abs()),
+                        "frame {t} pixel ({x}, {y}) channel {c}: {g} vs {expect}"
+                    );
+                }
+            }
+        }
+    }
+    assert!(
+        clamped > 0 && between > 0,
+        "{clamped} clamped and {between} other factors"
+    );
+}
+
 /// Config albedo "footprint": the whole pipeline runs on the frame's footprint albedo
 /// instead of the G-buffer's, so a footprint model on a frame gives exactly what the same
 /// weights as a centre model give on that frame with its albedo replaced by the footprint

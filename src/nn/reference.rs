@@ -340,6 +340,94 @@ pub fn mean_tile_factors(frames: &[HostTensor], eps: f32, lo: f32, hi: f32) -> H
     })
 }
 
+/// One frame's per-pixel sums of the `"atrous"` mean correction (`wgsl/ssr/mean_ring.wgsl`):
+/// at the pixels whose `mask` is above 1/2, `sample` (the traced sample minus the background)
+/// and `part` (`(1 - coverage) x output`), 0 elsewhere; `W x H x 6`, samples first.
+pub fn mean_pixel_sums(part: &HostTensor, sample: &HostTensor, mask: &HostTensor) -> HostTensor {
+    HostTensor::from_fn(part.width, part.height, 6, |x, y, c| {
+        if mask.at(x, y, 0) <= 0.5 {
+            0.0
+        } else if c < 3 {
+            sample.at(x, y, c)
+        } else {
+            part.at(x, y, c - 3)
+        }
+    })
+}
+
+/// The `"atrous"` mean correction's factors (`wgsl/ssr/mean_atrous.wgsl`), `W x H x 3`: the
+/// sum of the frames' [`mean_pixel_sums`] filtered by `levels` levels of the edge-aware
+/// a-trous filter (level `l`: 5 x 5 taps `2^l` pixels apart, B-spline weights
+/// `(1, 4, 6, 4, 1) / 16` per axis times `max(n . n_q, 0)^(2^squarings)` times
+/// `exp(-|z - z_q| / max(z, z_q, 1e-4) / depth_sigma)` against the centre's `normal`
+/// (`W x H x 3`) and `depth` (`W x H x 1`), taps outside the frame left out, normalised by
+/// the weights' sum, at least 1e-12), then per channel `clamp((S + eps) / (R + eps), lo,
+/// hi)`. In f64.
+#[allow(clippy::too_many_arguments)]
+pub fn mean_atrous_factors(
+    frames: &[HostTensor],
+    normal: &HostTensor,
+    depth: &HostTensor,
+    levels: u32,
+    squarings: u32,
+    depth_sigma: f32,
+    eps: f32,
+    lo: f32,
+    hi: f32,
+) -> HostTensor {
+    let (w, h) = (normal.width as i64, normal.height as i64);
+    let at = |x: i64, y: i64| (y * w + x) as usize;
+    let mut sums: Vec<[f64; 6]> = (0..w * h)
+        .map(|i| {
+            let (x, y) = ((i % w) as u32, (i / w) as u32);
+            std::array::from_fn(|c| frames.iter().map(|f| f.at(x, y, c as u32) as f64).sum())
+        })
+        .collect();
+    let taps = [1.0 / 16.0, 0.25, 0.375, 0.25, 1.0 / 16.0];
+    let n = |x: i64, y: i64| -> [f64; 3] {
+        std::array::from_fn(|c| normal.at(x as u32, y as u32, c as u32) as f64)
+    };
+    let z = |x: i64, y: i64| depth.at(x as u32, y as u32, 0) as f64;
+    for level in 0..levels {
+        let step = 1i64 << level;
+        let mut next = vec![[0f64; 6]; sums.len()];
+        for y in 0..h {
+            for x in 0..w {
+                let (np, zp) = (n(x, y), z(x, y));
+                let (mut acc, mut wsum) = ([0f64; 6], 0f64);
+                for (j, ty) in taps.iter().enumerate() {
+                    for (i, tx) in taps.iter().enumerate() {
+                        let (qx, qy) = (x + (i as i64 - 2) * step, y + (j as i64 - 2) * step);
+                        if qx < 0 || qy < 0 || qx >= w || qy >= h {
+                            continue;
+                        }
+                        let nq = n(qx, qy);
+                        let mut c = (np[0] * nq[0] + np[1] * nq[1] + np[2] * nq[2]).max(0.0);
+                        for _ in 0..squarings {
+                            c *= c;
+                        }
+                        let zq = z(qx, qy);
+                        let rel = (zp - zq).abs() / zp.max(zq).max(1e-4);
+                        let wt = ty * tx * c * (-rel / depth_sigma as f64).exp();
+                        for (a, v) in acc.iter_mut().zip(sums[at(qx, qy)]) {
+                            *a += wt * v;
+                        }
+                        wsum += wt;
+                    }
+                }
+                let norm = 1.0 / wsum.max(1e-12);
+                next[at(x, y)] = acc.map(|a| a * norm);
+            }
+        }
+        sums = next;
+    }
+    HostTensor::from_fn(normal.width, normal.height, 3, |x, y, c| {
+        let v = sums[at(x as i64, y as i64)];
+        let (s, r) = (v[c as usize], v[c as usize + 3]);
+        (((s + eps as f64) / (r + eps as f64)) as f32).clamp(lo, hi)
+    })
+}
+
 /// The factor of pixel (x, y), channel c: the tiles' `factors` interpolated bilinearly
 /// between tile centres (`tile x tile` tiles; beyond the outer centres the edge is held).
 pub fn mean_factor_at(factors: &HostTensor, tile: u32, x: u32, y: u32, c: u32) -> f32 {
@@ -352,4 +440,73 @@ pub fn mean_factor_at(factors: &HostTensor, tile: u32, x: u32, y: u32, c: u32) -
     let (y0, y1, fy) = lerp(y, factors.height);
     let row = |yy| factors.at(x0, yy, c) * (1.0 - fx) + factors.at(x1, yy, c) * fx;
     row(y0) * (1.0 - fy) + row(y1) * fy
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The `"atrous"` correction's filter averages within a surface: where two surfaces meet
+    /// at a right angle (orthogonal normals, weight 0 between them), scaling one surface's
+    /// samples changes none of the other's factors, however near the seam; and on a frame
+    /// of one plane whose samples are everywhere 1.25 times the reconstruction, every factor
+    /// is 1.25.
+    #[test]
+    fn atrous_factors_stay_on_their_surface() {
+        let (w, h) = (40, 24);
+        let left = |x: u32| x < 17;
+        let normal = HostTensor::from_fn(w, h, 3, |x, _, c| {
+            let n = if left(x) { [0.0, 0.0, 1.0] } else { [1.0, 0.0, 0.0] };
+            n[c as usize]
+        });
+        let depth = HostTensor::from_fn(w, h, 1, |x, y, _| 0.3 + 0.001 * (x + y) as f32);
+        let mask = HostTensor::from_fn(w, h, 1, |x, y, _| ((x + 3 * y) % 4 == 0) as u32 as f32);
+        let part = HostTensor::from_fn(w, h, 3, |x, y, c| 0.5 + 0.01 * ((x * 7 + y * 3 + c) % 11) as f32);
+        let sample = |right_gain: f32| {
+            HostTensor::from_fn(w, h, 3, |x, y, c| {
+                let s = part.at(x, y, c) * (1.0 + 0.3 * (((x * 5 + y * 11 + c) % 7) as f32 / 6.0 - 0.5));
+                if left(x) { s } else { s * right_gain }
+            })
+        };
+        let factors = |gain: f32| {
+            let sums = mean_pixel_sums(&part, &sample(gain), &mask);
+            mean_atrous_factors(&[sums], &normal, &depth, 5, 3, 0.2, 1e-6, 0.67, 1.5)
+        };
+        let (a, b) = (factors(1.0), factors(1.2));
+        let mut right_changed = 0;
+        for y in 0..h {
+            for x in 0..w {
+                for c in 0..3 {
+                    if left(x) {
+                        assert_eq!(a.at(x, y, c), b.at(x, y, c), "left pixel ({x}, {y}) channel {c}");
+                    } else if (b.at(x, y, c) / a.at(x, y, c) - 1.2).abs() < 1e-4 {
+                        right_changed += 1;
+                    }
+                }
+            }
+        }
+        assert_eq!(
+            right_changed,
+            ((w - 17) * h * 3) as usize,
+            "the right surface follows its samples"
+        );
+        let flat = HostTensor::from_fn(w, h, 3, |_, _, c| [0.0, 0.0, 1.0][c as usize]);
+        let brighter = HostTensor::from_fn(w, h, 3, |x, y, c| 1.25 * part.at(x, y, c));
+        let f = mean_atrous_factors(
+            &[mean_pixel_sums(&part, &brighter, &mask)],
+            &flat,
+            &depth,
+            5,
+            3,
+            0.2,
+            1e-6,
+            0.67,
+            1.5,
+        );
+        assert!(
+            f.data.iter().all(|v| (v - 1.25).abs() < 1e-5),
+            "factors {:?}",
+            &f.data[..6]
+        );
+    }
 }

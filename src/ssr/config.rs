@@ -76,6 +76,16 @@ pub enum MeanCorrection {
         /// Tile side in pixels (a multiple of 8, the statistic's workgroup side).
         side: u32,
     },
+    /// `"atrous"`: per pixel instead of per tile. The samples' and the reconstruction's
+    /// per-pixel sums over the last [`MEAN_RING`] frames (0 at untraced pixels) are filtered
+    /// alike by [`ATROUS_LEVELS`] levels of an edge-aware a-trous filter (5 x 5 B-spline taps
+    /// 1, 2, 4, 8, 16 pixels apart, each weighted by the agreement of its normal and depth
+    /// with the pixel's: `max(n . n_q, 0)^8 exp(-|z - z_q| / max(z, z_q) / ATROUS_DEPTH_SIGMA)`,
+    /// `wgsl/ssr/mean_atrous.wgsl`), and each pixel's factor is the ratio of the two,
+    /// `clamp((S + ATROUS_EPS) / (R + ATROUS_EPS), MEAN_LO, MEAN_HI)`: the brightness
+    /// follows the samples of the pixel's own surface over about 60 pixels, not across
+    /// silhouettes and creases.
+    Atrous,
 }
 
 /// Config `mean_correction = "tiles"`: tile side in pixels (`"tiles16"`: 16).
@@ -88,6 +98,17 @@ pub const MEAN_EPS: f32 = 1e-4;
 pub const MEAN_LO: f32 = 0.67;
 /// Config `mean_correction = "tiles"`: largest factor.
 pub const MEAN_HI: f32 = 1.5;
+/// Config `mean_correction = "atrous"`: filter levels (taps `2^level` pixels apart).
+pub const ATROUS_LEVELS: u32 = 5;
+/// Config `mean_correction = "atrous"`: the normal weight `max(n . n_q, 0)` is raised to
+/// `2^ATROUS_NORMAL_SQUARINGS` (8) by squaring.
+pub const ATROUS_NORMAL_SQUARINGS: u32 = 3;
+/// Config `mean_correction = "atrous"`: relative depth difference at which the depth weight
+/// is `1/e`.
+pub const ATROUS_DEPTH_SIGMA: f32 = 0.2;
+/// Config `mean_correction = "atrous"`: added to both filtered means of a factor
+/// ([`MEAN_EPS`] over the 256 pixels of a 16-pixel tile).
+pub const ATROUS_EPS: f32 = MEAN_EPS / 256.0;
 
 /// Config `ceiling = "max"`: the demodulated output is at most this times M.
 pub const CEILING_GAIN: f32 = 1.0;
@@ -379,6 +400,7 @@ impl SsrConfig {
             ("none", MeanCorrection::None),
             ("tiles", MeanCorrection::Tiles { side: MEAN_TILE }),
             ("tiles16", MeanCorrection::Tiles { side: 16 }),
+            ("atrous", MeanCorrection::Atrous),
         ];
         choose("mean_correction", self.mean_correction.as_deref(), &choices)
     }
@@ -671,7 +693,7 @@ mod tests {
         .unwrap_err()
         .to_string();
         assert!(
-            e.contains("mean_correction 'blocks', expected \"none\", \"tiles\" or \"tiles16\""),
+            e.contains("mean_correction 'blocks', expected \"none\", \"tiles\", \"tiles16\" or \"atrous\""),
             "{e}"
         );
         let e = SsrConfig {

@@ -4,8 +4,8 @@
 use bytemuck::{Pod, Zeroable};
 
 use super::config::{
-    CEILING_DECAY, EmissionSource, ExposureMode, MEAN_EPS, MEAN_HI, MEAN_LO, MEAN_RING, MEAN_TILE,
-    MeanCorrection,
+    ATROUS_DEPTH_SIGMA, ATROUS_EPS, ATROUS_LEVELS, ATROUS_NORMAL_SQUARINGS, CEILING_DECAY, EmissionSource,
+    ExposureMode, MEAN_EPS, MEAN_HI, MEAN_LO, MEAN_RING, MEAN_TILE, MeanCorrection,
 };
 pub use super::network::Granularity;
 use super::network::StepCost;
@@ -60,16 +60,20 @@ type InputKey = ([wgpu::Buffer; 6], Option<wgpu::Buffer>, Option<wgpu::Buffer>);
 struct InputPasses {
     exposure: Option<ExposureDispatches>,
     pack: [Dispatch; 2],
-    /// The mean correction's tile sums (config `mean_correction = "tiles"`): one dispatch
-    /// per ring slot, then the same on the first frame after a reset (clearing the others).
+    /// The mean correction's sums (config `mean_correction = "tiles"` or `"atrous"`): one
+    /// dispatch per ring slot, then the same on the first frame after a reset (clearing the
+    /// others).
     mean: Option<Vec<Dispatch>>,
+    /// With `"atrous"`, the filter's levels after the sums, the last writing the factors
+    /// (none for tiles).
+    mean_filter: Vec<Dispatch>,
     store: Dispatch,
     /// Whether `store` composites a background.
     background: bool,
 }
 
-/// The parameters of the output passes, `ssr/tile_means` and `ssr/store_output` (which
-/// leaves `slot` and `first` unused).
+/// The parameters of the output passes, `ssr/tile_means`, `ssr/mean_ring` and
+/// `ssr/store_output` (which leaves `slot` and `first` unused).
 #[repr(C)]
 #[derive(Clone, Copy, Pod, Zeroable)]
 struct OutputParams {
@@ -83,17 +87,37 @@ struct OutputParams {
     first: u32,
 }
 
+/// The parameters of `ssr/mean_atrous`: the frame size and the level's tap spacing.
+#[repr(C)]
+#[derive(Clone, Copy, Pod, Zeroable)]
+struct AtrousParams {
+    width: u32,
+    height: u32,
+    step: u32,
+    _pad: u32,
+}
+
 /// The mean correction's state: the ring of per-tile sums of the last frames and the
-/// factors the output pass applies.
+/// factors the output pass applies. `"atrous"` keeps them per pixel (tiles of one pixel,
+/// which the output pass applies as they are) and filters the sums through `filter`.
 struct MeanState {
-    /// Tile side in pixels.
+    /// Tile side in pixels (1 for `"atrous"`).
     side: u32,
     tiles: (u32, u32),
-    ring: wgpu::Buffer,
+    /// The ring: one buffer of every slot for tiles; for `"atrous"` one buffer per slot
+    /// ([`MEAN_RING`], 2 vec4 per pixel each), so that each fits a storage binding.
+    ring: Vec<wgpu::Buffer>,
     factors: wgpu::Buffer,
+    /// With `"atrous"`: the two buffers the filter's levels alternate between (2 vec4 per
+    /// pixel each), and the frame's sanitised normals and depths that steer it (1 vec4 per
+    /// pixel).
+    filter: Option<[wgpu::Buffer; 3]>,
     /// The ring slot of the next frame.
     slot: u32,
 }
+
+// `ssr/mean_ring` binds the ring's four slots, one binding each.
+const _: () = assert!(MEAN_RING == 4, "ssr/mean_ring binds four ring slots");
 
 /// Every kernel the denoiser runs: [`Denoiser::new`] checks them against the device's
 /// limits (they all fit WebGPU's defaults, `wgpu::Limits::default()`).
@@ -105,6 +129,8 @@ pub const KERNELS_USED: &[&str] = &[
     "ssr/warp_history",
     "ssr/store_output",
     "ssr/tile_means",
+    "ssr/mean_ring",
+    "ssr/mean_atrous",
     "nn/conv3x3",
     "nn/conv3x3_blocked",
     "nn/conv3x3_winograd",
@@ -119,6 +145,8 @@ pub const PARAM_SIZES: &[(&str, usize)] = &[
     ("ssr/pack_mt", std::mem::size_of::<PackParams>()),
     ("ssr/store_output", std::mem::size_of::<OutputParams>()),
     ("ssr/tile_means", std::mem::size_of::<OutputParams>()),
+    ("ssr/mean_ring", std::mem::size_of::<OutputParams>()),
+    ("ssr/mean_atrous", std::mem::size_of::<AtrousParams>()),
     (
         "ssr/exposure_partial",
         std::mem::size_of::<ExposurePartialParams>(),
@@ -219,7 +247,11 @@ impl Denoiser {
         let output = Self::make_output(gpu, width, height);
         let mean = match weights.config.mean_correction()? {
             MeanCorrection::None => None,
-            MeanCorrection::Tiles { side } => {
+            kind => {
+                let (side, atrous) = match kind {
+                    MeanCorrection::Tiles { side } => (side, false),
+                    _ => (1, true),
+                };
                 let tiles = (width.div_ceil(side), height.div_ceil(side));
                 let n = tiles.0 as u64 * tiles.1 as u64;
                 let buffer = |label: &str, size: u64| {
@@ -233,8 +265,21 @@ impl Denoiser {
                 Some(MeanState {
                     side,
                     tiles,
-                    ring: buffer("subpixel.ssr.mean_ring", n * MEAN_RING as u64 * 32),
+                    ring: if atrous {
+                        (0..MEAN_RING)
+                            .map(|_| buffer("subpixel.ssr.mean_ring", n * 32))
+                            .collect()
+                    } else {
+                        vec![buffer("subpixel.ssr.mean_ring", n * MEAN_RING as u64 * 32)]
+                    },
                     factors: buffer("subpixel.ssr.mean_factors", n * 16),
+                    filter: atrous.then(|| {
+                        [
+                            buffer("subpixel.ssr.mean_filter_a", n * 32),
+                            buffer("subpixel.ssr.mean_filter_b", n * 32),
+                            buffer("subpixel.ssr.mean_guide", n * 16),
+                        ]
+                    }),
                     slot: 0,
                 })
             }
@@ -340,16 +385,43 @@ impl Denoiser {
         }
     }
 
-    /// The mean correction's tile sums for each ring slot, then for each slot on a first
-    /// frame (`None` without the option).
-    fn mean_dispatches(
-        &self,
-        color_mask: &wgpu::Buffer,
-        background: Option<&wgpu::Buffer>,
-    ) -> Result<Option<Vec<Dispatch>>> {
+    /// The mean correction's sums for each ring slot, then for each slot on a first frame
+    /// (`None` without the option): `ssr/tile_means`, or `ssr/mean_ring` into the first
+    /// filter buffer with `"atrous"`.
+    fn mean_dispatches(&self, inputs: &FrameInputs<'_>) -> Result<Option<Vec<Dispatch>>> {
+        let (color_mask, background) = (inputs.color_mask, inputs.background);
         let Some(m) = &self.mean else {
             return Ok(None);
         };
+        if let Some([sums, _, guide]) = &m.filter {
+            let spec = Specialisation(vec![("BACKGROUND", background.is_some() as u32 as f64)]);
+            let mut out = Vec::new();
+            for first in [false, true] {
+                for slot in 0..MEAN_RING as usize {
+                    // This frame's slot, then the other three (the kernel's four bindings).
+                    let mut resources = vec![
+                        self.net.output().buffer.as_entire_binding(),
+                        color_mask.as_entire_binding(),
+                    ];
+                    resources.extend((0..4).map(|k| m.ring[(slot + k) % 4].as_entire_binding()));
+                    resources.extend([
+                        sums.as_entire_binding(),
+                        inputs.normal_metallic.as_entire_binding(),
+                        inputs.albedo_depth.as_entire_binding(),
+                        guide.as_entire_binding(),
+                    ]);
+                    resources.extend(background.map(|b| b.as_entire_binding()));
+                    out.push(self.gpu.kernels.dispatch_with(
+                        "ssr/mean_ring",
+                        &spec,
+                        bytemuck::bytes_of(&self.output_params(slot as u32, first)),
+                        &resources,
+                        Grid::pixels(self.width, self.height),
+                    )?);
+                }
+            }
+            return Ok(Some(out));
+        }
         let spec = Specialisation(vec![
             ("BACKGROUND", background.is_some() as u32 as f64),
             ("TILE", m.side as f64),
@@ -361,7 +433,7 @@ impl Denoiser {
         let mut resources = vec![
             self.net.output().buffer.as_entire_binding(),
             color_mask.as_entire_binding(),
-            m.ring.as_entire_binding(),
+            m.ring[0].as_entire_binding(),
             m.factors.as_entire_binding(),
         ];
         resources.extend(background.map(|b| b.as_entire_binding()));
@@ -378,6 +450,52 @@ impl Denoiser {
             }
         }
         Ok(Some(out))
+    }
+
+    /// With `"atrous"`, the [`ATROUS_LEVELS`] levels of the mean correction's filter over the
+    /// sums `ssr/mean_ring` leaves in the first filter buffer, guided by the normals and
+    /// depths it leaves in the third, alternating between the first two, the last writing
+    /// the factors; none otherwise.
+    fn mean_filter_dispatches(&self) -> Result<Vec<Dispatch>> {
+        let Some((m, [a, b, guide])) = self.mean.as_ref().and_then(|m| m.filter.as_ref().map(|f| (m, f)))
+        else {
+            return Ok(Vec::new());
+        };
+        let mut out = Vec::new();
+        for level in 0..ATROUS_LEVELS {
+            let last = level + 1 == ATROUS_LEVELS;
+            let (src, dst) = match (level % 2, last) {
+                (0, false) => (a, b),
+                (_, false) => (b, a),
+                (0, true) => (a, &m.factors),
+                (_, true) => (b, &m.factors),
+            };
+            let params = AtrousParams {
+                width: self.width,
+                height: self.height,
+                step: 1 << level,
+                _pad: 0,
+            };
+            out.push(self.gpu.kernels.dispatch_with(
+                "ssr/mean_atrous",
+                &Specialisation(vec![
+                    ("FINAL", last as u32 as f64),
+                    ("SQUARINGS", ATROUS_NORMAL_SQUARINGS as f64),
+                    ("DEPTH_SIGMA", ATROUS_DEPTH_SIGMA as f64),
+                    ("EPS", ATROUS_EPS as f64),
+                    ("LO", MEAN_LO as f64),
+                    ("HI", MEAN_HI as f64),
+                ]),
+                bytemuck::bytes_of(&params),
+                &[
+                    src.as_entire_binding(),
+                    guide.as_entire_binding(),
+                    dst.as_entire_binding(),
+                ],
+                Grid::pixels(self.width, self.height),
+            )?);
+        }
+        Ok(out)
     }
 
     /// What each pass of a frame costs, in execution order: `pack` (exposure and input
@@ -402,16 +520,44 @@ impl Denoiser {
             }
         }
         out.extend(self.net.step_costs());
-        if self.mean.is_some() {
+        if let Some(m) = &self.mean {
             let reads = self.net.output().bytes() + px * if background { 2 } else { 1 };
-            out.push(StepCost {
-                stage: "output",
-                label: "mean tiles".into(),
-                flops: 0,
-                bytes_read: reads,
-                bytes_written: 0,
-                matrix: false,
-            });
+            if m.filter.is_some() {
+                // The ring's other slots and the caller's normals and depths read, this
+                // frame's slot and the sums written (2 vec4 per pixel each) and the guide
+                // (1); each level reads the sums and the guide once (its 25 taps from cache)
+                // and writes the next sums or the factors.
+                let ring = 2 * px * (MEAN_RING as u64 - 1);
+                out.push(StepCost {
+                    stage: "output",
+                    label: "mean ring".into(),
+                    flops: 0,
+                    bytes_read: reads + ring + 2 * px,
+                    bytes_written: 5 * px,
+                    matrix: false,
+                });
+                for level in 0..ATROUS_LEVELS {
+                    let last = level + 1 == ATROUS_LEVELS;
+                    out.push(StepCost {
+                        stage: "output",
+                        label: format!("mean atrous {level}"),
+                        // 25 taps: the weight (about 20 operations) and 8 multiply-adds
+                        flops: 25 * 36 * (px / 16),
+                        bytes_read: 3 * px,
+                        bytes_written: if last { px } else { 2 * px },
+                        matrix: false,
+                    });
+                }
+            } else {
+                out.push(StepCost {
+                    stage: "output",
+                    label: "mean tiles".into(),
+                    flops: 0,
+                    bytes_read: reads,
+                    bytes_written: 0,
+                    matrix: false,
+                });
+            }
         }
         out.push(StepCost {
             stage: "output",
@@ -510,6 +656,9 @@ impl Denoiser {
                 // On a first frame any slot will do: that dispatch clears the others.
                 d[(m.slot + if self.first { MEAN_RING } else { 0 }) as usize].record(&mut pass);
                 m.slot = (m.slot + 1) % MEAN_RING;
+            }
+            for d in &passes.mean_filter {
+                d.record(&mut pass);
             }
             passes.store.record(&mut pass);
         }
@@ -643,7 +792,8 @@ impl Denoiser {
         Ok(InputPasses {
             exposure: e,
             pack: [pack_a, pack_mt],
-            mean: self.mean_dispatches(inputs.color_mask, inputs.background)?,
+            mean: self.mean_dispatches(inputs)?,
+            mean_filter: self.mean_filter_dispatches()?,
             store: self.store_dispatch(inputs.background, self.emission_input(inputs)?)?,
             background: inputs.background.is_some(),
         })

@@ -10,9 +10,9 @@ mod weights;
 
 pub use crate::frame::HostFrame;
 pub use config::{
-    AlbedoSource, CEILING_DECAY, CEILING_GAIN, CONFIG_VERSION, CeilingMode, EmissionSource, ExposureMode,
-    HistoryTest, LayerSpec, MEAN_EPS, MEAN_HI, MEAN_LO, MEAN_RING, MEAN_TILE, MeanCorrection,
-    RemodulationAlbedo, SsrConfig,
+    ATROUS_DEPTH_SIGMA, ATROUS_EPS, ATROUS_LEVELS, ATROUS_NORMAL_SQUARINGS, AlbedoSource, CEILING_DECAY,
+    CEILING_GAIN, CONFIG_VERSION, CeilingMode, EmissionSource, ExposureMode, HistoryTest, LayerSpec,
+    MEAN_EPS, MEAN_HI, MEAN_LO, MEAN_RING, MEAN_TILE, MeanCorrection, RemodulationAlbedo, SsrConfig,
 };
 pub use denoiser::{Denoiser, FrameInputs, Granularity, KERNELS_USED, PARAM_SIZES};
 pub use fold::{EmissionFold, FoldParams};

@@ -104,7 +104,7 @@ OPTION_VALUES: Dict[str, Tuple[str, ...]] = {
     "remodulation": ("accumulated", "current"),
     "history": ("screen", "geometry"),
     "ceiling": ("none", "max"),
-    "mean_correction": ("none", "tiles", "tiles16"),
+    "mean_correction": ("none", "tiles", "tiles16", "atrous"),
     "albedo": ("centre", "footprint"),
     "emission": ("network", "background"),
 }
@@ -406,9 +406,93 @@ class MeanCorrection:
         return bg + part * up + emission_part(frame, output)
 
 
+ATROUS_LEVELS, ATROUS_NORMAL_SQUARINGS, ATROUS_DEPTH_SIGMA = 5, 3, 0.2
+ATROUS_EPS = MEAN_EPS / 256.0
+"""Config `mean_correction = "atrous"` (src/ssr/config.rs): filter levels (steps 1, 2, 4, 8,
+16 pixels), the normal weight's power as squarings (cos^8), the depth weight's scale, and
+the epsilon added to both filtered means of a factor."""
+
+ATROUS_TAPS = (1.0 / 16.0, 1.0 / 4.0, 3.0 / 8.0, 1.0 / 4.0, 1.0 / 16.0)
+"""The 5-tap B-spline of each a-trous level (per axis)."""
+
+
+def atrous_weights(normal: torch.Tensor, depth: torch.Tensor, n_q: torch.Tensor, z_q: torch.Tensor) -> torch.Tensor:
+    """Edge-stopping weight [N, 1, H, W] between each pixel (normal, depth) and its tap q
+    (n_q, z_q; zero outside the frame, which gives weight 0): max(n . n_q, 0)^8 times
+    exp(-|z - z_q| / max(z, z_q, 1e-4) / ATROUS_DEPTH_SIGMA)."""
+    c = (normal * n_q).sum(dim=1, keepdim=True).clamp(min=0.0)
+    for _ in range(ATROUS_NORMAL_SQUARINGS):
+        c = c * c
+    rel = (depth - z_q).abs() / torch.maximum(torch.maximum(depth, z_q), torch.full_like(depth, 1e-4))
+    return c * torch.exp(-rel / ATROUS_DEPTH_SIGMA)
+
+
+def atrous_filter(x: torch.Tensor, normal: torch.Tensor, depth: torch.Tensor,
+                  levels: int = ATROUS_LEVELS) -> torch.Tensor:
+    """The mean correction's edge-aware filter (wgsl/ssr/mean_atrous.wgsl): `levels` a-trous
+    levels of the 5x5 B-spline, level l with taps 2^l pixels apart, each tap weighted by
+    `atrous_weights` against the centre's normal and depth (the current frame's), each level
+    normalised by its weights' sum (at least 1e-12). x [N, C, H, W]; normal [N, 3, H, W],
+    depth [N, 1, H, W]."""
+    h, w = x.shape[-2:]
+    for lvl in range(levels):
+        step = 2 ** lvl
+        pad = 2 * step
+        xp = F.pad(x, (pad, pad, pad, pad))
+        np_ = F.pad(normal, (pad, pad, pad, pad))
+        zp = F.pad(depth, (pad, pad, pad, pad))
+        acc = torch.zeros_like(x)
+        wsum = torch.zeros_like(depth)
+        for i, hy in enumerate(ATROUS_TAPS):
+            for j, hx in enumerate(ATROUS_TAPS):
+                y0, x0 = pad + (i - 2) * step, pad + (j - 2) * step
+                n_q, z_q = np_[..., y0 : y0 + h, x0 : x0 + w], zp[..., y0 : y0 + h, x0 : x0 + w]
+                wt = (hy * hx) * atrous_weights(normal, depth, n_q, z_q)
+                acc = acc + wt * xp[..., y0 : y0 + h, x0 : x0 + w]
+                wsum = wsum + wt
+        x = acc / wsum.clamp(min=1e-12)
+    return x
+
+
+class AtrousMeanCorrection(MeanCorrection):
+    """Config `mean_correction = "atrous"` (wgsl/ssr/mean_ring.wgsl, mean_atrous.wgsl,
+    store_output.wgsl): as MeanCorrection, the reconstruction is scaled towards the traced
+    samples over the last MEAN_RING frames, but per pixel: the samples' and the
+    reconstruction's per-pixel sums over the ring (both 0 at untraced pixels) are filtered
+    alike by `atrous_filter`, guided by this frame's normals and depths (so a factor averages
+    over its own surface, not across silhouettes and creases), and each pixel's factor is
+    `clamp((S + ATROUS_EPS) / (R + ATROUS_EPS), MEAN_LO, MEAN_HI)`."""
+
+    def __init__(self) -> None:
+        super().__init__(1)
+
+    def __call__(self, output: torch.Tensor, frame: Dict[str, torch.Tensor]) -> torch.Tensor:
+        bg, cov = background_parts(frame, output)
+        part = (1.0 - cov) * output
+        traced = (frame["mask"] > 0.5).to(output.dtype)
+        sample = (_clean(frame["color"]).to(output.dtype) - bg) * traced
+        self.ring = (self.ring + [(sample, part * traced)])[-MEAN_RING:]
+        s = sum(x for x, _ in self.ring)
+        r = sum(x for _, x in self.ring)
+        batched = output.dim() == 4
+        sr = torch.cat([s, r], dim=-3)
+        normal, depth = frame["normal"].to(output.dtype), frame["depth"].to(output.dtype)
+        if not batched:
+            sr, normal, depth = sr[None], normal[None], depth[None]
+        sr = atrous_filter(sr, normal, depth)
+        if not batched:
+            sr = sr[0]
+        f = ((sr[..., :RGB, :, :] + ATROUS_EPS) / (sr[..., RGB:, :, :] + ATROUS_EPS)).clamp(MEAN_LO, MEAN_HI)
+        return bg + part * f + emission_part(frame, output)
+
+
 def mean_correction_of(cfg: "SSRConfig") -> Optional[MeanCorrection]:
-    """A fresh MeanCorrection of config `cfg`'s tile side, or None for `mean_correction = "none"`."""
-    tile = MEAN_TILES.get(getattr(cfg, "mean_correction", "none"))
+    """A fresh mean correction of config `cfg` (MeanCorrection of its tile side, or
+    AtrousMeanCorrection), or None for `mean_correction = "none"`."""
+    kind = getattr(cfg, "mean_correction", "none")
+    if kind == "atrous":
+        return AtrousMeanCorrection()
+    tile = MEAN_TILES.get(kind)
     return None if tile is None else MeanCorrection(tile)
 
 

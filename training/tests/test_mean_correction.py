@@ -75,5 +75,71 @@ def test_mean_correction_of_each_config_value():
     assert mean_correction_of(SSRConfig(mean_correction="none")) is None
     assert mean_correction_of(SSRConfig(mean_correction="tiles")).tile == MEAN_TILE == 32
     assert mean_correction_of(SSRConfig(mean_correction="tiles16")).tile == 16
+    assert type(mean_correction_of(SSRConfig(mean_correction="atrous"))).__name__ == "AtrousMeanCorrection"
     with pytest.raises(ValueError, match="mean_correction"):
         SSRConfig(mean_correction="tiles8")
+
+
+def atrous_factors_naive(s, r, normal, depth):
+    """The `"atrous"` factors [h, w, 3] by a plain per-pixel loop in float64 (taps outside the
+    frame left out), the expectation AtrousMeanCorrection and the engine's mean_atrous are
+    held to."""
+    from ssr.model import ATROUS_DEPTH_SIGMA, ATROUS_EPS, ATROUS_LEVELS, ATROUS_NORMAL_SQUARINGS
+    h, w = s.shape[:2]
+    x = np.concatenate([s, r], axis=2)
+    taps = [1 / 16, 1 / 4, 3 / 8, 1 / 4, 1 / 16]
+    for level in range(ATROUS_LEVELS):
+        step = 2 ** level
+        nxt = np.zeros_like(x)
+        for py in range(h):
+            for px in range(w):
+                acc, wsum = np.zeros(6), 0.0
+                for j in range(5):
+                    for i in range(5):
+                        qy, qx = py + (j - 2) * step, px + (i - 2) * step
+                        if not (0 <= qy < h and 0 <= qx < w):
+                            continue
+                        c = max(float(normal[py, px] @ normal[qy, qx]), 0.0) ** (2 ** ATROUS_NORMAL_SQUARINGS)
+                        z, zq = depth[py, px, 0], depth[qy, qx, 0]
+                        wt = taps[j] * taps[i] * c * np.exp(-abs(z - zq) / max(z, zq, 1e-4) / ATROUS_DEPTH_SIGMA)
+                        acc += wt * x[qy, qx]
+                        wsum += wt
+                nxt[py, px] = acc / max(wsum, 1e-12)
+        x = nxt
+    return np.clip((x[..., :3] + ATROUS_EPS) / (x[..., 3:] + ATROUS_EPS), MEAN_LO, MEAN_HI)
+
+
+@pytest.mark.parametrize("background", [False, True])
+def test_atrous_mean_correction_matches_a_per_pixel_loop(background):
+    """Config `mean_correction = "atrous"`: the ring of the last MEAN_RING frames' per-pixel
+    sums, filtered by the edge-aware a-trous filter of this frame's normals and depths
+    (two surfaces meeting at x = 11 with jittered normals, depth steps between them), against
+    the plain loop above; a reset empties the ring."""
+    from ssr.model import AtrousMeanCorrection
+    rng = np.random.default_rng(5)
+    h, w = 18, 26
+    mc = mean_correction_of(SSRConfig(mean_correction="atrous"))
+    assert isinstance(mc, AtrousMeanCorrection)
+    ring = []
+    clamped = between = 0
+    for t in range(6):
+        if t == 5:
+            mc.reset()
+            ring = []
+        f = frame(rng, h, w, t, background)
+        left = (np.arange(w) < 11)[None, :, None]
+        n = np.where(left, [0.0, 0.0, 1.0], [0.8, 0.0, 0.6]) + 0.2 * rng.normal(size=(h, w, 3))
+        f["normal"] = n / np.linalg.norm(n, axis=2, keepdims=True)
+        f["depth"] = np.where(left, 0.2, 0.5) + 0.01 * rng.random((h, w, 1))
+        out = rng.gamma(1.0, 1.0, size=(h, w, 3))
+        bg = f.get("background", np.zeros((h, w, 3)))
+        cov = f.get("coverage", np.zeros((h, w, 1)))
+        part = (1 - cov) * out
+        ring = (ring + [((f["color"] - bg) * f["mask"], part * f["mask"])])[-MEAN_RING:]
+        fac = atrous_factors_naive(sum(s for s, _ in ring), sum(r for _, r in ring), f["normal"], f["depth"])
+        clamped += int(np.isclose(fac, MEAN_LO).sum() + np.isclose(fac, MEAN_HI).sum())
+        between += int(((fac > MEAN_LO + 1e-6) & (fac < MEAN_HI - 1e-6)).sum())
+        want = bg + part * fac
+        got = mc(torch.from_numpy(out.transpose(2, 0, 1)[None].copy()), torch_frame(f))
+        assert np.allclose(got[0].numpy().transpose(1, 2, 0), want, rtol=1e-9, atol=1e-9), t
+    assert clamped > 0 and between > 0

@@ -1,0 +1,88 @@
+// One level of the mean correction's edge-aware filter (config `mean_correction = "atrous"`,
+// issue 11; reference src/nn/reference.rs `mean_atrous_level`): each invocation takes one
+// pixel of the W x H frame and averages the (samples, reconstruction) sums of ssr/mean_ring
+// (2 vec4 per pixel, `src`) over the 5 x 5 taps `p.step` pixels apart, each weighted by the
+// B-spline (1, 4, 6, 4, 1) / 16 per axis and by how well the tap's surface agrees with the
+// pixel's:
+//   max(n . n_q, 0)^(2^SQUARINGS) x exp(-|z - z_q| / max(z, z_q, 1e-4) / DEPTH_SIGMA)
+// (n, z the normal and normalised depth of the caller's G-buffer, as ssr/mean_ring leaves
+// them in `guide`), normalised by the weights' sum (at least 1e-12). Taps outside the
+// frame count 0. The denoiser runs ATROUS_LEVELS levels, steps 1, 2, 4, ...: without the
+// template flag FINAL a level writes the averaged sums (`dst`, 2 vec4 per pixel) for the
+// next; with it, the last writes each pixel's factor, per channel
+//   clamp((S + EPS) / (R + EPS), LO, HI),
+// to `dst` (1 vec4 per pixel, w = 1), which store_output applies (as tiles of one pixel).
+//
+//#param FINAL 0
+
+struct AtrousParams {
+    width: u32,
+    height: u32,
+    step: u32,
+    _pad: u32,
+}
+
+@group(0) @binding(0) var<uniform> p: AtrousParams;
+@group(0) @binding(1) var<storage, read> src: array<vec4<f32>>;
+@group(0) @binding(2) var<storage, read> guide: array<vec4<f32>>;
+@group(0) @binding(3) var<storage, read_write> dst: array<vec4<f32>>;
+
+// Set by the denoiser from src/ssr/config.rs (ATROUS_NORMAL_SQUARINGS, ATROUS_DEPTH_SIGMA,
+// ATROUS_EPS, MEAN_LO, MEAN_HI).
+override SQUARINGS: u32 = 3u;
+override DEPTH_SIGMA: f32 = 0.2;
+override EPS: f32 = 3.90625e-7;
+override LO: f32 = 0.67;
+override HI: f32 = 1.5;
+
+// The B-spline's tap k of 0..4: 1/16, 1/4, 3/8, 1/4, 1/16.
+fn tap(k: i32) -> f32 {
+    let d = abs(k - 2);
+    return select(select(0.375, 0.25, d == 1), 0.0625, d == 2);
+}
+
+@compute @workgroup_size(8, 8, 1)
+fn main(@builtin(global_invocation_id) gid: vec3<u32>) {
+    if (gid.x >= p.width || gid.y >= p.height) {
+        return;
+    }
+    let at = gid.y * p.width + gid.x;
+    let g = guide[at];
+    let n = g.xyz;
+    let z = g.w;
+    var acc_s = vec4<f32>(0.0);
+    var acc_r = vec4<f32>(0.0);
+    var sum = 0.0;
+    for (var j = 0; j < 5; j++) {
+        let qy = i32(gid.y) + (j - 2) * i32(p.step);
+        if (qy < 0 || qy >= i32(p.height)) {
+            continue;
+        }
+        for (var i = 0; i < 5; i++) {
+            let qx = i32(gid.x) + (i - 2) * i32(p.step);
+            if (qx < 0 || qx >= i32(p.width)) {
+                continue;
+            }
+            let q = u32(qy) * p.width + u32(qx);
+            let gq = guide[q];
+            let zq = gq.w;
+            var c = max(dot(n, gq.xyz), 0.0);
+            for (var k = 0u; k < SQUARINGS; k++) {
+                c *= c;
+            }
+            let rel = abs(z - zq) / max(max(z, zq), 1.0e-4);
+            let w = tap(j) * tap(i) * c * exp(-rel / DEPTH_SIGMA);
+            acc_s += w * src[2u * q];
+            acc_r += w * src[2u * q + 1u];
+            sum += w;
+        }
+    }
+    let norm = 1.0 / max(sum, 1.0e-12);
+//#if FINAL
+    let f = clamp((acc_s.xyz * norm + EPS) / (acc_r.xyz * norm + EPS), vec3<f32>(LO), vec3<f32>(HI));
+    dst[at] = vec4<f32>(f, 1.0);
+//#else
+    dst[2u * at] = acc_s * norm;
+    dst[2u * at + 1u] = acc_r * norm;
+//#end
+}
