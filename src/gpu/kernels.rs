@@ -172,7 +172,7 @@ pub const KERNELS: &[KernelSource] = &[
     kernel!("ssr/store_output", ["ssr/lib/sanitize", "ssr/lib/output"]),
     kernel!("ssr/tile_means", ["ssr/lib/sanitize", "ssr/lib/output"]),
     kernel!("ssr/mean_ring", ["ssr/lib/sanitize", "ssr/lib/output"]),
-    kernel!("ssr/mean_atrous"),
+    kernel!("ssr/mean_atrous", ["ssr/lib/sanitize"]),
     kernel!("ssr/exposure_partial", ["ssr/lib/sanitize", "ssr/lib/exposure"]),
     kernel!("ssr/exposure_final", ["ssr/lib/exposure"]),
     kernel!("ssr/warp_history", ["nn/lib/grid"]),

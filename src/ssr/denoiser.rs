@@ -393,7 +393,7 @@ impl Denoiser {
         let Some(m) = &self.mean else {
             return Ok(None);
         };
-        if let Some([sums, _, guide]) = &m.filter {
+        if let Some([sums, _, _]) = &m.filter {
             let spec = Specialisation(vec![("BACKGROUND", background.is_some() as u32 as f64)]);
             let mut out = Vec::new();
             for first in [false, true] {
@@ -404,12 +404,7 @@ impl Denoiser {
                         color_mask.as_entire_binding(),
                     ];
                     resources.extend((0..4).map(|k| m.ring[(slot + k) % 4].as_entire_binding()));
-                    resources.extend([
-                        sums.as_entire_binding(),
-                        inputs.normal_metallic.as_entire_binding(),
-                        inputs.albedo_depth.as_entire_binding(),
-                        guide.as_entire_binding(),
-                    ]);
+                    resources.push(sums.as_entire_binding());
                     resources.extend(background.map(|b| b.as_entire_binding()));
                     out.push(self.gpu.kernels.dispatch_with(
                         "ssr/mean_ring",
@@ -453,10 +448,10 @@ impl Denoiser {
     }
 
     /// With `"atrous"`, the [`ATROUS_LEVELS`] levels of the mean correction's filter over the
-    /// sums `ssr/mean_ring` leaves in the first filter buffer, guided by the normals and
-    /// depths it leaves in the third, alternating between the first two, the last writing
-    /// the factors; none otherwise.
-    fn mean_filter_dispatches(&self) -> Result<Vec<Dispatch>> {
+    /// sums `ssr/mean_ring` leaves in the first filter buffer, alternating between the first
+    /// two, the last writing the factors, guided by the caller's normals and depths (the
+    /// first level leaves them sanitised in the third for the others); none otherwise.
+    fn mean_filter_dispatches(&self, inputs: &FrameInputs<'_>) -> Result<Vec<Dispatch>> {
         let Some((m, [a, b, guide])) = self.mean.as_ref().and_then(|m| m.filter.as_ref().map(|f| (m, f)))
         else {
             return Ok(Vec::new());
@@ -476,9 +471,18 @@ impl Denoiser {
                 step: 1 << level,
                 _pad: 0,
             };
+            let mut resources = vec![src.as_entire_binding(), dst.as_entire_binding()];
+            if level == 0 {
+                resources.extend([
+                    inputs.normal_metallic.as_entire_binding(),
+                    inputs.albedo_depth.as_entire_binding(),
+                ]);
+            }
+            resources.push(guide.as_entire_binding());
             out.push(self.gpu.kernels.dispatch_with(
                 "ssr/mean_atrous",
                 &Specialisation(vec![
+                    ("FIRST", (level == 0) as u32 as f64),
                     ("FINAL", last as u32 as f64),
                     ("SQUARINGS", ATROUS_NORMAL_SQUARINGS as f64),
                     ("DEPTH_SIGMA", ATROUS_DEPTH_SIGMA as f64),
@@ -487,11 +491,7 @@ impl Denoiser {
                     ("HI", MEAN_HI as f64),
                 ]),
                 bytemuck::bytes_of(&params),
-                &[
-                    src.as_entire_binding(),
-                    guide.as_entire_binding(),
-                    dst.as_entire_binding(),
-                ],
+                &resources,
                 Grid::pixels(self.width, self.height),
             )?);
         }
@@ -523,17 +523,17 @@ impl Denoiser {
         if let Some(m) = &self.mean {
             let reads = self.net.output().bytes() + px * if background { 2 } else { 1 };
             if m.filter.is_some() {
-                // The ring's other slots and the caller's normals and depths read, this
-                // frame's slot and the sums written (2 vec4 per pixel each) and the guide
-                // (1); each level reads the sums and the guide once (its 25 taps from cache)
-                // and writes the next sums or the factors.
+                // The ring's other slots read, this frame's slot and the sums written (2
+                // vec4 per pixel each); each level reads the sums and the guide once (its
+                // 25 taps from cache; the first reads the caller's normals and depths and
+                // writes the guide) and writes the next sums or the factors.
                 let ring = 2 * px * (MEAN_RING as u64 - 1);
                 out.push(StepCost {
                     stage: "output",
                     label: "mean ring".into(),
                     flops: 0,
-                    bytes_read: reads + ring + 2 * px,
-                    bytes_written: 5 * px,
+                    bytes_read: reads + ring,
+                    bytes_written: 4 * px,
                     matrix: false,
                 });
                 for level in 0..ATROUS_LEVELS {
@@ -543,8 +543,14 @@ impl Denoiser {
                         label: format!("mean atrous {level}"),
                         // 25 taps: the weight (about 20 operations) and 8 multiply-adds
                         flops: 25 * 36 * (px / 16),
-                        bytes_read: 3 * px,
-                        bytes_written: if last { px } else { 2 * px },
+                        bytes_read: if level == 0 { 4 * px } else { 3 * px },
+                        bytes_written: if last {
+                            px
+                        } else if level == 0 {
+                            3 * px
+                        } else {
+                            2 * px
+                        },
                         matrix: false,
                     });
                 }
@@ -793,7 +799,7 @@ impl Denoiser {
             exposure: e,
             pack: [pack_a, pack_mt],
             mean: self.mean_dispatches(inputs)?,
-            mean_filter: self.mean_filter_dispatches()?,
+            mean_filter: self.mean_filter_dispatches(inputs)?,
             store: self.store_dispatch(inputs.background, self.emission_input(inputs)?)?,
             background: inputs.background.is_some(),
         })

@@ -5,14 +5,18 @@
 // B-spline (1, 4, 6, 4, 1) / 16 per axis and by how well the tap's surface agrees with the
 // pixel's:
 //   max(n . n_q, 0)^(2^SQUARINGS) x exp(-|z - z_q| / max(z, z_q, 1e-4) / DEPTH_SIGMA)
-// (n, z the normal and normalised depth of the caller's G-buffer, as ssr/mean_ring leaves
-// them in `guide`), normalised by the weights' sum (at least 1e-12). Taps outside the
+// (n, z the normal and normalised depth of the caller's G-buffer, sanitised as pack_inputs
+// does, not counted here), normalised by the weights' sum (at least 1e-12). Taps outside the
 // frame count 0. The denoiser runs ATROUS_LEVELS levels, steps 1, 2, 4, ...: without the
 // template flag FINAL a level writes the averaged sums (`dst`, 2 vec4 per pixel) for the
 // next; with it, the last writes each pixel's factor, per channel
 //   clamp((S + EPS) / (R + EPS), LO, HI),
 // to `dst` (1 vec4 per pixel, w = 1), which store_output applies (as tiles of one pixel).
+// The first level (template flag FIRST) reads the caller's `normal_metallic` and
+// `albedo_depth` and leaves each pixel's sanitised normal and depth in `guide` (xyz, w),
+// which the later levels read instead (fewer bindings and loads).
 //
+//#param FIRST 0
 //#param FINAL 0
 
 struct AtrousParams {
@@ -24,8 +28,24 @@ struct AtrousParams {
 
 @group(0) @binding(0) var<uniform> p: AtrousParams;
 @group(0) @binding(1) var<storage, read> src: array<vec4<f32>>;
-@group(0) @binding(2) var<storage, read> guide: array<vec4<f32>>;
-@group(0) @binding(3) var<storage, read_write> dst: array<vec4<f32>>;
+@group(0) @binding(2) var<storage, read_write> dst: array<vec4<f32>>;
+//#if FIRST
+@group(0) @binding(3) var<storage, read> normal_metallic: array<vec4<f32>>;
+@group(0) @binding(4) var<storage, read> albedo_depth: array<vec4<f32>>;
+@group(0) @binding(5) var<storage, read_write> guide: array<vec4<f32>>;
+
+fn guide_at(i: u32) -> vec4<f32> {
+    var ignored = 0u;
+    let n = sanitize_normal(normal_metallic[i].xyz, &ignored);
+    return vec4<f32>(n, in_range(albedo_depth[i].w, 0.0, 1.0, &ignored));
+}
+//#else
+@group(0) @binding(3) var<storage, read> guide: array<vec4<f32>>;
+
+fn guide_at(i: u32) -> vec4<f32> {
+    return guide[i];
+}
+//#end
 
 // Set by the denoiser from src/ssr/config.rs (ATROUS_NORMAL_SQUARINGS, ATROUS_DEPTH_SIGMA,
 // ATROUS_EPS, MEAN_LO, MEAN_HI).
@@ -47,7 +67,10 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>) {
         return;
     }
     let at = gid.y * p.width + gid.x;
-    let g = guide[at];
+    let g = guide_at(at);
+//#if FIRST
+    guide[at] = g;
+//#end
     let n = g.xyz;
     let z = g.w;
     var acc_s = vec4<f32>(0.0);
@@ -64,7 +87,7 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>) {
                 continue;
             }
             let q = u32(qy) * p.width + u32(qx);
-            let gq = guide[q];
+            let gq = guide_at(q);
             let zq = gq.w;
             var c = max(dot(n, gq.xyz), 0.0);
             for (var k = 0u; k < SQUARINGS; k++) {

@@ -8,10 +8,9 @@
 // background and coverage are 0. It writes (s, r) to this frame's slot of the ring (MEAN_RING
 // = 4 slots of W x H pixels, 2 vec4 per pixel, one buffer each, so that each fits a storage
 // binding at 1080p: the denoiser binds this frame's as `ring_now` and the other three after
-// it); on the first frame after a reset (`p.first`) it clears the other slots. The sums over the ring go to `sums` (2 vec4 per pixel), which
-// ssr/mean_atrous filters into the factors, and the pixel's normal and normalised depth of the
-// caller's G-buffer (sanitised as pack_inputs does, not counted here) to `guide` (xyz, w),
-// which steers that filter.
+// it); on the first frame after a reset (`p.first`) it clears the other slots. The sums
+// over the ring go to `sums` (2 vec4 per pixel), which ssr/mean_atrous filters into the
+// factors.
 //
 //#param BACKGROUND 0
 
@@ -25,11 +24,8 @@
 @group(0) @binding(5) var<storage, read_write> ring_b: array<vec4<f32>>;
 @group(0) @binding(6) var<storage, read_write> ring_c: array<vec4<f32>>;
 @group(0) @binding(7) var<storage, read_write> sums: array<vec4<f32>>;
-@group(0) @binding(8) var<storage, read> normal_metallic: array<vec4<f32>>;
-@group(0) @binding(9) var<storage, read> albedo_depth: array<vec4<f32>>;
-@group(0) @binding(10) var<storage, read_write> guide: array<vec4<f32>>;
 //#if BACKGROUND
-@group(0) @binding(11) var<storage, read> background: array<vec4<f32>>;
+@group(0) @binding(8) var<storage, read> background: array<vec4<f32>>;
 //#end
 
 @compute @workgroup_size(8, 8, 1)
@@ -72,6 +68,4 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>) {
     }
     sums[i] = total_s;
     sums[i + 1u] = total_r;
-    let normal = sanitize_normal(normal_metallic[at].xyz, &ignored);
-    guide[at] = vec4<f32>(normal, in_range(albedo_depth[at].w, 0.0, 1.0, &ignored));
 }
