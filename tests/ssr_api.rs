@@ -951,33 +951,65 @@ fn mean_correction_tiles16_scales_each_16_pixel_tile() {
 }
 
 fn check_mean_correction(option: &str, side: u32, tiles: (u32, u32)) {
-    use subpixel::frame::Background;
     use subpixel::nn::reference::{mean_factor_at, mean_tile_factors, mean_tile_sums};
     use subpixel::ssr::{MEAN_EPS, MEAN_HI, MEAN_LO, MEAN_RING, MeanCorrection};
-    let gpu = common::gpu();
-    let weights = Weights::load(golden_weights_path()).unwrap();
-    let mut with_option = weights.clone();
-    with_option.config.mean_correction = Some(option.into());
+    let mut weights = Weights::load(golden_weights_path()).unwrap();
+    weights.config.mean_correction = Some(option.into());
     assert_eq!(
-        with_option.config.mean_correction().unwrap(),
+        weights.config.mean_correction().unwrap(),
         MeanCorrection::Tiles { side }
     );
     let (w, h) = (64, 40);
-    let mut plain = Denoiser::with_gpu(&gpu, &weights, w, h).unwrap();
-    let mut corrected = Denoiser::with_gpu(&gpu, &with_option, w, h).unwrap();
     let mut sums: Vec<HostTensor> = Vec::new();
-    let (mut clamped, mut between) = (0, 0);
-    for t in 0..7u64 {
-        if t == 5 {
-            plain.reset();
-            corrected.reset();
-            sums.clear();
-        }
+    let frame = |t: u64| {
         let mut f = random_frame(w, h, 70 + t);
         // Brighter samples on the left: the tiles' factors differ.
         f.color = HostTensor::from_fn(w, h, 3, |x, y, c| {
             f.color.at(x, y, c) * if x < 24 { 8.0 } else { 1.0 }
         });
+        f
+    };
+    let factors = |f: &HostFrame, part: &HostTensor, sample: &HostTensor, reset: bool| {
+        if reset {
+            sums.clear();
+        }
+        sums.push(mean_tile_sums(part, sample, &f.mask, side));
+        let recent = &sums[sums.len().saturating_sub(MEAN_RING as usize)..];
+        let factors = mean_tile_factors(recent, MEAN_EPS, MEAN_LO, MEAN_HI);
+        assert_eq!((factors.width, factors.height), tiles);
+        let per_pixel = HostTensor::from_fn(w, h, 3, |x, y, c| mean_factor_at(&factors, side, x, y, c));
+        (per_pixel, factors.data)
+    };
+    check_corrected_output(&weights, (w, h), 2e-5, frame, factors);
+}
+
+/// Runs seven frames (`frame(t)`, given a background on the odd ones) through a denoiser of
+/// `weights` and one of the same weights without the mean correction, resetting both before
+/// frame 5, and checks every output pixel against the background plus the uncorrected
+/// reconstruction's part times its factor from `factors(frame, part, sample, reset)` (the
+/// per-pixel factors and the values the correction computes, counted: some must be clamped
+/// and some between the clamps and away from 1), within `tol` relative to `1 + |expect|`.
+fn check_corrected_output(
+    weights: &Weights,
+    (w, h): (u32, u32),
+    tol: f32,
+    mut frame: impl FnMut(u64) -> HostFrame,
+    mut factors: impl FnMut(&HostFrame, &HostTensor, &HostTensor, bool) -> (HostTensor, Vec<f32>),
+) {
+    use subpixel::frame::Background;
+    use subpixel::ssr::{MEAN_HI, MEAN_LO};
+    let gpu = common::gpu();
+    let mut uncorrected = weights.clone();
+    uncorrected.config.mean_correction = Some("none".into());
+    let mut plain = Denoiser::with_gpu(&gpu, &uncorrected, w, h).unwrap();
+    let mut corrected = Denoiser::with_gpu(&gpu, weights, w, h).unwrap();
+    let (mut clamped, mut between) = (0, 0);
+    for t in 0..7u64 {
+        if t == 5 {
+            plain.reset();
+            corrected.reset();
+        }
+        let mut f = frame(t);
         let background = (t % 2 == 1).then(|| {
             let coverage = HostTensor::from_fn(w, h, 1, |x, y, _| [0.0, 0.5, 1.0][((x + y) % 3) as usize]);
             let radiance =
@@ -995,12 +1027,8 @@ fn check_mean_correction(option: &str, side: u32, tiles: (u32, u32)) {
         let bg = |x, y, c| background.as_ref().map_or(0.0, |b| b.radiance.at(x, y, c));
         let part = HostTensor::from_fn(w, h, 3, |x, y, c| want.at(x, y, c) - bg(x, y, c));
         let sample = HostTensor::from_fn(w, h, 3, |x, y, c| f.color.at(x, y, c) - bg(x, y, c));
-        sums.push(mean_tile_sums(&part, &sample, &f.mask, side));
-        let recent = &sums[sums.len().saturating_sub(MEAN_RING as usize)..];
-        let factors = mean_tile_factors(recent, MEAN_EPS, MEAN_LO, MEAN_HI);
-        assert_eq!((factors.width, factors.height), tiles);
-        for k in 0..factors.data.len() {
-            let v = factors.data[k];
+        let (fac, values) = factors(&f, &part, &sample, t == 5);
+        for v in values {
             if v == MEAN_LO || v == MEAN_HI {
                 clamped += 1;
             } else if (v - 1.0).abs() > 0.02 {
@@ -1010,10 +1038,10 @@ fn check_mean_correction(option: &str, side: u32, tiles: (u32, u32)) {
         for y in 0..h {
             for x in 0..w {
                 for c in 0..3 {
-                    let expect = bg(x, y, c) + part.at(x, y, c) * mean_factor_at(&factors, side, x, y, c);
+                    let expect = bg(x, y, c) + part.at(x, y, c) * fac.at(x, y, c);
                     let g = got.at(x, y, c);
                     assert!(
-                        (g - expect).abs() <= 2e-5 * (1.0 + expect.abs()),
+                        (g - expect).abs() <= tol * (1.0 + expect.abs()),
                         "frame {t} pixel ({x}, {y}) channel {c}: {g} vs {expect}"
                     );
                 }
@@ -1036,33 +1064,18 @@ fn check_mean_correction(option: &str, side: u32, tiles: (u32, u32)) {
 /// reconstructed part is scaled; a reset forgets the earlier frames' sums.
 #[test]
 fn mean_correction_atrous_follows_each_surfaces_samples() {
-    use subpixel::frame::Background;
     use subpixel::nn::reference::{mean_atrous_factors, mean_pixel_sums};
     use subpixel::ssr::{
         ATROUS_DEPTH_SIGMA, ATROUS_EPS, ATROUS_LEVELS, ATROUS_NORMAL_SQUARINGS, MEAN_HI, MEAN_LO, MEAN_RING,
         MeanCorrection,
     };
-    let gpu = common::gpu();
-    let weights = Weights::load(golden_weights_path()).unwrap();
-    let mut with_option = weights.clone();
-    with_option.config.mean_correction = Some("atrous".into());
-    assert_eq!(
-        with_option.config.mean_correction().unwrap(),
-        MeanCorrection::Atrous
-    );
+    let mut weights = Weights::load(golden_weights_path()).unwrap();
+    weights.config.mean_correction = Some("atrous".into());
+    assert_eq!(weights.config.mean_correction().unwrap(), MeanCorrection::Atrous);
     let (w, h) = (48, 36);
-    let mut plain = Denoiser::with_gpu(&gpu, &weights, w, h).unwrap();
-    let mut corrected = Denoiser::with_gpu(&gpu, &with_option, w, h).unwrap();
-    let mut sums: Vec<HostTensor> = Vec::new();
-    let (mut clamped, mut between) = (0, 0);
-    for t in 0..7u64 {
-        if t == 5 {
-            plain.reset();
-            corrected.reset();
-            sums.clear();
-        }
+    let left = |x: u32| x < 20;
+    let frame = |t: u64| {
         let mut f = random_frame(w, h, 90 + t);
-        let left = |x: u32| x < 20;
         let jitter = f.normal.clone();
         f.normal = unit_normals(&HostTensor::from_fn(w, h, 3, |x, y, c| {
             let base = if left(x) { [0.0, 0.0, 1.0] } else { [0.8, 0.0, 0.6] };
@@ -1082,24 +1095,14 @@ fn mean_correction_atrous_follows_each_surfaces_samples() {
         // Every pixel traced once over 4 frames, as the tracer's quarter pattern.
         let (ox, oy) = [(0, 0), (1, 1), (1, 0), (0, 1)][(t % 4) as usize];
         f.mask = HostTensor::from_fn(w, h, 1, |x, y, _| (x % 2 == ox && y % 2 == oy) as u32 as f32);
-        let background = (t % 2 == 1).then(|| {
-            let coverage = HostTensor::from_fn(w, h, 1, |x, y, _| [0.0, 0.5, 1.0][((x + y) % 3) as usize]);
-            let radiance =
-                HostTensor::from_fn(w, h, 3, |x, y, c| 0.3 * (c + 1) as f32 * coverage.at(x, y, 0));
-            Background {
-                radiance,
-                coverage,
-                albedo: None,
-                emission: None,
-            }
-        });
-        f.background = background.clone();
-        let want = plain.denoise_host(&f).unwrap();
-        let got = corrected.denoise_host(&f).unwrap();
-        let bg = |x, y, c| background.as_ref().map_or(0.0, |b| b.radiance.at(x, y, c));
-        let part = HostTensor::from_fn(w, h, 3, |x, y, c| want.at(x, y, c) - bg(x, y, c));
-        let sample = HostTensor::from_fn(w, h, 3, |x, y, c| f.color.at(x, y, c) - bg(x, y, c));
-        sums.push(mean_pixel_sums(&part, &sample, &f.mask));
+        f
+    };
+    let mut sums: Vec<HostTensor> = Vec::new();
+    let factors = |f: &HostFrame, part: &HostTensor, sample: &HostTensor, reset: bool| {
+        if reset {
+            sums.clear();
+        }
+        sums.push(mean_pixel_sums(part, sample, &f.mask));
         let recent = &sums[sums.len().saturating_sub(MEAN_RING as usize)..];
         let factors = mean_atrous_factors(
             recent,
@@ -1112,30 +1115,10 @@ fn mean_correction_atrous_follows_each_surfaces_samples() {
             MEAN_LO,
             MEAN_HI,
         );
-        for &v in &factors.data {
-            if v == MEAN_LO || v == MEAN_HI {
-                clamped += 1;
-            } else if (v - 1.0).abs() > 0.02 {
-                between += 1;
-            }
-        }
-        for y in 0..h {
-            for x in 0..w {
-                for c in 0..3 {
-                    let expect = bg(x, y, c) + part.at(x, y, c) * factors.at(x, y, c);
-                    let g = got.at(x, y, c);
-                    assert!(
-                        (g - expect).abs() <= 1e-4 * (1.0 + expect.abs()),
-                        "frame {t} pixel ({x}, {y}) channel {c}: {g} vs {expect}"
-                    );
-                }
-            }
-        }
-    }
-    assert!(
-        clamped > 0 && between > 0,
-        "{clamped} clamped and {between} other factors"
-    );
+        let values = factors.data.clone();
+        (factors, values)
+    };
+    check_corrected_output(&weights, (w, h), 2e-5, frame, factors);
 }
 
 /// Config albedo "footprint": the whole pipeline runs on the frame's footprint albedo
