@@ -1055,19 +1055,21 @@ fn check_corrected_output(
 }
 
 /// Config `mean_correction = "atrous"`: per pixel and channel, the reconstruction is scaled
-/// by the ratio of the traced samples to its own values at the same pixels over the last 4
-/// frames, both filtered by the edge-aware a-trous filter of the frame's normals and depths,
-/// against the CPU reference (`nn::reference::mean_pixel_sums`, `mean_atrous_factors`, in
-/// f64) applied to the output of the same weights without the option. The frame holds two
+/// by the ratio of the traced samples to its own values at the same pixels, each summed over
+/// the frames along the motion (the last frame's sums warped and decayed), both filtered by
+/// the edge-aware a-trous filter of the frame's normals and depths, against the CPU
+/// reference (`nn::reference::mean_pixel_sums`, `mean_history_sums`, `mean_atrous_factors`)
+/// applied to the output of the same weights without the option. The frame holds two
 /// surfaces (left: facing the camera, near; right: turned away, farther) with samples
-/// brighter on the left, and noisy normals within each; with a background only the
-/// reconstructed part is scaled; a reset forgets the earlier frames' sums.
+/// brighter on the left, and noisy normals within each, and random motion (some of it off
+/// the frame); with a background only the reconstructed part is scaled; a reset forgets the
+/// earlier frames' sums.
 #[test]
 fn mean_correction_atrous_follows_each_surfaces_samples() {
-    use subpixel::nn::reference::{mean_atrous_factors, mean_pixel_sums};
+    use subpixel::nn::reference::{mean_atrous_factors, mean_history_sums, mean_pixel_sums};
     use subpixel::ssr::{
-        ATROUS_DEPTH_SIGMA, ATROUS_EPS, ATROUS_LEVELS, ATROUS_NORMAL_SQUARINGS, MEAN_HI, MEAN_LO, MEAN_RING,
-        MeanCorrection,
+        ATROUS_DECAY, ATROUS_DEPTH_SIGMA, ATROUS_EPS, ATROUS_LEVELS, ATROUS_NORMAL_SQUARINGS, MEAN_HI,
+        MEAN_LO, MeanCorrection,
     };
     let mut weights = Weights::load(golden_weights_path()).unwrap();
     weights.config.mean_correction = Some("atrous".into());
@@ -1097,15 +1099,15 @@ fn mean_correction_atrous_follows_each_surfaces_samples() {
         f.mask = HostTensor::from_fn(w, h, 1, |x, y, _| (x % 2 == ox && y % 2 == oy) as u32 as f32);
         f
     };
-    let mut sums: Vec<HostTensor> = Vec::new();
+    let mut history: Option<HostTensor> = None;
     let factors = |f: &HostFrame, part: &HostTensor, sample: &HostTensor, reset: bool| {
         if reset {
-            sums.clear();
+            history = None;
         }
-        sums.push(mean_pixel_sums(part, sample, &f.mask));
-        let recent = &sums[sums.len().saturating_sub(MEAN_RING as usize)..];
+        let own = mean_pixel_sums(part, sample, &f.mask);
+        let sums = mean_history_sums(&own, history.as_ref(), &f.motion, ATROUS_DECAY);
         let factors = mean_atrous_factors(
-            recent,
+            &sums,
             &f.normal,
             &f.depth,
             ATROUS_LEVELS,
@@ -1115,6 +1117,7 @@ fn mean_correction_atrous_follows_each_surfaces_samples() {
             MEAN_LO,
             MEAN_HI,
         );
+        history = Some(sums);
         let values = factors.data.clone();
         (factors, values)
     };

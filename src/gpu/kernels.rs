@@ -171,7 +171,7 @@ pub const KERNELS: &[KernelSource] = &[
     kernel!("ssr/pack_mt", ["ssr/lib/pack", "ssr/lib/sanitize"]),
     kernel!("ssr/store_output", ["ssr/lib/sanitize", "ssr/lib/output"]),
     kernel!("ssr/tile_means", ["ssr/lib/sanitize", "ssr/lib/output"]),
-    kernel!("ssr/mean_ring", ["ssr/lib/sanitize", "ssr/lib/output"]),
+    kernel!("ssr/mean_history", ["ssr/lib/sanitize", "ssr/lib/output"]),
     kernel!("ssr/mean_atrous", ["ssr/lib/sanitize"]),
     kernel!("ssr/exposure_partial", ["ssr/lib/sanitize", "ssr/lib/exposure"]),
     kernel!("ssr/exposure_final", ["ssr/lib/exposure"]),

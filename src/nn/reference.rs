@@ -340,9 +340,10 @@ pub fn mean_tile_factors(frames: &[HostTensor], eps: f32, lo: f32, hi: f32) -> H
     })
 }
 
-/// One frame's per-pixel sums of the `"atrous"` mean correction (`wgsl/ssr/mean_ring.wgsl`):
-/// at the pixels whose `mask` is above 1/2, `sample` (the traced sample minus the background)
-/// and `part` (`(1 - coverage) x output`), 0 elsewhere; `W x H x 6`, samples first.
+/// One frame's own per-pixel values of the `"atrous"` mean correction
+/// (`wgsl/ssr/mean_history.wgsl`): at the pixels whose `mask` is above 1/2, `sample` (the
+/// traced sample minus the background) and `part` (`(1 - coverage) x output`), 0 elsewhere;
+/// `W x H x 6`, samples first.
 pub fn mean_pixel_sums(part: &HostTensor, sample: &HostTensor, mask: &HostTensor) -> HostTensor {
     HostTensor::from_fn(part.width, part.height, 6, |x, y, c| {
         if mask.at(x, y, 0) <= 0.5 {
@@ -355,8 +356,26 @@ pub fn mean_pixel_sums(part: &HostTensor, sample: &HostTensor, mask: &HostTensor
     })
 }
 
+/// The `"atrous"` mean correction's sums of a frame (`wgsl/ssr/mean_history.wgsl`): its own
+/// [`mean_pixel_sums`] plus, unless it is the first after a reset (`prev` none), the last
+/// frame's sums warped to it ([`warp`] by `motion`, invalid history 0) times `decay`.
+pub fn mean_history_sums(
+    own: &HostTensor,
+    prev: Option<&HostTensor>,
+    motion: &HostTensor,
+    decay: f32,
+) -> HostTensor {
+    let Some(prev) = prev else {
+        return own.clone();
+    };
+    let (warped, _) = warp(prev, motion);
+    HostTensor::from_fn(own.width, own.height, own.channels, |x, y, c| {
+        own.at(x, y, c) + decay * warped.at(x, y, c)
+    })
+}
+
 /// The `"atrous"` mean correction's factors (`wgsl/ssr/mean_atrous.wgsl`), `W x H x 3`: the
-/// sum of the frames' [`mean_pixel_sums`] filtered by `levels` levels of the edge-aware
+/// frame's sums ([`mean_history_sums`], `W x H x 6`) filtered by `levels` levels of the edge-aware
 /// a-trous filter (level `l`: 5 x 5 taps `2^l` pixels apart, B-spline weights
 /// `(1, 4, 6, 4, 1) / 16` per axis times `max(n . n_q, 0)^(2^squarings)` times
 /// `exp(-|z - z_q| / max(z, z_q, 1e-4) / depth_sigma)` against the centre's `normal`
@@ -365,7 +384,7 @@ pub fn mean_pixel_sums(part: &HostTensor, sample: &HostTensor, mask: &HostTensor
 /// hi)`. In f64.
 #[allow(clippy::too_many_arguments)]
 pub fn mean_atrous_factors(
-    frames: &[HostTensor],
+    sums: &HostTensor,
     normal: &HostTensor,
     depth: &HostTensor,
     levels: u32,
@@ -377,10 +396,10 @@ pub fn mean_atrous_factors(
 ) -> HostTensor {
     let (w, h) = (normal.width as i64, normal.height as i64);
     let at = |x: i64, y: i64| (y * w + x) as usize;
-    let mut sums: Vec<[f64; 6]> = (0..w * h)
+    let mut vals: Vec<[f64; 6]> = (0..w * h)
         .map(|i| {
             let (x, y) = ((i % w) as u32, (i / w) as u32);
-            std::array::from_fn(|c| frames.iter().map(|f| f.at(x, y, c as u32) as f64).sum())
+            std::array::from_fn(|c| sums.at(x, y, c as u32) as f64)
         })
         .collect();
     let taps = [1.0 / 16.0, 0.25, 0.375, 0.25, 1.0 / 16.0];
@@ -390,7 +409,7 @@ pub fn mean_atrous_factors(
     let z = |x: i64, y: i64| depth.at(x as u32, y as u32, 0) as f64;
     for level in 0..levels {
         let step = 1i64 << level;
-        let mut next = vec![[0f64; 6]; sums.len()];
+        let mut next = vec![[0f64; 6]; vals.len()];
         for y in 0..h {
             for x in 0..w {
                 let (np, zp) = (n(x, y), z(x, y));
@@ -409,7 +428,7 @@ pub fn mean_atrous_factors(
                         let zq = z(qx, qy);
                         let rel = (zp - zq).abs() / zp.max(zq).max(1e-4);
                         let wt = ty * tx * c * (-rel / depth_sigma as f64).exp();
-                        for (a, v) in acc.iter_mut().zip(sums[at(qx, qy)]) {
+                        for (a, v) in acc.iter_mut().zip(vals[at(qx, qy)]) {
                             *a += wt * v;
                         }
                         wsum += wt;
@@ -419,10 +438,10 @@ pub fn mean_atrous_factors(
                 next[at(x, y)] = acc.map(|a| a * norm);
             }
         }
-        sums = next;
+        vals = next;
     }
     HostTensor::from_fn(normal.width, normal.height, 3, |x, y, c| {
-        let v = sums[at(x as i64, y as i64)];
+        let v = vals[at(x as i64, y as i64)];
         let (s, r) = (v[c as usize], v[c as usize + 3]);
         (((s + eps as f64) / (r + eps as f64)) as f32).clamp(lo, hi)
     })
@@ -470,7 +489,7 @@ mod tests {
         };
         let factors = |gain: f32| {
             let sums = mean_pixel_sums(&part, &sample(gain), &mask);
-            mean_atrous_factors(&[sums], &normal, &depth, 5, 3, 0.2, 1e-6, 0.67, 1.5)
+            mean_atrous_factors(&sums, &normal, &depth, 5, 3, 0.2, 1e-6, 0.67, 1.5)
         };
         let (a, b) = (factors(1.0), factors(1.2));
         let mut right_changed = 0;
@@ -493,7 +512,7 @@ mod tests {
         let flat = HostTensor::from_fn(w, h, 3, |_, _, c| [0.0, 0.0, 1.0][c as usize]);
         let brighter = HostTensor::from_fn(w, h, 3, |x, y, c| 1.25 * part.at(x, y, c));
         let f = mean_atrous_factors(
-            &[mean_pixel_sums(&part, &brighter, &mask)],
+            &mean_pixel_sums(&part, &brighter, &mask),
             &flat,
             &depth,
             5,

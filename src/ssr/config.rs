@@ -76,9 +76,11 @@ pub enum MeanCorrection {
         /// Tile side in pixels (a multiple of 8, the statistic's workgroup side).
         side: u32,
     },
-    /// `"atrous"`: per pixel instead of per tile. The samples' and the reconstruction's
-    /// per-pixel sums over the last [`MEAN_RING`] frames (0 at untraced pixels) are filtered
-    /// alike by [`ATROUS_LEVELS`] levels of an edge-aware a-trous filter (5 x 5 B-spline taps
+    /// `"atrous"`: per pixel instead of per tile, and along the motion. Each frame's samples
+    /// and reconstruction at its traced pixels (0 elsewhere) are added to the last frame's
+    /// sums warped to this frame times [`ATROUS_DECAY`] (`wgsl/ssr/mean_history.wgsl`); the
+    /// two sums are filtered alike by [`ATROUS_LEVELS`] levels of an edge-aware a-trous
+    /// filter (5 x 5 B-spline taps
     /// 1, 2, 4, 8, 16 pixels apart, each weighted by the agreement of its normal and depth
     /// with the pixel's: `max(n . n_q, 0)^8 exp(-|z - z_q| / max(z, z_q) / ATROUS_DEPTH_SIGMA)`,
     /// `wgsl/ssr/mean_atrous.wgsl`), and each pixel's factor is the ratio of the two,
@@ -109,6 +111,9 @@ pub const ATROUS_DEPTH_SIGMA: f32 = 0.2;
 /// Config `mean_correction = "atrous"`: added to both filtered means of a factor
 /// ([`MEAN_EPS`] over the 256 pixels of a 16-pixel tile).
 pub const ATROUS_EPS: f32 = MEAN_EPS / 256.0;
+/// Config `mean_correction = "atrous"`: each frame's sums add the last frame's, warped along
+/// the motion, times this (about three frames' worth of samples).
+pub const ATROUS_DECAY: f32 = 0.7;
 
 /// Config `ceiling = "max"`: the demodulated output is at most this times M.
 pub const CEILING_GAIN: f32 = 1.0;

@@ -4,8 +4,8 @@
 use bytemuck::{Pod, Zeroable};
 
 use super::config::{
-    ATROUS_DEPTH_SIGMA, ATROUS_EPS, ATROUS_LEVELS, ATROUS_NORMAL_SQUARINGS, CEILING_DECAY, EmissionSource,
-    ExposureMode, MEAN_EPS, MEAN_HI, MEAN_LO, MEAN_RING, MEAN_TILE, MeanCorrection,
+    ATROUS_DECAY, ATROUS_DEPTH_SIGMA, ATROUS_EPS, ATROUS_LEVELS, ATROUS_NORMAL_SQUARINGS, CEILING_DECAY,
+    EmissionSource, ExposureMode, MEAN_EPS, MEAN_HI, MEAN_LO, MEAN_RING, MEAN_TILE, MeanCorrection,
 };
 pub use super::network::Granularity;
 use super::network::StepCost;
@@ -64,15 +64,15 @@ struct InputPasses {
     /// dispatch per ring slot, then the same on the first frame after a reset (clearing the
     /// others).
     mean: Option<Vec<Dispatch>>,
-    /// With `"atrous"`, the filter's levels after the sums, the last writing the factors
-    /// (none for tiles).
-    mean_filter: Vec<Dispatch>,
+    /// With `"atrous"`, the filter's levels after the sums, the last writing the factors, for
+    /// a frame whose sums went to the first or the second history buffer (none for tiles).
+    mean_filter: Vec<Vec<Dispatch>>,
     store: Dispatch,
     /// Whether `store` composites a background.
     background: bool,
 }
 
-/// The parameters of the output passes, `ssr/tile_means`, `ssr/mean_ring` and
+/// The parameters of the output passes, `ssr/tile_means`, `ssr/mean_history` and
 /// `ssr/store_output` (which leaves `slot` and `first` unused).
 #[repr(C)]
 #[derive(Clone, Copy, Pod, Zeroable)]
@@ -98,26 +98,32 @@ struct AtrousParams {
 }
 
 /// The mean correction's state: the ring of per-tile sums of the last frames and the
-/// factors the output pass applies. `"atrous"` keeps them per pixel (tiles of one pixel,
-/// which the output pass applies as they are) and filters the sums through `filter`.
+/// factors the output pass applies. `"atrous"` keeps its factors per pixel (tiles of one
+/// pixel, which the output pass applies as they are), its sums in `filter` instead of a ring.
 struct MeanState {
     /// Tile side in pixels (1 for `"atrous"`).
     side: u32,
     tiles: (u32, u32),
-    /// The ring: one buffer of every slot for tiles; for `"atrous"` one buffer per slot
-    /// ([`MEAN_RING`], 2 vec4 per pixel each), so that each fits a storage binding.
-    ring: Vec<wgpu::Buffer>,
+    /// The ring of tile sums ([`MEAN_RING`] slots); none for `"atrous"`.
+    ring: Option<wgpu::Buffer>,
     factors: wgpu::Buffer,
-    /// With `"atrous"`: the two buffers the filter's levels alternate between (2 vec4 per
-    /// pixel each), and the frame's sanitised normals and depths that steer it (1 vec4 per
-    /// pixel).
-    filter: Option<[wgpu::Buffer; 3]>,
-    /// The ring slot of the next frame.
+    filter: Option<AtrousBuffers>,
+    /// The ring slot of the next frame (for `"atrous"`, its parity is the history buffer
+    /// the frame's sums go to).
     slot: u32,
 }
 
-// `ssr/mean_ring` binds the ring's four slots, one binding each.
-const _: () = assert!(MEAN_RING == 4, "ssr/mean_ring binds four ring slots");
+/// The buffers of the `"atrous"` mean correction (2 vec4 per pixel, but `guide`).
+struct AtrousBuffers {
+    /// The motion-carried sums: each frame writes one from the other (`ssr/mean_history`);
+    /// the filter's first level then overwrites the other, which it no longer needs.
+    sums: [wgpu::Buffer; 2],
+    /// The filter's second buffer.
+    scratch: wgpu::Buffer,
+    /// The frame's sanitised normals and depths, left by the filter's first level for the
+    /// others (1 vec4 per pixel).
+    guide: wgpu::Buffer,
+}
 
 /// Every kernel the denoiser runs: [`Denoiser::new`] checks them against the device's
 /// limits (they all fit WebGPU's defaults, `wgpu::Limits::default()`).
@@ -129,7 +135,7 @@ pub const KERNELS_USED: &[&str] = &[
     "ssr/warp_history",
     "ssr/store_output",
     "ssr/tile_means",
-    "ssr/mean_ring",
+    "ssr/mean_history",
     "ssr/mean_atrous",
     "nn/conv3x3",
     "nn/conv3x3_blocked",
@@ -145,7 +151,7 @@ pub const PARAM_SIZES: &[(&str, usize)] = &[
     ("ssr/pack_mt", std::mem::size_of::<PackParams>()),
     ("ssr/store_output", std::mem::size_of::<OutputParams>()),
     ("ssr/tile_means", std::mem::size_of::<OutputParams>()),
-    ("ssr/mean_ring", std::mem::size_of::<OutputParams>()),
+    ("ssr/mean_history", std::mem::size_of::<OutputParams>()),
     ("ssr/mean_atrous", std::mem::size_of::<AtrousParams>()),
     (
         "ssr/exposure_partial",
@@ -265,20 +271,15 @@ impl Denoiser {
                 Some(MeanState {
                     side,
                     tiles,
-                    ring: if atrous {
-                        (0..MEAN_RING)
-                            .map(|_| buffer("subpixel.ssr.mean_ring", n * 32))
-                            .collect()
-                    } else {
-                        vec![buffer("subpixel.ssr.mean_ring", n * MEAN_RING as u64 * 32)]
-                    },
+                    ring: (!atrous).then(|| buffer("subpixel.ssr.mean_ring", n * MEAN_RING as u64 * 32)),
                     factors: buffer("subpixel.ssr.mean_factors", n * 16),
-                    filter: atrous.then(|| {
-                        [
-                            buffer("subpixel.ssr.mean_filter_a", n * 32),
-                            buffer("subpixel.ssr.mean_filter_b", n * 32),
-                            buffer("subpixel.ssr.mean_guide", n * 16),
-                        ]
+                    filter: atrous.then(|| AtrousBuffers {
+                        sums: [
+                            buffer("subpixel.ssr.mean_sums_a", n * 32),
+                            buffer("subpixel.ssr.mean_sums_b", n * 32),
+                        ],
+                        scratch: buffer("subpixel.ssr.mean_filter", n * 32),
+                        guide: buffer("subpixel.ssr.mean_guide", n * 16),
                     }),
                     slot: 0,
                 })
@@ -386,30 +387,34 @@ impl Denoiser {
     }
 
     /// The mean correction's sums for each ring slot, then for each slot on a first frame
-    /// (`None` without the option): `ssr/tile_means`, or `ssr/mean_ring` into the first
-    /// filter buffer with `"atrous"`.
+    /// (`None` without the option): `ssr/tile_means`, or with `"atrous"` `ssr/mean_history`
+    /// into the history buffer of the slot's parity, from the other.
     fn mean_dispatches(&self, inputs: &FrameInputs<'_>) -> Result<Option<Vec<Dispatch>>> {
         let (color_mask, background) = (inputs.color_mask, inputs.background);
         let Some(m) = &self.mean else {
             return Ok(None);
         };
-        if let Some([sums, _, _]) = &m.filter {
-            let spec = Specialisation(vec![("BACKGROUND", background.is_some() as u32 as f64)]);
+        if let Some(a) = &m.filter {
+            let spec = Specialisation(vec![
+                ("BACKGROUND", background.is_some() as u32 as f64),
+                ("DECAY", ATROUS_DECAY as f64),
+            ]);
             let mut out = Vec::new();
             for first in [false, true] {
-                for slot in 0..MEAN_RING as usize {
-                    // This frame's slot, then the other three (the kernel's four bindings).
+                for slot in 0..MEAN_RING {
+                    let (now, prev) = (&a.sums[slot as usize % 2], &a.sums[1 - slot as usize % 2]);
                     let mut resources = vec![
                         self.net.output().buffer.as_entire_binding(),
                         color_mask.as_entire_binding(),
+                        inputs.motion.as_entire_binding(),
+                        prev.as_entire_binding(),
+                        now.as_entire_binding(),
                     ];
-                    resources.extend((0..4).map(|k| m.ring[(slot + k) % 4].as_entire_binding()));
-                    resources.push(sums.as_entire_binding());
                     resources.extend(background.map(|b| b.as_entire_binding()));
                     out.push(self.gpu.kernels.dispatch_with(
-                        "ssr/mean_ring",
+                        "ssr/mean_history",
                         &spec,
-                        bytemuck::bytes_of(&self.output_params(slot as u32, first)),
+                        bytemuck::bytes_of(&self.output_params(slot, first)),
                         &resources,
                         Grid::pixels(self.width, self.height),
                     )?);
@@ -428,7 +433,7 @@ impl Denoiser {
         let mut resources = vec![
             self.net.output().buffer.as_entire_binding(),
             color_mask.as_entire_binding(),
-            m.ring[0].as_entire_binding(),
+            m.ring.as_ref().expect("tiles have a ring").as_entire_binding(),
             m.factors.as_entire_binding(),
         ];
         resources.extend(background.map(|b| b.as_entire_binding()));
@@ -447,23 +452,40 @@ impl Denoiser {
         Ok(Some(out))
     }
 
-    /// With `"atrous"`, the [`ATROUS_LEVELS`] levels of the mean correction's filter over the
-    /// sums `ssr/mean_ring` leaves in the first filter buffer, alternating between the first
-    /// two, the last writing the factors, guided by the caller's normals and depths (the
-    /// first level leaves them sanitised in the third for the others); none otherwise.
-    fn mean_filter_dispatches(&self, inputs: &FrameInputs<'_>) -> Result<Vec<Dispatch>> {
-        let Some((m, [a, b, guide])) = self.mean.as_ref().and_then(|m| m.filter.as_ref().map(|f| (m, f)))
-        else {
+    /// With `"atrous"`, for sums in either history buffer, the [`ATROUS_LEVELS`] levels of
+    /// the mean correction's filter: from the sums into the other history buffer (which the
+    /// next frame no longer reads), then alternating between it and the scratch buffer, the
+    /// last writing the factors, guided by the caller's normals and depths (the first level
+    /// leaves them sanitised in the guide for the others); none otherwise.
+    fn mean_filter_dispatches(&self, inputs: &FrameInputs<'_>) -> Result<Vec<Vec<Dispatch>>> {
+        let Some((m, ab)) = self.mean.as_ref().and_then(|m| m.filter.as_ref().map(|f| (m, f))) else {
             return Ok(Vec::new());
         };
+        (0..2)
+            .map(|parity| self.mean_filter_levels(inputs, m, ab, parity))
+            .collect()
+    }
+
+    fn mean_filter_levels(
+        &self,
+        inputs: &FrameInputs<'_>,
+        m: &MeanState,
+        ab: &AtrousBuffers,
+        parity: usize,
+    ) -> Result<Vec<Dispatch>> {
+        let (sums, other, scratch, guide) = (&ab.sums[parity], &ab.sums[1 - parity], &ab.scratch, &ab.guide);
         let mut out = Vec::new();
         for level in 0..ATROUS_LEVELS {
             let last = level + 1 == ATROUS_LEVELS;
-            let (src, dst) = match (level % 2, last) {
-                (0, false) => (a, b),
-                (_, false) => (b, a),
-                (0, true) => (a, &m.factors),
-                (_, true) => (b, &m.factors),
+            let src = match level {
+                0 => sums,
+                l if l % 2 == 1 => other,
+                _ => scratch,
+            };
+            let dst = match level {
+                _ if last => &m.factors,
+                l if l % 2 == 0 => other,
+                _ => scratch,
             };
             let params = AtrousParams {
                 width: self.width,
@@ -523,17 +545,16 @@ impl Denoiser {
         if let Some(m) = &self.mean {
             let reads = self.net.output().bytes() + px * if background { 2 } else { 1 };
             if m.filter.is_some() {
-                // The ring's other slots read, this frame's slot and the sums written (2
-                // vec4 per pixel each); each level reads the sums and the guide once (its
-                // 25 taps from cache; the first reads the caller's normals and depths and
-                // writes the guide) and writes the next sums or the factors.
-                let ring = 2 * px * (MEAN_RING as u64 - 1);
+                // The motion and the last frame's sums read, this frame's written (2 vec4 per
+                // pixel); each level reads the sums and the guide once (its 25 taps from
+                // cache; the first reads the caller's normals and depths and writes the
+                // guide) and writes the next sums or the factors.
                 out.push(StepCost {
                     stage: "output",
-                    label: "mean ring".into(),
+                    label: "mean history".into(),
                     flops: 0,
-                    bytes_read: reads + ring,
-                    bytes_written: 4 * px,
+                    bytes_read: reads + 3 * px,
+                    bytes_written: 2 * px,
                     matrix: false,
                 });
                 for level in 0..ATROUS_LEVELS {
@@ -659,12 +680,16 @@ impl Denoiser {
         {
             let mut pass = Profiler::pass(encoder, "output", profiler);
             if let (Some(d), Some(m)) = (&passes.mean, self.mean.as_mut()) {
-                // On a first frame any slot will do: that dispatch clears the others.
+                // On a first frame any slot will do: that dispatch clears the others (tiles)
+                // or ignores the history (`"atrous"`).
                 d[(m.slot + if self.first { MEAN_RING } else { 0 }) as usize].record(&mut pass);
+                // With `"atrous"`, the filter of the history buffer that slot wrote.
+                if let Some(levels) = passes.mean_filter.get(m.slot as usize % 2) {
+                    for d in levels {
+                        d.record(&mut pass);
+                    }
+                }
                 m.slot = (m.slot + 1) % MEAN_RING;
-            }
-            for d in &passes.mean_filter {
-                d.record(&mut pass);
             }
             passes.store.record(&mut pass);
         }

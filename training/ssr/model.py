@@ -408,9 +408,11 @@ class MeanCorrection:
 
 ATROUS_LEVELS, ATROUS_NORMAL_SQUARINGS, ATROUS_DEPTH_SIGMA = 5, 3, 0.2
 ATROUS_EPS = MEAN_EPS / 256.0
+ATROUS_DECAY = 0.7
 """Config `mean_correction = "atrous"` (src/ssr/config.rs): filter levels (steps 1, 2, 4, 8,
-16 pixels), the normal weight's power as squarings (cos^8), the depth weight's scale, and
-the epsilon added to both filtered means of a factor."""
+16 pixels), the normal weight's power as squarings (cos^8), the depth weight's scale, the
+epsilon added to both filtered means of a factor, and the weight of the warped earlier
+frames' sums in each frame's (`AtrousMeanCorrection`)."""
 
 ATROUS_TAPS = (1.0 / 16.0, 1.0 / 4.0, 3.0 / 8.0, 1.0 / 4.0, 1.0 / 16.0)
 """The 5-tap B-spline of each a-trous level (per axis)."""
@@ -455,13 +457,15 @@ def atrous_filter(x: torch.Tensor, normal: torch.Tensor, depth: torch.Tensor,
 
 
 class AtrousMeanCorrection(MeanCorrection):
-    """Config `mean_correction = "atrous"` (wgsl/ssr/mean_ring.wgsl, mean_atrous.wgsl,
+    """Config `mean_correction = "atrous"` (wgsl/ssr/mean_history.wgsl, mean_atrous.wgsl,
     store_output.wgsl): as MeanCorrection, the reconstruction is scaled towards the traced
-    samples over the last MEAN_RING frames, but per pixel: the samples' and the
-    reconstruction's per-pixel sums over the ring (both 0 at untraced pixels) are filtered
-    alike by `atrous_filter`, guided by this frame's normals and depths (so a factor averages
-    over its own surface, not across silhouettes and creases), and each pixel's factor is
-    `clamp((S + ATROUS_EPS) / (R + ATROUS_EPS), MEAN_LO, MEAN_HI)`."""
+    samples of recent frames, but per pixel and along the motion: each frame's per-pixel
+    samples and reconstruction at the traced pixels (0 elsewhere) are added to the earlier
+    frames' sums warped to this frame (`warp` by the motion vectors, invalid history 0) times
+    ATROUS_DECAY, S_t = s_t + ATROUS_DECAY W(S_{t-1}) (the same for R; `self.ring` holds the
+    last sums), both filtered alike by `atrous_filter`, guided by this frame's normals and
+    depths (so a factor averages over its own surface, not across silhouettes and creases),
+    and each pixel's factor is `clamp((S + ATROUS_EPS) / (R + ATROUS_EPS), MEAN_LO, MEAN_HI)`."""
 
     def __init__(self) -> None:
         super().__init__(1)
@@ -471,14 +475,15 @@ class AtrousMeanCorrection(MeanCorrection):
         part = (1.0 - cov) * output
         traced = (frame["mask"] > 0.5).to(output.dtype)
         sample = (_clean(frame["color"]).to(output.dtype) - bg) * traced
-        self.ring = (self.ring + [(sample, part * traced)])[-MEAN_RING:]
-        s = sum(x for x, _ in self.ring)
-        r = sum(x for _, x in self.ring)
         batched = output.dim() == 4
-        sr = torch.cat([s, r], dim=-3)
+        sr = torch.cat([sample, part * traced], dim=-3)
         normal, depth = frame["normal"].to(output.dtype), frame["depth"].to(output.dtype)
+        motion = frame["motion"].to(output.dtype)
         if not batched:
-            sr, normal, depth = sr[None], normal[None], depth[None]
+            sr, normal, depth, motion = sr[None], normal[None], depth[None], motion[None]
+        if self.ring:
+            sr = sr + ATROUS_DECAY * warp(self.ring[0], motion)[0]
+        self.ring = [sr]
         sr = atrous_filter(sr, normal, depth)
         if not batched:
             sr = sr[0]

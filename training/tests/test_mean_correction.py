@@ -109,34 +109,62 @@ def atrous_factors_naive(s, r, normal, depth):
     return np.clip((x[..., :3] + ATROUS_EPS) / (x[..., 3:] + ATROUS_EPS), MEAN_LO, MEAN_HI)
 
 
+def warp_naive(x, motion):
+    """Backward bilinear warp [h, w, c] at the pixel centre plus `motion` [h, w, 2] by a plain
+    loop (taps clamped at the edges; a position outside the frame gives 0)."""
+    h, w = x.shape[:2]
+    out = np.zeros_like(x)
+    for py in range(h):
+        for px in range(w):
+            qx, qy = px + 0.5 + motion[py, px, 0], py + 0.5 + motion[py, px, 1]
+            if not (0 <= qx < w and 0 <= qy < h):
+                continue
+            sx, sy = qx - 0.5, qy - 0.5
+            fx, fy = np.floor(sx), np.floor(sy)
+            tx, ty = sx - fx, sy - fy
+            x0, x1 = int(np.clip(fx, 0, w - 1)), int(np.clip(fx + 1, 0, w - 1))
+            y0, y1 = int(np.clip(fy, 0, h - 1)), int(np.clip(fy + 1, 0, h - 1))
+            top = x[y0, x0] * (1 - tx) + x[y0, x1] * tx
+            bottom = x[y1, x0] * (1 - tx) + x[y1, x1] * tx
+            out[py, px] = top * (1 - ty) + bottom * ty
+    return out
+
+
 @pytest.mark.parametrize("background", [False, True])
 def test_atrous_mean_correction_matches_a_per_pixel_loop(background):
-    """Config `mean_correction = "atrous"`: the ring of the last MEAN_RING frames' per-pixel
-    sums, filtered by the edge-aware a-trous filter of this frame's normals and depths
-    (two surfaces meeting at x = 11 with jittered normals, depth steps between them), against
-    the plain loop above; a reset empties the ring."""
-    from ssr.model import AtrousMeanCorrection
+    """Config `mean_correction = "atrous"`: each frame's per-pixel samples and reconstruction
+    plus the last frame's sums warped along the motion times ATROUS_DECAY, filtered by the
+    edge-aware a-trous filter of this frame's normals and depths (two surfaces meeting at
+    x = 11 with jittered normals, depth steps between them; random motion, some of it off the
+    frame), against the plain loops above; a reset forgets the sums."""
+    from ssr.model import ATROUS_DECAY, AtrousMeanCorrection
     rng = np.random.default_rng(5)
     h, w = 18, 26
     mc = mean_correction_of(SSRConfig(mean_correction="atrous"))
     assert isinstance(mc, AtrousMeanCorrection)
-    ring = []
+    history = None
     clamped = between = 0
     for t in range(6):
         if t == 5:
             mc.reset()
-            ring = []
+            history = None
         f = frame(rng, h, w, t, background)
+        f["motion"] = rng.uniform(-1.5, 1.5, size=(h, w, 2))
         left = (np.arange(w) < 11)[None, :, None]
         n = np.where(left, [0.0, 0.0, 1.0], [0.8, 0.0, 0.6]) + 0.2 * rng.normal(size=(h, w, 3))
         f["normal"] = n / np.linalg.norm(n, axis=2, keepdims=True)
         f["depth"] = np.where(left, 0.2, 0.5) + 0.01 * rng.random((h, w, 1))
-        out = rng.gamma(1.0, 1.0, size=(h, w, 3))
+        # Reconstructions near the samples' level (the frame's are 6x brighter left of x = 20),
+        # so that some factors fall between the clamps.
+        out = rng.gamma(4.0, 0.25, size=(h, w, 3)) * np.where(np.arange(w) < 20, 6.0, 1.0)[None, :, None]
         bg = f.get("background", np.zeros((h, w, 3)))
         cov = f.get("coverage", np.zeros((h, w, 1)))
         part = (1 - cov) * out
-        ring = (ring + [((f["color"] - bg) * f["mask"], part * f["mask"])])[-MEAN_RING:]
-        fac = atrous_factors_naive(sum(s for s, _ in ring), sum(r for _, r in ring), f["normal"], f["depth"])
+        sums = np.concatenate([(f["color"] - bg) * f["mask"], part * f["mask"]], axis=2)
+        if history is not None:
+            sums = sums + ATROUS_DECAY * warp_naive(history, f["motion"])
+        history = sums
+        fac = atrous_factors_naive(sums[..., :3], sums[..., 3:], f["normal"], f["depth"])
         clamped += int(np.isclose(fac, MEAN_LO).sum() + np.isclose(fac, MEAN_HI).sum())
         between += int(((fac > MEAN_LO + 1e-6) & (fac < MEAN_HI - 1e-6)).sum())
         want = bg + part * fac

@@ -1,0 +1,87 @@
+// The mean correction's per-pixel sums (config `mean_correction = "atrous"`, issue 11;
+// reference src/nn/reference.rs `mean_pixel_sums` and `warp`): as ssr/tile_means' statistic,
+// but per pixel and carried along the motion. Each invocation takes one pixel of the W x H
+// frame: where it is traced (mask > 0.5)
+//   s = sample - background          (the sample's share that the network reconstructs)
+//   r = (1 - coverage) x output      (the network's reconstruction of that share)
+// else (0, 0), with the inputs sanitised as store_output and pack_inputs do (ssr/lib/sanitize,
+// not counted here: those passes count them); without the template flag BACKGROUND,
+// background and coverage are 0. Unless this is the first frame after a reset (`p.first`),
+// the last frame's sums (`prev`, 2 vec4 per pixel) are added, warped to this frame and
+// weighted by DECAY: (s, r) + DECAY W(prev), W the backward warp of nn/warp (bilinear at
+// the pixel centre plus the caller's motion, taps clamped at the edges; a position outside
+// the frame or a non-finite motion gives 0). The sums go to `sums` (2 vec4 per pixel),
+// which ssr/mean_atrous filters into the factors and the next frame reads as `prev`.
+//
+//#param BACKGROUND 0
+
+// Params: ssr/lib/output (`tiles_x`, `tiles_y` and `slot` unused).
+
+@group(0) @binding(0) var<uniform> p: Params;
+@group(0) @binding(1) var<storage, read> src: array<vec4<f32>>;
+@group(0) @binding(2) var<storage, read> color_mask: array<vec4<f32>>;
+@group(0) @binding(3) var<storage, read> motion: array<vec4<f32>>;
+@group(0) @binding(4) var<storage, read> prev: array<vec4<f32>>;
+@group(0) @binding(5) var<storage, read_write> sums: array<vec4<f32>>;
+//#if BACKGROUND
+@group(0) @binding(6) var<storage, read> background: array<vec4<f32>>;
+//#end
+
+// Set by the denoiser from src/ssr/config.rs (ATROUS_DECAY).
+override DECAY: f32 = 0.7;
+
+fn finite(v: f32) -> bool {
+    // NaN fails both comparisons; +-Inf fails the bound.
+    return abs(v) <= 3.0e38;
+}
+
+@compute @workgroup_size(8, 8, 1)
+fn main(@builtin(global_invocation_id) gid: vec3<u32>) {
+    if (gid.x >= p.width || gid.y >= p.height) {
+        return;
+    }
+    let x = gid.x;
+    let y = gid.y;
+    let at = y * p.width + x;
+    var s = vec4<f32>(0.0);
+    var r = vec4<f32>(0.0);
+    var ignored = 0u;
+    let cm = color_mask[at];
+    if (sanitize_mask(cm.w, &ignored) > 0.5) {
+        var out = src[(y * p.padded_width + x) * p.c4].xyz;
+        var sample = sanitize_radiance(cm.xyz, &ignored);
+//#if BACKGROUND
+        let b = background[at];
+        let coverage = in_range(b.w, 0.0, 1.0, &ignored);
+        sample -= sanitize_radiance(b.xyz, &ignored);
+        out *= 1.0 - coverage;
+//#end
+        s = vec4<f32>(sample, 0.0);
+        r = vec4<f32>(out, 0.0);
+    }
+    if (p.first == 0u) {
+        let mv = motion[at].xy;
+        let pos = vec2<f32>(f32(x) + 0.5, f32(y) + 0.5) + mv;
+        let w = f32(p.width);
+        let h = f32(p.height);
+        if (finite(mv.x) && finite(mv.y) && pos.x >= 0.0 && pos.y >= 0.0 && pos.x < w && pos.y < h) {
+            let q = pos - vec2<f32>(0.5);
+            let f = floor(q);
+            let t = q - f;
+            let x0 = u32(clamp(f.x, 0.0, w - 1.0));
+            let y0 = u32(clamp(f.y, 0.0, h - 1.0));
+            let x1 = u32(clamp(f.x + 1.0, 0.0, w - 1.0));
+            let y1 = u32(clamp(f.y + 1.0, 0.0, h - 1.0));
+            let i00 = 2u * (y0 * p.width + x0);
+            let i10 = 2u * (y0 * p.width + x1);
+            let i01 = 2u * (y1 * p.width + x0);
+            let i11 = 2u * (y1 * p.width + x1);
+            let ws = mix(mix(prev[i00], prev[i10], t.x), mix(prev[i01], prev[i11], t.x), t.y);
+            let wr = mix(mix(prev[i00 + 1u], prev[i10 + 1u], t.x), mix(prev[i01 + 1u], prev[i11 + 1u], t.x), t.y);
+            s += DECAY * ws;
+            r += DECAY * wr;
+        }
+    }
+    sums[2u * at] = s;
+    sums[2u * at + 1u] = r;
+}
