@@ -34,10 +34,13 @@ fn tracer_and_denoiser_run_2000_frames_in_flat_memory() {
     let gs = GpuScene::new(&gpu, &scene).unwrap();
     let path = CameraPath::checked(&"orbit:0.5".parse().unwrap(), &scene.camera, 1, frames, &gs.bvh).unwrap();
     let far = scene.far_distance([&scene.camera.position]);
-    let weights = Weights::load(
+    let mut weights = Weights::load(
         std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/data/golden_weights.safetensors"),
     )
     .unwrap();
+    // The shipped model's output pass too: the edge-aware mean correction's history and
+    // filter passes, with their buffers alternating from frame to frame.
+    weights.config.mean_correction = Some("atrous".into());
     let mut tracer = Tracer::new(&gpu, w, h).unwrap();
     let mut den = Denoiser::with_gpu(&gpu, &weights, w, h).unwrap();
     let mut samples: Vec<(u32, u64, Option<u64>)> = Vec::new();
