@@ -8,8 +8,8 @@
 // not counted here: those passes count them); without the template flag BACKGROUND,
 // background and coverage are 0. Unless this is the first frame after a reset (`p.first`),
 // the last frame's sums (`prev`, 2 vec4 per pixel) are added, warped to this frame and
-// weighted by DECAY: (s, r) + DECAY W(prev), W the backward warp of nn/warp (bilinear at
-// the pixel centre plus the caller's motion, taps clamped at the edges; a position outside
+// weighted by DECAY: (s, r) + DECAY W(prev), W the backward warp of nn/lib/warp (bilinear
+// at the pixel centre plus the caller's motion, taps clamped at the edges; a position outside
 // the frame or a non-finite motion gives 0). The sums go to `sums` (2 vec4 per pixel),
 // which ssr/mean_atrous filters into the factors and the next frame reads as `prev`.
 //
@@ -29,11 +29,6 @@
 
 // Set by the denoiser from src/ssr/config.rs (ATROUS_DECAY).
 override DECAY: f32 = 0.7;
-
-fn finite(v: f32) -> bool {
-    // NaN fails both comparisons; +-Inf fails the bound.
-    return abs(v) <= 3.0e38;
-}
 
 @compute @workgroup_size(8, 8, 1)
 fn main(@builtin(global_invocation_id) gid: vec3<u32>) {
@@ -60,24 +55,12 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>) {
         r = vec4<f32>(out, 0.0);
     }
     if (p.first == 0u) {
-        let mv = motion[at].xy;
-        let pos = vec2<f32>(f32(x) + 0.5, f32(y) + 0.5) + mv;
-        let w = f32(p.width);
-        let h = f32(p.height);
-        if (finite(mv.x) && finite(mv.y) && pos.x >= 0.0 && pos.y >= 0.0 && pos.x < w && pos.y < h) {
-            let q = pos - vec2<f32>(0.5);
-            let f = floor(q);
-            let t = q - f;
-            let x0 = u32(clamp(f.x, 0.0, w - 1.0));
-            let y0 = u32(clamp(f.y, 0.0, h - 1.0));
-            let x1 = u32(clamp(f.x + 1.0, 0.0, w - 1.0));
-            let y1 = u32(clamp(f.y + 1.0, 0.0, h - 1.0));
-            let i00 = 2u * (y0 * p.width + x0);
-            let i10 = 2u * (y0 * p.width + x1);
-            let i01 = 2u * (y1 * p.width + x0);
-            let i11 = 2u * (y1 * p.width + x1);
-            let ws = mix(mix(prev[i00], prev[i10], t.x), mix(prev[i01], prev[i11], t.x), t.y);
-            let wr = mix(mix(prev[i00 + 1u], prev[i10 + 1u], t.x), mix(prev[i01 + 1u], prev[i11 + 1u], t.x), t.y);
+        let k = warp_taps(x, y, motion[at].xy, p.width, p.height);
+        if (k.valid) {
+            let ws = bilinear(prev[2u * k.i00], prev[2u * k.i10], prev[2u * k.i01], prev[2u * k.i11], k.t);
+            let wr = bilinear(
+                prev[2u * k.i00 + 1u], prev[2u * k.i10 + 1u], prev[2u * k.i01 + 1u], prev[2u * k.i11 + 1u], k.t,
+            );
             s += DECAY * ws;
             r += DECAY * wr;
         }

@@ -34,31 +34,18 @@ const DEPTH_TOL: f32 = 0.2;
 const NORMAL_TOL: f32 = 0.25;
 const LOG_MAX: f32 = 88.0;
 
-fn finite(v: f32) -> bool {
-    // NaN fails both comparisons; +-Inf fails the bound.
-    return abs(v) <= 3.0e38;
-}
-
 fn rescale_log(v: vec3<f32>, r: vec3<f32>) -> vec3<f32> {
     let scaled = min(log(vec3<f32>(1.0) + (exp(v) - vec3<f32>(1.0)) * r), vec3<f32>(LOG_MAX));
     return select(v, scaled, v > vec3<f32>(0.0));
 }
 
-// Bilinear taps of a backward warp: the four pixel indices and the weights (t.x, t.y).
-struct Taps {
-    i00: u32,
-    i10: u32,
-    i01: u32,
-    i11: u32,
-    t: vec2<f32>,
-}
-
+// Channel vec4 `c` of W(A_acc) at the taps `k` (Taps: nn/lib/warp).
 fn acc_tap(k: Taps, c: u32) -> vec4<f32> {
     let a = a_acc_prev[4u * k.i00 + c];
     let b = a_acc_prev[4u * k.i10 + c];
     let d = a_acc_prev[4u * k.i01 + c];
     let e = a_acc_prev[4u * k.i11 + c];
-    return mix(mix(a, b, k.t.x), mix(d, e, k.t.x), k.t.y);
+    return bilinear(a, b, d, e, k.t);
 }
 
 @compute @workgroup_size(8, 8, 1)
@@ -67,29 +54,19 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>) {
     if (pix == OUTSIDE) {
         return;
     }
-    let mv = motion[pix].xy;
-    let pos = vec2<f32>(f32(gid.x) + 0.5, f32(gid.y) + 0.5) + mv;
-    let w = f32(p.width);
-    let h = f32(p.height);
-    var ok = finite(mv.x) && finite(mv.y) && pos.x >= 0.0 && pos.y >= 0.0 && pos.x < w && pos.y < h;
+    let k = warp_taps(gid.x, gid.y, motion[pix].xy, p.width, p.height);
+    var ok = k.valid;
     var h0 = vec4<f32>(0.0);
     var h1 = vec4<f32>(0.0);
     var h2 = vec4<f32>(0.0);
     var h3 = vec4<f32>(0.0);
     var wo = vec4<f32>(0.0);
     if (ok) {
-        let s = pos - vec2<f32>(0.5);
-        let f = floor(s);
-        let x0 = u32(clamp(f.x, 0.0, w - 1.0));
-        let y0 = u32(clamp(f.y, 0.0, h - 1.0));
-        let x1 = u32(clamp(f.x + 1.0, 0.0, w - 1.0));
-        let y1 = u32(clamp(f.y + 1.0, 0.0, h - 1.0));
-        let k = Taps(y0 * p.width + x0, y0 * p.width + x1, y1 * p.width + x0, y1 * p.width + x1, s - f);
         h0 = acc_tap(k, 0u);
         h1 = acc_tap(k, 1u);
         h2 = acc_tap(k, 2u);
         h3 = acc_tap(k, 3u);
-        wo = mix(mix(o_prev[k.i00], o_prev[k.i10], k.t.x), mix(o_prev[k.i01], o_prev[k.i11], k.t.x), k.t.y);
+        wo = bilinear(o_prev[k.i00], o_prev[k.i10], o_prev[k.i01], o_prev[k.i11], k.t);
     }
     if (p.rescale != 0u) {
         let r = ratio[0].xyz;
