@@ -171,7 +171,10 @@ pub const KERNELS: &[KernelSource] = &[
     kernel!("ssr/pack_mt", ["ssr/lib/pack", "ssr/lib/sanitize"]),
     kernel!("ssr/store_output", ["ssr/lib/sanitize", "ssr/lib/output"]),
     kernel!("ssr/tile_means", ["ssr/lib/sanitize", "ssr/lib/output"]),
-    kernel!("ssr/mean_history", ["ssr/lib/sanitize", "ssr/lib/output", "nn/lib/warp"]),
+    kernel!(
+        "ssr/mean_history",
+        ["ssr/lib/sanitize", "ssr/lib/output", "nn/lib/warp"]
+    ),
     kernel!("ssr/mean_atrous", ["ssr/lib/sanitize"]),
     kernel!("ssr/exposure_partial", ["ssr/lib/sanitize", "ssr/lib/exposure"]),
     kernel!("ssr/exposure_final", ["ssr/lib/exposure"]),
