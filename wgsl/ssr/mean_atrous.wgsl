@@ -1,6 +1,6 @@
 // One level of the mean correction's edge-aware filter (config `mean_correction = "atrous"`,
-// issue 11; reference src/nn/reference.rs `mean_atrous_level`): each invocation takes one
-// pixel of the W x H frame and averages the (samples, reconstruction) sums of ssr/mean_ring
+// issue 11; reference src/nn/reference.rs `mean_atrous_factors`): each invocation takes one
+// pixel of the W x H frame and averages the (samples, reconstruction) sums of ssr/mean_history
 // (2 vec4 per pixel, `src`) over the 5 x 5 taps `p.step` pixels apart, each weighted by the
 // B-spline (1, 4, 6, 4, 1) / 16 per axis and by how well the tap's surface agrees with the
 // pixel's:
