@@ -170,10 +170,18 @@ pub const KERNELS: &[KernelSource] = &[
     kernel!("ssr/pack_inputs", ["ssr/lib/pack", "ssr/lib/sanitize"]),
     kernel!("ssr/pack_mt", ["ssr/lib/pack", "ssr/lib/sanitize"]),
     kernel!("ssr/store_output", ["ssr/lib/sanitize", "ssr/lib/output"]),
-    kernel!("ssr/tile_means", ["ssr/lib/sanitize", "ssr/lib/output"]),
+    kernel!(
+        "ssr/tile_means",
+        ["ssr/lib/sanitize", "ssr/lib/output", "ssr/lib/traced"]
+    ),
     kernel!(
         "ssr/mean_history",
-        ["ssr/lib/sanitize", "ssr/lib/output", "nn/lib/warp"]
+        [
+            "ssr/lib/sanitize",
+            "ssr/lib/output",
+            "ssr/lib/traced",
+            "nn/lib/warp"
+        ]
     ),
     kernel!("ssr/mean_atrous", ["ssr/lib/sanitize"]),
     kernel!("ssr/exposure_partial", ["ssr/lib/sanitize", "ssr/lib/exposure"]),

@@ -462,16 +462,16 @@ impl Denoiser {
             return Ok(Vec::new());
         };
         (0..2)
-            .map(|parity| self.mean_filter_levels(inputs, m, ab, parity))
+            .map(|parity| self.mean_filter_levels(inputs, ab, parity, &m.factors))
             .collect()
     }
 
     fn mean_filter_levels(
         &self,
         inputs: &FrameInputs<'_>,
-        m: &MeanState,
         ab: &AtrousBuffers,
         parity: usize,
+        factors: &wgpu::Buffer,
     ) -> Result<Vec<Dispatch>> {
         let (sums, other, scratch, guide) = (&ab.sums[parity], &ab.sums[1 - parity], &ab.scratch, &ab.guide);
         let mut out = Vec::new();
@@ -483,7 +483,7 @@ impl Denoiser {
                 _ => scratch,
             };
             let dst = match level {
-                _ if last => &m.factors,
+                _ if last => factors,
                 l if l % 2 == 0 => other,
                 _ => scratch,
             };

@@ -1,14 +1,9 @@
 // The mean correction's per-pixel sums (config `mean_correction = "atrous"`, issue 11;
 // reference src/nn/reference.rs `mean_pixel_sums` and `warp`): as ssr/tile_means' statistic,
 // but per pixel and carried along the motion. Each invocation takes one pixel of the W x H
-// frame: where it is traced (mask > 0.5)
-//   s = sample - background          (the sample's share that the network reconstructs)
-//   r = (1 - coverage) x output      (the network's reconstruction of that share)
-// else (0, 0), with the inputs sanitised as store_output and pack_inputs do (ssr/lib/sanitize,
-// not counted here: those passes count them); without the template flag BACKGROUND,
-// background and coverage are 0. Unless this is the first frame after a reset (`p.first`),
-// the last frame's sums (`prev`, 2 vec4 per pixel) are added, warped to this frame and
-// weighted by DECAY: (s, r) + DECAY W(prev), W the backward warp of nn/lib/warp (bilinear
+// frame: its shares (s, r) of ssr/lib/traced (0 where it is not traced). Unless this is the
+// first frame after a reset (`p.first`), the last frame's sums (`prev`, 2 vec4 per pixel)
+// are added, warped to this frame and weighted by DECAY: (s, r) + DECAY W(prev), W the backward warp of nn/lib/warp (bilinear
 // at the pixel centre plus the caller's motion, taps clamped at the edges; a position outside
 // the frame or a non-finite motion gives 0). The sums go to `sums` (2 vec4 per pixel),
 // which ssr/mean_atrous filters into the factors and the next frame reads as `prev`.
@@ -38,22 +33,9 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>) {
     let x = gid.x;
     let y = gid.y;
     let at = y * p.width + x;
-    var s = vec4<f32>(0.0);
-    var r = vec4<f32>(0.0);
-    var ignored = 0u;
-    let cm = color_mask[at];
-    if (sanitize_mask(cm.w, &ignored) > 0.5) {
-        var out = src[(y * p.padded_width + x) * p.c4].xyz;
-        var sample = sanitize_radiance(cm.xyz, &ignored);
-//#if BACKGROUND
-        let b = background[at];
-        let coverage = in_range(b.w, 0.0, 1.0, &ignored);
-        sample -= sanitize_radiance(b.xyz, &ignored);
-        out *= 1.0 - coverage;
-//#end
-        s = vec4<f32>(sample, 0.0);
-        r = vec4<f32>(out, 0.0);
-    }
+    let shares = traced_shares(x, y);
+    var s = vec4<f32>(shares.s, 0.0);
+    var r = vec4<f32>(shares.r, 0.0);
     if (p.first == 0u) {
         let k = warp_taps(x, y, motion[at].xy, p.width, p.height);
         if (k.valid) {

@@ -2,14 +2,10 @@
 // src/nn/reference.rs `mean_tile_sums` and `mean_tile_factors`): the traced samples are an
 // unbiased estimate of each pixel's radiance, so over a tile of TILE x TILE pixels and the
 // last RING frames, the sum of the samples says how bright the reconstruction should be.
-// One workgroup per tile of the W x H frame sums, over its traced pixels (mask > 0.5):
-//   s = sample - background          (the sample's share that the network reconstructs)
-//   r = (1 - coverage) x output      (the network's reconstruction of that share)
-// with the inputs sanitised as store_output and pack_inputs do (ssr/lib/sanitize, not
-// counted here: those passes count them). Without the template flag BACKGROUND, background
-// and coverage are 0. Thread 0 writes (s, r) to slot `p.slot` of the ring (RING slots of
-// tiles_x x tiles_y tiles, 2 vec4 per tile); on the first frame after a reset (`p.first`) it
-// clears the other slots. Then, per channel, the factor over the ring,
+// One workgroup per tile of the W x H frame sums its pixels' shares (s, r) of ssr/lib/traced
+// (0 where a pixel is not traced). Thread 0 writes (s, r) to slot `p.slot` of the ring (RING
+// slots of tiles_x x tiles_y tiles, 2 vec4 per tile); on the first frame after a reset
+// (`p.first`) it clears the other slots. Then, per channel, the factor over the ring,
 //   clamp((sum s + EPS) / (sum r + EPS), LO, HI),
 // goes to factors[tile] (w = 1); store_output applies it, interpolated between tile centres.
 //
@@ -46,20 +42,9 @@ fn main(@builtin(local_invocation_id) lid: vec3<u32>, @builtin(workgroup_id) wid
             let x = wid.x * TILE + i * SIDE + lid.x;
             let y = wid.y * TILE + j * SIDE + lid.y;
             if (x < p.width && y < p.height) {
-                var ignored = 0u;
-                let cm = color_mask[y * p.width + x];
-                if (sanitize_mask(cm.w, &ignored) > 0.5) {
-                    var out = src[(y * p.padded_width + x) * p.c4].xyz;
-                    var sample = sanitize_radiance(cm.xyz, &ignored);
-//#if BACKGROUND
-                    let b = background[y * p.width + x];
-                    let coverage = in_range(b.w, 0.0, 1.0, &ignored);
-                    sample -= sanitize_radiance(b.xyz, &ignored);
-                    out *= 1.0 - coverage;
-//#end
-                    s += sample;
-                    r += out;
-                }
+                let shares = traced_shares(x, y);
+                s += shares.s;
+                r += shares.r;
             }
         }
     }

@@ -1,6 +1,7 @@
-// Shared by the output passes, ssr/tile_means and ssr/store_output: their parameters
-// (src/ssr/denoiser.rs OutputParams; store_output leaves `slot` and `first` unused) and the
-// mean correction's tile side (src/ssr/config.rs MEAN_TILE, set by the denoiser).
+// Shared by the output passes, ssr/tile_means, ssr/mean_history and ssr/store_output: their
+// parameters (src/ssr/denoiser.rs OutputParams; store_output leaves `slot` and `first`
+// unused, mean_history `tiles_x`, `tiles_y` and `slot`) and the mean correction's tile side
+// (src/ssr/config.rs MEAN_TILE, set by the denoiser).
 
 struct Params {
     width: u32,
