@@ -55,12 +55,11 @@ override EPS: f32 = 3.90625e-7;
 override LO: f32 = 0.67;
 override HI: f32 = 1.5;
 
-// The B-spline's tap k of 0..4: 1/16, 1/4, 3/8, 1/4, 1/16.
-fn tap(k: i32) -> f32 {
-    let d = abs(k - 2);
-    return select(select(0.375, 0.25, d == 1), 0.0625, d == 2);
-}
+// The B-spline's taps: 1/16, 1/4, 3/8, 1/4, 1/16.
+const TAPS = array<f32, 5>(0.0625, 0.25, 0.375, 0.25, 0.0625);
 
+// Straight-line code (template repeats, not loops: lavapipe does not unroll) without
+// branches: a tap outside the frame reads the nearest pixel inside it with weight 0.
 @compute @workgroup_size(8, 8, 1)
 fn main(@builtin(global_invocation_id) gid: vec3<u32>) {
     if (gid.x >= p.width || gid.y >= p.height) {
@@ -73,20 +72,21 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>) {
 //#end
     let n = g.xyz;
     let z = g.w;
+    let step = i32(p.step);
+    let w_max = i32(p.width) - 1;
+    let h_max = i32(p.height) - 1;
     var acc_s = vec4<f32>(0.0);
     var acc_r = vec4<f32>(0.0);
     var sum = 0.0;
-    for (var j = 0; j < 5; j++) {
-        let qy = i32(gid.y) + (j - 2) * i32(p.step);
-        if (qy < 0 || qy >= i32(p.height)) {
-            continue;
-        }
-        for (var i = 0; i < 5; i++) {
-            let qx = i32(gid.x) + (i - 2) * i32(p.step);
-            if (qx < 0 || qx >= i32(p.width)) {
-                continue;
-            }
-            let q = u32(qy) * p.width + u32(qx);
+//#repeat j 5
+    {
+        let qy = i32(gid.y) + (i32({j}) - 2) * step;
+        let row = u32(clamp(qy, 0, h_max)) * p.width;
+        let in_y = qy >= 0 && qy <= h_max;
+//#repeat i 5
+        {
+            let qx = i32(gid.x) + (i32({i}) - 2) * step;
+            let q = row + u32(clamp(qx, 0, w_max));
             let gq = guide_at(q);
             let zq = gq.w;
             var c = max(dot(n, gq.xyz), 0.0);
@@ -94,12 +94,15 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>) {
                 c *= c;
             }
             let rel = abs(z - zq) / max(max(z, zq), 1.0e-4);
-            let w = tap(j) * tap(i) * c * exp(-rel / DEPTH_SIGMA);
+            let inside = in_y && qx >= 0 && qx <= w_max;
+            let w = select(0.0, TAPS[{j}] * TAPS[{i}] * c * exp(-rel / DEPTH_SIGMA), inside);
             acc_s += w * src[2u * q];
             acc_r += w * src[2u * q + 1u];
             sum += w;
         }
+//#end
     }
+//#end
     let norm = 1.0 / max(sum, 1.0e-12);
 //#if FINAL
     let f = clamp((acc_s.xyz * norm + EPS) / (acc_r.xyz * norm + EPS), vec3<f32>(LO), vec3<f32>(HI));
