@@ -422,11 +422,49 @@ def atrous_weights(normal: torch.Tensor, depth: torch.Tensor, n_q: torch.Tensor,
     """Edge-stopping weight [N, 1, H, W] between each pixel (normal, depth) and its tap q
     (n_q, z_q; zero outside the frame, which gives weight 0): max(n . n_q, 0)^8 times
     exp(-|z - z_q| / max(z, z_q, 1e-4) / ATROUS_DEPTH_SIGMA)."""
-    c = (normal * n_q).sum(dim=1, keepdim=True).clamp(min=0.0)
+    c = (normal * n_q).sum(dim=-3, keepdim=True).clamp(min=0.0)
     for _ in range(ATROUS_NORMAL_SQUARINGS):
         c = c * c
     rel = (depth - z_q).abs() / torch.maximum(torch.maximum(depth, z_q), torch.full_like(depth, 1e-4))
     return c * torch.exp(-rel / ATROUS_DEPTH_SIGMA)
+
+
+def _tap_windows(step: int):
+    """The 25 taps of an a-trous level with taps `step` pixels apart, in the engine's order
+    (rows outer): (index, row offset, column offset) of each within a frame padded by
+    2 * step on every side."""
+    pad = 2 * step
+    return [(k, pad + (k // 5 - 2) * step, pad + (k % 5 - 2) * step) for k in range(25)]
+
+
+class _AtrousTaps(torch.autograd.Function):
+    """sum_k weights[k] * x shifted by tap k (zero outside the frame), the sums in tap order as
+    the engine's; its gradient in x is the adjoint (each weighted gradient shifted back),
+    written into one padded buffer (autograd through 25 slices of a padded x would zero and
+    add a padded-size buffer per tap: most of the trainer's time in this filter). The
+    weights are constants (no gradient)."""
+
+    @staticmethod
+    def forward(ctx, x: torch.Tensor, step: int, *weights: torch.Tensor) -> torch.Tensor:
+        h, w = x.shape[-2:]
+        pad = 2 * step
+        xp = F.pad(x, (pad, pad, pad, pad))
+        acc = torch.zeros_like(x)
+        for k, y0, x0 in _tap_windows(step):
+            acc = acc + weights[k] * xp[..., y0 : y0 + h, x0 : x0 + w]
+        ctx.save_for_backward(*weights)
+        ctx.step = step
+        return acc
+
+    @staticmethod
+    def backward(ctx, grad: torch.Tensor):
+        weights = ctx.saved_tensors
+        h, w = grad.shape[-2:]
+        pad = 2 * ctx.step
+        gp = grad.new_zeros(grad.shape[:-2] + (h + 2 * pad, w + 2 * pad))
+        for k, y0, x0 in _tap_windows(ctx.step):
+            gp[..., y0 : y0 + h, x0 : x0 + w] += weights[k] * grad
+        return (gp[..., pad : pad + h, pad : pad + w], None) + (None,) * len(weights)
 
 
 def atrous_filter(x: torch.Tensor, normal: torch.Tensor, depth: torch.Tensor,
@@ -435,24 +473,22 @@ def atrous_filter(x: torch.Tensor, normal: torch.Tensor, depth: torch.Tensor,
     levels of the 5x5 B-spline, level l with taps 2^l pixels apart, each tap weighted by
     `atrous_weights` against the centre's normal and depth (the current frame's), each level
     normalised by its weights' sum (at least 1e-12). x [N, C, H, W]; normal [N, 3, H, W],
-    depth [N, 1, H, W]."""
+    depth [N, 1, H, W]. Differentiable in x (normal and depth are data)."""
     h, w = x.shape[-2:]
     for lvl in range(levels):
         step = 2 ** lvl
         pad = 2 * step
-        xp = F.pad(x, (pad, pad, pad, pad))
-        np_ = F.pad(normal, (pad, pad, pad, pad))
-        zp = F.pad(depth, (pad, pad, pad, pad))
-        acc = torch.zeros_like(x)
-        wsum = torch.zeros_like(depth)
-        for i, hy in enumerate(ATROUS_TAPS):
-            for j, hx in enumerate(ATROUS_TAPS):
-                y0, x0 = pad + (i - 2) * step, pad + (j - 2) * step
+        with torch.no_grad():
+            np_ = F.pad(normal, (pad, pad, pad, pad))
+            zp = F.pad(depth, (pad, pad, pad, pad))
+            weights = []
+            wsum = torch.zeros_like(depth)
+            for k, y0, x0 in _tap_windows(step):
                 n_q, z_q = np_[..., y0 : y0 + h, x0 : x0 + w], zp[..., y0 : y0 + h, x0 : x0 + w]
-                wt = (hy * hx) * atrous_weights(normal, depth, n_q, z_q)
-                acc = acc + wt * xp[..., y0 : y0 + h, x0 : x0 + w]
+                wt = (ATROUS_TAPS[k // 5] * ATROUS_TAPS[k % 5]) * atrous_weights(normal, depth, n_q, z_q)
+                weights.append(wt)
                 wsum = wsum + wt
-        x = acc / wsum.clamp(min=1e-12)
+        x = _AtrousTaps.apply(x, step, *weights) / wsum.clamp(min=1e-12)
     return x
 
 
