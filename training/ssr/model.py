@@ -421,12 +421,13 @@ ATROUS_TAPS = (1.0 / 16.0, 1.0 / 4.0, 3.0 / 8.0, 1.0 / 4.0, 1.0 / 16.0)
 def atrous_weights(normal: torch.Tensor, depth: torch.Tensor, n_q: torch.Tensor, z_q: torch.Tensor) -> torch.Tensor:
     """Edge-stopping weight [N, 1, H, W] between each pixel (normal, depth) and its tap q
     (n_q, z_q; zero outside the frame, which gives weight 0): max(n . n_q, 0)^8 times
-    exp(-|z - z_q| / max(z, z_q, 1e-4) / ATROUS_DEPTH_SIGMA)."""
-    c = (normal * n_q).sum(dim=-3, keepdim=True).clamp(min=0.0)
+    exp(-|z - z_q| / max(z, z_q, 1e-4) / ATROUS_DEPTH_SIGMA). The inputs are data (no
+    gradient): the arithmetic runs in place on the intermediates."""
+    c = (normal * n_q).sum(dim=-3, keepdim=True).clamp_(min=0.0)
     for _ in range(ATROUS_NORMAL_SQUARINGS):
-        c = c * c
-    rel = (depth - z_q).abs() / torch.maximum(torch.maximum(depth, z_q), torch.full_like(depth, 1e-4))
-    return c * torch.exp(-rel / ATROUS_DEPTH_SIGMA)
+        c.mul_(c)
+    rel = (depth - z_q).abs_().div_(torch.maximum(depth, z_q).clamp_(min=1e-4))
+    return c.mul_(rel.neg_().div_(ATROUS_DEPTH_SIGMA).exp_())
 
 
 def _tap_windows(step: int):
@@ -451,7 +452,7 @@ class _AtrousTaps(torch.autograd.Function):
         xp = F.pad(x, (pad, pad, pad, pad))
         acc = torch.zeros_like(x)
         for k, y0, x0 in _tap_windows(step):
-            acc = acc + weights[k] * xp[..., y0 : y0 + h, x0 : x0 + w]
+            acc += weights[k] * xp[..., y0 : y0 + h, x0 : x0 + w]
         ctx.save_for_backward(*weights)
         ctx.step = step
         return acc
@@ -487,7 +488,7 @@ def atrous_filter(x: torch.Tensor, normal: torch.Tensor, depth: torch.Tensor,
                 n_q, z_q = np_[..., y0 : y0 + h, x0 : x0 + w], zp[..., y0 : y0 + h, x0 : x0 + w]
                 wt = (ATROUS_TAPS[k // 5] * ATROUS_TAPS[k % 5]) * atrous_weights(normal, depth, n_q, z_q)
                 weights.append(wt)
-                wsum = wsum + wt
+                wsum += wt
         x = _AtrousTaps.apply(x, step, *weights) / wsum.clamp(min=1e-12)
     return x
 
