@@ -3,10 +3,11 @@
 // but per pixel and carried along the motion. Each invocation takes one pixel of the W x H
 // frame: its shares (s, r) of ssr/lib/traced (0 where it is not traced). Unless this is the
 // first frame after a reset (`p.first`), the last frame's sums (`prev`, 2 vec4 per pixel)
-// are added, warped to this frame and weighted by DECAY: (s, r) + DECAY W(prev), W the backward warp of nn/lib/warp (bilinear
-// at the pixel centre plus the caller's motion, taps clamped at the edges; a position outside
-// the frame or a non-finite motion gives 0). The sums go to `sums` (2 vec4 per pixel),
-// which ssr/mean_atrous filters into the factors and the next frame reads as `prev`.
+// are added, warped to this frame and weighted by DECAY: (s, r) + DECAY W(prev), W the
+// backward warp of nn/lib/warp (bilinear at the pixel centre plus the caller's motion, taps
+// clamped at the edges; a position outside the frame or a non-finite motion gives 0). The
+// sums go to `sums` (2 vec4 per pixel), which ssr/mean_atrous filters into the factors and
+// the next frame reads as `prev`.
 //
 //#param BACKGROUND 0
 
