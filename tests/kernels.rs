@@ -370,6 +370,157 @@ fn conv3x3_and_pooling_with_f16_storage_match_reference() {
     assert!(e.contains("upsample2x") && e.contains("f16"), "{e}");
 }
 
+/// f16 storage in the TFA blend, the remodulation (with its ceiling, which writes o back)
+/// and the converting copy (issue 14): against the CPU reference on the f16-rounded
+/// inputs, an f16 result rounded to f16. Stated tolerance: the f32 kernels' plus 2^-10
+/// relative for the output's rounding (one f16 ulp), as for the convolutions.
+#[test]
+fn tfa_blend_remodulate_and_convert_with_f16_storage_match_reference() {
+    let g = gpu();
+    if !g.has(wgpu::Features::SHADER_F16) {
+        eprintln!("skipped: {} has no SHADER_F16", g.describe());
+        return;
+    }
+    const F16_OUT: Tol = Tol {
+        abs: ELEMENTWISE.abs,
+        rel: ELEMENTWISE.rel + 1.0 / 1024.0,
+    };
+    let stored = |t: &HostTensor, d: DType| if d == DType::F16 { to_f16(t) } else { t.clone() };
+    let (w, h, k, c) = (13u32, 7u32, 8u32, 15u32);
+    let host = [
+        random(950, w, h, k, -1.0, 1.0),
+        random(951, w, h, k, -2.0, 2.0),
+        random(952, w, h, k, -2.0, 2.0),
+        random(953, w, h, c, -1.0, 1.0),
+        random(954, w, h, c, -1.0, 1.0),
+    ];
+    let valid = HostTensor::from_fn(w, h, 1, |x, y, _| ((x + y) % 3 != 0) as u32 as f32);
+    // Every input f16 (the network's f16 storage: A_t stays f32), then mixed.
+    for dtypes in [
+        [DType::F16, DType::F16, DType::F16, DType::F32, DType::F16],
+        [DType::F32, DType::F16, DType::F32, DType::F16, DType::F32],
+    ] {
+        let ts: Vec<Tensor> = host
+            .iter()
+            .zip(dtypes)
+            .map(|(t, d)| Tensor::from_host_typed(&g, "t", t, d).unwrap())
+            .collect();
+        let r: Vec<HostTensor> = host.iter().zip(dtypes).map(|(t, d)| stored(t, d)).collect();
+        let (want, want_w) = reference::tfa_blend(&r[0], &r[1], &r[2], &r[3], &r[4], &valid);
+        for out_dtype in [DType::F16, DType::F32] {
+            let tv = up(&g, "valid", &valid);
+            let out = Tensor::new_typed(&g, "out", w, h, c, out_dtype).unwrap();
+            let wts = Tensor::new(&g, "weights", w, h, 4).unwrap();
+            let blend = TfaBlend {
+                r: &ts[0],
+                e_cur: &ts[1],
+                e_prev: &ts[2],
+                cur: &ts[3],
+                prev: &ts[4],
+                valid: &tv,
+                out: &out,
+                weights: &wts,
+            };
+            let d = ops::tfa_blend(&g, blend).unwrap();
+            assert_eq!(d.bytes_written, out.bytes() + wts.bytes());
+            ops::run(&g, &[&d]).unwrap();
+            let case = format!("tfa blend {dtypes:?} -> {}", out_dtype.name());
+            assert_close(&case, &wts.read(&g).unwrap(), &want_w, ELEMENTWISE);
+            match out_dtype {
+                DType::F16 => assert_tensor(&case, &out, &to_f16(&want), F16_OUT),
+                DType::F32 => assert_tensor(&case, &out, &want, ELEMENTWISE),
+            }
+        }
+    }
+    // The blend's `valid` and `weights` are f32 only, refused by name otherwise.
+    let f16 = |c| Tensor::new_typed(&g, "x", w, h, c, DType::F16).unwrap();
+    let (r, e, a) = (f16(k), f16(k), f16(c));
+    let (vh, wts) = (f16(1), Tensor::new(&g, "weights", w, h, 4).unwrap());
+    let out = f16(c);
+    let blend = TfaBlend {
+        r: &r,
+        e_cur: &e,
+        e_prev: &e,
+        cur: &a,
+        prev: &a,
+        valid: &vh,
+        out: &out,
+        weights: &wts,
+    };
+    let err = ops::tfa_blend(&g, blend).unwrap_err().to_string();
+    assert!(
+        err.contains("tfa_blend") && err.contains("valid") && err.contains("f16"),
+        "{err}"
+    );
+
+    // Remodulation with the ceiling, o and the albedo f16: o is capped and written back in
+    // f16, the output (f32) remodulated from the capped o before its rounding.
+    let o0 = to_f16(&random(960, w, h, 4, -1.0, 9.0));
+    let albedo = to_f16(&random(961, w, h, 3, 0.0, 1.0));
+    let sc = [0.5f32, 2.0, 3.0];
+    let (gain, m) = (1.5f32, [400.0f32, 300.0, 800.0]);
+    let mut sv = vec![sc[0], sc[1], sc[2], 9.0, 9.0, 9.0];
+    sv.extend(m);
+    let scale = up(&g, "scale", &HostTensor::from_vec(1, 1, 9, sv));
+    let to = Tensor::from_host_typed(&g, "o", &o0, DType::F16).unwrap();
+    let ta = Tensor::from_host_typed(&g, "albedo", &albedo, DType::F16).unwrap();
+    let out = Tensor::new(&g, "out", w, h, 3).unwrap();
+    ops::run(
+        &g,
+        &[&ops::remodulate(&g, &to, &ta, 0, &scale, Some(gain), &out).unwrap()],
+    )
+    .unwrap();
+    let capped = reference::ceiling(&o0, gain, m, sc);
+    let got = to.read(&g).unwrap();
+    let got3 = HostTensor::from_fn(w, h, 3, |x, y, ch| got.at(x, y, ch));
+    assert_close("f16 o capped in place", &got3, &to_f16(&capped), F16_OUT);
+    assert_close(
+        "remodulate f16 o and albedo",
+        &out.read(&g).unwrap(),
+        &reference::remodulate(&capped, &albedo, 0, sc),
+        ELEMENTWISE,
+    );
+    // An f32 output is required.
+    let e = ops::remodulate(&g, &to, &ta, 0, &scale, None, &f16(3))
+        .unwrap_err()
+        .to_string();
+    assert!(
+        e.contains("remodulate") && e.contains("out") && e.contains("f16"),
+        "{e}"
+    );
+
+    // The converting copy (the first frame's A_t into W(A_acc)): f32 to f16 rounds (and
+    // saturates at f16's largest finite value), f16 to f32 is exact.
+    let mut x = random(970, w, h, c, -3.0, 3.0);
+    x.data[0] = 1.0e6;
+    x.data[1] = -1.0e6;
+    let t32 = up(&g, "x", &x);
+    let t16 = f16(c);
+    let back = Tensor::new(&g, "back", w, h, c).unwrap();
+    ops::run(
+        &g,
+        &[
+            &ops::convert(&g, &t32, &t16).unwrap(),
+            &ops::convert(&g, &t16, &back).unwrap(),
+        ],
+    )
+    .unwrap();
+    let mut want = to_f16(&x);
+    want.data[0] = 65504.0;
+    want.data[1] = -65504.0;
+    let one_ulp = Tol {
+        abs: 0.0,
+        rel: 1.0 / 1024.0,
+    };
+    assert_tensor("convert f32 -> f16", &t16, &want, one_ulp);
+    assert_close(
+        "convert f16 -> f32",
+        &back.read(&g).unwrap(),
+        &t16.read(&g).unwrap(),
+        EXACT,
+    );
+}
+
 /// A layer whose single output block's weights exceed the blocked kernel's uniform array
 /// runs on the generic kernel only (and on the cooperative-matrix kernel where the device
 /// has it: its weights are in storage); asking for a tiling anyway is an error naming the

@@ -163,10 +163,13 @@ pub const KERNELS: &[KernelSource] = &[
         ["nn/lib/storage", "nn/lib/conv_shape", "nn/lib/fetch"]
     ),
     kernel!("nn/resample2x", ["nn/lib/storage", "nn/lib/fetch"]),
-    kernel!("nn/tfa_blend", ["nn/lib/grid"]),
+    kernel!("nn/tfa_blend", ["nn/lib/storage", "nn/lib/grid"]),
     kernel!("nn/warp", ["nn/lib/grid", "nn/lib/warp"]),
     kernel!("nn/demodulate", ["nn/lib/grid", "nn/lib/modulation"]),
-    kernel!("nn/remodulate", ["nn/lib/grid", "nn/lib/modulation"]),
+    kernel!(
+        "nn/remodulate",
+        ["nn/lib/storage", "nn/lib/grid", "nn/lib/modulation"]
+    ),
     kernel!("ssr/pack_inputs", ["ssr/lib/pack", "ssr/lib/sanitize"]),
     kernel!("ssr/pack_mt", ["ssr/lib/pack", "ssr/lib/sanitize"]),
     kernel!("ssr/store_output", ["ssr/lib/sanitize", "ssr/lib/output"]),
@@ -186,7 +189,10 @@ pub const KERNELS: &[KernelSource] = &[
     kernel!("ssr/mean_atrous", ["ssr/lib/sanitize"]),
     kernel!("ssr/exposure_partial", ["ssr/lib/sanitize", "ssr/lib/exposure"]),
     kernel!("ssr/exposure_final", ["ssr/lib/exposure"]),
-    kernel!("ssr/warp_history", ["nn/lib/grid", "nn/lib/warp"]),
+    kernel!(
+        "ssr/warp_history",
+        ["nn/lib/storage", "nn/lib/grid", "nn/lib/warp"]
+    ),
     kernel!("ssr/fold_emission", ["nn/lib/grid"]),
     kernel!("view/display"),
     trace_kernel!("trace/query"),
@@ -930,6 +936,12 @@ mod tests {
                 &["F16_IN0", "F16_IN1", "F16_IN2", "F16_IN3", "F16_OUT"][..],
             ),
             ("nn/resample2x", &["F16_IN0", "F16_OUT"][..]),
+            (
+                "nn/tfa_blend",
+                &["F16_IN0", "F16_IN1", "F16_IN2", "F16_IN3", "F16_IN4", "F16_OUT"][..],
+            ),
+            ("ssr/warp_history", &["F16_IN0", "F16_IN1", "F16_OUT"][..]),
+            ("nn/remodulate", &["F16_IN0", "F16_IN1"][..]),
         ] {
             let k = kernel_source(name).unwrap();
             for flag in flags {

@@ -92,7 +92,7 @@ fn check_min_channels(op: &str, what: &str, t: &Tensor, c: u32) -> Result<()> {
 }
 
 /// Errors unless every tensor is stored as f32 (kernels without an f16 variant).
-fn f32_only(op: &str, tensors: &[(&str, &Tensor)]) -> Result<()> {
+pub(crate) fn f32_only(op: &str, tensors: &[(&str, &Tensor)]) -> Result<()> {
     for (what, t) in tensors {
         if t.dtype != DType::F32 {
             return Err(Error::shape(
@@ -105,6 +105,22 @@ fn f32_only(op: &str, tensors: &[(&str, &Tensor)]) -> Result<()> {
         }
     }
     Ok(())
+}
+
+/// The storage template flags (nn/lib/storage) of a kernel reading `inputs` (`F16_IN0`,
+/// ...) and writing `out` (`F16_OUT`), as each is stored.
+pub(crate) fn storage_flags(inputs: &[&Tensor], out: Option<&Tensor>) -> Specialisation {
+    const IN: [&str; 5] = ["F16_IN0", "F16_IN1", "F16_IN2", "F16_IN3", "F16_IN4"];
+    assert!(inputs.len() <= IN.len(), "nn/lib/storage has {} inputs", IN.len());
+    let mut flags: Vec<(&'static str, f64)> = IN
+        .iter()
+        .zip(inputs)
+        .map(|(n, t)| (*n, t.dtype.f16_flag() as f64))
+        .collect();
+    if let Some(o) = out {
+        flags.push(("F16_OUT", o.dtype.f16_flag() as f64));
+    }
+    Specialisation(flags)
 }
 
 pub(super) fn distinct(op: &str, out: &Tensor, inputs: &[&Tensor]) -> Result<()> {
@@ -218,6 +234,14 @@ pub fn upsample2x(gpu: &Gpu, mode: UpsampleMode, input: &Tensor, out: &Tensor) -
     resample(op, gpu, Fetch::Upsample(mode), input, out)
 }
 
+/// A copy of `input` into `out` (same size and channels) in `out`'s storage (f32 or f16;
+/// finite values beyond f16's range clamped to it, as every f16 store): `nn/resample2x`
+/// reading as stored.
+pub fn convert(gpu: &Gpu, input: &Tensor, out: &Tensor) -> Result<Dispatch> {
+    check_size("convert", "output", out, input.width, input.height)?;
+    resample("convert", gpu, Fetch::Direct, input, out)
+}
+
 /// The dispatch of `nn/resample2x` for operation `op` once the sizes are checked: same
 /// channels, distinct buffers, one thread per output pixel.
 fn resample(op: &str, gpu: &Gpu, fetch: Fetch, input: &Tensor, out: &Tensor) -> Result<Dispatch> {
@@ -279,7 +303,8 @@ pub struct TfaBlend<'a> {
     pub weights: &'a Tensor,
 }
 
-/// Per-pixel dot-product scores, 2-way softmax and blend (DESIGN §4 TFA).
+/// Per-pixel dot-product scores, 2-way softmax and blend (DESIGN §4 TFA). R, the
+/// embeddings, `cur`, `prev` and `out` may be stored as f16; `valid` and `weights` are f32.
 pub fn tfa_blend(gpu: &Gpu, t: TfaBlend<'_>) -> Result<Dispatch> {
     let op = "tfa_blend";
     let (w, h) = (t.cur.width, t.cur.height);
@@ -300,19 +325,7 @@ pub fn tfa_blend(gpu: &Gpu, t: TfaBlend<'_>) -> Result<Dispatch> {
     check_channels(op, "out", t.out, t.cur.channels)?;
     check_channels(op, "weights", t.weights, 4)?;
     check_min_channels(op, "valid", t.valid, 1)?;
-    f32_only(
-        op,
-        &[
-            ("R", t.r),
-            ("E_cur", t.e_cur),
-            ("E_prev", t.e_prev),
-            ("cur", t.cur),
-            ("prev", t.prev),
-            ("valid", t.valid),
-            ("out", t.out),
-            ("weights", t.weights),
-        ],
-    )?;
+    f32_only(op, &[("valid", t.valid), ("weights", t.weights)])?;
     let ins = [t.r, t.e_cur, t.e_prev, t.cur, t.prev, t.valid];
     distinct(op, t.out, &ins)?;
     distinct(op, t.weights, &ins)?;
@@ -327,7 +340,7 @@ pub fn tfa_blend(gpu: &Gpu, t: TfaBlend<'_>) -> Result<Dispatch> {
     }
     gpu.kernels.dispatch(
         "nn/tfa_blend",
-        &Specialisation::none(),
+        &storage_flags(&[t.r, t.e_cur, t.e_prev, t.cur, t.prev], Some(t.out)),
         bytemuck::bytes_of(&params),
         &[
             &t.r.buffer,
@@ -421,7 +434,12 @@ fn modulation(
     check_size(kernel, "out", out, w, h)?;
     check_channels(kernel, "out", out, 3)?;
     distinct(kernel, out, &[a, albedo])?;
-    f32_only(kernel, &[("input", a), ("albedo", albedo), ("out", out)])?;
+    // nn/remodulate reads its input and albedo as stored (f32 or f16); nn/demodulate f32.
+    if kernel == "nn/remodulate" {
+        f32_only(kernel, &[("out", out)])?;
+    } else {
+        f32_only(kernel, &[("input", a), ("albedo", albedo), ("out", out)])?;
+    }
     if let Some((s, _)) = scale {
         f32_only(kernel, &[("scale", s)])?;
         check_size(kernel, "scale", s, 1, 1)?;
@@ -449,9 +467,13 @@ fn modulation(
         buffers.push(&s.buffer);
     }
     // Only nn/remodulate has the flag (nn/demodulate has no scale).
-    let spec = match ceiling {
-        Some(_) => Specialisation(vec![("CEILING", 1.0)]),
-        None => Specialisation::none(),
+    let spec = match (kernel, ceiling) {
+        ("nn/remodulate", c) => {
+            let mut spec = storage_flags(&[a, albedo], None);
+            spec.0.push(("CEILING", f64::from(u8::from(c.is_some()))));
+            spec
+        }
+        _ => Specialisation::none(),
     };
     gpu.kernels.dispatch(
         kernel,
@@ -481,7 +503,8 @@ pub fn demodulate(
 /// With `ceiling = Some(g)` (SSR config `ceiling`), o is first capped at
 /// `ln(1 + g M_c / scale_c)`, M = channels 6..8 of `scale` (SSR: the running max of the
 /// demodulated samples), and the capped values are written back into `o`
-/// ([`reference::ceiling`](crate::nn::reference::ceiling)).
+/// ([`reference::ceiling`](crate::nn::reference::ceiling)). `o` and `albedo` may be stored
+/// as f16 (the output is f32).
 pub fn remodulate(
     gpu: &Gpu,
     o: &Tensor,

@@ -17,8 +17,8 @@ pub enum Trait {
     /// the frame do not overlap, and does not expose them after it.
     Transient,
     /// It may be stored as f16 ([`crate::nn::autotune::Precision`]): an interior
-    /// activation that only convolutions and pooling (the kernels with f16 variants)
-    /// produce and read (checked by a test).
+    /// activation that only kernels with f16 variants produce and read, at arguments that
+    /// take f16 ([`Op::takes_f16`]; checked by a test).
     F16,
 }
 
@@ -70,27 +70,27 @@ tensor_ids! {
     /// Motion vectors.
     Motion = "motion",
     /// Warped A_acc of the last frame.
-    WarpAcc = "warp_acc",
+    WarpAcc = "warp_acc": F16,
     /// Its validity.
     WarpValid = "warp_valid",
     /// TFA reference net, hidden layer.
     RefHidden = "ref_hidden": Transient F16,
     /// TFA reference features R.
-    RefFeat = "ref_feat",
+    RefFeat = "ref_feat": F16,
     /// TFA embedding of the current features, hidden layer.
     EmbHiddenCur = "emb_hidden_cur": Transient F16,
     /// TFA embedding of the current features.
-    EmbCur = "emb_cur",
+    EmbCur = "emb_cur": F16,
     /// TFA embedding of the warped history, hidden layer.
     EmbHiddenPrev = "emb_hidden_prev": Transient F16,
     /// TFA embedding of the warped history.
-    EmbPrev = "emb_prev",
+    EmbPrev = "emb_prev": F16,
     /// Per-pixel TFA weights (beta, alpha, s_cur, s_prev).
     TfaWeights = "tfa_weights",
     /// The accumulated features of this frame (ping-pong by frame parity).
-    AAcc = "a_acc",
+    AAcc = "a_acc": F16,
     /// The accumulated features of the last frame.
-    AAccPrev = "a_acc_prev",
+    AAccPrev = "a_acc_prev": F16,
     /// Warped log-space output of the last frame, W(o).
     WarpOut = "warp_out",
     /// W(o) at half resolution.
@@ -252,6 +252,23 @@ pub enum Op {
     /// Remodulation by the albedo at channel 3 of the second tensor and the colour
     /// exposure (`o, albedo, exposure, output`).
     Remodulate,
+}
+
+impl Op {
+    /// Whether argument `arg` (its index in [`StepSpec::tensors`]) may be stored as f16:
+    /// every tensor of a convolution or a pooling; the last frame's A_acc and o and W(A_acc)
+    /// of the history warp; R, the embeddings, the current and warped features and the
+    /// output of the TFA blend; o and the albedo of the remodulation. (The network keeps o
+    /// in f32: the exponential of the remodulation would magnify its rounding in the
+    /// output.)
+    pub fn takes_f16(&self, arg: usize) -> bool {
+        match self {
+            Op::Conv(_) | Op::Pool(_) => true,
+            Op::WarpHistory { .. } => matches!(arg, 0 | 1 | 5),
+            Op::TfaBlend => matches!(arg, 0..=4 | 6),
+            Op::Remodulate => matches!(arg, 0 | 1),
+        }
+    }
 }
 
 /// One step of a frame.
@@ -501,29 +518,33 @@ mod tests {
         }
     }
 
-    /// Tensors that may be f16 are touched by convolutions and pooling only, and each
-    /// layer sees the same storage in every step that runs it (one kernel per layer).
+    /// Tensors that may be f16 meet kernels only at arguments with f16 variants, and each
+    /// layer writes the same storage in every step that runs it. (Its inputs may differ:
+    /// `tfa.emb.0` reads A_t, f32, and W(A_acc), f16 with f16 activations; the kernel is
+    /// specialised to each when bound, the autotuner times the first step's.)
     #[test]
     fn f16_tensors_meet_only_kernels_with_f16_variants() {
-        let [_, deep] = configs();
-        let steps = steps(&deep, true).unwrap();
-        let mut seen = std::collections::HashMap::new();
-        for s in &steps {
-            let f16: Vec<bool> = s.tensors.iter().map(|t| t.may_store_f16()).collect();
-            if f16.contains(&true) {
-                assert!(
-                    matches!(s.op, Op::Conv(_) | Op::Pool(_)),
-                    "{}: {:?}",
-                    s.label,
-                    s.op
-                );
-            }
-            if let Op::Conv(layer) = s.op {
-                let before = seen.insert(layer, f16.clone());
-                assert!(before.is_none_or(|b| b == f16), "{layer}");
+        for config in configs() {
+            let steps = steps(&config, true).unwrap();
+            let mut seen = std::collections::HashMap::new();
+            for s in &steps {
+                let f16: Vec<bool> = s.tensors.iter().map(|t| t.may_store_f16()).collect();
+                for (arg, (t, f)) in s.tensors.iter().zip(&f16).enumerate() {
+                    assert!(
+                        !f || s.op.takes_f16(arg),
+                        "{}: {t:?} at {arg} of {:?}",
+                        s.label,
+                        s.op
+                    );
+                }
+                if let Op::Conv(layer) = s.op {
+                    let out = *f16.last().unwrap();
+                    let before = seen.insert(layer, out);
+                    assert!(before.is_none_or(|b| b == out), "{layer}");
+                }
             }
         }
-        assert!(TensorId::ALL.iter().filter(|t| t.may_store_f16()).count() >= 14);
+        assert_eq!(TensorId::ALL.iter().filter(|t| t.may_store_f16()).count(), 24);
     }
 
     /// With pooling passes, each pooled level is written once, after the last write of its

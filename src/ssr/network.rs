@@ -10,7 +10,7 @@ use super::config::{CEILING_GAIN, CeilingMode, LayerSpec, SsrConfig};
 use super::graph::{self, Extent, Op, StepSpec, TensorId};
 use super::weights::Weights;
 use crate::error::{Error, Result};
-use crate::gpu::{Dispatch, Gpu, Grid, Profiler, Specialisation, time_dispatch};
+use crate::gpu::{Dispatch, Gpu, Grid, Profiler, time_dispatch};
 use crate::nn::autotune::{self, EngineOptions, KernelChoice, LayerStorage, Pooling, Precision};
 use crate::nn::conv::ConvKernel;
 use crate::nn::ops::{self, Conv3x3, Fetch, TfaBlend};
@@ -56,6 +56,9 @@ pub struct Network {
     /// Log-space outputs o, ping-pong by frame parity.
     o: [Tensor; 2],
     ones: Tensor,
+    /// The first frame's copy of A_t into W(A_acc) where the two are stored differently (f32
+    /// and f16 with f16 activations), else `None` (a buffer copy).
+    first_copy: Option<Dispatch>,
     /// The steps of a frame, in execution order.
     specs: Vec<StepSpec>,
     /// Each tensor's stored tensor and how steps read it ([`TensorId::stored`]).
@@ -92,8 +95,10 @@ pub const INTERMEDIATES: &[&str] = &[
     "output",
 ];
 
-/// The storage of layer `name`'s tensors when the interior activations are `dtype` (the
-/// graph gives a layer the same storage in every step that runs it).
+/// The storage of layer `name`'s tensors in the first step that runs it when the interior
+/// activations are `dtype`: what the autotuner times. (The graph gives a layer the same
+/// output storage in every step; `tfa.emb.0` reads A_t in one and W(A_acc) in the other,
+/// which may differ, and runs the same kernel specialised to each.)
 fn layer_storage(specs: &[StepSpec], name: &str, dtype: DType) -> LayerStorage {
     let s = specs
         .iter()
@@ -373,6 +378,7 @@ impl Network {
             tensors,
             a_acc,
             o,
+            first_copy: None,
             ones,
             specs,
             stored,
@@ -380,6 +386,10 @@ impl Network {
             dispatches: [Vec::new(), Vec::new()],
             parity: 0,
         };
+        let (a_t, warp_acc) = (&net.tensors[&TensorId::ACur], &net.tensors[&TensorId::WarpAcc]);
+        if a_t.dtype != warp_acc.dtype {
+            net.first_copy = Some(ops::convert(gpu, a_t, warp_acc)?);
+        }
         for p in 0..2 {
             net.dispatches[p] = net
                 .specs
@@ -439,10 +449,21 @@ impl Network {
                     rescale: rescale as u32,
                     geometry: geometry as u32,
                 };
+                // Last frame's A_acc and o, and W(A_acc), as stored; the others f32.
+                ops::f32_only(
+                    "ssr/warp_history",
+                    &[
+                        ("motion", t[2]),
+                        ("a_cur", t[3]),
+                        ("exposure_ratio", t[4]),
+                        ("warp_out", t[6]),
+                        ("warp_valid", t[7]),
+                    ],
+                )?;
                 let buffers: Vec<&wgpu::Buffer> = t.iter().map(|x| &x.buffer).collect();
                 gpu.kernels.dispatch(
                     "ssr/warp_history",
-                    &Specialisation::none(),
+                    &ops::storage_flags(&[t[0], t[1]], Some(t[5])),
                     bytemuck::bytes_of(&params),
                     &buffers,
                     Grid::pixels(self.width, self.height),
@@ -540,7 +561,10 @@ impl Network {
         let p = self.parity;
         if first {
             let (a_t, warp_acc) = (self.at(TensorId::ACur, p), self.at(TensorId::WarpAcc, p));
-            encoder.copy_buffer_to_buffer(&a_t.buffer, 0, &warp_acc.buffer, 0, a_t.bytes());
+            match &self.first_copy {
+                Some(convert) => convert.encode(encoder),
+                None => encoder.copy_buffer_to_buffer(&a_t.buffer, 0, &warp_acc.buffer, 0, a_t.bytes()),
+            }
             let valid = self.at(TensorId::WarpValid, p);
             encoder.copy_buffer_to_buffer(&self.ones.buffer, 0, &valid.buffer, 0, self.ones.bytes());
             encoder.clear_buffer(&self.at(TensorId::WarpOut, p).buffer, 0, None);

@@ -10,15 +10,16 @@
 //
 //#param CEILING 0
 
-// Params, EPS and albedo3: nn/lib/modulation.wgsl.
+// Params, EPS and albedo3: nn/lib/modulation.wgsl. `o` and `albedo` are stored as f32 or
+// f16 (nn/lib/storage: In0, In1; f32 arithmetic), the output and `scale` as f32.
 
 @group(0) @binding(0) var<uniform> p: Params;
 //#if CEILING
-@group(0) @binding(1) var<storage, read_write> o: array<vec4<f32>>;
+@group(0) @binding(1) var<storage, read_write> o: array<In0>;
 //#else
-@group(0) @binding(1) var<storage, read> o: array<vec4<f32>>;
+@group(0) @binding(1) var<storage, read> o: array<In0>;
 //#end
-@group(0) @binding(2) var<storage, read> albedo: array<vec4<f32>>;
+@group(0) @binding(2) var<storage, read> albedo: array<In1>;
 @group(0) @binding(3) var<storage, read_write> dst: array<vec4<f32>>;
 @group(0) @binding(4) var<storage, read> scale: array<vec4<f32>>;
 
@@ -30,12 +31,12 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>) {
     if (pix == OUTSIDE) {
         return;
     }
-    let raw = o[pix * p.src_c4];
+    let raw = vec4<f32>(o[pix * p.src_c4]);
     var e = min(select(vec3<f32>(0.0), raw.xyz, abs(raw.xyz) <= vec3<f32>(3.40282347e38)), vec3<f32>(O_MAX));
 //#if CEILING
     let m = vec3<f32>(scale[1].zw, scale[2].x);
     e = min(e, log(vec3<f32>(1.0) + p.ceiling * m / scale[0].xyz));
-    o[pix * p.src_c4] = vec4<f32>(e, raw.w);
+    o[pix * p.src_c4] = In0(vec4<f32>(e, raw.w));
 //#end
     let a = max(albedo3(pix), vec3<f32>(0.0));
     dst[pix] = vec4<f32>(max(exp(e) - vec3<f32>(1.0), vec3<f32>(0.0)) * (a + vec3<f32>(EPS)) * scale[0].xyz, 0.0);

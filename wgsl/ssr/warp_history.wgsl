@@ -12,6 +12,8 @@
 // three passes it replaces (training/ssr/model.py `SSRModel.history`).
 // A_t layout (pack_inputs): vec4 0 = (e.rgb, albedo.r), 1 = (albedo.gb, n.xy),
 // 2 = (n.z, log1p(shadow).rgb), 3 = (depth, metallic, roughness, 0).
+// Last frame's A_acc and o, and W(A_acc), are stored as f32 or f16 (nn/lib/storage: In0,
+// In1, Out; f32 arithmetic); the other tensors as f32.
 
 struct Params {
     width: u32,
@@ -21,12 +23,12 @@ struct Params {
 }
 
 @group(0) @binding(0) var<uniform> p: Params;
-@group(0) @binding(1) var<storage, read> a_acc_prev: array<vec4<f32>>;
-@group(0) @binding(2) var<storage, read> o_prev: array<vec4<f32>>;
+@group(0) @binding(1) var<storage, read> a_acc_prev: array<In0>;
+@group(0) @binding(2) var<storage, read> o_prev: array<In1>;
 @group(0) @binding(3) var<storage, read> motion: array<vec4<f32>>;
 @group(0) @binding(4) var<storage, read> a_t: array<vec4<f32>>;
 @group(0) @binding(5) var<storage, read> ratio: array<vec4<f32>>;
-@group(0) @binding(6) var<storage, read_write> warp_acc: array<vec4<f32>>;
+@group(0) @binding(6) var<storage, read_write> warp_acc: array<Out>;
 @group(0) @binding(7) var<storage, read_write> warp_out: array<vec4<f32>>;
 @group(0) @binding(8) var<storage, read_write> warp_valid: array<vec4<f32>>;
 
@@ -41,10 +43,10 @@ fn rescale_log(v: vec3<f32>, r: vec3<f32>) -> vec3<f32> {
 
 // Channel vec4 `c` of W(A_acc) at the taps `k` (Taps: nn/lib/warp).
 fn acc_tap(k: Taps, c: u32) -> vec4<f32> {
-    let a = a_acc_prev[4u * k.i00 + c];
-    let b = a_acc_prev[4u * k.i10 + c];
-    let d = a_acc_prev[4u * k.i01 + c];
-    let e = a_acc_prev[4u * k.i11 + c];
+    let a = vec4<f32>(a_acc_prev[4u * k.i00 + c]);
+    let b = vec4<f32>(a_acc_prev[4u * k.i10 + c]);
+    let d = vec4<f32>(a_acc_prev[4u * k.i01 + c]);
+    let e = vec4<f32>(a_acc_prev[4u * k.i11 + c]);
     return bilinear(a, b, d, e, k.t);
 }
 
@@ -66,7 +68,9 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>) {
         h1 = acc_tap(k, 1u);
         h2 = acc_tap(k, 2u);
         h3 = acc_tap(k, 3u);
-        wo = bilinear(o_prev[k.i00], o_prev[k.i10], o_prev[k.i01], o_prev[k.i11], k.t);
+        wo = bilinear(
+            vec4<f32>(o_prev[k.i00]), vec4<f32>(o_prev[k.i10]), vec4<f32>(o_prev[k.i01]), vec4<f32>(o_prev[k.i11]), k.t,
+        );
     }
     if (p.rescale != 0u) {
         let r = ratio[0].xyz;
@@ -88,10 +92,10 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>) {
         h3 = vec4<f32>(0.0);
         wo = vec4<f32>(0.0);
     }
-    warp_acc[4u * pix] = h0;
-    warp_acc[4u * pix + 1u] = h1;
-    warp_acc[4u * pix + 2u] = h2;
-    warp_acc[4u * pix + 3u] = h3;
+    warp_acc[4u * pix] = to_out(h0);
+    warp_acc[4u * pix + 1u] = to_out(h1);
+    warp_acc[4u * pix + 2u] = to_out(h2);
+    warp_acc[4u * pix + 3u] = to_out(h3);
     warp_out[pix] = wo;
     warp_valid[pix] = vec4<f32>(select(0.0, 1.0, ok), 0.0, 0.0, 0.0);
 }

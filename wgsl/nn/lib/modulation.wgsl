@@ -20,7 +20,7 @@ fn albedo3(pix: u32) -> vec3<f32> {
     var v: vec3<f32>;
     for (var i = 0u; i < 3u; i++) {
         let c = p.albedo_offset + i;
-        v[i] = albedo[pix * p.albedo_c4 + c / 4u][c % 4u];
+        v[i] = f32(albedo[pix * p.albedo_c4 + c / 4u][c % 4u]);
     }
     return v;
 }

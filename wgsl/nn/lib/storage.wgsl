@@ -1,6 +1,6 @@
 // Tensor element types of kernels whose tensors may be stored as f32 or f16 (issue 14),
-// chosen by template flags (0 f32, 1 f16): F16_IN0..F16_IN3 for the inputs' types
-// In0..In3, F16_OUT for the output's type Out. Arithmetic stays f32: loads convert with
+// chosen by template flags (0 f32, 1 f16): F16_IN0..F16_IN4 for the inputs' types
+// In0..In4, F16_OUT for the output's type Out. Arithmetic stays f32: loads convert with
 // vec4<f32>(...), stores with to_out(...), which also keeps the stored value finite: a
 // non-finite value becomes 0 and finite ones are clamped to +-OUT_MAX (1e15 in f32, far
 // beyond any real activation, so sums of them cannot overflow; f16's largest finite value,
@@ -10,11 +10,12 @@
 //#param F16_IN1 0
 //#param F16_IN2 0
 //#param F16_IN3 0
+//#param F16_IN4 0
 //#param F16_OUT 0
-//#if F16_IN0+F16_IN1+F16_IN2+F16_IN3+F16_OUT
+//#if F16_IN0+F16_IN1+F16_IN2+F16_IN3+F16_IN4+F16_OUT
 enable f16;
 //#end
-//#repeat k 4
+//#repeat k 5
 //#if F16_IN{k}
 alias In{k} = vec4<f16>;
 //#else
