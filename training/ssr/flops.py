@@ -18,6 +18,7 @@ from typing import List
 import torch
 from torch import nn
 
+from .model import SSRConfig, fold_emission
 from .synth import make_sequence
 
 
@@ -33,11 +34,17 @@ def measured_flops_per_pixel(model: nn.Module, width: int = 64, height: int = 64
 
     handles = [m.register_forward_hook(hook) for m in model.modules() if isinstance(m, nn.Conv2d)]
     try:
-        frames = make_sequence(width, height, steps, seed=0)
+        # Every buffer a model may read (the background, the footprint albedo, the directly
+        # seen emission), fed as the engine feeds it (fold_emission: a no-op for models
+        # without an SSR config of emission "background").
+        frames = make_sequence(width, height, steps, seed=0, background=True, emission=True)
+        cfg = getattr(model, "cfg", None)
         state = None
         for t, f in enumerate(frames):
             count[0] = 0.0
             batch = {k: torch.from_numpy(v).unsqueeze(0) for k, v in f.items() if k != "reference"}
+            if isinstance(cfg, SSRConfig):
+                batch = fold_emission(batch, cfg)
             state = model(batch, state)["state"]
         return count[0] / (width * height)
     finally:
