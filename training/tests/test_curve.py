@@ -58,3 +58,23 @@ def test_curve_continues_a_campaign(dataset, tmp_path, capsys):
     # re-running with its own output as --previous adds nothing twice
     assert C.main(["--run", b, *base, "--json", jb, "--previous", jb]) == 0
     assert [r["iteration"] for r in json.load(open(jb))["train"]] == [1, 2, 3, 4]
+
+
+def test_curve_scores_a_model_that_composites_the_emission(tmp_path, capsys):
+    """A model of config emission "background" (the shipped one's) reads the background and
+    coverage besides its own buffers: the curve, whose dataset is loaded without them, scores
+    its snapshots all the same (it stopped with a KeyError before)."""
+    from ssr.synth import write_dataset
+
+    data = write_dataset(str(tmp_path / "d"), {"train": 1, "test": 1}, 6, 16, 16, seed=7, background=True, emission=True)
+    run = str(tmp_path / "run")
+    cfg = '{"emission": "background", "albedo": "footprint", "mean_correction": "atrous"}'
+    T.train([
+        "--data", data, "--out", run, "--iters", "1", "--batch", "1", "--crop", "16", "--workers", "0",
+        "--log-every", "1", "--val-every", "0", "--device", "cpu", "--snapshot-every", "1",
+        "--model-config", cfg, "--background", "loss",
+    ])  # fmt: skip
+    png, js = str(tmp_path / "c.png"), str(tmp_path / "c.json")
+    assert C.main(["--run", run, "--data", data, "--split", "test", "--frames", "2", "--out", png, "--json", js]) == 0
+    c = json.load(open(js))
+    assert len(c["monitored"]) == 1 and c["monitored"][0]["psnr"] > 0
