@@ -233,6 +233,25 @@ fn conv3x3_resamples_inputs_on_load() {
     );
 }
 
+/// The test GPU if it has SHADER_F16 (else `None`, the test skipped with a note).
+fn f16_gpu() -> Option<subpixel::gpu::Gpu> {
+    let g = gpu();
+    if g.has(wgpu::Features::SHADER_F16) {
+        Some(g)
+    } else {
+        eprintln!("skipped: {} has no SHADER_F16", g.describe());
+        None
+    }
+}
+
+/// `t` plus one f16 ulp (2^-10 relative) for a result rounded to f16.
+const fn plus_f16_ulp(t: Tol) -> Tol {
+    Tol {
+        abs: t.abs,
+        rel: t.rel + 1.0 / 1024.0,
+    }
+}
+
 /// A host tensor's values rounded to f16 (what an f16 tensor stores).
 fn to_f16(t: &HostTensor) -> HostTensor {
     let mut r = t.clone();
@@ -251,15 +270,8 @@ fn to_f16(t: &HostTensor) -> HostTensor {
 /// f32 tolerance). Pooling with f16 storage is exact (max) or within it (average).
 #[test]
 fn conv3x3_and_pooling_with_f16_storage_match_reference() {
-    let g = gpu();
-    if !g.has(wgpu::Features::SHADER_F16) {
-        eprintln!("skipped: {} has no SHADER_F16", g.describe());
-        return;
-    }
-    const F16_OUT: Tol = Tol {
-        abs: REDUCTION.abs,
-        rel: REDUCTION.rel + 1.0 / 1024.0,
-    };
+    let Some(g) = f16_gpu() else { return };
+    const F16_OUT: Tol = plus_f16_ulp(REDUCTION);
     let (split, cout, act, (w, h)) = ([15u32, 4, 8, 3], 32u32, Activation::LeakyRelu(0.1), (21u32, 9u32));
     let dtypes = [DType::F16, DType::F32, DType::F16, DType::F32];
     let inputs: Vec<HostTensor> = split
@@ -376,15 +388,8 @@ fn conv3x3_and_pooling_with_f16_storage_match_reference() {
 /// relative for the output's rounding (one f16 ulp), as for the convolutions.
 #[test]
 fn tfa_blend_remodulate_and_convert_with_f16_storage_match_reference() {
-    let g = gpu();
-    if !g.has(wgpu::Features::SHADER_F16) {
-        eprintln!("skipped: {} has no SHADER_F16", g.describe());
-        return;
-    }
-    const F16_OUT: Tol = Tol {
-        abs: ELEMENTWISE.abs,
-        rel: ELEMENTWISE.rel + 1.0 / 1024.0,
-    };
+    let Some(g) = f16_gpu() else { return };
+    const F16_OUT: Tol = plus_f16_ulp(ELEMENTWISE);
     let stored = |t: &HostTensor, d: DType| if d == DType::F16 { to_f16(t) } else { t.clone() };
     let (w, h, k, c) = (13u32, 7u32, 8u32, 15u32);
     let host = [
