@@ -11,8 +11,13 @@ together:
 * `environment`: pixels whose coverage (the directly seen environment) is at least 1/2;
   absent where the dataset has no `coverage` buffer.
 
+With `--silhouette`, the pixels whose footprint holds both (0 < coverage < 1: the outlines
+of geometry against the sky, where the output pass adds the background to the
+reconstruction) are a region of their own, `silhouette`, and `environment` holds the
+wholly covered ones (coverage 1), the geometry regions the uncovered ones (coverage 0).
+
     python -m ssr.brightness --data ROOT --split test --pred PRED --methods ssr oidn-a \\
-        [--sequences barn-lamp_test_000 ...] [--json OUT.json]
+        [--sequences barn-lamp_test_000 ...] [--silhouette] [--json OUT.json]
 
 PRED/METHOD/SPLIT/SEQUENCE/frame_NNNN.exr are predictions as `ssr.evaluate` and `subpixel
 denoise` write them (`pred.R/G/B`). A reporting tool: it reads held-out references, so it
@@ -32,16 +37,27 @@ import numpy as np
 
 from .data import DatasetError, exr_size, read_exr
 
-REGIONS = ("metal", "non-metal", "environment")
+REGIONS = ("metal", "non-metal", "silhouette", "environment")
 RGB = ("R", "G", "B")
 
 
-def region_masks(metallic: np.ndarray, coverage: Optional[np.ndarray]) -> Dict[str, np.ndarray]:
-    """Boolean [H, W] masks of REGIONS from metallic [H, W] and coverage [H, W] (or None:
-    every pixel is geometry and there is no `environment` region)."""
-    env = coverage >= 0.5 if coverage is not None else np.zeros(metallic.shape, dtype=bool)
-    metal = (metallic >= 0.5) & ~env
-    out = {"metal": metal, "non-metal": ~metal & ~env}
+def region_masks(
+    metallic: np.ndarray, coverage: Optional[np.ndarray], silhouette: bool = False
+) -> Dict[str, np.ndarray]:
+    """Boolean [H, W] masks of REGIONS, a partition of the frame, from metallic [H, W] and
+    coverage [H, W] (or None: every pixel is geometry and there is no `environment` or
+    `silhouette` region); `silhouette` splits out 0 < coverage < 1 (module doc)."""
+    none = np.zeros(metallic.shape, dtype=bool)
+    if coverage is None:
+        env, sil = none, none
+    elif silhouette:
+        env, sil = coverage >= 1.0, (coverage > 0.0) & (coverage < 1.0)
+    else:
+        env, sil = coverage >= 0.5, none
+    metal = (metallic >= 0.5) & ~env & ~sil
+    out = {"metal": metal, "non-metal": ~metal & ~env & ~sil}
+    if coverage is not None and silhouette:
+        out["silhouette"] = sil
     if coverage is not None:
         out["environment"] = env
     return out
@@ -85,7 +101,9 @@ class RegionSums:
         return {r: n / max(self.total, 1) for r, n in self.pixels.items()}
 
 
-def sequence_sums(data: str, split: str, sequence: str, pred: str, methods: Sequence[str]) -> RegionSums:
+def sequence_sums(
+    data: str, split: str, sequence: str, pred: str, methods: Sequence[str], silhouette: bool = False
+) -> RegionSums:
     """RegionSums of one sequence over all its frames; DatasetError naming the file for a
     missing frame, channel or prediction."""
     seq_dir = os.path.join(data, split, sequence)
@@ -104,7 +122,7 @@ def sequence_sums(data: str, split: str, sequence: str, pred: str, methods: Sequ
             preds[k] = read_exr(pf, [f"pred.{c}" for c in RGB])
             if preds[k].shape[:2] != x.shape[:2]:
                 raise DatasetError(f"{pf}: {preds[k].shape[1]}x{preds[k].shape[0]}, the frame is {x.shape[1]}x{x.shape[0]}")
-        masks = region_masks(x[..., 3], x[..., 4] if has_cov else None)
+        masks = region_masks(x[..., 3], x[..., 4] if has_cov else None, silhouette)
         sums.add(masks, x[..., :3], preds)
     return sums
 
@@ -120,6 +138,7 @@ def main(argv=None) -> int:
     ap.add_argument("--pred", required=True, help="predictions root (PRED/METHOD/SPLIT/SEQUENCE/frame_NNNN.exr)")
     ap.add_argument("--methods", nargs="+", required=True)
     ap.add_argument("--sequences", nargs="*", help="sequence folder names (default: every one of the split)")
+    ap.add_argument("--silhouette", action="store_true", help="0 < coverage < 1 as a region of its own (module doc)")
     ap.add_argument("--json", help="also write every ratio and region fraction to this file")
     a = ap.parse_args(argv)
     split_dir = os.path.join(a.data, a.split)
@@ -131,7 +150,7 @@ def main(argv=None) -> int:
     width = max(len(m) for m in a.methods)
     for s in seqs:
         try:
-            sums = sequence_sums(a.data, a.split, s, a.pred, a.methods)
+            sums = sequence_sums(a.data, a.split, s, a.pred, a.methods, a.silhouette)
         except DatasetError as err:
             print(f"error: {err}", file=sys.stderr)
             return 1

@@ -14,6 +14,15 @@ def test_regions_partition_the_frame():
     assert m["non-metal"].tolist() == [[False, False], [False, True]]
     assert "environment" not in region_masks(met, None)
     assert region_masks(met, None)["metal"].tolist() == [[False, True], [True, False]]
+    # --silhouette: 0 < coverage < 1 apart, still a partition
+    cov = np.array([[1.0, 0.4], [0.7, 0.0]])
+    m = region_masks(met, cov, silhouette=True)
+    assert m["silhouette"].tolist() == [[False, True], [True, False]]
+    assert m["environment"].tolist() == [[True, False], [False, False]]
+    assert m["metal"].tolist() == [[False, False], [False, False]]
+    assert m["non-metal"].tolist() == [[False, False], [False, True]]
+    assert sum(v.astype(int) for v in m.values()).tolist() == [[1, 1], [1, 1]]
+    assert "silhouette" not in region_masks(met, cov)
 
 
 def _frame(path, ref, met, cov):
