@@ -165,7 +165,10 @@ pub const KERNELS: &[KernelSource] = &[
     kernel!("nn/resample2x", ["nn/lib/storage", "nn/lib/fetch"]),
     kernel!("nn/tfa_blend", ["nn/lib/storage", "nn/lib/grid"]),
     kernel!("nn/warp", ["nn/lib/grid", "nn/lib/warp"]),
-    kernel!("nn/demodulate", ["nn/lib/grid", "nn/lib/modulation"]),
+    kernel!(
+        "nn/demodulate",
+        ["nn/lib/storage", "nn/lib/grid", "nn/lib/modulation"]
+    ),
     kernel!(
         "nn/remodulate",
         ["nn/lib/storage", "nn/lib/grid", "nn/lib/modulation"]
@@ -942,6 +945,7 @@ mod tests {
             ),
             ("ssr/warp_history", &["F16_IN0", "F16_IN1", "F16_OUT"][..]),
             ("nn/remodulate", &["F16_IN0", "F16_IN1"][..]),
+            ("nn/demodulate", &["F16_IN0", "F16_IN1"][..]),
         ] {
             let k = kernel_source(name).unwrap();
             for flag in flags {

@@ -434,12 +434,8 @@ fn modulation(
     check_size(kernel, "out", out, w, h)?;
     check_channels(kernel, "out", out, 3)?;
     distinct(kernel, out, &[a, albedo])?;
-    // nn/remodulate reads its input and albedo as stored (f32 or f16); nn/demodulate f32.
-    if kernel == "nn/remodulate" {
-        f32_only(kernel, &[("out", out)])?;
-    } else {
-        f32_only(kernel, &[("input", a), ("albedo", albedo), ("out", out)])?;
-    }
+    // The input and the albedo are read as stored (f32 or f16).
+    f32_only(kernel, &[("out", out)])?;
     if let Some((s, _)) = scale {
         f32_only(kernel, &[("scale", s)])?;
         check_size(kernel, "scale", s, 1, 1)?;
@@ -466,15 +462,11 @@ fn modulation(
     if let Some((s, _)) = scale {
         buffers.push(&s.buffer);
     }
+    let mut spec = storage_flags(&[a, albedo], None);
     // Only nn/remodulate has the flag (nn/demodulate has no scale).
-    let spec = match (kernel, ceiling) {
-        ("nn/remodulate", c) => {
-            let mut spec = storage_flags(&[a, albedo], None);
-            spec.0.push(("CEILING", f64::from(u8::from(c.is_some()))));
-            spec
-        }
-        _ => Specialisation::none(),
-    };
+    if ceiling.is_some() {
+        spec.0.push(("CEILING", 1.0));
+    }
     gpu.kernels.dispatch(
         kernel,
         &spec,
@@ -486,6 +478,7 @@ fn modulation(
 
 /// `out = ln(1 + color / (albedo + 0.00316))` over the first 3 channels of `color` and
 /// channels `albedo_channel..albedo_channel + 3` of `albedo`.
+/// `color` and `albedo` may be stored as f16 (the output is f32).
 pub fn demodulate(
     gpu: &Gpu,
     color: &Tensor,
