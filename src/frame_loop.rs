@@ -33,7 +33,7 @@
 use crate::error::{Error, Result};
 use crate::gpu::{Gpu, Profiler};
 use crate::render::{FrameSettings, GpuScene, Tracer};
-use crate::ssr::{AlbedoSource, Denoiser, EmissionFold, EmissionSource, Granularity, Weights};
+use crate::ssr::{AlbedoSource, Denoiser, EmissionFold, EmissionSource, EscapedSource, Granularity, Weights};
 
 /// Camera rays per pixel axis of the background pass a model of config albedo "footprint"
 /// needs in every frame, when the frame has no background of its own (2 x 2: the footprint
@@ -50,18 +50,23 @@ pub struct FrameLoop {
     pub tracer: Tracer,
     /// The SSR denoiser (its output holds the last frame's reconstruction).
     pub denoiser: Denoiser,
-    /// For a model of config emission "background": the frame it is fed.
+    /// For a model of config emission or escaped "background": the frame it is fed.
     fold: Option<EmissionFold>,
 }
 
 impl FrameLoop {
     /// A tracer and a denoiser (with `weights`) for `width x height` frames (and, for
-    /// weights of config emission "background", the pass that takes the tracer's directly
-    /// seen emission out of the colour they are fed, [`EmissionFold`]).
+    /// weights of config emission or escaped "background", the pass that takes the tracer's
+    /// directly seen emission, or the samples that escaped, out of the colour they are fed,
+    /// [`EmissionFold`]).
     pub fn new(gpu: &Gpu, weights: &Weights, width: u32, height: u32) -> Result<Self> {
-        let fold = match weights.config.emission_source()? {
-            EmissionSource::Background => Some(EmissionFold::new(gpu, width, height)?),
-            EmissionSource::Network => None,
+        let (emission, escaped) = (
+            weights.config.emission_source()?,
+            weights.config.escaped_source()?,
+        );
+        let fold = match (emission, escaped) {
+            (EmissionSource::Network, EscapedSource::Network) => None,
+            _ => Some(EmissionFold::new(gpu, width, height, emission, escaped)?),
         };
         Ok(Self {
             tracer: Tracer::new(gpu, width, height)?,
@@ -78,7 +83,8 @@ impl FrameLoop {
     /// so its frames always have that pass (at least [`FOOTPRINT_RAYS`] rays per axis); so
     /// does a model of config emission "background", which is fed the colour without the
     /// samples' directly seen emission ([`EmissionFold`], a pass timed with `background`)
-    /// and the footprint's as [`crate::frame::FrameInputs::emission`]. Submit the encoder (e.g. [`Profiler::submit`]) to run it.
+    /// and the footprint's as [`crate::frame::FrameInputs::emission`], and one of config
+    /// escaped "background", fed the samples without those that escaped to the environment. Submit the encoder (e.g. [`Profiler::submit`]) to run it.
     pub fn encode(
         &mut self,
         encoder: &mut wgpu::CommandEncoder,
@@ -123,7 +129,9 @@ impl FrameLoop {
             ));
             inputs.color_mask = &fold.color_mask.buffer;
             inputs.background = Some(&bg.buffer);
-            inputs.emission = Some(&ef.buffer);
+            if self.denoiser.network().config.emission_source()? == EmissionSource::Background {
+                inputs.emission = Some(&ef.buffer);
+            }
         }
         self.denoiser
             .denoise_profiled(encoder, &inputs, profiler, Granularity::Stage)?;

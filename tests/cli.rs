@@ -1284,7 +1284,11 @@ fn denoise_folds_the_directly_seen_emission_for_an_emission_model() {
             emission: None,
         });
         by_hand.background = Some(hand_bg);
-        bg.emission = Some(DirectEmission { footprint, samples });
+        bg.emission = Some(DirectEmission {
+            footprint,
+            samples,
+            escaped: None,
+        });
         frame.background = Some(bg);
         write_frame(&with.join(&name), &f).unwrap();
         for (folder, fr) in [(&folded, by_hand), (&folded_nobg, nobg)] {

@@ -796,6 +796,7 @@ fn output_never_exceeds_the_brightest_recent_sample() {
                 emission: Some(subpixel::frame::DirectEmission {
                     footprint: HostTensor::zeros(w, h, 3),
                     samples: HostTensor::zeros(w, h, 3),
+                    escaped: None,
                 }),
             });
             let albedo = if footprint {
@@ -989,6 +990,9 @@ fn check_mean_correction(option: &str, side: u32, tiles: (u32, u32)) {
 /// reconstruction's part times its factor from `factors(frame, part, sample, reset)` (the
 /// per-pixel factors and the values the correction computes, counted: some must be clamped
 /// and some between the clamps and away from 1), within `tol` relative to `1 + |expect|`.
+/// For weights of config escaped "background" every frame has a background, and a third of
+/// the traced pixels' samples escaped: the factors see the frame as the model is fed it
+/// (those pixels left out) and, as samples, the rest times `1 - coverage`.
 fn check_corrected_output(
     weights: &Weights,
     (w, h): (u32, u32),
@@ -996,8 +1000,9 @@ fn check_corrected_output(
     mut frame: impl FnMut(u64) -> HostFrame,
     mut factors: impl FnMut(&HostFrame, &HostTensor, &HostTensor, bool) -> (HostTensor, Vec<f32>),
 ) {
-    use subpixel::frame::Background;
+    use subpixel::frame::{Background, DirectEmission, EmissionSource, EscapedSource};
     use subpixel::ssr::{MEAN_HI, MEAN_LO};
+    let escaped = weights.config.escaped_source().unwrap() == EscapedSource::Background;
     let gpu = common::gpu();
     let mut uncorrected = weights.clone();
     uncorrected.config.mean_correction = Some("none".into());
@@ -1010,15 +1015,22 @@ fn check_corrected_output(
             corrected.reset();
         }
         let mut f = frame(t);
-        let background = (t % 2 == 1).then(|| {
+        let background = (escaped || t % 2 == 1).then(|| {
             let coverage = HostTensor::from_fn(w, h, 1, |x, y, _| [0.0, 0.5, 1.0][((x + y) % 3) as usize]);
             let radiance =
                 HostTensor::from_fn(w, h, 3, |x, y, c| 0.3 * (c + 1) as f32 * coverage.at(x, y, 0));
+            let emission = escaped.then(|| DirectEmission {
+                footprint: HostTensor::zeros(w, h, 3),
+                samples: HostTensor::zeros(w, h, 3),
+                escaped: Some(HostTensor::from_fn(w, h, 1, |x, y, _| {
+                    (x / 2 + 2 * (y / 2) + t as u32).is_multiple_of(3) as u32 as f32
+                })),
+            });
             Background {
                 radiance,
                 coverage,
                 albedo: None,
-                emission: None,
+                emission,
             }
         });
         f.background = background.clone();
@@ -1026,8 +1038,24 @@ fn check_corrected_output(
         let got = corrected.denoise_host(&f).unwrap();
         let bg = |x, y, c| background.as_ref().map_or(0.0, |b| b.radiance.at(x, y, c));
         let part = HostTensor::from_fn(w, h, 3, |x, y, c| want.at(x, y, c) - bg(x, y, c));
-        let sample = HostTensor::from_fn(w, h, 3, |x, y, c| f.color.at(x, y, c) - bg(x, y, c));
-        let (fac, values) = factors(&f, &part, &sample, t == 5);
+        let fed = if escaped {
+            let fed = f
+                .fold_directly_seen(EmissionSource::Network, EscapedSource::Background)
+                .unwrap();
+            assert!(fed.mask.data.iter().sum::<f32>() < f.mask.data.iter().sum::<f32>());
+            fed
+        } else {
+            f.clone()
+        };
+        let sample = HostTensor::from_fn(w, h, 3, |x, y, c| {
+            let cov = background.as_ref().map_or(0.0, |b| b.coverage.at(x, y, 0));
+            if escaped {
+                (1.0 - cov) * fed.color.at(x, y, c)
+            } else {
+                fed.color.at(x, y, c) - bg(x, y, c)
+            }
+        });
+        let (fac, values) = factors(&fed, &part, &sample, t == 5);
         for v in values {
             if v == MEAN_LO || v == MEAN_HI {
                 clamped += 1;
@@ -1066,6 +1094,18 @@ fn check_corrected_output(
 /// earlier frames' sums.
 #[test]
 fn mean_correction_atrous_follows_each_surfaces_samples() {
+    check_atrous_correction("network");
+}
+
+/// The same for a model of config escaped "background": the samples that escaped to the
+/// environment are left out of what it is fed, and the factors compare the rest, weighted by
+/// `1 - coverage`, with the reconstruction's share of the output.
+#[test]
+fn mean_correction_atrous_leaves_escaped_samples_to_the_background() {
+    check_atrous_correction("background");
+}
+
+fn check_atrous_correction(escaped: &str) {
     use subpixel::nn::reference::{mean_atrous_factors, mean_history_sums, mean_pixel_sums};
     use subpixel::ssr::{
         ATROUS_DECAY, ATROUS_DEPTH_SIGMA, ATROUS_EPS, ATROUS_LEVELS, ATROUS_NORMAL_SQUARINGS, MEAN_HI,
@@ -1073,6 +1113,7 @@ fn mean_correction_atrous_follows_each_surfaces_samples() {
     };
     let mut weights = Weights::load(golden_weights_path()).unwrap();
     weights.config.mean_correction = Some("atrous".into());
+    weights.config.escaped = Some(escaped.into());
     assert_eq!(weights.config.mean_correction().unwrap(), MeanCorrection::Atrous);
     let (w, h) = (48, 36);
     let left = |x: u32| x < 20;
@@ -1209,6 +1250,7 @@ fn emission_background_models_take_the_emission_from_the_background() {
             emission: Some(DirectEmission {
                 footprint: footprint.clone(),
                 samples: samples.clone(),
+                escaped: None,
             }),
         });
         let folded = HostFrame {
@@ -1272,6 +1314,7 @@ fn a_configs_input_names_are_the_buffers_its_denoiser_takes() {
                     emission: Some(DirectEmission {
                         footprint,
                         samples: HostTensor::zeros(w, h, 3),
+                        escaped: None,
                     }),
                 });
                 data.push(f.pack_background().unwrap().unwrap());
@@ -1391,6 +1434,7 @@ fn the_mean_correction_sees_no_directly_seen_emission() {
             emission: Some(DirectEmission {
                 footprint: footprint.clone(),
                 samples,
+                escaped: None,
             }),
             ..background
         });
@@ -1414,12 +1458,26 @@ fn the_mean_correction_sees_no_directly_seen_emission() {
 /// through `denoise_host`, which folds them on the CPU.
 #[test]
 fn the_frame_loop_feeds_an_emission_model_the_folded_frame() {
+    check_frame_loop_fold("builtin:cornell", "background", "network");
+}
+
+/// The same for the shipped combination, config emission and escaped "background", on the
+/// white furnace (a sphere against a uniform sky; no emitter): the traced pixels whose
+/// sample escaped are left out of the frame the model is fed on the GPU as `denoise_host`
+/// leaves them out on the CPU, and some are.
+#[test]
+fn the_frame_loop_leaves_escaped_samples_to_the_background() {
+    check_frame_loop_fold("builtin:furnace", "background", "background");
+}
+
+fn check_frame_loop_fold(scene: &str, emission: &str, escaped: &str) {
     use subpixel::frame_loop::FrameLoop;
     use subpixel::render::{CameraPathSpec, FrameSettings, GpuScene, Mode, load_scene};
     let gpu = common::gpu();
     let mut weights = Weights::load(golden_weights_path()).unwrap();
-    weights.config.emission = Some("background".into());
-    let scene = load_scene("builtin:cornell").unwrap();
+    weights.config.emission = Some(emission.into());
+    weights.config.escaped = Some(escaped.into());
+    let scene = load_scene(scene).unwrap();
     let gs = GpuScene::new(&gpu, &scene).unwrap();
     let (w, h) = (32u32, 24u32);
     let (path, far) = scene
@@ -1442,13 +1500,20 @@ fn the_frame_loop_feeds_an_emission_model_the_folded_frame() {
             .and_then(|b| b.emission.as_ref())
             .expect("directly seen emission");
         let lit = |t: &HostTensor| t.data.iter().filter(|&&v| v > 0.0).count();
-        assert!(lit(&e.footprint) > 0, "frame {f}: the light is in view");
-        sampled += lit(&e.samples);
+        if escaped == "background" {
+            sampled += lit(e.escaped.as_ref().expect("the samples' escapes"));
+        } else {
+            assert!(lit(&e.footprint) > 0, "frame {f}: the light is in view");
+            sampled += lit(&e.samples);
+        }
         assert_eq!(
             frames.denoiser.read_output().unwrap(),
             host.denoise_host(&traced).unwrap(),
             "frame {f}"
         );
     }
-    assert!(sampled > 0, "no traced sample met the light in 4 frames");
+    assert!(
+        sampled > 0,
+        "no traced sample met the light (or the sky) in 4 frames"
+    );
 }

@@ -8,7 +8,7 @@ use crate::gpu::Gpu;
 use crate::io::exr::{FrameFile, read_frame, read_header, write_frame};
 use crate::io::frames::list_frames;
 use crate::io::png::write_png_row;
-use crate::ssr::{AlbedoSource, Denoiser, EmissionSource, Weights};
+use crate::ssr::{AlbedoSource, Denoiser, EmissionSource, EscapedSource, Weights};
 
 #[derive(clap::Args)]
 pub(super) struct DenoiseArgs {
@@ -154,11 +154,13 @@ fn denoise_all(
 ) -> Result<usize> {
     let mut with_background = 0;
     // With --no-background a footprint model keeps the background's albedo, and a model of
-    // emission "background" its directly seen emission, composited with no environment
-    // (radiance and coverage 0); any other model drops the background.
+    // emission or escaped "background" its directly seen emission, composited with no
+    // environment (radiance, coverage and the samples' escapes 0: every sample is fed to the
+    // network); any other model drops the background.
     let config = &den.network().config;
     let keep_albedo = config.albedo_source()? == AlbedoSource::Footprint
-        || config.emission_source()? == EmissionSource::Background;
+        || config.emission_source()? == EmissionSource::Background
+        || config.escaped_source()? == EscapedSource::Background;
     for path in frames {
         let mut file = read_frame(path)?;
         if let (true, Some(f)) = (a.no_background, file.frame.as_mut()) {
@@ -166,6 +168,9 @@ fn denoise_all(
                 Some(b) if keep_albedo => {
                     b.radiance.data.fill(0.0);
                     b.coverage.data.fill(0.0);
+                    if let Some(e) = b.emission.as_mut().and_then(|e| e.escaped.as_mut()) {
+                        e.data.fill(0.0);
+                    }
                 }
                 _ => f.background = None,
             }

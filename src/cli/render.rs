@@ -83,8 +83,9 @@ pub struct RenderArgs {
     /// (`background` channels), the fraction of the footprint that escapes (`coverage`) and
     /// the first-hit base colour averaged over it (`albedo_footprint`), from N x N
     /// stratified camera rays per pixel (no path tracing; the denoiser composites the
-    /// background). With `--resume`, frames written before without them get them added (by
-    /// the CPU twin).
+    /// background), and the directly seen emission (`emission_footprint`, and `emission`
+    /// and `escaped` for the traced samples). With `--resume`, frames written before without
+    /// some of them get them added (by the CPU twin).
     #[arg(long, value_name = "N", value_parser = clap::value_parser!(u32).range(1..))]
     pub background: Option<u32>,
     /// Camera path when neither `--path` nor the scene gives one (set by `subpixel
@@ -384,19 +385,32 @@ fn add_background(file: &Path, packed: &PackedScene, settings: &FrameSettings) -
         .frame
         .as_mut()
         .with_context(|| format!("{}: a frame file without the renderer's buffers", file.display()))?;
-    if frame
-        .background
-        .as_ref()
-        .is_some_and(|b| b.albedo.is_some() && b.emission.is_some())
-    {
-        return Ok(());
-    }
     let (w, h) = frame.size()?;
-    let made = CpuTracer::new(w, h)?.background(packed, settings)?;
+    let tracer = CpuTracer::new(w, h)?;
+    if let Some(e) = frame
+        .background
+        .as_mut()
+        .filter(|b| b.albedo.is_some())
+        .and_then(|b| b.emission.as_mut())
+    {
+        if e.escaped.is_some() {
+            return Ok(());
+        }
+        // Only the samples' escapes are missing: replay the camera rays.
+        e.escaped = Some(tracer.sample_first_hits(packed, settings).1);
+        return write_frame_atomically(file, &ff);
+    }
+    let made = tracer.background(packed, settings)?;
     match &mut frame.background {
         Some(b) => {
             b.albedo = b.albedo.take().or(made.albedo);
-            b.emission = b.emission.take().or(made.emission);
+            b.emission = match b.emission.take() {
+                Some(mut e) => {
+                    e.escaped = e.escaped.or(made.emission.and_then(|m| m.escaped));
+                    Some(e)
+                }
+                None => made.emission,
+            };
         }
         None => frame.background = Some(made),
     }

@@ -29,8 +29,28 @@ pub enum EmissionSource {
     /// The output pass: `color` leaves out the emission of the surfaces the camera rays meet
     /// first, and the denoiser's `emission` input holds that emission averaged over the
     /// pixel's footprint, which the output pass adds, so the emitters come without noise
-    /// and the network reconstructs only reflected light ([`HostFrame::fold_direct_emission`]
+    /// and the network reconstructs only reflected light ([`HostFrame::fold_directly_seen`]
     /// and [`HostFrame::pack_emission`] make such a frame from a full one).
+    Background,
+}
+
+/// Who reconstructs the traced samples whose camera ray escaped to the environment (a
+/// model's config `escaped`, [`crate::ssr::SsrConfig::escaped_source`]; absent: `network`).
+/// Such a sample's radiance is the environment along its ray, which the background
+/// ([`Background`]) already holds for the whole footprint: the output pass composites
+/// `background + (1 - coverage) x reconstruction`, so the reconstruction is of the part of
+/// the footprint that hits the scene. It sets what the caller feeds the denoiser as `color`.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum EscapedSource {
+    /// The network, from the samples: escaped samples are fed as any other (every model
+    /// before the option), so on a silhouette against the sky the reconstruction holds the
+    /// sky in proportion to the coverage and the composite counts it a second time.
+    Network,
+    /// The background composite: `color` and `mask` leave out a traced pixel whose samples
+    /// escaped (at least half of them, [`DirectEmission::escaped`]; colour and mask 0, as an
+    /// untraced pixel), so the network sees only samples of the part of the footprint that
+    /// hits the scene ([`HostFrame::fold_directly_seen`]); the mean correction compares
+    /// those samples with the reconstruction (`ssr/lib/traced`).
     Background,
 }
 
@@ -98,6 +118,13 @@ pub struct DirectEmission {
     /// First-hit emission of each traced pixel's own samples (3; channel `emission`; 0
     /// where not traced): the part of `color` that is emission seen directly.
     pub samples: HostTensor,
+    /// The fraction of each traced pixel's own samples whose camera ray escaped to the
+    /// environment (1; channel `escaped`; 0 where not traced): such a sample's radiance is the
+    /// environment seen directly, which the background already holds for the whole footprint
+    /// (a model of config escaped "background" is not fed them, [`HostFrame::fold_directly_seen`]).
+    /// `None` in frame files written before it existed (`subpixel dataset --background N
+    /// --resume` adds it).
+    pub escaped: Option<HostTensor>,
 }
 
 impl DirectEmission {
@@ -178,6 +205,8 @@ impl HostFrame {
                         ("emission_footprint", &e.footprint, 3),
                         ("emission", &e.samples, 3),
                     ]
+                    .into_iter()
+                    .chain(e.escaped.iter().map(|t| ("escaped", t, 1)))
                 }))
         });
         for (name, t, c) in self.fields().into_iter().chain(background) {
@@ -234,27 +263,61 @@ impl HostFrame {
         Ok(out)
     }
 
-    /// The frame as a model of `source` is fed it: itself for
-    /// [`EmissionSource::Network`]; for [`EmissionSource::Background`], `color` without the
-    /// traced samples' first-hit emission (at least 0), whose footprint average
-    /// ([`DirectEmission::footprint`], [`HostFrame::pack_emission`]) the output pass adds
-    /// instead; an error naming the buffers when the frame has no directly seen emission.
-    pub fn fold_direct_emission(&self, source: EmissionSource) -> Result<HostFrame> {
+    /// The frame as a model of config `emission` and `escaped` is fed it: itself for
+    /// [`EmissionSource::Network`] and [`EscapedSource::Network`]; for
+    /// [`EmissionSource::Background`], `color` without the traced samples' first-hit
+    /// emission (at least 0), whose footprint average ([`DirectEmission::footprint`],
+    /// [`HostFrame::pack_emission`]) the output pass adds instead; for
+    /// [`EscapedSource::Background`], the traced pixels at least half of whose samples
+    /// escaped to the environment ([`DirectEmission::escaped`]) left out (colour and mask
+    /// 0), the background holding what they saw (WGSL `ssr/fold_emission`). An error naming
+    /// the buffers when the frame lacks what the fold needs.
+    pub fn fold_directly_seen(&self, emission: EmissionSource, escaped: EscapedSource) -> Result<HostFrame> {
         self.size()?;
-        if source == EmissionSource::Network {
+        if (emission, escaped) == (EmissionSource::Network, EscapedSource::Network) {
             return Ok(self.clone());
         }
         let Some(e) = self.background.as_ref().and_then(|b| b.emission.as_ref()) else {
+            let what = if emission == EmissionSource::Background {
+                "takes the directly seen emission from the output pass (config emission \"background\")"
+            } else {
+                "leaves the samples that escaped to the environment to the background (config escaped \"background\")"
+            };
             return Err(Error::shape(
                 "frame",
-                "the model takes the directly seen emission from the output pass (config emission \"background\") \
-                 and the frame has none (buffers 'emission' and 'emission_footprint', written with the background: \
-                 `subpixel dataset --background N`)",
+                format!(
+                    "the model {what} and the frame has no directly seen emission (buffers 'emission' and \
+                     'emission_footprint', written with the background: `subpixel dataset --background N`)"
+                ),
             ));
         };
         let mut out = self.clone();
-        for (c, s) in out.color.data.iter_mut().zip(&e.samples.data) {
-            *c = (*c - s).max(0.0);
+        if emission == EmissionSource::Background {
+            for (c, s) in out.color.data.iter_mut().zip(&e.samples.data) {
+                *c = (*c - s).max(0.0);
+            }
+        }
+        if escaped == EscapedSource::Background {
+            let Some(esc) = &e.escaped else {
+                return Err(Error::shape(
+                    "frame",
+                    "the model leaves the samples that escaped to the environment to the background (config escaped \
+                     \"background\") and the frame does not say which escaped (buffer 'escaped', added by \
+                     `subpixel dataset --background N --resume`)",
+                ));
+            };
+            for ((c, m), a) in out
+                .color
+                .data
+                .chunks_exact_mut(3)
+                .zip(&mut out.mask.data)
+                .zip(&esc.data)
+            {
+                if *a >= 0.5 {
+                    c.fill(0.0);
+                    *m = 0.0;
+                }
+            }
         }
         Ok(out)
     }

@@ -8,5 +8,5 @@
 mod host;
 mod inputs;
 
-pub use host::{AlbedoSource, Background, DirectEmission, EmissionSource, HostFrame};
+pub use host::{AlbedoSource, Background, DirectEmission, EmissionSource, EscapedSource, HostFrame};
 pub use inputs::FrameInputs;

@@ -268,6 +268,9 @@ pub fn write_frame(path: &Path, f: &FrameFile) -> Result<()> {
             if let Some(e) = &b.emission {
                 tensors.push(("emission_footprint", &e.footprint));
                 tensors.push(("emission", &e.samples));
+                if let Some(a) = &e.escaped {
+                    tensors.push(("escaped", a));
+                }
             }
         }
     }
@@ -298,8 +301,19 @@ pub fn read_frame(path: &Path) -> Result<FrameFile> {
     let reference_half = get("reference_half", 3)?;
     let full = get("full", 3)?;
     let albedo = get("albedo_footprint", 3)?;
+    let escaped = get("escaped", 1)?;
     let emission = match (get("emission_footprint", 3)?, get("emission", 3)?) {
-        (Some(footprint), Some(samples)) => Some(DirectEmission { footprint, samples }),
+        (Some(footprint), Some(samples)) => Some(DirectEmission {
+            footprint,
+            samples,
+            escaped,
+        }),
+        (None, None) if escaped.is_some() => {
+            return Err(Error::File {
+                path: path.to_path_buf(),
+                message: "channel 'escaped.Y' without the directly seen emission it belongs to (emission.RGB, emission_footprint.RGB)".into(),
+            });
+        }
         (None, None) => None,
         (f, _) => {
             let (has, missing) = if f.is_none() {
@@ -451,6 +465,9 @@ mod tests {
                     emission: Some(DirectEmission {
                         footprint: HostTensor::from_fn(7, 5, 3, |x, y, c| (x * y + c) as f32 * 2.5),
                         samples: HostTensor::from_fn(7, 5, 3, |x, y, c| ((x + y) % 2 * (c + 1)) as f32 * 4.0),
+                        escaped: Some(HostTensor::from_fn(7, 5, 1, |x, y, _| {
+                            ((x + 2 * y) % 3) as f32 * 0.5
+                        })),
                     }),
                 }),
                 ..frame(7, 5)
@@ -556,6 +573,15 @@ mod tests {
         let e = read_err(&path);
         assert!(
             e.contains("frame_0001.exr") && e.contains("'emission.RGB' without 'emission_footprint.R'"),
+            "{e}"
+        );
+        // The samples' escapes without the emission they belong to.
+        let mut escaped = with_bg[..with_bg.len() - 1].to_vec();
+        escaped.push(("escaped", &coverage));
+        write_tensors(&path, &escaped).unwrap();
+        let e = read_err(&path);
+        assert!(
+            e.contains("frame_0001.exr") && e.contains("'escaped.Y' without the directly seen emission"),
             "{e}"
         );
         let mut no_bg: Vec<(&str, &HostTensor)> = fields.iter().map(|(n, t, _)| (*n, *t)).collect();

@@ -79,8 +79,9 @@ pub struct FrameBuffers {
     /// with the footprint albedo, for models that use it (config `albedo`).
     pub albedo_footprint: Option<Tensor>,
     /// (first-hit emission of the traced samples, the part of `color_mask` that is emission
-    /// seen directly, 0 where not traced; 0), present with the background
-    /// ([`crate::frame::DirectEmission::samples`]).
+    /// seen directly, 0 where not traced; the fraction of those samples whose camera ray
+    /// escaped), present with the background ([`crate::frame::DirectEmission::samples`],
+    /// [`crate::frame::DirectEmission::escaped`]).
     pub sample_emission: Option<Tensor>,
     /// (first-hit emission averaged over the background's footprint rays, and over
     /// [`super::EMISSION_OUTLINE_RAYS`] per axis on emitters' outlines; 0), present with the
@@ -149,10 +150,14 @@ impl FrameBuffers {
                     None => None,
                 };
                 let emission = match (&self.sample_emission, &self.emission_footprint) {
-                    (Some(e), Some(f)) => Some(DirectEmission {
-                        footprint: channels(&f.read(gpu)?, &[0, 1, 2]),
-                        samples: channels(&e.read(gpu)?, &[0, 1, 2]),
-                    }),
+                    (Some(e), Some(f)) => {
+                        let e = e.read(gpu)?;
+                        Some(DirectEmission {
+                            footprint: channels(&f.read(gpu)?, &[0, 1, 2]),
+                            samples: channels(&e, &[0, 1, 2]),
+                            escaped: Some(channels(&e, &[3])),
+                        })
+                    }
                     _ => None,
                 };
                 Some(Background {

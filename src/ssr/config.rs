@@ -3,7 +3,7 @@
 use serde::{Deserialize, Serialize};
 
 use crate::error::{Error, Result};
-pub use crate::frame::{AlbedoSource, EmissionSource};
+pub use crate::frame::{AlbedoSource, EmissionSource, EscapedSource};
 use crate::nn::ops::{Activation, PoolMode, UpsampleMode};
 
 /// Channels of the accumulated feature set A (DESIGN §4).
@@ -186,6 +186,10 @@ pub struct SsrConfig {
     /// ([`EmissionSource`]).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub emission: Option<String>,
+    /// Version 2, optional (absent: `"network"`): `"network"` or `"background"`
+    /// ([`EscapedSource`]).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub escaped: Option<String>,
 }
 
 impl Default for SsrConfig {
@@ -205,6 +209,7 @@ impl Default for SsrConfig {
             mean_correction: Some("none".into()),
             albedo: Some("centre".into()),
             emission: Some("network".into()),
+            escaped: Some("network".into()),
         }
     }
 }
@@ -300,6 +305,7 @@ impl SsrConfig {
         self.mean_correction()?;
         self.albedo_source()?;
         self.emission_source()?;
+        self.escaped_source()?;
         if self.ceiling_mode()? == CeilingMode::Max && self.exposure_mode()? != ExposureMode::Channel {
             return bad(
                 "ceiling \"max\" needs exposure \"channel\" (the running max lives in the exposure state)"
@@ -319,10 +325,11 @@ impl SsrConfig {
 
     /// The version-2 options that came after the first version-2 weights (optional: absent,
     /// each reads as its first choice).
-    fn late_options(&self) -> [(&'static str, &Option<String>); 4] {
+    fn late_options(&self) -> [(&'static str, &Option<String>); 5] {
         [
             ("albedo", &self.albedo),
             ("emission", &self.emission),
+            ("escaped", &self.escaped),
             ("mean_correction", &self.mean_correction),
             ("ceiling", &self.ceiling),
         ]
@@ -352,6 +359,7 @@ impl SsrConfig {
             mean_correction: None,
             albedo: None,
             emission: None,
+            escaped: None,
             ..self.clone()
         }
     }
@@ -375,21 +383,34 @@ impl SsrConfig {
         choose("emission", self.emission.as_deref(), &choices)
     }
 
+    /// Who reconstructs the traced samples whose camera ray escaped to the environment
+    /// (version 1 and files without the option: the network).
+    pub fn escaped_source(&self) -> Result<EscapedSource> {
+        let choices = [
+            ("network", EscapedSource::Network),
+            ("background", EscapedSource::Background),
+        ];
+        choose("escaped", self.escaped.as_deref(), &choices)
+    }
+
     /// The input buffers every frame of this model needs, in [`FrameInputs::from_slice`]'s
     /// order (a prefix of [`FrameInputs::ALL_NAMES`]): the six of [`FrameInputs::NAMES`], and
     /// `background` and `emission` for a model of config emission "background" (which draws
     /// the directly seen emission itself; zero buffers where no sky and no emitter are in
-    /// view). The background stays optional for the others: with it, the output is
-    /// composited over the directly seen environment.
+    /// view), `background` for one of config escaped "background" (whose samples leave out
+    /// the environment the background holds). The background stays optional for the
+    /// others: with it, the output is composited over the directly seen environment.
     ///
     /// [`FrameInputs::from_slice`]: crate::frame::FrameInputs::from_slice
     /// [`FrameInputs::ALL_NAMES`]: crate::frame::FrameInputs::ALL_NAMES
     /// [`FrameInputs::NAMES`]: crate::frame::FrameInputs::NAMES
     pub fn input_names(&self) -> Result<&'static [&'static str]> {
         use crate::frame::FrameInputs;
-        Ok(match self.emission_source()? {
-            EmissionSource::Network => &FrameInputs::ALL_NAMES[..FrameInputs::NAMES.len()],
-            EmissionSource::Background => &FrameInputs::ALL_NAMES,
+        let six = FrameInputs::NAMES.len();
+        Ok(match (self.emission_source()?, self.escaped_source()?) {
+            (EmissionSource::Background, _) => &FrameInputs::ALL_NAMES,
+            (EmissionSource::Network, EscapedSource::Background) => &FrameInputs::ALL_NAMES[..six + 1],
+            (EmissionSource::Network, EscapedSource::Network) => &FrameInputs::ALL_NAMES[..six],
         })
     }
 

@@ -5,7 +5,8 @@ use bytemuck::{Pod, Zeroable};
 
 use super::config::{
     ATROUS_DECAY, ATROUS_DEPTH_SIGMA, ATROUS_EPS, ATROUS_LEVELS, ATROUS_NORMAL_SQUARINGS, CEILING_DECAY,
-    EmissionSource, ExposureMode, MEAN_EPS, MEAN_HI, MEAN_LO, MEAN_RING, MEAN_TILE, MeanCorrection,
+    EmissionSource, EscapedSource, ExposureMode, MEAN_EPS, MEAN_HI, MEAN_LO, MEAN_RING, MEAN_TILE,
+    MeanCorrection,
 };
 pub use super::network::Granularity;
 use super::network::StepCost;
@@ -318,6 +319,14 @@ impl Denoiser {
     /// of config emission "background" (an error naming the buffers without it or without a
     /// background), none for others.
     fn emission_input<'b>(&self, inputs: &FrameInputs<'b>) -> Result<Option<&'b wgpu::Buffer>> {
+        if self.net.config.escaped_source()? == EscapedSource::Background && inputs.background.is_none() {
+            return Err(Error::shape(
+                "denoiser input",
+                "the model leaves the samples that escaped to the environment to the background (config escaped \
+                 \"background\"): give FrameInputs::background (and a colour without the traced pixels whose \
+                 samples escaped)",
+            ));
+        }
         if self.net.config.emission_source()? == EmissionSource::Network {
             return Ok(None);
         }
@@ -394,9 +403,13 @@ impl Denoiser {
         let Some(m) = &self.mean else {
             return Ok(None);
         };
+        // A model of config escaped "background" is fed only the samples that hit the scene.
+        let escaped = self.net.config.escaped_source()? == EscapedSource::Background;
+        let escaped = ("ESCAPED", (escaped && background.is_some()) as u32 as f64);
         if let Some(a) = &m.filter {
             let spec = Specialisation(vec![
                 ("BACKGROUND", background.is_some() as u32 as f64),
+                escaped,
                 ("DECAY", ATROUS_DECAY as f64),
             ]);
             let mut out = Vec::new();
@@ -424,6 +437,7 @@ impl Denoiser {
         }
         let spec = Specialisation(vec![
             ("BACKGROUND", background.is_some() as u32 as f64),
+            escaped,
             ("TILE", m.side as f64),
             ("RING", MEAN_RING as f64),
             ("EPS", MEAN_EPS as f64),
@@ -844,7 +858,8 @@ impl Denoiser {
     /// returns the output (3 channels, `width x height`). A model of config albedo
     /// `footprint` takes the frame's footprint albedo ([`HostFrame::pack`]); one of config
     /// emission `background` is fed the colour without the samples' directly seen emission
-    /// ([`HostFrame::fold_direct_emission`]) and the footprint's as `emission`.
+    /// and the footprint's as `emission`, one of config escaped `background` the samples
+    /// without those that escaped to the environment ([`HostFrame::fold_directly_seen`]).
     pub fn denoise_host(&mut self, frame: &HostFrame) -> Result<HostTensor> {
         let (w, h) = frame.size()?;
         if (w, h) != (self.width, self.height) {
@@ -857,10 +872,11 @@ impl Denoiser {
             ));
         }
         // A model of config emission "background" gets the colour without the samples'
-        // directly seen emission, and the footprint's for the output pass, as the frame
-        // loop feeds it.
+        // directly seen emission, and the footprint's for the output pass, one of config
+        // escaped "background" the samples without those that escaped, as the frame loop
+        // feeds them.
         let source = self.net.config.emission_source()?;
-        let frame = frame.fold_direct_emission(source)?;
+        let frame = frame.fold_directly_seen(source, self.net.config.escaped_source()?)?;
         let packed = frame.pack(self.net.config.albedo_source()?)?;
         let background = frame.pack_background()?;
         let emission = match source {

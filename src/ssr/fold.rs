@@ -1,11 +1,14 @@
-//! The colour a model of config emission "background" is fed, on the GPU: the tracer's
-//! colour without the traced samples' first-hit emission (`ssr/fold_emission`; CPU reference
-//! [`crate::frame::HostFrame::fold_direct_emission`]); the denoiser's output pass adds the
-//! footprint's emission instead ([`crate::frame::FrameInputs::emission`]).
+//! The colour a model of config emission "background" or escaped "background" is fed, on
+//! the GPU (`ssr/fold_emission`; CPU reference [`crate::frame::HostFrame::fold_directly_seen`]):
+//! the tracer's colour without the traced samples' first-hit emission, which the denoiser's
+//! output pass adds from the footprint instead ([`crate::frame::FrameInputs::emission`]),
+//! and without the traced pixels whose samples escaped to the environment, which the
+//! background holds ([`crate::frame::EscapedSource`]).
 
 use bytemuck::{Pod, Zeroable};
 
 use crate::error::Result;
+use crate::frame::{EmissionSource, EscapedSource};
 use crate::gpu::{Bound, Dispatch, Gpu, Grid, Specialisation};
 use crate::nn::Tensor;
 
@@ -17,8 +20,10 @@ pub struct FoldParams {
     pub width: u32,
     /// Frame height.
     pub height: u32,
-    /// Padding.
-    pub pad: [u32; 2],
+    /// 1: take the samples' first-hit emission out of the colour.
+    pub emission: u32,
+    /// 1: leave out the traced pixels at least half of whose samples escaped.
+    pub escaped: u32,
 }
 
 /// The folded colour of one frame size, and the pass that writes it (bound once per pair of
@@ -26,38 +31,49 @@ pub struct FoldParams {
 #[derive(Debug)]
 pub struct EmissionFold {
     gpu: Gpu,
-    /// Colour without the traced samples' first-hit emission (rgb, at least 0) + mask.
+    /// The colour (rgb, at least 0) + mask a model is fed.
     pub color_mask: Tensor,
+    params: FoldParams,
     bound: Bound<[wgpu::Buffer; 2], Dispatch>,
 }
 
 impl EmissionFold {
-    /// Output buffers for `width x height` frames.
-    pub fn new(gpu: &Gpu, width: u32, height: u32) -> Result<Self> {
+    /// Output buffers for `width x height` frames of a model of configs `emission` and
+    /// `escaped` (the pass folds what they leave to the output pass; with both `network`
+    /// it copies).
+    pub fn new(
+        gpu: &Gpu,
+        width: u32,
+        height: u32,
+        emission: EmissionSource,
+        escaped: EscapedSource,
+    ) -> Result<Self> {
         Ok(Self {
             gpu: gpu.clone(),
             color_mask: Tensor::new(gpu, "fold.color_mask", width, height, 4)?,
+            params: FoldParams {
+                width,
+                height,
+                emission: (emission == EmissionSource::Background) as u32,
+                escaped: (escaped == EscapedSource::Background) as u32,
+            },
             bound: Bound::new(),
         })
     }
 
-    /// The pass writing a frame's `color_mask` without its samples' first-hit emission
-    /// (`sample_emission`; each `width x height` vec4) into [`EmissionFold::color_mask`],
-    /// built at the first call with these buffers and reused after.
+    /// The pass writing a frame's `color_mask` as the model is fed it (from the tracer's
+    /// `sample_emission`: the samples' first-hit emission and escaped fraction; each
+    /// `width x height` vec4) into [`EmissionFold::color_mask`], built at the first call
+    /// with these buffers and reused after.
     pub fn dispatch(
         &mut self,
         color_mask: &wgpu::Buffer,
         sample_emission: &wgpu::Buffer,
     ) -> Result<&Dispatch> {
         let (width, height) = (self.color_mask.width, self.color_mask.height);
-        let (gpu, out) = (&self.gpu, &self.color_mask.buffer);
+        let (gpu, out, params) = (&self.gpu, &self.color_mask.buffer, self.params);
         self.bound
             .get_or_build([color_mask.clone(), sample_emission.clone()], || {
-                let params = FoldParams {
-                    width,
-                    height,
-                    pad: [0; 2],
-                };
                 gpu.kernels.dispatch(
                     "ssr/fold_emission",
                     &Specialisation::none(),

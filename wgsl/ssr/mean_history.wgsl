@@ -10,6 +10,7 @@
 // the next frame reads as `prev`.
 //
 //#param BACKGROUND 0
+//#param ESCAPED 0
 
 // Params: ssr/lib/output (`tiles_x`, `tiles_y` and `slot` unused).
 

@@ -10,6 +10,7 @@
 // goes to factors[tile] (w = 1); store_output applies it, interpolated between tile centres.
 //
 //#param BACKGROUND 0
+//#param ESCAPED 0
 
 // Params, TILE: ssr/lib/output.
 

@@ -13,8 +13,10 @@
 // visibility (0 when occluded or when no light could be sampled).
 // In frames with a background (accum.z > 0), sample_emission.xyz gets the samples' first-hit
 // emission (the part of color_mask.xyz that is emission seen directly; 0 where not traced):
-// the `emission` half of the directly seen emission (DESIGN.md section 3; CPU twin:
-// `first_hit_emission` in src/render/cpu/integrator.rs).
+// the `emission` half of the directly seen emission (DESIGN.md section 3), and
+// sample_emission.w the fraction of the samples whose camera ray escaped to the environment
+// (hit nothing; 0 where not traced), whose radiance is then the environment seen directly
+// (CPU twin: `first_hit` in src/render/cpu/integrator.rs).
 
 @group(0) @binding(0) var<uniform> p: FrameParams;
 // The scene at bindings 1-7 (trace/lib/scene.wgsl).
@@ -29,6 +31,8 @@ struct PathResult {
     shadow: vec3<f32>,
     // The emission of the surface the camera ray meets first (part of radiance).
     emission: vec3<f32>,
+    // 1 where the camera ray hits nothing (its radiance is the environment's), else 0.
+    escaped: f32,
 }
 
 fn rand3(state: ptr<function, u32>) -> vec3<f32> {
@@ -75,7 +79,7 @@ fn transmittance(o: vec3<f32>, d: vec3<f32>, dist: f32, skip: u32) -> vec4<f32> 
 }
 
 fn trace_path(o: vec3<f32>, d0: vec3<f32>, rng: ptr<function, u32>) -> PathResult {
-    var res = PathResult(vec3<f32>(0.0), vec3<f32>(0.0), vec3<f32>(0.0));
+    var res = PathResult(vec3<f32>(0.0), vec3<f32>(0.0), vec3<f32>(0.0), 0.0);
     var ro = o;
     var rd = d0;
     var skip = NO_HIT;
@@ -98,6 +102,9 @@ fn trace_path(o: vec3<f32>, d0: vec3<f32>, rng: ptr<function, u32>) -> PathResul
         }
         let hit = traverse(ro, rd, BIG, false, skip);
         if (hit.prim == NO_HIT) {
+            if (depth == 1u && passes == 0u) {
+                res.escaped = 1.0;
+            }
             if (env_present()) {
                 var w = 1.0;
                 if (depth > 1u) {
@@ -207,7 +214,7 @@ fn trace_path(o: vec3<f32>, d0: vec3<f32>, rng: ptr<function, u32>) -> PathResul
 fn pixel_samples(x: u32, y: u32, first: u32, count: u32) -> PathResult {
     let w = p.size.x;
     let size = vec2<f32>(f32(w), f32(p.size.y));
-    var sum = PathResult(vec3<f32>(0.0), vec3<f32>(0.0), vec3<f32>(0.0));
+    var sum = PathResult(vec3<f32>(0.0), vec3<f32>(0.0), vec3<f32>(0.0), 0.0);
     for (var k = 0u; k < count; k++) {
         var rng = rng_seed(y * w + x, p.size.z, first + k, p.size.w);
         let jitter = rand2(&rng);
@@ -216,9 +223,10 @@ fn pixel_samples(x: u32, y: u32, first: u32, count: u32) -> PathResult {
         sum.radiance += r.radiance;
         sum.shadow += r.shadow;
         sum.emission += r.emission;
+        sum.escaped += r.escaped;
     }
     let inv = 1.0 / f32(max(count, 1u));
-    return PathResult(sum.radiance * inv, sum.shadow * inv, sum.emission * inv);
+    return PathResult(sum.radiance * inv, sum.shadow * inv, sum.emission * inv, sum.escaped * inv);
 }
 
 @compute @workgroup_size(8, 8, 1)
@@ -257,19 +265,19 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>) {
     let r = pixel_samples(x, y, done, count);
     var c = r.radiance;
     var sh = r.shadow;
-    var e = r.emission;
+    var e = vec4<f32>(r.emission, r.escaped);
     if (done > 0u) {
         let a = f32(done) / f32(done + count);
         c = mix(c, color_mask[i].rgb, a);
         sh = mix(sh, shadow_roughness[i].xyz, a);
         if (p.accum.z > 0u) {
-            e = mix(e, sample_emission[i].xyz, a);
+            e = mix(e, sample_emission[i], a);
         }
     }
     color_mask[i] = vec4<f32>(c, 1.0);
     shadow_roughness[i] = vec4<f32>(sh, shadow_roughness[i].w);
     if (p.accum.z > 0u) {
-        sample_emission[i] = vec4<f32>(e, 0.0);
+        sample_emission[i] = e;
     }
     atomicAdd(&counters[0], rays_traced);
 }

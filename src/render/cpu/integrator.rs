@@ -370,12 +370,14 @@ pub(crate) fn footprint_emission(
     emission / (n * n) as f32
 }
 
-/// The first-hit emission of samples `first .. first + count` of pixel (x, y), averaged:
-/// the emission of the surface each sample's camera ray meets first (before any scattering
-/// or straight-through passing), which [`trace_path`] adds to the sample's radiance with
-/// weight 1. Replays only the camera rays, with the same random numbers.
+/// What samples `first .. first + count` of pixel (x, y) see first, averaged: the emission
+/// of the surface each sample's camera ray meets (before any scattering or straight-through
+/// passing), which [`trace_path`] adds to the sample's radiance with weight 1, and the
+/// fraction of the camera rays that escape (hit nothing: their radiance is the environment
+/// along them; WGSL `PathResult.escaped`). Replays only the camera rays, with the same random
+/// numbers.
 #[allow(clippy::too_many_arguments)]
-pub(crate) fn first_hit_emission(
+pub(crate) fn first_hit(
     sc: &PackedScene,
     p: &Params,
     x: u32,
@@ -383,16 +385,19 @@ pub(crate) fn first_hit_emission(
     first: u32,
     count: u32,
     rays: &mut u64,
-) -> Vec3 {
-    let mut sum = Vec3::ZERO;
+) -> (Vec3, f32) {
+    let (mut sum, mut escaped) = (Vec3::ZERO, 0u32);
     for k in 0..count {
         let (_, d) = sample_ray(p, x, y, first + k);
         let hit = traverse(sc, v3(p.cam.pos), d, BIG, false, NO_HIT, rays);
-        if hit.prim != NO_HIT {
+        if hit.prim == NO_HIT {
+            escaped += 1;
+        } else {
             sum += surface_at(sc, &hit, d).emission;
         }
     }
-    sum / count.max(1) as f32
+    let inv = 1.0 / count.max(1) as f32;
+    (sum * inv, escaped as f32 * inv)
 }
 
 /// The G-buffer values of pixel (x, y) whose primary ray (direction `d`) has hit `hit`.

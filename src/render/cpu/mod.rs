@@ -321,9 +321,11 @@ impl CpuTracer {
             HostTensor::from_vec(w, h, 3, px.iter().flat_map(|q| f(q).to_array()).collect())
         };
         let coverage = px.iter().map(|q| q.coverage).collect();
+        let (samples, escaped) = self.sample_first_hits(scene, s);
         let mut emission = DirectEmission {
             footprint: gather(|q| q.emission),
-            samples: self.sample_emission(scene, s),
+            samples,
+            escaped: Some(escaped),
         };
         if n < EMISSION_OUTLINE_RAYS {
             // The outline's pixels again with more rays (WGSL `trace/emission_outline`).
@@ -350,10 +352,12 @@ impl CpuTracer {
         })
     }
 
-    /// First-hit emission of the samples frame `s` traces (one per traced pixel in quarter
-    /// and full frames, `s.spp` in reference frames, averaged; 0 where not traced): the part
-    /// of the frame's `color` that is emission seen directly. Replays the camera rays only.
-    pub fn sample_emission(&self, scene: &PackedScene, s: &FrameSettings) -> HostTensor {
+    /// What the samples frame `s` traces (one per traced pixel in quarter and full frames,
+    /// `s.spp` in reference frames) see first, averaged, 0 where not traced: their first-hit
+    /// emission (3 channels; the part of the frame's `color` that is emission seen directly,
+    /// [`DirectEmission::samples`]) and the fraction of them whose camera ray escaped (1
+    /// channel, [`DirectEmission::escaped`]). Replays the camera rays only.
+    pub fn sample_first_hits(&self, scene: &PackedScene, s: &FrameSettings) -> (HostTensor, HostTensor) {
         let (w, h) = (self.width, self.height);
         let p = self.params(s, s.seed);
         let (dx, dy) = tile_offset(s.frame);
@@ -361,22 +365,26 @@ impl CpuTracer {
             Mode::Reference => s.spp.max(1),
             _ => 1,
         };
-        let data: Vec<f32> = (0..h)
+        let hits: Vec<(glam::Vec3A, f32)> = (0..h)
             .into_par_iter()
             .flat_map_iter(|y| {
                 let p = &p;
-                (0..w).flat_map(move |x| {
+                (0..w).map(move |x| {
                     let traced = s.mode != Mode::Quarter || (x % 2 == dx && y % 2 == dy);
-                    let e = if traced {
-                        integrator::first_hit_emission(scene, p, x, y, 0, spp, &mut 0)
+                    if traced {
+                        integrator::first_hit(scene, p, x, y, 0, spp, &mut 0)
                     } else {
-                        glam::Vec3A::ZERO
-                    };
-                    e.to_array()
+                        (glam::Vec3A::ZERO, 0.0)
+                    }
                 })
             })
             .collect();
-        HostTensor::from_vec(w, h, 3, data)
+        let emission = hits.iter().flat_map(|(e, _)| e.to_array()).collect();
+        let escaped = hits.iter().map(|(_, a)| *a).collect();
+        (
+            HostTensor::from_vec(w, h, 3, emission),
+            HostTensor::from_vec(w, h, 1, escaped),
+        )
     }
 
     /// Radiance of samples `first .. first + count` per pixel of frame `s` with `seed`.
