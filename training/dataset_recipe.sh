@@ -42,7 +42,9 @@
 # scenes, e.g. before they exist), NOISE_TARGET=DB (each reference doubles its samples until
 # the PSNR between its halves reaches DB, `subpixel dataset --reference-noise-target`; up to
 # SPP_MAX, default 16 x its base count: about 12x the samples on average for 40 dB on val,
-# training/README.md, so meant for a GPU). Finished frames are skipped, so re-running continues;
+# training/README.md, so meant for a GPU), ONLY_EXISTING=1 (visit only the sequences already
+# complete in OUT, rendering nothing new: with BACKGROUND, adds the channels frames written
+# before lack, e.g. the samples' `escaped`). Finished frames are skipped, so re-running continues;
 # each frame is written atomically. A build for the machine's own CPU renders 5-8 % faster
 # still (CARGO_TARGET_DIR=~/work-data/target-native RUSTFLAGS="-C target-cpu=native" cargo
 # build --profile dist, then SUBPIXEL=~/work-data/target-native/dist/subpixel), but its
@@ -94,6 +96,12 @@ render() {
   h=$(printf '%s %s %s' "$scene" "$split" "$k" | cksum | cut -d' ' -f1)
   if [ $((h % shard_n)) -ne "$shard_k" ]; then
     return 0
+  fi
+  if [ "${ONLY_EXISTING:-0}" = 1 ]; then
+    local name dir
+    name="$(basename "${scene#builtin:}")"
+    dir="$out/$split/${name//:/_}_${split}_$(printf '%03d' "$k")"
+    [ -f "$dir/sequence.json" ] && [ -f "$dir/$(printf 'frame_%04d.exr' $((frames - 1)))" ] || return 0
   fi
   if [ -e "$out/STOP" ]; then
     echo "== $(date -u +%FT%TZ) $out/STOP exists: stopping before $split $scene sequence $k"

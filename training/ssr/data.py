@@ -114,6 +114,7 @@ EXTRA_SUFFIXES: Dict[str, Tuple[str, ...]] = {
     "albedo_footprint": ("R", "G", "B"),
     "emission": ("R", "G", "B"),
     "emission_footprint": ("R", "G", "B"),
+    "escaped": ("Y",),
 }
 """Buffers some datasets also hold, loaded on request (`SequenceDataset(extra=...)`): `full`
 (the 1-spp frame of the recipe), `reference_half` (the mean of the reference's first half
@@ -124,7 +125,10 @@ written with the background since it existed, added to older frames by re-runnin
 same `dataset --background N` command), `emission` (the first-hit emission of each traced
 pixel's own samples: the part of `color` that is emission seen directly) and
 `emission_footprint` (the first-hit emission averaged over the background's footprint),
-written with the background, added to older frames the same way."""
+written with the background, added to older frames the same way, and `escaped` (the
+fraction of each traced pixel's samples whose camera ray escaped to the environment, 0
+where not traced), added to frames written before it by the same command with `--resume`
+(`dataset_recipe.sh` with ONLY_EXISTING=1)."""
 
 
 RGB_BUFFERS = frozenset(b for b, s in {**SUFFIXES, **EXTRA_SUFFIXES}.items() if s == ("R", "G", "B"))

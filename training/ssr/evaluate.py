@@ -96,8 +96,6 @@ def run_model(
     multiple = getattr(model, "pad_multiple", 4)
     cfg = getattr(model, "cfg", None)
     extra_buffers = tuple(getattr(model, "extra_buffers", ()))
-    if getattr(cfg, "emission", "network") == "background":
-        extra_buffers += ("background", "coverage")  # the output pass composites the emitters over them
     for si, seq in enumerate(ds.sequences):
         t0 = time.time()
         folder = os.path.join(out, name, seq.split, seq.name) if out else None

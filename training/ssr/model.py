@@ -94,7 +94,7 @@ CONFIG_VERSION = 2
 
 LEGACY_OPTIONS: Dict[str, str] = {
     "exposure": "none", "remodulation": "accumulated", "history": "screen", "ceiling": "none", "mean_correction": "none",
-    "albedo": "centre", "emission": "network",
+    "albedo": "centre", "emission": "network", "escaped": "network",
 }
 """What version-1 weights were trained with: absolute radiance in, output remodulated with the
 accumulated albedo, history rejected only off screen, no output ceiling."""
@@ -107,12 +107,15 @@ OPTION_VALUES: Dict[str, Tuple[str, ...]] = {
     "mean_correction": ("none", "tiles", "tiles16", "atrous"),
     "albedo": ("centre", "footprint"),
     "emission": ("network", "background"),
+    "escaped": ("network", "background"),
 }
 
-LATE_OPTIONS: Dict[str, str] = {"ceiling": "none", "mean_correction": "none", "albedo": "centre", "emission": "network"}
+LATE_OPTIONS: Dict[str, str] = {
+    "ceiling": "none", "mean_correction": "none", "albedo": "centre", "emission": "network", "escaped": "network",
+}
 """Version-2 options added after the first version-2 weights: absent, they take this value."""
 
-FINE_TUNE_OPTIONS: Tuple[str, ...] = ("albedo", "emission")
+FINE_TUNE_OPTIONS: Tuple[str, ...] = ("albedo", "emission", "escaped")
 """Options that change what the network is fed but not its parameters: a run started from
 weights (`ssr.train --init`) may set them differently from the file, fine-tuning it."""
 
@@ -179,6 +182,10 @@ class SSRConfig:
     # directly: the network, from the samples, or the background composite, from the
     # footprint (`fold_emission`)
     emission: str = "network"
+    # "network" | "background": who reconstructs the traced samples whose camera ray escaped
+    # to the environment: the network, fed them as any other, or the background composite,
+    # which holds the environment of the whole footprint (`fold_emission` leaves them out)
+    escaped: str = "network"
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "enc", tuple(int(c) for c in self.enc))
@@ -281,13 +288,20 @@ DIRECT_EMISSION = ("emission", "emission_footprint")
 """The frame buffers (data.EXTRA_SUFFIXES) config `emission = "background"` folds into the
 colour and the background (`fold_emission`)."""
 
+ESCAPED = ("escaped", "background", "coverage")
+"""The frame buffers config `escaped = "background"` reads: which traced samples escaped to
+the environment (`fold_emission` leaves them out), and the background that holds it."""
+
 
 def extra_buffers(cfg: SSRConfig) -> Tuple[str, ...]:
     """Buffers beyond data.BUFFERS a model of config `cfg` reads (load them with
-    `SequenceDataset(extra=...)`, or per frame file with data.read_extra_buffers)."""
+    `SequenceDataset(extra=...)`, or per frame file with data.read_extra_buffers), each once:
+    with emission or escaped "background", the background and coverage the fold and the
+    composite read too."""
     albedo = (FOOTPRINT_ALBEDO,) if cfg.albedo == "footprint" else ()
-    emission = DIRECT_EMISSION if getattr(cfg, "emission", "network") == "background" else ()
-    return albedo + emission
+    emission = DIRECT_EMISSION + ("background", "coverage") if getattr(cfg, "emission", "network") == "background" else ()
+    escaped = ESCAPED if getattr(cfg, "escaped", "network") == "background" else ()
+    return tuple(dict.fromkeys(albedo + emission + escaped))
 
 
 COMPOSITE_EMISSION = "composite_emission"
@@ -297,27 +311,40 @@ COMPOSITE_EMISSION = "composite_emission"
 
 def fold_emission(frame: Dict[str, torch.Tensor], cfg: Optional[SSRConfig]) -> Dict[str, torch.Tensor]:
     """`frame` as a model of config `cfg` is fed it (the engine's frame loop, and `subpixel
-    denoise` on frame files, feed the same): itself for `emission = "network"`; for
-    "background", the colour without each traced sample's first-hit emission (`emission`, the
-    part of `color` that is emission seen directly), and the first-hit emission averaged over
-    the background's footprint (`emission_footprint`) under COMPOSITE_EMISSION, which the
-    output pass adds (`composite_background`, `MeanCorrection`). The network then
-    reconstructs only reflected light, and the emitters come back without noise. A KeyError
+    denoise` on frame files, feed the same; WGSL ssr/fold_emission): itself for `emission =
+    "network"` and `escaped = "network"`; for emission "background", the colour without each
+    traced sample's first-hit emission (`emission`, the part of `color` that is emission seen
+    directly), and the first-hit emission averaged over the background's footprint
+    (`emission_footprint`) under COMPOSITE_EMISSION, which the output pass adds
+    (`composite_background`, `MeanCorrection`): the network then reconstructs only reflected
+    light, and the emitters come back without noise; for escaped "background", the traced
+    pixels at least half of whose samples escaped to the environment (`escaped` >= 1/2) left
+    out (colour and mask 0, as untraced pixels): the background holds the environment of the
+    whole footprint, and the network reconstructs the part that hits the scene. A KeyError
     names a missing buffer and the command that writes it. Call it once per frame, before the
     model and the output pass."""
-    if cfg is None or getattr(cfg, "emission", "network") == "network":
+    emission = cfg is not None and getattr(cfg, "emission", "network") == "background"
+    escaped = cfg is not None and getattr(cfg, "escaped", "network") == "background"
+    if not emission and not escaped:
         return frame
-    missing = [b for b in DIRECT_EMISSION + ("background", "coverage") if b not in frame]
+    need = (DIRECT_EMISSION + ("background", "coverage") if emission else ()) + (ESCAPED if escaped else ())
+    missing = [b for b in dict.fromkeys(need) if b not in frame]
     if missing:
+        which = "emission" if emission and any(b in DIRECT_EMISSION for b in missing) else "escaped"
         raise KeyError(
-            f"config emission = \"background\" needs the frames' {missing} buffer(s) (written by "
-            "`subpixel dataset --background N`; load them with SequenceDataset(extra=...))"
+            f"config {which} = \"background\" needs the frames' {missing} buffer(s) (written by "
+            "`subpixel dataset --background N`, `escaped` added to older frames by re-running it with "
+            "--resume; load them with SequenceDataset(extra=...))"
         )
-    return {
-        **frame,
-        "color": (frame["color"] - frame["emission"]).clamp_min(0.0),
-        COMPOSITE_EMISSION: frame["emission_footprint"],
-    }
+    out = dict(frame)
+    if emission:
+        out["color"] = (frame["color"] - frame["emission"]).clamp_min(0.0)
+        out[COMPOSITE_EMISSION] = frame["emission_footprint"]
+    if escaped:
+        keep = ~(frame["escaped"] >= 0.5)
+        out["color"] = torch.where(keep, out["color"], torch.zeros_like(out["color"]))
+        out["mask"] = torch.where(keep, frame["mask"], torch.zeros_like(frame["mask"]))
+    return out
 
 
 def use_albedo(frame: Dict[str, torch.Tensor], cfg: SSRConfig) -> Dict[str, torch.Tensor]:
@@ -356,6 +383,18 @@ def remodulate(o: torch.Tensor, albedo: torch.Tensor) -> torch.Tensor:
     return torch.clamp(torch.exp(o) - 1.0, min=0.0) * (torch.clamp(albedo, min=0.0) + ALBEDO_EPS)
 
 
+def traced_samples(frame: Dict[str, torch.Tensor], bg: torch.Tensor, cov: torch.Tensor, escaped: bool,
+                   like: torch.Tensor) -> torch.Tensor:
+    """The mean correction's samples at the traced pixels (wgsl/ssr/lib/traced.wgsl), what the
+    reconstruction's share `(1 - coverage) output` is compared with: each sample's share the
+    network reconstructs, `color - background`; for a model of config escaped "background",
+    whose samples that escaped to the environment `fold_emission` left out, the rest are of
+    the part of the footprint that hits the scene, so `(1 - coverage) color`. In `like`'s
+    dtype (the colour sanitised as the engine does)."""
+    color = _clean(frame["color"]).to(like.dtype)
+    return (1.0 - cov) * color if escaped else color - bg
+
+
 MEAN_TILE, MEAN_RING, MEAN_EPS, MEAN_LO, MEAN_HI = 32, 4, 1e-4, 0.67, 1.5
 """Config `mean_correction = "tiles"` (src/ssr/config.rs): tile side, frames of the ring, the
 epsilon of both sums, the clamp of the factor."""
@@ -385,8 +424,9 @@ class MeanCorrection:
     factor is differentiable in `output` (training through it sees the whole pass). A new
     instance (or `reset`) starts with an empty ring, as the engine after a reset."""
 
-    def __init__(self, tile: int = MEAN_TILE) -> None:
+    def __init__(self, tile: int = MEAN_TILE, escaped: bool = False) -> None:
         self.tile = int(tile)
+        self.escaped = bool(escaped)
         self.ring: List[Tuple[torch.Tensor, torch.Tensor]] = []
 
     def reset(self) -> None:
@@ -396,7 +436,7 @@ class MeanCorrection:
         bg, cov = background_parts(frame, output)
         part = (1.0 - cov) * output
         traced = (frame["mask"] > 0.5).to(output.dtype)
-        sample = (_clean(frame["color"]).to(output.dtype) - bg) * traced
+        sample = traced_samples(frame, bg, cov, self.escaped, output) * traced
         self.ring = (self.ring + [(tile_sums(sample, self.tile), tile_sums(part * traced, self.tile))])[-MEAN_RING:]
         s = sum(x for x, _ in self.ring)
         r = sum(x for _, x in self.ring)
@@ -504,14 +544,14 @@ class AtrousMeanCorrection(MeanCorrection):
     depths (so a factor averages over its own surface, not across silhouettes and creases),
     and each pixel's factor is `clamp((S + ATROUS_EPS) / (R + ATROUS_EPS), MEAN_LO, MEAN_HI)`."""
 
-    def __init__(self) -> None:
-        super().__init__(1)
+    def __init__(self, escaped: bool = False) -> None:
+        super().__init__(1, escaped)
 
     def __call__(self, output: torch.Tensor, frame: Dict[str, torch.Tensor]) -> torch.Tensor:
         bg, cov = background_parts(frame, output)
         part = (1.0 - cov) * output
         traced = (frame["mask"] > 0.5).to(output.dtype)
-        sample = (_clean(frame["color"]).to(output.dtype) - bg) * traced
+        sample = traced_samples(frame, bg, cov, self.escaped, output) * traced
         batched = output.dim() == 4
         sr = torch.cat([sample, part * traced], dim=-3)
         normal, depth = frame["normal"].to(output.dtype), frame["depth"].to(output.dtype)
@@ -530,12 +570,14 @@ class AtrousMeanCorrection(MeanCorrection):
 
 def mean_correction_of(cfg: "SSRConfig") -> Optional[MeanCorrection]:
     """A fresh mean correction of config `cfg` (MeanCorrection of its tile side, or
-    AtrousMeanCorrection), or None for `mean_correction = "none"`."""
+    AtrousMeanCorrection; for `escaped = "background"` comparing the samples as
+    `traced_samples` says), or None for `mean_correction = "none"`."""
     kind = getattr(cfg, "mean_correction", "none")
+    escaped = getattr(cfg, "escaped", "network") == "background"
     if kind == "atrous":
-        return AtrousMeanCorrection()
+        return AtrousMeanCorrection(escaped)
     tile = MEAN_TILES.get(kind)
-    return None if tile is None else MeanCorrection(tile)
+    return None if tile is None else MeanCorrection(tile, escaped)
 
 
 def background_parts(frame: Dict[str, torch.Tensor], like: torch.Tensor) -> Tuple[torch.Tensor, torch.Tensor]:

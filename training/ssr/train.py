@@ -216,11 +216,12 @@ def run_config(args: argparse.Namespace) -> dict:
         model_cfg = {**init_inherited_options(args.init), **model_cfg}
     model = build_model(args.model, model_cfg)
     cfg_dict = model.cfg.to_dict()
-    if getattr(model.cfg, "emission", "network") == "background" and args.background != "loss":
-        raise SystemExit(
-            'error: config emission = "background" needs --background loss (the emitters are the '
-            "background's: the loss must see the composited output)"
-        )
+    for option, why in (("emission", "the emitters are"), ("escaped", "the escaped samples' sky is")):
+        if getattr(model.cfg, option, "network") == "background" and args.background != "loss":
+            raise SystemExit(
+                f'error: config {option} = "background" needs --background loss ({why} the '
+                "background's: the loss must see the composited output)"
+            )
     return {
         "model": args.model,
         "model_config": cfg_dict,
@@ -519,10 +520,23 @@ def load_checkpoint(path: str, config: dict) -> dict:
         raise CheckpointError(f"{path}: not a {CHECKPOINT_FORMAT} file")
     if ck.get("version") != CHECKPOINT_VERSION:
         raise CheckpointError(f"{path}: checkpoint version {ck.get('version')!r}, this trainer reads {CHECKPOINT_VERSION}")
-    diff = config_diff(ck.get("config", {}), config)
+    diff = config_diff(normalised_config(ck.get("config", {})), config)
     if diff:
         raise CheckpointError(f"{path}: checkpoint is from another config; differing keys: " + "; ".join(diff))
     return ck
+
+
+def normalised_config(saved: dict) -> dict:
+    """A checkpoint's run config with its SSR model config as this code writes it: options
+    added since the checkpoint was written (model.LATE_OPTIONS) take the value their absence
+    means, so a run begun before them resumes."""
+    mc = saved.get("model_config")
+    if saved.get("model") != "ssr" or not isinstance(mc, dict):
+        return saved
+    try:
+        return {**saved, "model_config": SSRConfig.from_dict(mc).to_dict()}
+    except ValueError:
+        return saved  # config_diff then names what differs
 
 
 # ----------------------------------------------------------------------------- training
@@ -592,7 +606,7 @@ def _train(args, config: dict, dd: Dist) -> dict:
     train_ds = SequenceDataset(
         args.data, "train", window=args.window, crop=args.crop, flips=not args.no_flips, scenes=args.scenes,
         cache=args.cache, cache_mb=args.cache_mb, cache_dir=args.cache_dir, thin=args.thin,
-        thin_keep_min=args.thin_keep_min, color_permute=args.color_permute, extra=(background if args.background == "loss" else ()) + model_extra,
+        thin_keep_min=args.thin_keep_min, color_permute=args.color_permute, extra=tuple(dict.fromkeys((background if args.background == "loss" else ()) + model_extra)),
         min_reference_psnr=args.min_reference_psnr,
     )
     if train_ds.noisy:
@@ -734,7 +748,9 @@ def _train(args, config: dict, dd: Dist) -> dict:
             if args.mean_correction == "loss" or args.background == "loss":
                 # one window: the ring starts empty, as after a reset; the tiles of the exported
                 # config's correction (32-pixel ones when it has none)
-                mc = (mean_correction_of(getattr(model, "cfg", None)) or MeanCorrection()) if args.mean_correction == "loss" else None
+                cfg = getattr(model, "cfg", None)
+                escaped = getattr(cfg, "escaped", "network") == "background"
+                mc = (mean_correction_of(cfg) or MeanCorrection(escaped=escaped)) if args.mean_correction == "loss" else None
                 results = [{**r, "output": output_pass(r["output"], f, mc)} for r, f in zip(results, frames)]
             loss, parts = compute_loss(model, results, frames, weights, args.lambdas)
             opt.zero_grad(set_to_none=True)

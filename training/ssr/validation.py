@@ -30,11 +30,9 @@ def validate(model: nn.Module, ds: SequenceDataset, device: torch.device, frames
     model.eval()
     rows, per_scene = [], {}
     cfg = getattr(model, "cfg", None)
+    # (with config emission or escaped "background" the background and coverage too, which a
+    # dataset loaded without them, e.g. by ssr.curve, lacks)
     extra = tuple(getattr(model, "extra_buffers", ()))
-    # fold_emission (config emission "background") also reads the background and coverage,
-    # which a dataset loaded without them (e.g. by ssr.curve) lacks.
-    if getattr(cfg, "emission", "network") == "background":
-        extra += tuple(b for b in ("background", "coverage") if b not in extra)
     for si, seq in enumerate(ds.sequences):
         state = None
         mc = mean_correction_of(cfg) if output_pass else None

@@ -194,6 +194,7 @@ def test_config_json_round_trip():
         "mean_correction": "none",
         "albedo": "centre",
         "emission": "network",
+        "escaped": "network",
     }
     with pytest.raises(ValueError, match="feature_pool"):
         SSRConfig(feature_pool="median")
@@ -208,7 +209,7 @@ def test_config_json_round_trip():
     with pytest.raises(ValueError, match="unsupported `version` 3"):
         SSRConfig.from_dict({**d, "version": 3})
     # version 1 (the shipped weights'): no option keys, the legacy pipeline
-    v1 = {k: v for k, v in d.items() if k not in ("exposure", "remodulation", "history", "ceiling", "mean_correction", "albedo", "emission")}
+    v1 = {k: v for k, v in d.items() if k not in ("exposure", "remodulation", "history", "ceiling", "mean_correction", "albedo", "emission", "escaped")}
     v1["version"] = 1
     c1 = SSRConfig.from_dict(v1)
     assert (c1.exposure, c1.remodulation, c1.history, c1.ceiling) == ("none", "accumulated", "screen", "none")
@@ -531,7 +532,7 @@ def test_fold_emission_moves_the_directly_seen_emission_into_the_background():
 
     f = {k: torch.from_numpy(v)[None] for k, v in make_sequence(16, 16, 1, 3, background=True, emission=True)[0].items()}
     cfg = SSRConfig(emission="background")
-    assert extra_buffers(cfg) == ("emission", "emission_footprint")
+    assert extra_buffers(cfg) == ("emission", "emission_footprint", "background", "coverage")
     assert fold_emission(f, SSRConfig()) is f and fold_emission(f, None) is f
     g = fold_emission(f, cfg)
     lamp = f["emission_footprint"][0, 0] > 0

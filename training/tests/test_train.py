@@ -102,6 +102,15 @@ def test_train_checkpoint_resume_export(dataset, tmp_path, capsys):
     assert T.main(args(dataset, b, "--resume", "--lr", "1e-3")) == 1
     assert "differing keys: lr" in capsys.readouterr().err
 
+    # a checkpoint written before a late option existed (here `escaped`) resumes: its absence
+    # means the option's default
+    ck_path = os.path.join(b, "checkpoint.pt")
+    ck = torch.load(ck_path, weights_only=False)
+    ck["config"]["model_config"].pop("escaped")
+    torch.save(ck, ck_path)
+    T.train(args(dataset, b, "--resume"))
+    assert "resumed from" in capsys.readouterr().out
+
 
 def test_colour_permutation_trains_records_and_is_part_of_the_config(dataset, tmp_path, capsys):
     # --color-permute changes what the network is shown (other weights than the same run
