@@ -40,7 +40,9 @@ def make_sequence(
     albedo, as the reference here is the albedo times the light pixel by pixel); with
     `emission` too, an emitter of radiance EMITTER seen directly over a 6 x 6 square below
     the sky (whose pixels' reference and traced samples add it), with its directly seen
-    emission buffers `emission` (the traced samples') and `emission_footprint`."""
+    emission buffers `emission` (the traced samples') and `emission_footprint`, and which
+    traced samples escaped to the sky (`escaped`: those of the wholly sky rows and of half
+    the half-covered row's pixels)."""
     rng = np.random.default_rng(seed)
     frng = np.random.default_rng(20_000 + seed)
     srng = np.random.default_rng(10_000 + scene_seed)
@@ -99,6 +101,9 @@ def make_sequence(
                 lamp[:, sky + 2 : sky + 8, 2:8] = np.asarray(EMITTER, np.float32)[:, None, None]
                 frame["emission_footprint"] = lamp
                 frame["emission"] = lamp * mask
+                # the traced samples that escaped: all of the sky's, half of the row's
+                escaped = (cov == 1.0) | ((cov == 0.5) & (xs[None] % 4 < 2))
+                frame["escaped"] = (escaped * mask).astype(np.float32)
                 frame["reference"] = frame["reference"] + lamp
                 frame["color"] = frame["color"] + lamp * mask
         out.append(frame)
