@@ -609,6 +609,88 @@ fn dataset_shards_resume_and_write_the_loader_keys() {
     std::fs::remove_dir_all(&out).ok();
 }
 
+/// `subpixel dataset --background N --resume` adds what frames written before lack: a frame
+/// without the samples' escapes (`escaped`, written since the thirtieth session) gets them
+/// back exactly as rendered, every other buffer untouched; a complete frame is left as it is.
+#[test]
+fn dataset_resume_adds_the_samples_escapes() {
+    let out = tmp("dataset-escaped");
+    let run = || {
+        bin()
+            .args([
+                "dataset",
+                "--scene",
+                "builtin:furnace",
+                "--split",
+                "val",
+                "--sequences",
+                "1",
+            ])
+            .args([
+                "--frames",
+                "1",
+                "--width",
+                "16",
+                "--height",
+                "16",
+                "--reference-spp",
+                "2",
+            ])
+            .args(["--background", "2", "--out"])
+            .arg(&out)
+            .output()
+            .unwrap()
+    };
+    succeeded(&run());
+    let file = out.join("val/furnace_val_000/frame_0000.exr");
+    let full = read_frame(&file).unwrap();
+    let escaped = |f: &FrameFile| {
+        f.frame
+            .as_ref()
+            .unwrap()
+            .background
+            .as_ref()
+            .unwrap()
+            .emission
+            .as_ref()
+            .unwrap()
+            .escaped
+            .clone()
+    };
+    let esc = escaped(&full).expect("a new frame holds the samples' escapes");
+    assert!(esc.data.iter().any(|&v| v == 1.0), "some sample sees the sky");
+    let mut old = full.clone();
+    old.frame
+        .as_mut()
+        .unwrap()
+        .background
+        .as_mut()
+        .unwrap()
+        .emission
+        .as_mut()
+        .unwrap()
+        .escaped = None;
+    write_frame(&file, &old).unwrap();
+    assert_eq!(escaped(&read_frame(&file).unwrap()), None);
+    let o = run();
+    succeeded(&o);
+    let said = String::from_utf8_lossy(&o.stdout);
+    assert!(said.contains("skipped 1 frame(s)"), "{said}");
+    assert_eq!(
+        read_frame(&file).unwrap(),
+        full,
+        "the escapes restored, the rest untouched"
+    );
+    let modified = std::fs::metadata(&file).unwrap().modified().unwrap();
+    succeeded(&run());
+    assert_eq!(
+        std::fs::metadata(&file).unwrap().modified().unwrap(),
+        modified,
+        "a complete frame is not rewritten"
+    );
+    std::fs::remove_dir_all(&out).ok();
+}
+
 #[test]
 fn bench_frame_times_every_stage_in_both_modes() {
     let o = bin()

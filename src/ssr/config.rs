@@ -618,7 +618,7 @@ mod tests {
         assert_eq!(d.ceiling_mode().unwrap(), CeilingMode::Max);
         // the engine's JSON is the trainer's (ssr/model.py SSRConfig.to_json, keys sorted)
         let back: SsrConfig = serde_json::from_str(
-            r#"{"albedo":"centre","ceiling":"max","emission":"network","enc":[16,32,28],"exposure":"channel","feature_pool":"max","history":"geometry","input_channels":37,"k":8,"mean_correction":"none","remodulation":"current","tfa_hidden":8,"upsample":"bilinear","version":2}"#,
+            r#"{"albedo":"centre","ceiling":"max","emission":"network","enc":[16,32,28],"escaped":"network","exposure":"channel","feature_pool":"max","history":"geometry","input_channels":37,"k":8,"mean_correction":"none","remodulation":"current","tfa_hidden":8,"upsample":"bilinear","version":2}"#,
         )
         .unwrap();
         assert_eq!(back, d);
@@ -686,6 +686,44 @@ mod tests {
         .unwrap_err()
         .to_string();
         assert!(e.contains("version 1 has no 'emission' option"), "{e}");
+        // the samples that escaped to the environment left to the background
+        // (`--model-config '{"escaped": "background"}'`; absent in earlier files: the network)
+        assert_eq!(before.escaped_source().unwrap(), EscapedSource::Network);
+        let esc = SsrConfig {
+            escaped: Some("background".into()),
+            ..d.clone()
+        };
+        esc.validate().unwrap();
+        assert_eq!(esc.escaped_source().unwrap(), EscapedSource::Background);
+        assert!(
+            esc.describe().contains("escaped background"),
+            "{}",
+            esc.describe()
+        );
+        assert_eq!(
+            esc.input_names().unwrap(),
+            &crate::frame::FrameInputs::ALL_NAMES[..7]
+        );
+        assert_eq!(d.input_names().unwrap(), &crate::frame::FrameInputs::NAMES[..]);
+        let both = SsrConfig {
+            emission: Some("background".into()),
+            ..esc.clone()
+        };
+        assert_eq!(
+            both.input_names().unwrap(),
+            &crate::frame::FrameInputs::ALL_NAMES[..]
+        );
+        let e = SsrConfig {
+            escaped: Some("sky".into()),
+            ..d.clone()
+        }
+        .validate()
+        .unwrap_err()
+        .to_string();
+        assert!(
+            e.contains("escaped 'sky', expected \"network\" or \"background\""),
+            "{e}"
+        );
         // the mean correction, written by `ssr.export --option mean_correction=tiles`
         let tiles: SsrConfig = serde_json::from_str(
             r#"{"ceiling":"max","enc":[16,32,28],"exposure":"channel","feature_pool":"max","history":"geometry","input_channels":37,"k":8,"mean_correction":"tiles","remodulation":"current","tfa_hidden":8,"upsample":"bilinear","version":2}"#,
@@ -704,7 +742,7 @@ mod tests {
         tiles16.validate().unwrap();
         assert_eq!(
             tiles16.describe(),
-            "version 2, enc [16, 32, 28], albedo footprint, emission network, mean correction tiles16, ceiling max"
+            "version 2, enc [16, 32, 28], albedo footprint, emission network, escaped network, mean correction tiles16, ceiling max"
         );
         assert_eq!(d.legacy().describe(), "version 1, enc [16, 32, 28]");
         assert_eq!(
