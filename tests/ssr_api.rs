@@ -1517,3 +1517,86 @@ fn check_frame_loop_fold(scene: &str, emission: &str, escaped: &str) {
         "no traced sample met the light (or the sky) in 4 frames"
     );
 }
+
+/// Config escaped "background" on the host (`HostFrame::fold_directly_seen`, what
+/// `denoise_host` and `subpixel denoise` feed): exactly the traced pixels at least half of
+/// whose samples escaped are left out (colour and mask 0; a non-finite value keeps the
+/// pixel, as the GPU fold does), the directly seen emission folded as before; a frame that
+/// does not say which samples escaped, or has no background, is refused naming the buffer
+/// and the command that adds it, by the fold and by a denoiser of such weights.
+#[test]
+fn escaped_samples_are_left_out_or_the_frame_refused() {
+    use subpixel::frame::{Background, DirectEmission, EmissionSource, EscapedSource};
+    let (w, h) = (12u32, 10u32);
+    let mut f = random_frame(w, h, 160);
+    let escaped = HostTensor::from_fn(w, h, 1, |x, y, _| match (x + 3 * y) % 4 {
+        0 => 1.0,
+        1 => 0.5,
+        2 => 0.25,
+        _ => f32::NAN,
+    });
+    let samples = common::random(9_100, w, h, 3, 0.0, 0.5);
+    f.background = Some(Background {
+        radiance: common::random(9_101, w, h, 3, 0.0, 1.0),
+        coverage: common::random(9_102, w, h, 1, 0.0, 1.0),
+        albedo: None,
+        emission: Some(DirectEmission {
+            footprint: HostTensor::zeros(w, h, 3),
+            samples: samples.clone(),
+            escaped: Some(escaped.clone()),
+        }),
+    });
+    let fed = f
+        .fold_directly_seen(EmissionSource::Background, EscapedSource::Background)
+        .unwrap();
+    let mut left_out = 0;
+    for i in 0..(w * h) as usize {
+        let out = escaped.data[i] >= 0.5;
+        left_out += (out && f.mask.data[i] > 0.5) as usize;
+        let want_mask = if out { 0.0 } else { f.mask.data[i] };
+        assert_eq!(fed.mask.data[i], want_mask, "pixel {i}");
+        for c in 0..3 {
+            let want = if out {
+                0.0
+            } else {
+                (f.color.data[3 * i + c] - samples.data[3 * i + c]).max(0.0)
+            };
+            assert_eq!(fed.color.data[3 * i + c], want, "pixel {i} channel {c}");
+        }
+    }
+    assert!(left_out > 0, "no traced pixel left out");
+    let (a, b) = (fed.background.as_ref().unwrap(), f.background.as_ref().unwrap());
+    assert!(
+        a.radiance == b.radiance && a.coverage == b.coverage,
+        "the background is left as it is"
+    );
+    // the escapes missing (a frame written before them), then the background
+    let mut old = f.clone();
+    old.background
+        .as_mut()
+        .unwrap()
+        .emission
+        .as_mut()
+        .unwrap()
+        .escaped = None;
+    let e = old
+        .fold_directly_seen(EmissionSource::Network, EscapedSource::Background)
+        .unwrap_err()
+        .to_string();
+    assert!(e.contains("'escaped'") && e.contains("--resume"), "{e}");
+    let bare = random_frame(w, h, 161);
+    let e = bare
+        .fold_directly_seen(EmissionSource::Network, EscapedSource::Background)
+        .unwrap_err()
+        .to_string();
+    assert!(
+        e.contains("config escaped \"background\"") && e.contains("--background N"),
+        "{e}"
+    );
+    let mut weights = Weights::load(golden_weights_path()).unwrap();
+    weights.config.escaped = Some("background".into());
+    let mut den = Denoiser::with_gpu(&common::gpu(), &weights, w, h).unwrap();
+    let e = den.denoise_host(&old).unwrap_err().to_string();
+    assert!(e.contains("'escaped'"), "{e}");
+    assert!(den.denoise_host(&f).is_ok());
+}
