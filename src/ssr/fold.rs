@@ -20,10 +20,8 @@ pub struct FoldParams {
     pub width: u32,
     /// Frame height.
     pub height: u32,
-    /// 1: take the samples' first-hit emission out of the colour.
-    pub emission: u32,
-    /// 1: leave out the traced pixels at least half of whose samples escaped.
-    pub escaped: u32,
+    /// Padding.
+    pub pad: [u32; 2],
 }
 
 /// The folded colour of one frame size, and the pass that writes it (bound once per pair of
@@ -33,7 +31,8 @@ pub struct EmissionFold {
     gpu: Gpu,
     /// The colour (rgb, at least 0) + mask a model is fed.
     pub color_mask: Tensor,
-    params: FoldParams,
+    /// Template parameters EMISSION and ESCAPED of `ssr/fold_emission`.
+    spec: Specialisation,
     bound: Bound<[wgpu::Buffer; 2], Dispatch>,
 }
 
@@ -51,12 +50,10 @@ impl EmissionFold {
         Ok(Self {
             gpu: gpu.clone(),
             color_mask: Tensor::new(gpu, "fold.color_mask", width, height, 4)?,
-            params: FoldParams {
-                width,
-                height,
-                emission: (emission == EmissionSource::Background) as u32,
-                escaped: (escaped == EscapedSource::Background) as u32,
-            },
+            spec: Specialisation(vec![
+                ("EMISSION", (emission == EmissionSource::Background) as u32 as f64),
+                ("ESCAPED", (escaped == EscapedSource::Background) as u32 as f64),
+            ]),
             bound: Bound::new(),
         })
     }
@@ -71,12 +68,17 @@ impl EmissionFold {
         sample_emission: &wgpu::Buffer,
     ) -> Result<&Dispatch> {
         let (width, height) = (self.color_mask.width, self.color_mask.height);
-        let (gpu, out, params) = (&self.gpu, &self.color_mask.buffer, self.params);
+        let (gpu, out, spec) = (&self.gpu, &self.color_mask.buffer, &self.spec);
         self.bound
             .get_or_build([color_mask.clone(), sample_emission.clone()], || {
+                let params = FoldParams {
+                    width,
+                    height,
+                    pad: [0; 2],
+                };
                 gpu.kernels.dispatch(
                     "ssr/fold_emission",
-                    &Specialisation::none(),
+                    spec,
                     bytemuck::bytes_of(&params),
                     &[color_mask, sample_emission, out],
                     Grid::pixels(width, height),
