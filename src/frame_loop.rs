@@ -129,9 +129,8 @@ impl FrameLoop {
             ));
             inputs.color_mask = &fold.color_mask.buffer;
             inputs.background = Some(&bg.buffer);
-            if self.denoiser.network().config.emission_source()? == EmissionSource::Background {
-                inputs.emission = Some(&ef.buffer);
-            }
+            // (read only by a model of config emission "background")
+            inputs.emission = Some(&ef.buffer);
         }
         self.denoiser
             .denoise_profiled(encoder, &inputs, profiler, Granularity::Stage)?;

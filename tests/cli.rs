@@ -547,37 +547,33 @@ fn bench_denoise_prints_per_layer_flops() {
     assert!(fpp > 40_000.0 && fpp <= 50_000.0, "{fpp}");
 }
 
+/// `subpixel dataset` of one val sequence of `scene` (`frames` frames of `size` x `size`,
+/// 2-spp references) into `out`, with `extra` arguments.
+fn dataset_val(scene: &str, frames: u32, size: u32, out: &Path, extra: &[&str]) -> Output {
+    let (frames, size) = (frames.to_string(), size.to_string());
+    bin()
+        .args(["dataset", "--scene", scene, "--split", "val", "--sequences", "1"])
+        .args([
+            "--frames",
+            &frames,
+            "--width",
+            &size,
+            "--height",
+            &size,
+            "--reference-spp",
+            "2",
+        ])
+        .args(extra)
+        .arg("--out")
+        .arg(out)
+        .output()
+        .unwrap()
+}
+
 #[test]
 fn dataset_shards_resume_and_write_the_loader_keys() {
     let out = tmp("dataset");
-    let run = |range: &str| {
-        bin()
-            .args([
-                "dataset",
-                "--scene",
-                "builtin:cornell-empty",
-                "--split",
-                "val",
-                "--sequences",
-                "1",
-            ])
-            .args([
-                "--frames",
-                "2",
-                "--width",
-                "8",
-                "--height",
-                "8",
-                "--reference-spp",
-                "2",
-                "--frame-range",
-                range,
-            ])
-            .arg("--out")
-            .arg(&out)
-            .output()
-            .unwrap()
-    };
+    let run = |range: &str| dataset_val("builtin:cornell-empty", 2, 8, &out, &["--frame-range", range]);
     for range in ["1..2", "0..1"] {
         let o = run(range);
         succeeded(&o);
@@ -615,32 +611,7 @@ fn dataset_shards_resume_and_write_the_loader_keys() {
 #[test]
 fn dataset_resume_adds_the_samples_escapes() {
     let out = tmp("dataset-escaped");
-    let run = || {
-        bin()
-            .args([
-                "dataset",
-                "--scene",
-                "builtin:furnace",
-                "--split",
-                "val",
-                "--sequences",
-                "1",
-            ])
-            .args([
-                "--frames",
-                "1",
-                "--width",
-                "16",
-                "--height",
-                "16",
-                "--reference-spp",
-                "2",
-            ])
-            .args(["--background", "2", "--out"])
-            .arg(&out)
-            .output()
-            .unwrap()
-    };
+    let run = || dataset_val("builtin:furnace", 1, 16, &out, &["--background", "2"]);
     succeeded(&run());
     let file = out.join("val/furnace_val_000/frame_0000.exr");
     let full = read_frame(&file).unwrap();
@@ -648,11 +619,7 @@ fn dataset_resume_adds_the_samples_escapes() {
         f.frame
             .as_ref()
             .unwrap()
-            .background
-            .as_ref()
-            .unwrap()
-            .emission
-            .as_ref()
+            .direct_emission()
             .unwrap()
             .escaped
             .clone()
@@ -660,16 +627,7 @@ fn dataset_resume_adds_the_samples_escapes() {
     let esc = escaped(&full).expect("a new frame holds the samples' escapes");
     assert!(esc.data.contains(&1.0), "some sample sees the sky");
     let mut old = full.clone();
-    old.frame
-        .as_mut()
-        .unwrap()
-        .background
-        .as_mut()
-        .unwrap()
-        .emission
-        .as_mut()
-        .unwrap()
-        .escaped = None;
+    old.frame.as_mut().unwrap().direct_emission_mut().unwrap().escaped = None;
     write_frame(&file, &old).unwrap();
     assert_eq!(escaped(&read_frame(&file).unwrap()), None);
     let o = run();

@@ -1572,13 +1572,7 @@ fn escaped_samples_are_left_out_or_the_frame_refused() {
     );
     // the escapes missing (a frame written before them), then the background
     let mut old = f.clone();
-    old.background
-        .as_mut()
-        .unwrap()
-        .emission
-        .as_mut()
-        .unwrap()
-        .escaped = None;
+    old.direct_emission_mut().unwrap().escaped = None;
     let e = old
         .fold_directly_seen(EmissionSource::Network, EscapedSource::Background)
         .unwrap_err()

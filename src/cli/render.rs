@@ -377,8 +377,9 @@ fn write_frame_atomically(file: &Path, ff: &FrameFile) -> Result<()> {
 /// and `emission` channels, `CpuTracer::background` with `settings.background` lookups per
 /// pixel axis) to the frame file `file` when it lacks one (a frame rendered before
 /// `--background` existed), and the parts a background written before them lacks (the
-/// footprint albedo, the directly seen emission: its radiance and coverage are kept as
-/// they are), rewriting the file atomically; a frame that has them all is left alone.
+/// footprint albedo, the directly seen emission, the samples' escapes: its radiance and
+/// coverage are kept as they are), rewriting the file atomically; a frame that has them all
+/// is left alone.
 fn add_background(file: &Path, packed: &PackedScene, settings: &FrameSettings) -> Result<()> {
     let mut ff = crate::io::exr::read_frame(file)?;
     let frame = ff
@@ -387,34 +388,31 @@ fn add_background(file: &Path, packed: &PackedScene, settings: &FrameSettings) -
         .with_context(|| format!("{}: a frame file without the renderer's buffers", file.display()))?;
     let (w, h) = frame.size()?;
     let tracer = CpuTracer::new(w, h)?;
-    if let Some(e) = frame
+    let mut changed = false;
+    if !frame
         .background
-        .as_mut()
-        .filter(|b| b.albedo.is_some())
-        .and_then(|b| b.emission.as_mut())
+        .as_ref()
+        .is_some_and(|b| b.albedo.is_some() && b.emission.is_some())
     {
-        if e.escaped.is_some() {
-            return Ok(());
+        let made = tracer.background(packed, settings)?;
+        match &mut frame.background {
+            Some(b) => {
+                b.albedo = b.albedo.take().or(made.albedo);
+                b.emission = b.emission.take().or(made.emission);
+            }
+            None => frame.background = Some(made),
         }
-        // Only the samples' escapes are missing: replay the camera rays.
+        changed = true;
+    }
+    if let Some(e) = frame.direct_emission_mut().filter(|e| e.escaped.is_none()) {
+        // Written before the samples' escapes: replay the camera rays.
         e.escaped = Some(tracer.sample_first_hits(packed, settings).1);
-        return write_frame_atomically(file, &ff);
+        changed = true;
     }
-    let made = tracer.background(packed, settings)?;
-    match &mut frame.background {
-        Some(b) => {
-            b.albedo = b.albedo.take().or(made.albedo);
-            b.emission = match b.emission.take() {
-                Some(mut e) => {
-                    e.escaped = e.escaped.or(made.emission.and_then(|m| m.escaped));
-                    Some(e)
-                }
-                None => made.emission,
-            };
-        }
-        None => frame.background = Some(made),
+    if changed {
+        write_frame_atomically(file, &ff)?;
     }
-    write_frame_atomically(file, &ff)
+    Ok(())
 }
 
 /// PSNR (tonemapped, DESIGN §7) between the two halves of each reference in `dir`, from

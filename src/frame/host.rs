@@ -277,7 +277,7 @@ impl HostFrame {
         if (emission, escaped) == (EmissionSource::Network, EscapedSource::Network) {
             return Ok(self.clone());
         }
-        let Some(e) = self.background.as_ref().and_then(|b| b.emission.as_ref()) else {
+        let Some(e) = self.direct_emission() else {
             let what = if emission == EmissionSource::Background {
                 "takes the directly seen emission from the output pass (config emission \"background\")"
             } else {
@@ -322,10 +322,20 @@ impl HostFrame {
         Ok(out)
     }
 
+    /// The frame's directly seen emission, when its background has one.
+    pub fn direct_emission(&self) -> Option<&DirectEmission> {
+        self.background.as_ref()?.emission.as_ref()
+    }
+
+    /// [`HostFrame::direct_emission`], mutable.
+    pub fn direct_emission_mut(&mut self) -> Option<&mut DirectEmission> {
+        self.background.as_mut()?.emission.as_mut()
+    }
+
     /// The footprint's directly seen emission packed as
     /// [`FrameInputs::emission`](super::FrameInputs) wants it (rgb, 0), when the frame has one.
     pub fn pack_emission(&self) -> Option<Vec<[f32; 4]>> {
-        let e = self.background.as_ref()?.emission.as_ref()?;
+        let e = self.direct_emission()?;
         Some(
             e.footprint
                 .data

@@ -319,14 +319,6 @@ impl Denoiser {
     /// of config emission "background" (an error naming the buffers without it or without a
     /// background), none for others.
     fn emission_input<'b>(&self, inputs: &FrameInputs<'b>) -> Result<Option<&'b wgpu::Buffer>> {
-        if self.net.config.escaped_source()? == EscapedSource::Background && inputs.background.is_none() {
-            return Err(Error::shape(
-                "denoiser input",
-                "the model leaves the samples that escaped to the environment to the background (config escaped \
-                 \"background\"): give FrameInputs::background (and a colour without the traced pixels whose \
-                 samples escaped)",
-            ));
-        }
         if self.net.config.emission_source()? == EmissionSource::Network {
             return Ok(None);
         }
@@ -403,9 +395,10 @@ impl Denoiser {
         let Some(m) = &self.mean else {
             return Ok(None);
         };
-        // A model of config escaped "background" is fed only the samples that hit the scene.
+        // A model of config escaped "background" is fed only the samples that hit the scene
+        // (and always a background, `input_passes`).
         let escaped = self.net.config.escaped_source()? == EscapedSource::Background;
-        let escaped = ("ESCAPED", (escaped && background.is_some()) as u32 as f64);
+        let escaped = ("ESCAPED", escaped as u32 as f64);
         if let Some(a) = &m.filter {
             let spec = Specialisation(vec![
                 ("BACKGROUND", background.is_some() as u32 as f64),
@@ -753,6 +746,14 @@ impl Denoiser {
                     format!("buffer '{name}' lacks BufferUsages::STORAGE"),
                 ));
             }
+        }
+        if self.net.config.escaped_source()? == EscapedSource::Background && inputs.background.is_none() {
+            return Err(Error::shape(
+                "denoiser input",
+                "the model leaves the samples that escaped to the environment to the background (config escaped \
+                 \"background\"): give FrameInputs::background (and a colour without the traced pixels whose \
+                 samples escaped)",
+            ));
         }
         let (a_t, mt, motion) = self.net.inputs();
         let params = PackParams {

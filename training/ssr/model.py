@@ -293,15 +293,27 @@ ESCAPED = ("escaped", "background", "coverage")
 the environment (`fold_emission` leaves them out), and the background that holds it."""
 
 
+def leaves_escaped(cfg: Optional[SSRConfig]) -> bool:
+    """Whether a model of config `cfg` leaves the samples that escaped to the environment to
+    the background (`escaped = "background"`)."""
+    return getattr(cfg, "escaped", "network") == "background"
+
+
+def fold_buffers(cfg: Optional[SSRConfig]) -> Tuple[str, ...]:
+    """The frame buffers `fold_emission` reads for a model of config `cfg`, each once: with
+    emission "background" the directly seen emission, with escaped "background" the samples'
+    escapes, and with either the background and coverage the composite reads too."""
+    emission = DIRECT_EMISSION + ("background", "coverage") if getattr(cfg, "emission", "network") == "background" else ()
+    escaped = ESCAPED if leaves_escaped(cfg) else ()
+    return tuple(dict.fromkeys(emission + escaped))
+
+
 def extra_buffers(cfg: SSRConfig) -> Tuple[str, ...]:
     """Buffers beyond data.BUFFERS a model of config `cfg` reads (load them with
     `SequenceDataset(extra=...)`, or per frame file with data.read_extra_buffers), each once:
-    with emission or escaped "background", the background and coverage the fold and the
-    composite read too."""
+    the footprint albedo of albedo "footprint", and `fold_buffers`."""
     albedo = (FOOTPRINT_ALBEDO,) if cfg.albedo == "footprint" else ()
-    emission = DIRECT_EMISSION + ("background", "coverage") if getattr(cfg, "emission", "network") == "background" else ()
-    escaped = ESCAPED if getattr(cfg, "escaped", "network") == "background" else ()
-    return tuple(dict.fromkeys(albedo + emission + escaped))
+    return albedo + fold_buffers(cfg)
 
 
 COMPOSITE_EMISSION = "composite_emission"
@@ -323,12 +335,11 @@ def fold_emission(frame: Dict[str, torch.Tensor], cfg: Optional[SSRConfig]) -> D
     whole footprint, and the network reconstructs the part that hits the scene. A KeyError
     names a missing buffer and the command that writes it. Call it once per frame, before the
     model and the output pass."""
-    emission = cfg is not None and getattr(cfg, "emission", "network") == "background"
-    escaped = cfg is not None and getattr(cfg, "escaped", "network") == "background"
-    if not emission and not escaped:
+    need = fold_buffers(cfg)
+    if not need:
         return frame
-    need = (DIRECT_EMISSION + ("background", "coverage") if emission else ()) + (ESCAPED if escaped else ())
-    missing = [b for b in dict.fromkeys(need) if b not in frame]
+    emission, escaped = DIRECT_EMISSION[0] in need, leaves_escaped(cfg)
+    missing = [b for b in need if b not in frame]
     if missing:
         which = "emission" if emission and any(b in DIRECT_EMISSION for b in missing) else "escaped"
         raise KeyError(
@@ -573,7 +584,7 @@ def mean_correction_of(cfg: "SSRConfig") -> Optional[MeanCorrection]:
     AtrousMeanCorrection; for `escaped = "background"` comparing the samples as
     `traced_samples` says), or None for `mean_correction = "none"`."""
     kind = getattr(cfg, "mean_correction", "none")
-    escaped = getattr(cfg, "escaped", "network") == "background"
+    escaped = leaves_escaped(cfg)
     if kind == "atrous":
         return AtrousMeanCorrection(escaped)
     tile = MEAN_TILES.get(kind)

@@ -61,6 +61,7 @@ from .model import (
     extra_buffers,
     fold_emission,
     grow_unet,
+    leaves_escaped,
     mean_correction_of,
     output_pass,
 )
@@ -749,8 +750,7 @@ def _train(args, config: dict, dd: Dist) -> dict:
                 # one window: the ring starts empty, as after a reset; the tiles of the exported
                 # config's correction (32-pixel ones when it has none)
                 cfg = getattr(model, "cfg", None)
-                escaped = getattr(cfg, "escaped", "network") == "background"
-                mc = (mean_correction_of(cfg) or MeanCorrection(escaped=escaped)) if args.mean_correction == "loss" else None
+                mc = (mean_correction_of(cfg) or MeanCorrection(escaped=leaves_escaped(cfg))) if args.mean_correction == "loss" else None
                 results = [{**r, "output": output_pass(r["output"], f, mc)} for r, f in zip(results, frames)]
             loss, parts = compute_loss(model, results, frames, weights, args.lambdas)
             opt.zero_grad(set_to_none=True)
