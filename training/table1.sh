@@ -1,6 +1,7 @@
 #!/usr/bin/env bash
 # Rebuilds the paper's Table 1 layout for our scenes (rows: input, hold-filled, accumulation,
-# RAE, NSRR, OIDN (a), OIDN (b) (and both given the footprint albedo when the frames have it),
+# RAE, NSRR, OIDN (a), OIDN (b) (and both given the footprint albedo when the frames have it,
+# OIDN (a) also without the escaped samples when they have the escapes),
 # SSR (with the background rows below when the frames have the background buffer), then SSR's
 # other and per-scene models; columns: scenes;
 # every cell PSNR / SSIM / temporal error; test sequences only) from a dataset rendered by
@@ -55,6 +56,12 @@ if (cd "$here" && "$py" -c 'import sys; from ssr.data import exr_size; sys.exit(
   footprint=1
   models+=(oidn-a-footprint)
   [ "$has_full" = 1 ] && models+=(oidn-b-footprint)
+  # Frames with the samples' escapes too: OIDN (a) fed the frame without its escaped samples
+  # and composited with the background, as an SSR model of escaped = "background" is (the
+  # fair row against it; ssr/oidn.py).
+  if (cd "$here" && "$py" -c 'import sys; from ssr.data import exr_size; sys.exit("escaped.Y" not in exr_size(sys.argv[1])[2])' "$first"); then
+    models+=(oidn-a-footprint-escaped)
+  fi
 fi
 (cd "$here" && "$py" -m ssr.evaluate --data "$data" --split test --out "$pred" --models "${models[@]}" --no-metrics)
 cargo build --release --quiet --manifest-path "$root/Cargo.toml"

@@ -182,7 +182,7 @@ def main(argv=None) -> int:
     ap = argparse.ArgumentParser(prog="python -m ssr.evaluate", description=__doc__.split("\n\n")[0])
     ap.add_argument("--data", required=True, help="dataset root")
     ap.add_argument("--split", default="test", choices=["train", "val", "test"])
-    ap.add_argument("--models", nargs="+", required=True, help="NAME=WEIGHTS.safetensors, input, hold, accumulation, oidn-a, oidn-b")
+    ap.add_argument("--models", nargs="+", required=True, help="NAME=WEIGHTS.safetensors, input, hold, accumulation, oidn-a, oidn-b, oidn-a-footprint, oidn-b-footprint, oidn-a-footprint-escaped")
     ap.add_argument("--out", default=None, help="prediction root (PRED/NAME/SPLIT/SEQ/frame_NNNN.exr); none: no files")
     ap.add_argument("--scenes", nargs="+", default=None)
     ap.add_argument("--frames", type=int, default=None, help="at most this many frames per sequence")

@@ -13,6 +13,17 @@ Two rows of the Table 1 command, both single-frame (no history of their own):
 OIDN wants its auxiliary images filtered over the pixel like the colour, and the shipped
 SSR model runs on that albedo, so these are the like-for-like rows against it.
 
+`oidn-a-footprint-escaped` is oidn-a-footprint given what an SSR model of config
+`escaped = "background"` is given: the frame without its traced pixels whose samples
+escaped to the environment (model.fold_emission: colour and mask 0, so the hold fill keeps
+the pixel's last sample that hit the scene), and OIDN's output composited with the
+background as the engine's output pass does, `background + (1 - coverage) x output`
+(evaluate.py does both, from the model's `cfg`). Without the fold, a composited method
+counts the sky of a silhouette twice (once in the background, once in the samples it
+denoises), so `OIDN (a) + background` rows (background_probe.py) are too bright there;
+this row is the fair one against such a model. It reads the frames' `escaped`,
+`background` and `coverage` buffers (`subpixel dataset --background N`).
+
 Both use OIDN's "RT" filter with the clean auxiliary images every dataset frame has: the
 first-hit albedo (clamped to [0, 1], as OIDN expects) and the world-space shading normal
 (in [-1, 1], as it is; 0 on the sky), `hdr=True` (linear HDR radiance, negative and
@@ -40,13 +51,29 @@ import torch
 from torch import nn
 
 from .baselines import HoldBaseline, _clean
-from .data import DatasetError, exr_size, read_exr
+from .data import EXTRA_SUFFIXES, DatasetError, exr_size, read_exr
+from .model import ESCAPED
 
 FULL_CHANNELS = ("full.R", "full.G", "full.B")
 """Channels of the 1-spp full-resolution colour that oidn-b denoises."""
 
 FOOTPRINT_CHANNELS = ("albedo_footprint.R", "albedo_footprint.G", "albedo_footprint.B")
 """Channels of the footprint albedo the `-footprint` rows give OIDN as its albedo image."""
+
+ESCAPED_CHANNELS = tuple(f"{b}.{c}" for b in ESCAPED for c in EXTRA_SUFFIXES[b])
+"""Channels the `-escaped` row reads: the samples' escapes, the background and its coverage."""
+
+
+class EscapedToBackground:
+    """The part of an SSR config (model.SSRConfig) that evaluate.py reads to feed a model
+    its frames and composite its output, for a non-learned model given the frames as a
+    model of config `escaped = "background"` (and nothing else of such a model) is:
+    `fold_emission` leaves the escaped samples out, `output_pass` composites the background
+    (no mean correction, no emission folded)."""
+
+    escaped = "background"
+    emission = "network"
+    mean_correction = "none"
 
 PIP_INSTALL = "~/.cache/subpixel/venv/bin/pip install pyoidn==2.5.1.0"
 QUALITY = "high"
@@ -131,15 +158,24 @@ class OIDNBaseline(nn.Module):
 
     pad_multiple = 1  # OIDN takes any size: evaluate.py does not pad
 
-    def __init__(self, source: str, albedo: str = "centre"):
+    def __init__(self, source: str, albedo: str = "centre", escaped: bool = False):
         super().__init__()
         if source not in ("hold", "full"):
             raise ValueError(f"OIDN source must be 'hold' or 'full', got {source!r}")
         if albedo not in ("centre", "footprint"):
             raise ValueError(f"OIDN albedo must be 'centre' or 'footprint', got {albedo!r}")
+        if escaped and source != "hold":
+            raise ValueError("OIDN escaped: only the hold-filled 1/4-spp source has traced samples to leave out")
         self.source = source
         self.albedo = albedo
-        self.NAME = ("oidn-a" if source == "hold" else "oidn-b") + ("-footprint" if albedo == "footprint" else "")
+        self.escaped = escaped
+        # evaluate.py folds the frame and composites the output by the model's config
+        self.cfg = EscapedToBackground() if escaped else None
+        self.NAME = (
+            ("oidn-a" if source == "hold" else "oidn-b")
+            + ("-footprint" if albedo == "footprint" else "")
+            + ("-escaped" if escaped else "")
+        )
         self.pyoidn = import_pyoidn()
         self.hold = HoldBaseline() if source == "hold" else None
 
@@ -149,20 +185,27 @@ class OIDNBaseline(nn.Module):
             "weights": None,
             "oidn": {**pyoidn_versions(), "device": "cpu", "filter": "RT", "hdr": True, "cleanAux": True,
                      "quality": QUALITY, "aux": ["albedo" if self.albedo == "centre" else "albedo_footprint", "normal"],
-                     "input": self.source},
+                     "input": self.source, "escaped": "background" if self.escaped else "network"},
         }  # fmt: skip
 
     @property
     def extra_buffers(self) -> Tuple[str, ...]:
         """Buffers beyond the dataset's standard ones this model reads from each frame file:
-        the 1-spp frame (oidn-b), the footprint albedo (the `-footprint` rows)."""
-        return (("full",) if self.source == "full" else ()) + (("albedo_footprint",) if self.albedo == "footprint" else ())
+        the 1-spp frame (oidn-b), the footprint albedo (the `-footprint` rows), the escapes,
+        background and coverage (the `-escaped` row)."""
+        return (
+            (("full",) if self.source == "full" else ())
+            + (("albedo_footprint",) if self.albedo == "footprint" else ())
+            + (ESCAPED if self.escaped else ())
+        )
 
     def check_frames(self, paths: List[str]) -> None:
         """Fails early (DatasetError naming the first file and its missing channels) when a
         frame lacks what this model reads."""
-        want = (FULL_CHANNELS if self.source == "full" else ()) + (
-            FOOTPRINT_CHANNELS if self.albedo == "footprint" else ()
+        want = (
+            (FULL_CHANNELS if self.source == "full" else ())
+            + (FOOTPRINT_CHANNELS if self.albedo == "footprint" else ())
+            + (ESCAPED_CHANNELS if self.escaped else ())
         )
         if not want:
             return
@@ -177,7 +220,8 @@ class OIDNBaseline(nn.Module):
                 bad = sum(1 for q in paths if lacking(q))
                 raise DatasetError(
                     f"{p}: missing channel(s) {missing} ({bad} of {len(paths)} frames lack them): {self.NAME} reads "
-                    f"{' '.join(want)} (the 1-spp frame: `full`; the footprint albedo: `subpixel dataset --background N`)"
+                    f"{' '.join(want)} (the 1-spp frame: `full`; the footprint albedo, background and escapes: "
+                    "`subpixel dataset --background N`, escapes added to older frames with --resume)"
                 )
 
     def forward(self, frame: Dict[str, torch.Tensor], state=None) -> Dict[str, object]:
@@ -208,6 +252,7 @@ OIDN_MODELS = {
     "oidn-b": oidn_b,
     "oidn-a-footprint": lambda: OIDNBaseline("hold", "footprint"),
     "oidn-b-footprint": lambda: OIDNBaseline("full", "footprint"),
+    "oidn-a-footprint-escaped": lambda: OIDNBaseline("hold", "footprint", escaped=True),
 }
 
 

@@ -239,3 +239,68 @@ def test_oidn_footprint_rows_take_the_footprint_albedo(tmp_path, capsys):
     assert E.main(["--data", bare, "--out", str(tmp_path / "q"), "--device", "cpu", "--models", "oidn-b-footprint"]) == 1
     msg = capsys.readouterr().err
     assert "frame_0000.exr" in msg and "albedo_footprint.R" in msg and "2 of 2 frames" in msg
+
+
+def _silhouette_brightness(name: str, frames: int = 8) -> float:
+    """Mean over the silhouette pixels (0 < coverage < 1) of OIDN row `name`'s output,
+    composited as evaluate.py does (the row's config folds the frame, the output pass adds
+    the background), against the reference's, on the silhouette frames of test_escaped
+    (sky and surface drawn from the footprint's definition, not from any renderer)."""
+    from test_escaped import silhouette_frame
+
+    from ssr.model import fold_emission, mean_correction_of, output_pass
+
+    model = O.OIDN_MODELS[name]()
+    cfg = getattr(model, "cfg", None)
+    gen = torch.Generator().manual_seed(7)
+    state, got, want = None, 0.0, 0.0
+    for t in range(frames):
+        f = {k: v.float() for k, v in silhouette_frame(gen, 64, 64, t).items()}
+        f["albedo_footprint"] = torch.full_like(f["color"], 0.5)
+        f["normal"] = torch.zeros_like(f["color"])
+        f["normal"][:, 2] = 1.0
+        fb = fold_emission(f, cfg)
+        r = model(fb, state)
+        state = r["state"]
+        out = r["output"] if name == "oidn-a-footprint" else output_pass(r["output"], fb, mean_correction_of(cfg))
+        if name == "oidn-a-footprint":  # the `+ background` row: background_probe's composite, unfolded input
+            out = f["background"] + (1 - f["coverage"]) * out
+        if t >= 4:  # every pixel traced at least once
+            rim = ((f["coverage"] > 0) & (f["coverage"] < 1)).expand_as(out)
+            got += out[rim].sum().item()
+            want += f["reference"][rim].sum().item()
+    return got / want
+
+
+@needs_oidn
+def test_oidn_escaped_row_leaves_the_sky_of_silhouettes_to_the_background():
+    """oidn-a-footprint-escaped is fed what an SSR model of escaped = "background" is fed and
+    composited as the engine composites: on silhouettes against a bright sky it keeps their
+    brightness, where the `+ background` composite of the plain row counts the sky twice."""
+    fair = _silhouette_brightness("oidn-a-footprint-escaped")
+    doubled = _silhouette_brightness("oidn-a-footprint")
+    assert abs(fair - 1.0) < 0.1, fair
+    assert doubled > 1.2, doubled
+    m = O.OIDN_MODELS["oidn-a-footprint-escaped"]()
+    assert m.NAME == "oidn-a-footprint-escaped" and m.info()["oidn"]["escaped"] == "background"
+    assert {"escaped", "background", "coverage", "albedo_footprint"} <= set(m.extra_buffers)
+    with pytest.raises(ValueError, match="hold-filled"):
+        O.OIDNBaseline("full", "footprint", escaped=True)
+
+
+@needs_oidn
+def test_oidn_escaped_row_in_evaluate_reads_the_escapes_or_names_them(tmp_path, capsys):
+    root = write_dataset(str(tmp_path / "d"), {"test": 1}, 3, 16, 16, seed=2, background=True, emission=True)
+    js = str(tmp_path / "m.json")
+    assert E.main(["--data", root, "--out", str(tmp_path / "p"), "--device", "cpu", "--json", js,
+                   "--models", "oidn-a-footprint-escaped"]) == 0  # fmt: skip
+    pred = read_exr(os.path.join(str(tmp_path / "p"), "oidn-a-footprint-escaped", "test", "synthetic_000", "frame_0002.exr"), PRED)
+    assert np.isfinite(pred).all()
+    # the wholly sky rows (coverage 1) are the background exactly: the composite is the engine's
+    ref = read_exr(os.path.join(root, "test", "synthetic_000", "frame_0002.exr"), ["background.R", "background.G", "background.B"])
+    np.testing.assert_allclose(pred[:4], ref[:4], rtol=1e-6, atol=0)
+    bare = write_dataset(str(tmp_path / "b"), {"test": 1}, 2, 8, 8, seed=0, background=True)  # no `escaped`
+    capsys.readouterr()
+    assert E.main(["--data", bare, "--out", str(tmp_path / "q"), "--device", "cpu", "--models", "oidn-a-footprint-escaped"]) == 1
+    msg = capsys.readouterr().err
+    assert "escaped.Y" in msg and "frame_0000.exr" in msg
