@@ -118,6 +118,13 @@ def parse_args(argv=None) -> argparse.Namespace:
     )
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--resume", action="store_true", help="continue from RUN_DIR/checkpoint.pt")
+    ap.add_argument(
+        "--resume-from", default=None, metavar="CHECKPOINT",
+        help="continue from this checkpoint file when RUN_DIR has none of its own (with one: as --resume), "
+        "e.g. a restore point RUN_DIR/snapshots/it_NNNNNNN.pt of a run whose machine is gone, committed or copied: "
+        "the run goes on exactly as from its own checkpoint (weights, Adam's moments, RNG, iteration); the other "
+        "options must be the run's",
+    )
     ap.add_argument("--ckpt-every", type=int, default=1000)
     ap.add_argument("--val-every", type=int, default=2000, help="0: only at the end")
     ap.add_argument("--val-frames", type=int, default=16, help="frames per val sequence (from frame 0)")
@@ -144,7 +151,8 @@ def parse_args(argv=None) -> argparse.Namespace:
     )
     ap.add_argument(
         "--snapshot-every", type=int, default=0,
-        help="also export RUN_DIR/snapshots/it_NNNNNNN.safetensors every N iterations (for learning curves; 0: off)",
+        help="also export RUN_DIR/snapshots/it_NNNNNNN.safetensors every N iterations (for learning curves), with "
+        "the checkpoint at that iteration as it_NNNNNNN.pt (a restore point for --resume-from; 0: off)",
     )
     ap.add_argument("--threads", type=int, default=0, help="PyTorch CPU threads (0: PyTorch's default)")
     ap.add_argument(
@@ -184,6 +192,10 @@ def parse_args(argv=None) -> argparse.Namespace:
         ap.error("--snapshot-every and --threads must not be negative")
     if args.init is not None and not os.path.isfile(args.init):
         ap.error(f"--init {args.init}: no such file")
+    if args.resume_from is not None and not os.path.isfile(args.resume_from):
+        ap.error(f"--resume-from {args.resume_from}: no such file")
+    if args.resume_from is not None and args.init_at:
+        ap.error("--resume-from and --init-at: the checkpoint holds its iteration; pass the run's options without --init-at")
     if args.init_at and args.init is None:
         ap.error("--init-at needs --init (the weights at that iteration)")
     if not 0 <= args.init_at < args.iters:
@@ -645,9 +657,12 @@ def _train(args, config: dict, dd: Dist) -> dict:
     opt = torch.optim.Adam(model.parameters(), lr=args.lr)
     start, wall, history = args.init_at, 0.0, []
     fresh = True
-    if args.resume and os.path.isfile(ckpt_path):
+    # where a resumed run continues from: its own checkpoint, else a restore point (--resume-from)
+    own = (args.resume or args.resume_from is not None) and os.path.isfile(ckpt_path)
+    source = ckpt_path if own else args.resume_from
+    if source is not None:
         fresh = False
-        ck = load_checkpoint(ckpt_path, config)
+        ck = load_checkpoint(source, config)
         model.load_state_dict(ck["model"])
         opt.load_state_dict(ck["optimizer"])
         start, wall, history = int(ck["iteration"]), float(ck.get("wall_time_s", 0.0)), list(ck.get("val_history", []))
@@ -657,7 +672,11 @@ def _train(args, config: dict, dd: Dist) -> dict:
         else:
             say(f"note: checkpoint has RNG states of {len(rngs)} process(es), now {dd.world}: reseeding")
             torch.manual_seed(args.seed + 1_000_003 * start + dd.rank)
-        say(f"resumed from {ckpt_path} at iteration {start}/{args.iters}")
+        say(f"resumed from {source} at iteration {start}/{args.iters}")
+        if dd.main and not own:  # a restore point in a new run folder: say so where the run's files are
+            with open(os.path.join(args.out, "run.json"), "w") as f:
+                json.dump({"config": config, "args": vars(args)}, f, indent=2, sort_keys=True)
+            _log(args.out, {"event": "restore", "checkpoint": os.path.abspath(source), "iteration": start})
     elif args.resume:
         say(f"note: --resume but no {ckpt_path}: starting from scratch")
     elif os.path.exists(ckpt_path):
@@ -689,11 +708,11 @@ def _train(args, config: dict, dd: Dist) -> dict:
     )
     weights = args.frame_weights
 
-    def checkpoint(it: int, wall_now: float) -> None:
+    def checkpoint(it: int, wall_now: float, path: str = ckpt_path) -> None:
         rngs = dd.gather(rng_state())
         if dd.main:
             save_checkpoint(
-                ckpt_path,
+                path,
                 {
                     "format": CHECKPOINT_FORMAT,
                     "version": CHECKPOINT_VERSION,
@@ -784,11 +803,14 @@ def _train(args, config: dict, dd: Dist) -> dict:
                 run_val(it)
             if it % args.ckpt_every == 0 and it < stop:
                 checkpoint(it, wall + time.time() - t0)
-            if args.snapshot_every and it % args.snapshot_every == 0 and dd.main:
-                snap = os.path.join(args.out, "snapshots", f"it_{it:07d}.safetensors")
-                os.makedirs(os.path.dirname(snap), exist_ok=True)
-                export_model(model, snap + ".tmp", {"model": args.model, "iterations": it, "snapshot_of": args.out}, {})
-                os.replace(snap + ".tmp", snap)
+            if args.snapshot_every and it % args.snapshot_every == 0:
+                snap = os.path.join(args.out, "snapshots", f"it_{it:07d}")
+                if dd.main:
+                    os.makedirs(os.path.dirname(snap), exist_ok=True)
+                    export_model(model, snap + ".tmp", {"model": args.model, "iterations": it, "snapshot_of": args.out}, {})
+                    os.replace(snap + ".tmp", snap + ".safetensors")
+                # the restore point (every rank: the RNG states are gathered)
+                checkpoint(it, wall + time.time() - t0, snap + ".pt")
             if stopper.requested(dd):
                 break
     wall += time.time() - t0

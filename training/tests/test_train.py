@@ -188,7 +188,8 @@ def test_init_from_weights_and_snapshots(dataset, tmp_path, capsys):
     a = str(tmp_path / "a")
     res = T.train(args(dataset, a, "--snapshot-every", "1", iters=2))
     snaps = sorted(os.listdir(os.path.join(a, "snapshots")))
-    assert snaps == ["it_0000001.safetensors", "it_0000002.safetensors"]
+    assert snaps == ["it_0000001.pt", "it_0000001.safetensors", "it_0000002.pt", "it_0000002.safetensors"]
+    snaps = [s for s in snaps if s.endswith(".safetensors")]
     final, _ = load_weights(res["weights"])
     snap2, meta2 = load_weights(os.path.join(a, "snapshots", snaps[-1]))
     assert meta2["provenance"]["iterations"] == 2
@@ -422,3 +423,39 @@ def test_emission_fine_tune_from_weights(tmp_path, capsys):
     assert T.main(args(bare, str(tmp_path / "h"), "--model-config", em, "--background", "loss", iters=1)) == 1
     err = capsys.readouterr().err
     assert "missing channel(s) ['emission.R'" in err, err
+
+
+def test_a_restore_point_resumes_the_run_exactly_in_a_new_folder(dataset, tmp_path, capsys):
+    # The snapshot's checkpoint (it_NNNNNNN.pt beside the weights) is a restore point: a run
+    # in another folder (another machine) continued from it with --resume-from ends with the
+    # straight run's weights to the bit (Adam's moments, RNG and iteration carried over).
+    a = str(tmp_path / "a")
+    T.train(args(dataset, a, "--snapshot-every", "2", "--lr", "1e-3", iters=6))
+    straight, _ = load_weights(os.path.join(a, "weights.safetensors"))
+    point = os.path.join(a, "snapshots", "it_0000004.pt")
+    ck = torch.load(point, weights_only=False)
+    assert ck["iteration"] == 4 and ck["optimizer"]["state"], "the restore point holds Adam's moments"
+    assert os.path.isfile(os.path.join(a, "snapshots", "it_0000004.safetensors"))
+    c = str(tmp_path / "c")
+    # stopped part-way, then the same command again: it goes on from its own checkpoint
+    T.train(args(dataset, c, "--resume-from", point, "--lr", "1e-3", "--stop-at", "5", iters=6))
+    out = capsys.readouterr().out
+    assert f"resumed from {point} at iteration 4/6" in out
+    events = [json.loads(l) for l in open(os.path.join(c, "log.jsonl"))]
+    assert events[0]["event"] == "restore" and events[0]["iteration"] == 4
+    assert os.path.isfile(os.path.join(c, "run.json"))
+    res = T.train(args(dataset, c, "--resume-from", point, "--lr", "1e-3", iters=6))
+    assert "resumed from " + os.path.join(c, "checkpoint.pt") + " at iteration 5/6" in capsys.readouterr().out
+    restored, meta = load_weights(res["weights"])
+    for k, v in straight.state_dict().items():
+        assert torch.equal(restored.state_dict()[k], v), k
+    assert meta["provenance"]["iterations"] == 6
+    # another config is refused, naming the file; --init-at is the weights-only path
+    with pytest.raises(T.CheckpointError, match=r"it_0000004\.pt: checkpoint is from another config; differing keys: lr"):
+        T.train(args(dataset, str(tmp_path / "d"), "--resume-from", point, iters=6))
+    with pytest.raises(SystemExit):
+        T.train(args(dataset, str(tmp_path / "e"), "--resume-from", point, "--init", point, "--init-at", "4", iters=6))
+    assert "--resume-from and --init-at" in capsys.readouterr().err
+    with pytest.raises(SystemExit):
+        T.train(args(dataset, str(tmp_path / "e"), "--resume-from", str(tmp_path / "none.pt"), iters=6))
+    assert "no such file" in capsys.readouterr().err
