@@ -25,7 +25,8 @@
 # ../shared/scenes), SPP (reference samples, default 1024), TRAIN_SPP (reference samples of
 # the val and train phases, default SPP), SIZE (default 128), HELDOUT_SEQUENCES (per
 # held-out scene, default 2), TEST_SEEDS (procedural test seeds, default 20), TRAIN_SEEDS
-# (procedural train seeds, default 60, 2 sequences each), VAL_SEEDS (default 10),
+# (procedural train seeds, default 60, SEED_SEQUENCES sequences each: default 2, at most 5;
+# 1 renders every seed's first sequence and stops there), VAL_SEEDS (default 10),
 # VAL_SPARSE_SEEDS (default "600320 600788 601084 601268": rooms lit only through their
 # windows, the kind of light that trips the generic model on living-room; chosen by scene
 # properties alone, before any model saw them: the first four seeds from 600000 whose
@@ -80,6 +81,8 @@ shard="${SHARD:-0/1}"
 shard_k="${shard%/*}"
 shard_n="${shard#*/}"
 procedural="${PROCEDURAL:-1}"
+seed_sequences="${SEED_SEQUENCES:-2}"
+[[ "$seed_sequences" =~ ^[0-5]$ ]] || { echo "SEED_SEQUENCES must be 0-5, got '$seed_sequences'" >&2; exit 2; }
 [ -x "$bin" ] || { echo "no binary at $bin (SUBPIXEL)" >&2; exit 1; }
 
 fixed=(builtin:cornell builtin:room "$scenes/cbox" "$scenes/cornell-box" "$scenes/dining-room" "$scenes/staircase2")
@@ -142,7 +145,7 @@ for phase in "${phases[@]}"; do
     train)
       for k in 0 1 2 3 4; do
         for s in "${fixed[@]}"; do render "$train_spp" "$s" train "$k"; done
-        if [ "$procedural" = 1 ] && [ "$k" -le 1 ] && [ "$train_seeds" -gt 0 ]; then
+        if [ "$procedural" = 1 ] && [ "$k" -lt "$seed_sequences" ] && [ "$train_seeds" -gt 0 ]; then
           for seed in $(seq 0 $((train_seeds - 1))); do
             render "$train_spp" "$(proc "$seed")" train "$k" "${props[@]}"
           done
