@@ -1,9 +1,10 @@
 //! Rust/WGSL vs PyTorch parity on the golden cases written by `training/ssr/golden.py`:
 //! three consecutive 40x24 frames (so the history path runs), every intermediate compared
-//! in execution order so a failure names the layer that diverged. Two sets: `golden_*`
+//! in execution order so a failure names the layer that diverged. Four sets: `golden_*`
 //! (version-2 config: exposure normalisation, remodulation with the current albedo,
 //! geometric history test; the light brightens 3x per frame and a block is disoccluded),
-//! `golden_l4_*` (the same with a fourth U-Net level, enc [16, 32, 28, 24]) and
+//! `golden_l4_*` (the same with a fourth U-Net level, enc [16, 32, 28, 24]), `golden_shared_*`
+//! (the same with one exposure per buffer, config exposure "shared") and
 //! `golden_v1_*` (a version-1 config: the pipeline of version-1 weights files).
 
 mod common;
@@ -83,6 +84,13 @@ fn fourth_unet_level_matches_pytorch() {
     for pooling in [Pooling::OnLoad, Pooling::Pass] {
         golden_parity_with("golden_l4_", 2, Precision::F32, pooling);
     }
+}
+
+/// One exposure per buffer (config exposure "shared": `ExposureMode::Shared`, the SHARED
+/// flag of `ssr/exposure_final`).
+#[test]
+fn shared_exposure_matches_pytorch() {
+    golden_parity("golden_shared_", 2, Precision::F32);
 }
 
 #[test]

@@ -854,6 +854,12 @@ mod tests {
                 k.name
             );
         }
+        // Flags of the SSR kernels whose default is off, each on.
+        for (name, flag) in [("ssr/fold_emission", "ESCAPED"), ("ssr/exposure_final", "SHARED")] {
+            let k = kernel_source(name).unwrap();
+            let source = k.wgsl(ParamsBinding::Uniform, &[(flag, 1)]).unwrap();
+            validate_wgsl(name, &source).unwrap_or_else(|e| panic!("{name} {flag}: {e}"));
+        }
     }
 
     /// SPIR-V of a validated module with its override constants at their defaults (what the

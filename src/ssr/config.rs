@@ -25,6 +25,18 @@ pub enum ExposureMode {
     /// exposure s (geometric mean of the demodulated traced samples, smoothed over frames),
     /// the output multiplied by it; the history re-exposed when s changes.
     Channel,
+    /// The same with one exposure per buffer (config `"shared"`): the geometric mean over
+    /// every channel of the colour (of the shadow) and the traced pixels, the same for its
+    /// three channels, so the network is fed the samples' colour as it is (per channel, the
+    /// geometric means of heavy-tailed samples can part from the colour of their means).
+    Shared,
+}
+
+impl ExposureMode {
+    /// Whether colour and shadow are normalised by an exposure (and the history re-exposed).
+    pub fn normalises(self) -> bool {
+        self != ExposureMode::None
+    }
 }
 
 /// Which albedo remodulates the output (config `remodulation`, version 2).
@@ -162,7 +174,7 @@ pub struct SsrConfig {
     /// remodulation `accumulated`, history `screen`) or 2 (they are required).
     #[serde(default)]
     pub version: u32,
-    /// Version 2: `"none"` or `"channel"` ([`ExposureMode`]).
+    /// Version 2: `"none"`, `"channel"` or `"shared"` ([`ExposureMode`]).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub exposure: Option<String>,
     /// Version 2: `"accumulated"` or `"current"` ([`RemodulationAlbedo`]).
@@ -306,9 +318,9 @@ impl SsrConfig {
         self.albedo_source()?;
         self.emission_source()?;
         self.escaped_source()?;
-        if self.ceiling_mode()? == CeilingMode::Max && self.exposure_mode()? != ExposureMode::Channel {
+        if self.ceiling_mode()? == CeilingMode::Max && !self.exposure_mode()?.normalises() {
             return bad(
-                "ceiling \"max\" needs exposure \"channel\" (the running max lives in the exposure state)"
+                "ceiling \"max\" needs exposure \"channel\" or \"shared\" (the running max lives in the exposure state)"
                     .into(),
             );
         }
@@ -433,7 +445,11 @@ impl SsrConfig {
 
     /// Input normalisation (version 1: none).
     pub fn exposure_mode(&self) -> Result<ExposureMode> {
-        let choices = [("none", ExposureMode::None), ("channel", ExposureMode::Channel)];
+        let choices = [
+            ("none", ExposureMode::None),
+            ("channel", ExposureMode::Channel),
+            ("shared", ExposureMode::Shared),
+        ];
         choose("exposure", self.exposure.as_deref(), &choices)
     }
 
@@ -613,6 +629,18 @@ mod tests {
         let d = SsrConfig::default();
         assert_eq!(d.version, 2);
         assert_eq!(d.exposure_mode().unwrap(), ExposureMode::Channel);
+        let shared = SsrConfig {
+            exposure: Some("shared".into()),
+            ..d.clone()
+        };
+        shared.validate().unwrap();
+        assert_eq!(shared.exposure_mode().unwrap(), ExposureMode::Shared);
+        let unnormalised = SsrConfig {
+            exposure: Some("none".into()),
+            ..d.clone()
+        };
+        let e = unnormalised.validate().unwrap_err().to_string();
+        assert!(e.contains("ceiling \"max\" needs exposure"), "{e}");
         assert_eq!(d.remodulation_albedo().unwrap(), RemodulationAlbedo::Current);
         assert_eq!(d.history_test().unwrap(), HistoryTest::Geometry);
         assert_eq!(d.ceiling_mode().unwrap(), CeilingMode::Max);

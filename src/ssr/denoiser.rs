@@ -793,9 +793,10 @@ impl Denoiser {
             ],
             grid,
         )?;
-        let e = match self.weights.config.exposure_mode()? {
+        let mode = self.weights.config.exposure_mode()?;
+        let e = match mode {
             ExposureMode::None => None,
-            ExposureMode::Channel => {
+            ExposureMode::Channel | ExposureMode::Shared => {
                 let groups = exposure_groups(self.net.width, self.net.height);
                 let partial = ExposurePartialParams {
                     width: self.width,
@@ -826,7 +827,7 @@ impl Denoiser {
                     };
                     self.gpu.kernels.dispatch(
                         "ssr/exposure_final",
-                        &Specialisation::none(),
+                        &Specialisation(vec![("SHARED", (mode == ExposureMode::Shared) as u32 as f64)]),
                         bytemuck::bytes_of(&params),
                         &[&partials.buffer, &exposure.buffer, &ratio.buffer],
                         Grid::Workgroups([1, 1, 1]),

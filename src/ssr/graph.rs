@@ -5,7 +5,7 @@
 //! [`SsrConfig::layers`] (shared with the PyTorch mirror through the weight names) is
 //! checked against it.
 
-use super::config::{A_CHANNELS, ExposureMode, HistoryTest, MT_CHANNELS, RGB, RemodulationAlbedo, SsrConfig};
+use super::config::{A_CHANNELS, HistoryTest, MT_CHANNELS, RGB, RemodulationAlbedo, SsrConfig};
 use crate::error::Result;
 use crate::nn::ops::{Fetch, PoolMode};
 
@@ -302,7 +302,7 @@ fn step(stage: &'static str, label: &'static str, op: Op, tensors: &[TensorId]) 
 pub fn steps(config: &SsrConfig, pool_pass: bool) -> Result<Vec<StepSpec>> {
     use Op::*;
     use TensorId::*;
-    let rescale = config.exposure_mode()? == ExposureMode::Channel;
+    let rescale = config.exposure_mode()?.normalises();
     let geometry = config.history_test()? == HistoryTest::Geometry;
     let mut warp = step(
         "tfa",

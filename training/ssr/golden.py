@@ -12,6 +12,9 @@ writes
     golden_l4_weights.safetensors, golden_l4_frame{0,1,2}.safetensors
                                  the same for the default config with a fourth U-Net level
                                  (enc [16, 32, 28, 24]: L4_ENC), on the same inputs
+    golden_shared_weights.safetensors, golden_shared_frame{0,1,2}.safetensors
+                                 the same for the default config with one exposure per buffer
+                                 (exposure "shared"), on the same inputs
     golden_v1_weights.safetensors, golden_v1_frame{0,1,2}.safetensors
                                  the same for a version-1 config (the pipeline of version-1
                                  weights files: no exposure normalisation, remodulation with the
@@ -59,6 +62,8 @@ L4_PREFIX = "golden_l4_"
 L4_ENC = [16, 32, 28, 24]
 """Its widths (the default's three, and a fourth at 1/8 resolution); WIDTH and HEIGHT are
 multiples of 8, as a 4-level U-Net needs."""
+SHARED_PREFIX = "golden_shared_"
+"""File name prefix of the set with one exposure per buffer (config exposure "shared")."""
 
 GOLDEN_INPUTS = list(FRAME_CHANNELS)  # color mask albedo normal shadow transparent depth metallic roughness motion
 GOLDEN_INTERMEDIATES = [
@@ -245,8 +250,14 @@ def generate(out_dir: str, weights_seed: int = WEIGHTS_SEED, input_seed: int = I
     out_dir; returns their paths."""
     paths = _generate_set(out_dir, "golden_", SSRConfig(), "coherent", weights_seed, input_seed, verbose)
     paths += _generate_set(out_dir, L4_PREFIX, SSRConfig(enc=L4_ENC), "coherent", weights_seed, input_seed, verbose)
+    paths += generate_shared(out_dir, weights_seed, input_seed, verbose)
     legacy = SSRConfig(version=1, **LEGACY_OPTIONS)
     return paths + _generate_set(out_dir, LEGACY_PREFIX, legacy, "random", weights_seed, input_seed, verbose)
+
+
+def generate_shared(out_dir: str, weights_seed: int = WEIGHTS_SEED, input_seed: int = INPUT_SEED, verbose: bool = True) -> List[str]:
+    """The set of config exposure "shared" alone (SHARED_PREFIX)."""
+    return _generate_set(out_dir, SHARED_PREFIX, SSRConfig(exposure="shared"), "coherent", weights_seed, input_seed, verbose)
 
 
 def _generate_set(

@@ -24,6 +24,15 @@ Config version 2 (the default) adds three things that version-1 weights did not 
   the history is re-expressed in the new exposure (`rescale_log`). The whole pipeline is
   then equivariant to per-channel radiance scaling (of lights, of colour and shadow
   together or apart).
+  `exposure = "shared"` (a later value; a fine-tune option) does the same with one exposure
+  per buffer: the mean of ln d over every traced pixel and channel with d > 0, the same
+  for the three channels (`_log_exposure`), so the network sees the samples' colour as it
+  is, and the pipeline is equivariant to scaling all three channels alike. Per channel, the
+  geometric means of heavy-tailed samples can part from the colour of their means: in a
+  room lit only through its windows, where most paths find no light, the dim samples'
+  colour sets each channel's exposure while the rare bright ones carry the light; a
+  network fed each channel on its own scale then gets the colour balance wrong
+  (training/README, Generalisation 26).
 * `remodulation = "current"`: remodulate with the albedo that demodulated (the current
   frame's), not the accumulated one.
 * `history = "geometry"`: warped history whose depth or normal disagrees with the current
@@ -100,7 +109,7 @@ LEGACY_OPTIONS: Dict[str, str] = {
 accumulated albedo, history rejected only off screen, no output ceiling."""
 
 OPTION_VALUES: Dict[str, Tuple[str, ...]] = {
-    "exposure": ("none", "channel"),
+    "exposure": ("none", "channel", "shared"),
     "remodulation": ("accumulated", "current"),
     "history": ("screen", "geometry"),
     "ceiling": ("none", "max"),
@@ -115,7 +124,7 @@ LATE_OPTIONS: Dict[str, str] = {
 }
 """Version-2 options added after the first version-2 weights: absent, they take this value."""
 
-FINE_TUNE_OPTIONS: Tuple[str, ...] = ("albedo", "emission", "escaped")
+FINE_TUNE_OPTIONS: Tuple[str, ...] = ("albedo", "emission", "escaped", "exposure")
 """Options that change what the network is fed but not its parameters: a run started from
 weights (`ssr.train --init`) may set them differently from the file, fine-tuning it."""
 
@@ -168,7 +177,7 @@ class SSRConfig:
     upsample: str = "bilinear"  # "bilinear" | "nearest": upsampling of I3, I2
     input_channels: int = A_CHANNELS + MT_CHANNELS + A_CHANNELS + RGB  # 37
     version: int = CONFIG_VERSION
-    exposure: str = "channel"  # "none" | "channel": per-channel exposure normalisation
+    exposure: str = "channel"  # "none" | "channel" | "shared": exposure normalisation per channel or per buffer
     remodulation: str = "current"  # "accumulated" | "current": albedo of the remodulation
     history: str = "geometry"  # "screen" | "geometry": which warped history is invalid
     ceiling: str = "max"  # "none" | "max": clamp the output to the brightest recent sample
@@ -217,8 +226,8 @@ class SSRConfig:
                 raise ValueError(f"config: `{key}` must be one of {list(values)}, got {v!r}")
             if self.version == 1 and v != LEGACY_OPTIONS[key]:
                 raise ValueError(f"config: version 1 has no `{key}` option (it means {LEGACY_OPTIONS[key]!r}), got {v!r}")
-        if self.ceiling == "max" and self.exposure != "channel":
-            raise ValueError('config: `ceiling` "max" needs `exposure` "channel" (the running max lives in the exposure state)')
+        if self.ceiling == "max" and self.exposure == "none":
+            raise ValueError('config: `ceiling` "max" needs `exposure` "channel" or "shared" (the running max lives in the exposure state)')
 
     def to_dict(self) -> dict:
         d = {
@@ -671,14 +680,19 @@ def _demodulated_samples(frame: Dict[str, torch.Tensor]) -> Tuple[torch.Tensor, 
     return d, _clean(frame["mask"]) > 0.5
 
 
-def _log_exposure(frame: Dict[str, torch.Tensor]) -> Tuple[torch.Tensor, torch.Tensor]:
+def _log_exposure(frame: Dict[str, torch.Tensor], shared: bool = False) -> Tuple[torch.Tensor, torch.Tensor]:
     """(mean ln d_c over the traced pixels with d_c > 0, whether there is one), [N, 6, 1, 1] each,
-    d = [clean(color) / (clean(albedo) + eps), clean(shadow)] (wgsl/ssr/exposure_*.wgsl)."""
+    d = [clean(color) / (clean(albedo) + eps), clean(shadow)] (wgsl/ssr/exposure_*.wgsl). With
+    `shared` (config exposure "shared"), the mean over every channel of the buffer (colour,
+    shadow) and those pixels, the same value for its three channels."""
     d, traced = _demodulated_samples(frame)
     pos = traced & (d > 0)
     ln = torch.where(pos, torch.log(torch.where(pos, d, torch.ones_like(d))), torch.zeros_like(d))
     total = ln.sum(dim=(2, 3), keepdim=True)
     count = pos.to(d.dtype).sum(dim=(2, 3), keepdim=True)
+    if shared:  # per buffer: colour channels 0..2, shadow 3..5
+        pool = lambda x: torch.cat([x[:, i : i + RGB].sum(dim=1, keepdim=True).expand(-1, RGB, -1, -1) for i in (0, RGB)], 1)  # noqa: E731
+        total, count = pool(total), pool(count)
     have = count > 0
     return torch.where(have, total / torch.clamp(count, min=1.0), torch.zeros_like(total)), have
 
@@ -690,22 +704,23 @@ def frame_sample_max(frame: Dict[str, torch.Tensor]) -> torch.Tensor:
     return torch.where(traced, d[:, :RGB], torch.zeros_like(d[:, :RGB])).amax(dim=(2, 3), keepdim=True)
 
 
-def frame_exposure(frame: Dict[str, torch.Tensor]) -> torch.Tensor:
+def frame_exposure(frame: Dict[str, torch.Tensor], shared: bool = False) -> torch.Tensor:
     """g_c = exp(mean ln d_c) over the traced pixels with d_c > 0 (1 where there is none),
-    [N, 6, 1, 1]: demodulated colour rgb, shadow rgb."""
-    lg, _ = _log_exposure(frame)
+    [N, 6, 1, 1]: demodulated colour rgb, shadow rgb (`shared`: per buffer, `_log_exposure`)."""
+    lg, _ = _log_exposure(frame, shared)
     return torch.exp(lg)
 
 
-def update_exposure(frame: Dict[str, torch.Tensor], prev: Optional[torch.Tensor]) -> torch.Tensor:
-    """This frame's exposure state [N, 9, 1, 1] (STATE_EXPOSURE_CHANNELS).
+def update_exposure(frame: Dict[str, torch.Tensor], prev: Optional[torch.Tensor], shared: bool = False) -> torch.Tensor:
+    """This frame's exposure state [N, 9, 1, 1] (STATE_EXPOSURE_CHANNELS); `shared`: g per
+    buffer (config exposure "shared", `_log_exposure`), the running max still per channel.
 
     Exposure s (channels 0..5): g on the first frame (prev None), then exp(ln s_prev +
     EXPOSURE_RATE (ln g - ln s_prev)), or g where |ln g - ln s_prev| > EXPOSURE_JUMP; a channel
     without a positive traced sample keeps s_prev (1 on a first frame).
     Running max M (channels 6..8): m (`frame_sample_max`) on the first frame, then
     max(m, CEILING_DECAY M_prev)."""
-    lg, have = _log_exposure(frame)
+    lg, have = _log_exposure(frame, shared)
     m = frame_sample_max(frame)
     if prev is None:
         return torch.cat([torch.exp(lg), m], dim=1)
@@ -1028,12 +1043,13 @@ class SSRModel(nn.Module):
             if len(state) != 3:
                 raise ValueError(f"state: expected (a_acc, o, exposure), got a tuple of {len(state)}")
             a_acc_prev, o_prev, prev = state
-        if self.cfg.exposure == "channel":
-            exposure = update_exposure(frame, prev)
+        normalised = self.cfg.exposure != "none"
+        if normalised:
+            exposure = update_exposure(frame, prev, self.cfg.exposure == "shared")
         else:
             c = frame["color"]
             exposure = torch.ones(c.shape[0], STATE_EXPOSURE_CHANNELS, 1, 1, dtype=c.dtype, device=c.device)
-        a_t, mt = prepare_inputs(frame, exposure if self.cfg.exposure == "channel" else None)
+        a_t, mt = prepare_inputs(frame, exposure if normalised else None)
         if state is None:
             warp_acc = a_t
             warp_valid = torch.ones_like(a_t[:, :1])
@@ -1047,7 +1063,7 @@ class SSRModel(nn.Module):
             # One warp of both histories: same motion, hence the same validity.
             warped, warp_valid = warp(torch.cat([a_acc_prev, o_prev], dim=1), frame["motion"])
             warp_acc, wo = warped[:, :A_CHANNELS], warped[:, A_CHANNELS:]
-            if self.cfg.exposure == "channel":
+            if normalised:
                 ratio = prev[:, :EXPOSURE_CHANNELS] / exposure[:, :EXPOSURE_CHANNELS]
                 warp_acc = torch.cat(
                     [

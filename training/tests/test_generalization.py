@@ -126,6 +126,59 @@ def test_exposure_statistic():
     assert frame_exposure(black)[0, 1, 0, 0] == 1.0
 
 
+def test_shared_exposure_statistic():
+    """Config exposure "shared": one exposure per buffer, the geometric mean of every positive
+    traced sample of its three channels (colour demodulated, shadow), the same for each
+    channel; a black channel takes the buffer's value (not 1)."""
+    f = make_frames(count=1)[0]
+    d = torch.cat([f["color"] / (f["albedo"] + ALBEDO_EPS), f["shadow"]], 1)
+    traced = (f["mask"][:, 0] > 0.5)[:, None].expand(-1, 3, -1, -1)
+    for shared, black in ((frame_exposure(f, shared=True), False),
+                          (frame_exposure({**f, "color": f["color"] * torch.tensor([1.0, 0.0, 1.0]).view(1, 3, 1, 1)}, shared=True), True)):  # fmt: skip
+        for b in (0, 3):
+            v = d[:, b : b + 3].clone()
+            if black and b == 0:
+                v[:, 1] = 0.0
+            v = v[traced & (v > 0)]
+            for c in range(b, b + 3):
+                torch.testing.assert_close(shared[0, c, 0, 0], torch.exp(torch.log(v).mean()))
+
+
+def test_shared_exposure_keeps_the_samples_colour_and_uniform_equivariance():
+    """With one exposure per buffer the network is fed the samples' colour as it is: the
+    ratio between a traced sample's channels in its normalised input is the sample's own,
+    where per-channel exposures rescale each channel by its own geometric mean (in a
+    window-lit room, most samples dim and tinted by the walls and a few bright ones carrying
+    the light, those means part from the light's colour: training/README, Generalisation 26).
+    The pipeline stays equivariant to scaling the three channels alike, and no longer to
+    scaling them apart."""
+    frames = make_frames(count=3)
+    # dim samples tinted blue, a few bright neutral ones: the means are about neutral
+    g = torch.Generator().manual_seed(4)
+    for f in frames:
+        bright = torch.rand(f["mask"].shape, generator=g) < 0.02
+        tint = torch.tensor([0.2, 0.5, 1.0]).view(1, 3, 1, 1)
+        f["color"] = torch.where(bright, torch.full_like(f["color"], 60.0), 0.05 * tint * f["albedo"]) * f["mask"]
+    e = lambda m, fr: m.history(fr, None)["a_cur"][:, :3]  # noqa: E731  (log1p(c / s / (albedo + eps)))
+    shared = random_model(0, SSRConfig(exposure="shared"))
+    channel = random_model(0, SSRConfig(exposure="channel"))
+    f = frames[0]
+    dim = (f["mask"][:, 0] > 0.5) & (f["color"][:, 2] < 1.0)
+    with torch.no_grad():
+        for model, keeps in ((shared, True), (channel, False)):
+            x = torch.expm1(e(model, f))  # c / s / (albedo + eps) per channel
+            ratio = (x[:, 0] / x[:, 2])[dim]
+            want = (f["color"][:, 0] / (f["albedo"][:, 0] + ALBEDO_EPS) / (f["color"][:, 2] / (f["albedo"][:, 2] + ALBEDO_EPS)))[dim]
+            close = torch.allclose(ratio, want, rtol=1e-3)
+            assert close == keeps, (model.cfg.exposure, float(ratio.mean()), float(want.mean()))
+        for k, same in ((torch.tensor([5.0, 5.0, 5.0]), True), (torch.tensor([7.0, 0.25, 40.0]), False)):
+            base = shared.run_sequence(frames)
+            scaled = shared.run_sequence(_scaled(frames, k))
+            for a, b in zip(base, scaled):
+                ok = torch.allclose(b["output"], a["output"] * k.view(1, 3, 1, 1), rtol=2e-3, atol=1e-5 * float(a["output"].abs().max()))
+                assert ok == same, k
+
+
 def test_exposure_follows_light_changes_and_rescales_history():
     """A light 1.5x brighter mid-sequence: the exposure eases towards it (EMA); 10x brighter (a
     cut, a light switched on): it jumps. The history is re-expressed in the new exposure so the

@@ -12,7 +12,11 @@
 // beyond any real frame's exposure, it keeps s, 1/s and the ratio finite and non-zero).
 // `exposure` holds (s_prev, M_prev) on entry and (s, M) on exit, a 1x1x9 tensor packed in 3
 // vec4: (colour.rgb, shadow.r), (shadow.gb, M.rg), (M.b, 0, 0, 0); `ratio` the ratio, 1x1x6
-// in 2 vec4 likewise.
+// in 2 vec4 likewise. With SHARED (config exposure "shared"), one exposure per buffer: the
+// sums and counts of a buffer's three channels are pooled before the mean, so its three
+// channels get the same s (the running max stays per channel).
+//
+//#param SHARED 0
 
 struct Params {
     groups: u32,
@@ -69,7 +73,13 @@ fn main(@builtin(local_invocation_id) lid: vec3<u32>) {
 }
 
 // (s, s_prev / s) from the sums of ln d, the counts and s_prev.
-fn update(sum: vec3<f32>, count: vec3<f32>, prev: vec3<f32>) -> array<vec3<f32>, 2> {
+fn update(channel_sum: vec3<f32>, channel_count: vec3<f32>, prev: vec3<f32>) -> array<vec3<f32>, 2> {
+    var sum = channel_sum;
+    var count = channel_count;
+//#if SHARED
+    sum = vec3<f32>(sum.x + sum.y + sum.z);
+    count = vec3<f32>(count.x + count.y + count.z);
+//#end
     let have = count > vec3<f32>(0.0);
     let mean = sum / max(count, vec3<f32>(1.0));
     // NaN fails the comparison (it cannot arise from sanitised inputs; belt and braces).
