@@ -52,7 +52,7 @@ from torch import nn
 
 from .baselines import HoldBaseline, _clean
 from .data import EXTRA_SUFFIXES, DatasetError, exr_size, read_exr
-from .model import ESCAPED
+from .model import ESCAPED, SSRConfig
 
 FULL_CHANNELS = ("full.R", "full.G", "full.B")
 """Channels of the 1-spp full-resolution colour that oidn-b denoises."""
@@ -62,18 +62,6 @@ FOOTPRINT_CHANNELS = ("albedo_footprint.R", "albedo_footprint.G", "albedo_footpr
 
 ESCAPED_CHANNELS = tuple(f"{b}.{c}" for b in ESCAPED for c in EXTRA_SUFFIXES[b])
 """Channels the `-escaped` row reads: the samples' escapes, the background and its coverage."""
-
-
-class EscapedToBackground:
-    """The part of an SSR config (model.SSRConfig) that evaluate.py reads to feed a model
-    its frames and composite its output, for a non-learned model given the frames as a
-    model of config `escaped = "background"` (and nothing else of such a model) is:
-    `fold_emission` leaves the escaped samples out, `output_pass` composites the background
-    (no mean correction, no emission folded)."""
-
-    escaped = "background"
-    emission = "network"
-    mean_correction = "none"
 
 PIP_INSTALL = "~/.cache/subpixel/venv/bin/pip install pyoidn==2.5.1.0"
 QUALITY = "high"
@@ -169,8 +157,10 @@ class OIDNBaseline(nn.Module):
         self.source = source
         self.albedo = albedo
         self.escaped = escaped
-        # evaluate.py folds the frame and composites the output by the model's config
-        self.cfg = EscapedToBackground() if escaped else None
+        # evaluate.py folds the frame and composites the output by the model's config: the
+        # escaped samples left out, the background composited (no emission fold, no mean
+        # correction: the defaults)
+        self.cfg = SSRConfig(escaped="background") if escaped else None
         self.NAME = (
             ("oidn-a" if source == "hold" else "oidn-b")
             + ("-footprint" if albedo == "footprint" else "")
