@@ -594,6 +594,12 @@ def train(argv=None) -> dict:
         dd.close()
 
 
+def _write_run(args, config: dict) -> None:
+    """RUN_DIR/run.json: the run's config and arguments."""
+    with open(os.path.join(args.out, "run.json"), "w") as f:
+        json.dump({"config": config, "args": vars(args)}, f, indent=2, sort_keys=True)
+
+
 def _log(run_dir: str, record: dict) -> None:
     with open(os.path.join(run_dir, "log.jsonl"), "a") as f:
         f.write(json.dumps(record, sort_keys=True) + "\n")
@@ -674,16 +680,14 @@ def _train(args, config: dict, dd: Dist) -> dict:
             torch.manual_seed(args.seed + 1_000_003 * start + dd.rank)
         say(f"resumed from {source} at iteration {start}/{args.iters}")
         if dd.main and not own:  # a restore point in a new run folder: say so where the run's files are
-            with open(os.path.join(args.out, "run.json"), "w") as f:
-                json.dump({"config": config, "args": vars(args)}, f, indent=2, sort_keys=True)
+            _write_run(args, config)
             _log(args.out, {"event": "restore", "checkpoint": os.path.abspath(source), "iteration": start})
     elif args.resume:
         say(f"note: --resume but no {ckpt_path}: starting from scratch")
     elif os.path.exists(ckpt_path):
         raise SystemExit(f"error: {ckpt_path} exists: pass --resume to continue it, or choose another --out")
     if dd.main and fresh:
-        with open(os.path.join(args.out, "run.json"), "w") as f:
-            json.dump({"config": config, "args": vars(args)}, f, indent=2, sort_keys=True)
+        _write_run(args, config)
         if args.init is not None:
             # Where this run's iteration 0 sits in a campaign of runs continuing each other.
             _log(args.out, {"event": "init", "weights": args.init, "campaign_iterations": init_iterations})
