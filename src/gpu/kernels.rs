@@ -189,7 +189,7 @@ pub const KERNELS: &[KernelSource] = &[
             "nn/lib/warp"
         ]
     ),
-    kernel!("ssr/mean_atrous", ["ssr/lib/sanitize"]),
+    kernel!("ssr/mean_atrous"),
     kernel!("ssr/exposure_partial", ["ssr/lib/sanitize", "ssr/lib/exposure"]),
     kernel!("ssr/exposure_final", ["ssr/lib/exposure"]),
     kernel!(

@@ -66,7 +66,7 @@ struct InputPasses {
     /// others).
     mean: Option<Vec<Dispatch>>,
     /// With `"atrous"`, the filter's levels after the sums, the last writing the factors, for
-    /// a frame whose sums went to the first or the second history buffer (none for tiles).
+    /// a frame whose sums went to the first or the second history pair (none for tiles).
     mean_filter: Vec<Vec<Dispatch>>,
     store: Dispatch,
     /// Whether `store` composites a background.
@@ -109,21 +109,47 @@ struct MeanState {
     ring: Option<wgpu::Buffer>,
     factors: wgpu::Buffer,
     filter: Option<AtrousBuffers>,
-    /// The ring slot of the next frame (for `"atrous"`, its parity is the history buffer
+    /// The ring slot of the next frame (for `"atrous"`, its parity is the history pair
     /// the frame's sums go to).
     slot: u32,
 }
 
-/// The buffers of the `"atrous"` mean correction (2 vec4 per pixel, but `guide`).
+/// The data of the `"atrous"` mean correction: rgba32float textures, the sums as one
+/// texture of the samples' part (S) and one of the reconstruction's (R). Textures, because
+/// the filter's 25 taps per pixel and level are then texel fetches, which CPU drivers
+/// vectorise (storage-buffer loads there run lane by lane).
 struct AtrousBuffers {
-    /// The motion-carried sums: each frame writes one from the other (`ssr/mean_history`);
-    /// the filter's first level then overwrites the other, which it no longer needs.
-    sums: [wgpu::Buffer; 2],
-    /// The filter's second buffer.
-    scratch: wgpu::Buffer,
-    /// The frame's sanitised normals and depths, left by the filter's first level for the
-    /// others (1 vec4 per pixel).
-    guide: wgpu::Buffer,
+    /// The motion-carried sums: each frame writes one pair from the other
+    /// (`ssr/mean_history`); the filter's first level then overwrites the other, which it no
+    /// longer needs.
+    sums: [SumTextures; 2],
+    /// The filter's second pair.
+    scratch: SumTextures,
+    /// The frame's sanitised normals (xyz) and depths (w), left by `ssr/mean_history` for
+    /// the filter.
+    guide: wgpu::TextureView,
+}
+
+/// One (S, R) pair of the mean correction's sums.
+struct SumTextures {
+    s: wgpu::TextureView,
+    r: wgpu::TextureView,
+}
+
+impl SumTextures {
+    fn new(gpu: &Gpu, label: &str, width: u32, height: u32) -> Self {
+        let view = |part: &str| sum_texture(gpu, &format!("{label}_{part}"), width, height);
+        Self {
+            s: view("s"),
+            r: view("r"),
+        }
+    }
+}
+
+/// A view of a new `width x height` rgba32float texture for the mean correction.
+fn sum_texture(gpu: &Gpu, label: &str, width: u32, height: u32) -> wgpu::TextureView {
+    gpu.storage_texture(label, width, height, wgpu::TextureFormat::Rgba32Float)
+        .create_view(&Default::default())
 }
 
 /// Every kernel the denoiser runs: [`Denoiser::new`] checks them against the device's
@@ -276,11 +302,11 @@ impl Denoiser {
                     factors: buffer("subpixel.ssr.mean_factors", n * 16),
                     filter: atrous.then(|| AtrousBuffers {
                         sums: [
-                            buffer("subpixel.ssr.mean_sums_a", n * 32),
-                            buffer("subpixel.ssr.mean_sums_b", n * 32),
+                            SumTextures::new(gpu, "subpixel.ssr.mean_sums_a", width, height),
+                            SumTextures::new(gpu, "subpixel.ssr.mean_sums_b", width, height),
                         ],
-                        scratch: buffer("subpixel.ssr.mean_filter", n * 32),
-                        guide: buffer("subpixel.ssr.mean_guide", n * 16),
+                        scratch: SumTextures::new(gpu, "subpixel.ssr.mean_filter", width, height),
+                        guide: sum_texture(gpu, "subpixel.ssr.mean_guide", width, height),
                     }),
                     slot: 0,
                 })
@@ -389,7 +415,7 @@ impl Denoiser {
 
     /// The mean correction's sums for each ring slot, then for each slot on a first frame
     /// (`None` without the option): `ssr/tile_means`, or with `"atrous"` `ssr/mean_history`
-    /// into the history buffer of the slot's parity, from the other.
+    /// into the history pair of the slot's parity, from the other.
     fn mean_dispatches(&self, inputs: &FrameInputs<'_>) -> Result<Option<Vec<Dispatch>>> {
         let (color_mask, background) = (inputs.color_mask, inputs.background);
         let Some(m) = &self.mean else {
@@ -409,12 +435,18 @@ impl Denoiser {
             for first in [false, true] {
                 for slot in 0..MEAN_RING {
                     let (now, prev) = (&a.sums[slot as usize % 2], &a.sums[1 - slot as usize % 2]);
+                    let view = wgpu::BindingResource::TextureView;
                     let mut resources = vec![
                         self.net.output().buffer.as_entire_binding(),
                         color_mask.as_entire_binding(),
                         inputs.motion.as_entire_binding(),
-                        prev.as_entire_binding(),
-                        now.as_entire_binding(),
+                        inputs.normal_metallic.as_entire_binding(),
+                        inputs.albedo_depth.as_entire_binding(),
+                        view(&prev.s),
+                        view(&prev.r),
+                        view(&now.s),
+                        view(&now.r),
+                        view(&a.guide),
                     ];
                     resources.extend(background.map(|b| b.as_entire_binding()));
                     out.push(self.gpu.kernels.dispatch_with(
@@ -459,28 +491,28 @@ impl Denoiser {
         Ok(Some(out))
     }
 
-    /// With `"atrous"`, for sums in either history buffer, the [`ATROUS_LEVELS`] levels of
-    /// the mean correction's filter: from the sums into the other history buffer (which the
-    /// next frame no longer reads), then alternating between it and the scratch buffer, the
-    /// last writing the factors, guided by the caller's normals and depths (the first level
-    /// leaves them sanitised in the guide for the others); none otherwise.
-    fn mean_filter_dispatches(&self, inputs: &FrameInputs<'_>) -> Result<Vec<Vec<Dispatch>>> {
+    /// With `"atrous"`, for sums in either history pair, the [`ATROUS_LEVELS`] levels of
+    /// the mean correction's filter: from the sums into the other history pair (which the
+    /// next frame no longer reads), then alternating between it and the scratch pair, the
+    /// last writing the factors, guided by the normals and depths `ssr/mean_history` left;
+    /// none otherwise.
+    fn mean_filter_dispatches(&self) -> Result<Vec<Vec<Dispatch>>> {
         let Some((m, ab)) = self.mean.as_ref().and_then(|m| m.filter.as_ref().map(|f| (m, f))) else {
             return Ok(Vec::new());
         };
         (0..2)
-            .map(|parity| self.mean_filter_levels(inputs, ab, parity, &m.factors))
+            .map(|parity| self.mean_filter_levels(ab, parity, &m.factors))
             .collect()
     }
 
     fn mean_filter_levels(
         &self,
-        inputs: &FrameInputs<'_>,
         ab: &AtrousBuffers,
         parity: usize,
         factors: &wgpu::Buffer,
     ) -> Result<Vec<Dispatch>> {
-        let (sums, other, scratch, guide) = (&ab.sums[parity], &ab.sums[1 - parity], &ab.scratch, &ab.guide);
+        let (sums, other, scratch) = (&ab.sums[parity], &ab.sums[1 - parity], &ab.scratch);
+        let view = wgpu::BindingResource::TextureView;
         let mut out = Vec::new();
         for level in 0..ATROUS_LEVELS {
             let last = level + 1 == ATROUS_LEVELS;
@@ -489,29 +521,22 @@ impl Denoiser {
                 l if l % 2 == 1 => other,
                 _ => scratch,
             };
-            let dst = match level {
-                _ if last => factors,
-                l if l % 2 == 0 => other,
-                _ => scratch,
-            };
             let params = AtrousParams {
                 width: self.width,
                 height: self.height,
                 step: 1 << level,
                 _pad: 0,
             };
-            let mut resources = vec![src.as_entire_binding(), dst.as_entire_binding()];
-            if level == 0 {
-                resources.extend([
-                    inputs.normal_metallic.as_entire_binding(),
-                    inputs.albedo_depth.as_entire_binding(),
-                ]);
+            let mut resources = vec![view(&src.s), view(&src.r), view(&ab.guide)];
+            if last {
+                resources.push(factors.as_entire_binding());
+            } else {
+                let dst = if level % 2 == 0 { other } else { scratch };
+                resources.extend([view(&dst.s), view(&dst.r)]);
             }
-            resources.push(guide.as_entire_binding());
             out.push(self.gpu.kernels.dispatch_with(
                 "ssr/mean_atrous",
                 &Specialisation(vec![
-                    ("FIRST", (level == 0) as u32 as f64),
                     ("FINAL", last as u32 as f64),
                     ("SQUARINGS", ATROUS_NORMAL_SQUARINGS as f64),
                     ("DEPTH_SIGMA", ATROUS_DEPTH_SIGMA as f64),
@@ -552,16 +577,16 @@ impl Denoiser {
         if let Some(m) = &self.mean {
             let reads = self.net.output().bytes() + px * if background { 2 } else { 1 };
             if m.filter.is_some() {
-                // The motion and the last frame's sums read, this frame's written (2 vec4 per
-                // pixel); each level reads the sums and the guide once (its 25 taps from
-                // cache; the first reads the caller's normals and depths and writes the
-                // guide) and writes the next sums or the factors.
+                // The motion, the last frame's sums and the caller's normals and depths read;
+                // this frame's sums and the guide written (2 + 1 vec4 per pixel); each level
+                // reads the sums and the guide once (its 25 taps from cache) and writes the
+                // next sums or the factors.
                 out.push(StepCost {
                     stage: "output",
                     label: "mean history".into(),
                     flops: 0,
-                    bytes_read: reads + 3 * px,
-                    bytes_written: 2 * px,
+                    bytes_read: reads + 5 * px,
+                    bytes_written: 3 * px,
                     matrix: false,
                 });
                 for level in 0..ATROUS_LEVELS {
@@ -571,14 +596,8 @@ impl Denoiser {
                         label: format!("mean atrous {level}"),
                         // 25 taps: the weight (about 20 operations) and 8 multiply-adds
                         flops: 25 * 36 * (px / 16),
-                        bytes_read: if level == 0 { 4 * px } else { 3 * px },
-                        bytes_written: if last {
-                            px
-                        } else if level == 0 {
-                            3 * px
-                        } else {
-                            2 * px
-                        },
+                        bytes_read: 3 * px,
+                        bytes_written: if last { px } else { 2 * px },
                         matrix: false,
                     });
                 }
@@ -690,7 +709,7 @@ impl Denoiser {
                 // On a first frame any slot will do: that dispatch clears the others (tiles)
                 // or ignores the history (`"atrous"`).
                 d[(m.slot + if self.first { MEAN_RING } else { 0 }) as usize].record(&mut pass);
-                // With `"atrous"`, the filter of the history buffer that slot wrote.
+                // With `"atrous"`, the filter of the history pair that slot wrote.
                 if let Some(levels) = passes.mean_filter.get(m.slot as usize % 2) {
                     for d in levels {
                         d.record(&mut pass);
@@ -840,7 +859,7 @@ impl Denoiser {
             exposure: e,
             pack: [pack_a, pack_mt],
             mean: self.mean_dispatches(inputs)?,
-            mean_filter: self.mean_filter_dispatches(inputs)?,
+            mean_filter: self.mean_filter_dispatches()?,
             store: self.store_dispatch(inputs.background, self.emission_input(inputs)?)?,
             background: inputs.background.is_some(),
         })

@@ -9,13 +9,16 @@ fn finite(v: f32) -> bool {
     return abs(v) <= 3.0e38;
 }
 
-// Bilinear taps of a backward warp: the four pixel indices (row-major), the weights (t.x,
-// t.y) and whether the position is valid (the rest is 0 where it is not).
+// Bilinear taps of a backward warp: the four pixel indices (row-major), their columns and
+// rows (`lo` = (x0, y0), `hi` = (x1, y1), for readers of textures), the weights (t.x, t.y)
+// and whether the position is valid (the rest is 0 where it is not).
 struct Taps {
     i00: u32,
     i10: u32,
     i01: u32,
     i11: u32,
+    lo: vec2<u32>,
+    hi: vec2<u32>,
     t: vec2<f32>,
     valid: bool,
 }
@@ -41,6 +44,8 @@ fn warp_taps(x: u32, y: u32, mv: vec2<f32>, width: u32, height: u32) -> Taps {
     k.i10 = y0 * width + x1;
     k.i01 = y1 * width + x0;
     k.i11 = y1 * width + x1;
+    k.lo = vec2<u32>(x0, y0);
+    k.hi = vec2<u32>(x1, y1);
     return k;
 }
 
