@@ -22,7 +22,11 @@ benchmark waits for each frame; on the CPU with perf_counter.
 Stages (rows) line up with `subpixel bench denoise`'s per-stage table:
   tfa    = exposure + pack (prepare_inputs: demodulate, log1p(shadow)) + warp of (A_acc, o)
            + history test and re-exposure + TFA (SSRModel.history, TFA)
-  unet   = U-Net + remodulation (the Rust `unet` + `output` stages)
+  unet   = U-Net + remodulation (the Rust `unet` stage)
+  output = the output pass: the model's mean correction (config `mean_correction`, its
+           history carried over the frames) and composite, as the Rust `output` stage
+           (ssr.model.output_pass; the synthetic frame has no background)
+  network = tfa + unet (the network without the output pass; median of the per-frame sums)
   total  = one whole frame (median/p95 of the per-frame sums)
 FLOPs count 18 Cin Cout per 3x3 conv per output pixel at the padded size (multiples of 4),
 as `flops_per_pixel` and the Rust `step_flops` do; GFLOP/s = FLOPs / median time.
@@ -52,6 +56,8 @@ from ssr.model import (  # noqa: E402
     SSRModel,
     ceiling,
     conv_layers,
+    mean_correction_of,
+    output_pass,
     remodulate,
 )
 
@@ -89,15 +95,15 @@ def synthetic_frame(w: int, h: int, t: int, device: torch.device) -> Dict[str, t
 
 
 def stage_flops(model: SSRModel, wp: int, hp: int) -> Dict[str, int]:
-    out = {"tfa": 0, "unet": 0}
+    out = {"tfa": 0, "unet": 0, "output": 0}
     for name, cin, cout, level, evals in conv_layers(model.cfg):
         f = 18 * cin * cout * evals * (wp >> level) * (hp >> level)
         out["tfa" if name.startswith("tfa.") else "unet"] += f
-    out["total"] = out["tfa"] + out["unet"]
+    out["network"] = out["total"] = out["tfa"] + out["unet"]
     return out
 
 
-def make_stages(model: SSRModel) -> Tuple[Callable, Callable]:
+def make_stages(model: SSRModel) -> Tuple[Callable, Callable, Callable]:
     def tfa_stage(frame, a_acc_prev, o_prev, s_prev):
         # exposure, pack, warp of (A_acc, o), history test and re-exposure (model.history), TFA
         h = model.history(frame, (a_acc_prev, o_prev.to(a_acc_prev.dtype), s_prev))
@@ -111,7 +117,10 @@ def make_stages(model: SSRModel) -> Tuple[Callable, Callable]:
         albedo = model.remodulation_albedo(a_t, a_acc)
         return remodulate(o.float(), albedo.float()) * s[:, :RGB], o
 
-    return tfa_stage, unet_stage
+    def output_stage(out, frame, mc):
+        return output_pass(out, frame, mc)
+
+    return tfa_stage, unet_stage, output_stage
 
 
 def percentile(xs: List[float], q: float) -> float:
@@ -135,7 +144,8 @@ def bench_mode(
     inputs = [synthetic_frame(wp, hp, t, device) for t in range(4)]
     if channels_last:
         inputs = [{k: v.contiguous(memory_format=torch.channels_last) for k, v in f.items()} for f in inputs]
-    tfa_stage, unet_stage = make_stages(m)
+    tfa_stage, unet_stage, output_stage = make_stages(m)
+    mc = mean_correction_of(model.cfg)
     compile_s = None
     if mode == "compile":
         kw = {"mode": compile_mode} if compile_mode else {}
@@ -154,7 +164,7 @@ def bench_mode(
         return torch.autocast(device_type=device.type, enabled=False)
 
     sync = torch.cuda.synchronize if cuda else (lambda: None)
-    times = {"tfa": [], "unet": [], "total": [], "wall": []}
+    times = {"tfa": [], "unet": [], "output": [], "network": [], "total": [], "wall": []}
     with torch.inference_mode():
         if mode == "compile":
             t0 = time.perf_counter()
@@ -167,7 +177,7 @@ def bench_mode(
             f = inputs[i % 4]
             w0 = time.perf_counter()
             if cuda:
-                ev = [torch.cuda.Event(enable_timing=True) for _ in range(3)]
+                ev = [torch.cuda.Event(enable_timing=True) for _ in range(4)]
                 ev[0].record()
             with autocast():
                 a_t, mt, a_acc2, wo, s2 = tfa_stage(f, a_acc, o, s)
@@ -176,26 +186,33 @@ def bench_mode(
                 else:
                     w1 = time.perf_counter()
                 out, o2 = unet_stage(a_t, mt, a_acc2, wo, s2)
+                if cuda:
+                    ev[2].record()
+                else:
+                    w2 = time.perf_counter()
+                out = output_stage(out, f, mc)
             if cuda:
-                ev[2].record()
+                ev[3].record()
             sync()
-            w2 = time.perf_counter()
+            w3 = time.perf_counter()
             a_acc, o, s = a_acc2, o2, s2
             if i < warmup:
                 continue
             if cuda:
-                t_tfa, t_unet = ev[0].elapsed_time(ev[1]), ev[1].elapsed_time(ev[2])
+                t_tfa, t_unet, t_out = (ev[k].elapsed_time(ev[k + 1]) for k in range(3))
             else:
-                t_tfa, t_unet = (w1 - w0) * 1e3, (w2 - w1) * 1e3
+                t_tfa, t_unet, t_out = (w1 - w0) * 1e3, (w2 - w1) * 1e3, (w3 - w2) * 1e3
             times["tfa"].append(t_tfa)
             times["unet"].append(t_unet)
-            times["total"].append(t_tfa + t_unet)
-            times["wall"].append((w2 - w0) * 1e3)
+            times["output"].append(t_out)
+            times["network"].append(t_tfa + t_unet)
+            times["total"].append(t_tfa + t_unet + t_out)
+            times["wall"].append((w3 - w0) * 1e3)
         if not torch.isfinite(out).all():
             raise RuntimeError(f"{mode}: non-finite output")
     fl = stage_flops(model, wp, hp)
     stages = {}
-    for s in ("tfa", "unet", "total"):
+    for s in ("tfa", "unet", "output", "network", "total"):
         med = statistics.median(times[s])
         stages[s] = {
             "median_ms": med,
@@ -227,7 +244,7 @@ def format_table(res: dict) -> str:
     ]
     for r in res["results"]:
         label = MODE_LABEL[r["mode"]]
-        for s in ("tfa", "unet", "total"):
+        for s in ("tfa", "unet", "output", "total"):
             st = r["stages"][s]
             lines.append(
                 f"{label:<20} {s:<7} {st['flops'] * 1e-6:>10.1f} {st['median_ms']:>10.4f} {st['p95_ms']:>10.4f} {st['gflop_per_s']:>10.1f}"
@@ -237,7 +254,8 @@ def format_table(res: dict) -> str:
             lines.append(f"{'':<20} (compile {r['compile_s']:.1f} s, excluded)")
     for n in res["notes"]:
         lines.append(f"note: {n}")
-    lines.append("stages: tfa = pack + warp + TFA; unet = U-Net + output (remodulate); as in `subpixel bench denoise`")
+    lines.append("stages: tfa = pack + warp + TFA; unet = U-Net + remodulate; output = mean correction + composite; "
+                 "as in `subpixel bench denoise`")
     return "\n".join(lines) + "\n"
 
 

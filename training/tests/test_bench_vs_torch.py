@@ -11,8 +11,9 @@ import pytest
 import bench_vs_torch as bvt
 
 
-def _fake_engine(tmp_path, times):
-    """A stand-in `subpixel` that prints `bench denoise --json` output, one time per call."""
+def _fake_engine(tmp_path, times, output_ms):
+    """A stand-in `subpixel` that prints `bench denoise --json` output, one frame time per
+    call, of which `output_ms` in the output stage."""
     counter = tmp_path / "calls"
     counter.write_text("0")
     script = tmp_path / "subpixel"
@@ -21,18 +22,23 @@ def _fake_engine(tmp_path, times):
         "import json, pathlib\n"
         f"c = pathlib.Path({str(counter)!r}); n = int(c.read_text()); c.write_text(str(n + 1))\n"
         f"times = {times!r}\n"
-        "print(json.dumps({'total_ms': times[n], 'adapter': 'stand-in adapter'}))\n"
+        f"stages = [{{'stage': 'unet', 'stats': {{'median_ms': times[n] - {output_ms!r}}}}}, "
+        f"{{'stage': 'output', 'stats': {{'median_ms': {output_ms!r}}}}}]\n"
+        "print(json.dumps({'total_ms': times[n], 'stages': stages, 'adapter': 'stand-in adapter'}))\n"
     )
     script.chmod(script.stat().st_mode | stat.S_IXUSR)
     return script
 
 
 def test_ratio_is_median_engine_over_median_torch(tmp_path, monkeypatch, capsys):
-    engine = _fake_engine(tmp_path, [30.0, 10.0, 20.0])
-    torch_times = iter([4.0, 6.0, 5.0])
+    """Both ratios, the network's (the engine without its output stage against PyTorch's
+    tfa + unet) and the frame's, from each side's medians over the rounds."""
+    engine = _fake_engine(tmp_path, [30.0, 10.0, 20.0], 4.0)
+    torch_times = iter([(4.0, 2.0), (6.0, 8.0), (5.0, 3.2)])
 
     def fake_torch(python, weights, w, h, frames, device):
-        return {"results": [{"stages": {"total": {"median_ms": next(torch_times)}}}],
+        total, network = next(torch_times)
+        return {"results": [{"stages": {"total": {"median_ms": total}, "network": {"median_ms": network}}}],
                 "device_name": "stand-in CPU", "torch": "0"}
 
     monkeypatch.setattr(bvt, "run_torch", fake_torch)
@@ -41,9 +47,12 @@ def test_ratio_is_median_engine_over_median_torch(tmp_path, monkeypatch, capsys)
     out_json = tmp_path / "r.json"
     assert bvt.main(["--bin", str(engine), "--weights", str(weights), "--rounds", "3", "--json", str(out_json)]) == 0
     out = capsys.readouterr().out
-    # Medians: engine 20, PyTorch 5 -> 4.00.
-    assert "engine 20.00 ms, PyTorch 5.00 ms, engine / PyTorch = 4.00" in out
-    assert json.loads(out_json.read_text())["ratio"] == pytest.approx(4.0)
+    # Frame medians: engine 20, PyTorch 5 -> 4.00; network: engine 16 (20 - 4), PyTorch 3.2 -> 5.00.
+    assert "frame (with the output pass): engine 20.00 ms, PyTorch 5.00 ms, engine / PyTorch = 4.00" in out
+    assert "network: engine 16.00 ms, PyTorch 3.20 ms, engine / PyTorch = 5.00" in out
+    res = json.loads(out_json.read_text())
+    assert res["ratio"] == pytest.approx(4.0)
+    assert res["network_ratio"] == pytest.approx(5.0)
 
 
 def test_missing_binary_is_named(tmp_path, capsys):
