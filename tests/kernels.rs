@@ -124,12 +124,27 @@ fn conv3x3_every_autotuner_candidate_matches_reference() {
         for kernel in candidates {
             let out = Tensor::new(&g, "out", w, h, cout).unwrap();
             let d = conv.bind_with(&g, kernel, &refs, &out).unwrap();
-            chunked += (d.parts() > 1) as u32;
+            // A kernel reading textures first copies each input to a texture array (one
+            // more part each, which writes the rgba32float texture and reads the input).
+            let copies = if kernel.reads_textures() { split.len() } else { 0 };
+            chunked += (d.parts() > 1 + copies) as u32;
             // Compulsory traffic (roofline model): every input once, the output once.
             let inputs: u64 = gins.iter().map(|t| t.bytes()).sum();
+            let textures: u64 = gins
+                .iter()
+                .map(|t| (t.width * t.height * t.channels.div_ceil(4) * 16) as u64)
+                .sum();
             // (each part of a chunked dispatch binds the whole input and output)
-            let parts = d.parts() as u64;
-            assert_eq!(d.bytes_written, parts * out.bytes(), "{kernel}");
+            let parts = (d.parts() - copies) as u64;
+            let copied = if copies > 0 { textures } else { 0 };
+            assert_eq!(d.bytes_written, parts * out.bytes() + copied, "{kernel}");
+            // The kernel's parts read the textures instead of the inputs.
+            let inputs = if copies > 0 { textures } else { inputs };
+            let extra = if copies > 0 {
+                gins.iter().map(|t| t.bytes() + 16).sum()
+            } else {
+                0
+            };
             // Weights: the generic kernel's storage copy, one 64 KiB uniform array per part,
             // or the cooperative kernel's f16 copy (16-channel blocks, outputs padded to 32).
             let padded = |c: u32| c.div_ceil(4) as u64 * 4;
@@ -138,7 +153,8 @@ fn conv3x3_every_autotuner_candidate_matches_reference() {
             let coop = 9 * blocks * 16 * (cout.div_ceil(32) as u64 * 32) * 2;
             let weights = (9 * cin_p * padded(cout) * 4).max(parts * 65536).max(coop);
             assert!(
-                d.bytes_read > parts * inputs && d.bytes_read <= parts * (inputs + 1024) + weights,
+                d.bytes_read > parts * inputs + extra
+                    && d.bytes_read <= parts * (inputs + 1024) + weights + extra,
                 "{kernel}: {}",
                 d.bytes_read
             );
@@ -305,7 +321,10 @@ fn conv3x3_and_pooling_with_f16_storage_match_reference() {
     };
     assert_eq!(
         kernels.len(),
-        1 + ConvKernel::blocked_tilings().len() + ConvKernel::winograd_tilings().len() + coop
+        1 + ConvKernel::blocked_tilings().len()
+            + ConvKernel::winograd_tilings().len()
+            + ConvKernel::texture_tilings().len()
+            + coop
     );
     for &kernel in &kernels {
         let outputs: &[DType] = if kernel == ConvKernel::Generic || kernel.to_string() == "px4-cob2" {
@@ -316,8 +335,21 @@ fn conv3x3_and_pooling_with_f16_storage_match_reference() {
         for &out_dtype in outputs {
             let out = Tensor::new_typed(&g, "out", w, h, cout, out_dtype).unwrap();
             let d = conv.bind_with(&g, kernel, &refs, &out).unwrap();
-            // Traffic accounting follows the storage: an f16 output is half the bytes.
-            assert_eq!(d.bytes_written, d.parts() as u64 * out.bytes(), "{kernel}");
+            // Traffic accounting follows the storage: an f16 output is half the bytes (and
+            // a kernel reading textures writes its f32 copies of the inputs first).
+            let copied: u64 = if kernel.reads_textures() {
+                refs.iter()
+                    .map(|t| (t.width * t.height * t.channels.div_ceil(4) * 16) as u64)
+                    .sum()
+            } else {
+                0
+            };
+            let copies = if kernel.reads_textures() { refs.len() } else { 0 };
+            assert_eq!(
+                d.bytes_written,
+                (d.parts() - copies) as u64 * out.bytes() + copied,
+                "{kernel}"
+            );
             ops::run(&g, &[&d]).unwrap();
             let (expect, tol) = match out_dtype {
                 DType::F16 => (to_f16(&want), kernel_tol(kernel, &want, F16_OUT)),
@@ -553,7 +585,16 @@ fn conv3x3_too_large_for_uniform_weights_falls_back_to_generic() {
     let x = Tensor::new(&g, "x", 8, 8, cin).unwrap();
     let out = Tensor::new(&g, "out", 8, 8, cout).unwrap();
     let e = conv
-        .bind_with(&g, ConvKernel::Blocked { px: 4, cob: 1 }, &[&x], &out)
+        .bind_with(
+            &g,
+            ConvKernel::Blocked {
+                px: 4,
+                cob: 1,
+                tex: false,
+            },
+            &[&x],
+            &out,
+        )
         .unwrap_err()
         .to_string();
     assert!(

@@ -183,11 +183,19 @@ fn fixed_kernels_fall_back_to_generic_where_they_cannot_run() {
     };
     let (auto, want) = run(KernelChoice::Autotune);
     assert!(!auto.is_empty());
-    let too_big = ConvKernel::Blocked { px: 16, cob: 8 };
+    let too_big = ConvKernel::Blocked {
+        px: 16,
+        cob: 8,
+        tex: false,
+    };
     let (k, got) = run(KernelChoice::Fixed(too_big));
     assert!(k.iter().all(|&k| k == ConvKernel::Generic), "{k:?}");
     common::assert_close("fixed px16-cob8 (generic)", &got, &want, common::REDUCTION);
-    let px4 = ConvKernel::Blocked { px: 4, cob: 1 };
+    let px4 = ConvKernel::Blocked {
+        px: 4,
+        cob: 1,
+        tex: false,
+    };
     let (k, got) = run(KernelChoice::Fixed(px4));
     assert!(k.iter().all(|&k| k == px4), "cob 1 fits every layer: {k:?}");
     common::assert_close("fixed px4-cob1", &got, &want, common::REDUCTION);
@@ -546,7 +554,11 @@ fn denoiser_runs_on_default_limits_and_refuses_lower_ones() {
     // device is tuned on its own, and two tunings may pick kernels that sum in another
     // order (seen on a fresh machine: 1 ulp apart).
     let fixed = EngineOptions {
-        kernels: KernelChoice::Fixed(ConvKernel::Blocked { px: 4, cob: 1 }),
+        kernels: KernelChoice::Fixed(ConvKernel::Blocked {
+            px: 4,
+            cob: 1,
+            tex: false,
+        }),
         precision: Precision::F32,
         ..Default::default()
     };

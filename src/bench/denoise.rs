@@ -35,6 +35,11 @@ pub struct DenoiseBench {
     pub frames: u32,
     /// Whether GPU timestamps were used.
     pub gpu_timestamps: bool,
+    /// Whether the adapter is a CPU driver (lavapipe), where `wall_ms` is the figure to
+    /// compare with CPU implementations.
+    pub cpu_adapter: bool,
+    /// Median CPU wall time per frame, from submit to done (the stage run).
+    pub wall_ms: f64,
     /// Whether each pass's own timestamps are meaningful (GPU timestamps on an adapter that
     /// is not a CPU driver: lavapipe's do not add up to the stage totals).
     pub per_pass_timestamps: bool,
@@ -172,7 +177,8 @@ pub fn bench_denoise(
         layers.extend(timing(&lp, stage, label, *f));
     }
     layers.extend(timing(&lp, "output", "output", 0));
-    let (sp, _) = run(Granularity::Stage)?;
+    let (sp, walls) = run(Granularity::Stage)?;
+    let wall_ms = Stats::from_samples(&walls).map_or(0.0, |s| s.median_ms);
     let stage_flops = |s: &str| flops.iter().filter(|f| f.0 == s).map(|f| f.2).sum::<u64>();
     let stages: Vec<LayerTiming> = ["pack", "tfa", "unet", "output"]
         .iter()
@@ -198,6 +204,8 @@ pub fn bench_denoise(
         height: h,
         frames,
         gpu_timestamps: sp.gpu_timed(),
+        cpu_adapter: gpu.kind() == AdapterKind::Cpu,
+        wall_ms,
         per_pass_timestamps: lp.gpu_timed() && gpu.kind() != AdapterKind::Cpu,
         layers,
         stages,
@@ -282,6 +290,10 @@ pub fn table(b: &DenoiseBench) -> String {
         b.fraction_of_peak
             .map(|f| format!(", {:.1}% of FP32 peak", 100.0 * f))
             .unwrap_or_default()
+    );
+    s += &format!(
+        "CPU wall per frame {:.4} ms median (submit to done; on a CPU driver the frame's true cost)\n",
+        b.wall_ms
     );
     s += &format!(
         "\nnetwork tensors: {:.1} MB of GPU memory (transient tensors share it by lifetime)\n",
@@ -402,6 +414,8 @@ mod tests {
             height: 4,
             frames: 1,
             gpu_timestamps: true,
+            cpu_adapter: false,
+            wall_ms: 0.7,
             per_pass_timestamps,
             layers: vec![timed("unet", "unet.enc1.0", 0.5), timed("output", "output", 0.03)],
             stages: Vec::new(),

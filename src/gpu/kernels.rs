@@ -163,6 +163,7 @@ pub const KERNELS: &[KernelSource] = &[
         ["nn/lib/storage", "nn/lib/conv_shape", "nn/lib/fetch"]
     ),
     kernel!("nn/resample2x", ["nn/lib/storage", "nn/lib/fetch"]),
+    kernel!("nn/to_texture", ["nn/lib/storage"]),
     kernel!("nn/tfa_blend", ["nn/lib/storage", "nn/lib/grid"]),
     kernel!("nn/warp", ["nn/lib/grid", "nn/lib/warp"]),
     kernel!(
@@ -890,6 +891,7 @@ mod tests {
         for kernel in ConvKernel::blocked_tilings()
             .into_iter()
             .chain(ConvKernel::winograd_tilings())
+            .chain(ConvKernel::texture_tilings())
             .chain(ConvKernel::coop_tilings())
         {
             for inputs in 1..=4 {
@@ -900,7 +902,7 @@ mod tests {
                         let name = match kernel {
                             ConvKernel::Blocked { .. } | ConvKernel::Winograd { .. } => {
                                 let l = kernel.uniform_layout().expect("uniform weights");
-                                template.extend([l.tiling, ("COB", l.cob)]);
+                                template.extend([l.tiling, ("COB", l.cob), ("TEX_IN", l.tex as u32)]);
                                 l.kernel
                             }
                             ConvKernel::Coop { mt, nt, rt } => {
@@ -945,6 +947,7 @@ mod tests {
                 &["F16_IN0", "F16_IN1", "F16_IN2", "F16_IN3", "F16_OUT"][..],
             ),
             ("nn/resample2x", &["F16_IN0", "F16_OUT"][..]),
+            ("nn/to_texture", &["F16_IN0"][..]),
             (
                 "nn/tfa_blend",
                 &["F16_IN0", "F16_IN1", "F16_IN2", "F16_IN3", "F16_IN4", "F16_OUT"][..],

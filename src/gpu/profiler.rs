@@ -100,6 +100,21 @@ impl Profiler {
         }
     }
 
+    /// A profiler that records CPU wall time only (around submit and wait), as on an
+    /// adapter without timestamps.
+    pub fn wall(gpu: &Gpu) -> Self {
+        Self {
+            query_set: None,
+            resolve: None,
+            capacity: 2,
+            labels: Vec::new(),
+            period_ns: gpu.queue.get_timestamp_period() as f64,
+            samples: BTreeMap::new(),
+            order: Vec::new(),
+            gpu_timed: false,
+        }
+    }
+
     /// Whether GPU timestamps are available.
     pub fn gpu_timed(&self) -> bool {
         self.gpu_timed
@@ -224,7 +239,10 @@ impl Profiler {
 
 /// Times `dispatch` alone, each run in its own submission: `warmup` untimed runs, then
 /// `iterations` timed ones (GPU timestamps where the adapter has them, else wall time
-/// around submit and wait). Returns the statistics and whether they are GPU-timed.
+/// around submit and wait; on a CPU driver always wall time, which is exact there: with
+/// texture-reading kernels bound beside them, lavapipe's timestamps around storage-buffer
+/// kernels read tens of microseconds for passes that take milliseconds). Returns the
+/// statistics and whether they are GPU-timed.
 pub fn time_dispatch(
     gpu: &Gpu,
     dispatch: &super::Dispatch,
@@ -232,7 +250,11 @@ pub fn time_dispatch(
     iterations: u32,
 ) -> Result<(Stats, bool)> {
     let label = dispatch.kernel;
-    let mut prof = Profiler::new(gpu, 1);
+    let mut prof = if gpu.kind() == super::AdapterKind::Cpu {
+        Profiler::wall(gpu)
+    } else {
+        Profiler::new(gpu, 1)
+    };
     for i in 0..warmup + iterations.max(1) {
         let mut enc = gpu.device.create_command_encoder(&Default::default());
         dispatch.record(&mut Profiler::pass(&mut enc, label, Some(&mut prof)));

@@ -771,7 +771,11 @@ mod tests {
         c.insert(
             "k".into(),
             Tuning {
-                choice: ConvKernel::Blocked { px: 8, cob: 4 },
+                choice: ConvKernel::Blocked {
+                    px: 8,
+                    cob: 4,
+                    tex: false,
+                },
                 candidates: vec![Candidate {
                     kernel: ConvKernel::Generic,
                     median_ms: Some(1.5),

@@ -60,6 +60,21 @@ struct ShapedParams {
     src: [[u32; 4]; 4],
 }
 
+/// The parameters of `nn/to_texture`.
+#[repr(C)]
+#[derive(Clone, Copy, Pod, Zeroable)]
+struct ToTextureParams {
+    width: u32,
+    height: u32,
+    c4: u32,
+    _pad: u32,
+}
+
+/// Bytes of the rgba32float texture array `nn/to_texture` copies `t` to.
+fn texture_bytes(t: &Tensor) -> u64 {
+    t.width as u64 * t.height as u64 * t.c4() as u64 * 16
+}
+
 /// Output channels one `nn/conv3x3` invocation computes (4 vec4s).
 const GENERIC_COUT_BLOCK: u32 = 16;
 /// Capacity of `nn/conv3x3_blocked`'s uniform weight array, in vec4s (`MAX_WEIGHTS`).
@@ -97,6 +112,11 @@ pub enum ConvKernel {
         px: u32,
         /// Output vec4s (4 channels each) per invocation (1..=32, `px * cob <= 32`).
         cob: u32,
+        /// Whether the inputs are first copied to texture arrays and read as textures
+        /// (`nn/to_texture`; template flag TEX_IN): faster where storage-buffer loads are
+        /// slow (CPU drivers), one more pass per input elsewhere.
+        #[serde(default)]
+        tex: bool,
     },
     /// `nn/conv3x3_winograd`: F(2x2, 3x3) over `tx` adjacent 2x2 output tiles x `cob`
     /// output vec4s per invocation, transformed weights in a uniform buffer.
@@ -105,6 +125,9 @@ pub enum ConvKernel {
         tx: u32,
         /// Output vec4s per invocation (1, 2 or 4; `16 * tx * cob <= 64`).
         cob: u32,
+        /// Inputs read as textures, as for [`ConvKernel::Blocked`].
+        #[serde(default)]
+        tex: bool,
     },
     /// `nn/conv3x3_coop`: one subgroup per `mt` tiles of T pixels of `rt` rows times `nt`
     /// output tiles of T channels, on T x T cooperative matrices ([`Gpu::coop_tile`]).
@@ -118,30 +141,41 @@ pub enum ConvKernel {
     },
 }
 
+/// The name suffix of a kernel reading its inputs as textures.
+const TEX_SUFFIX: &str = "-tex";
+
+fn tex_suffix(tex: bool) -> &'static str {
+    if tex { TEX_SUFFIX } else { "" }
+}
+
 impl std::fmt::Display for ConvKernel {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         match self {
             ConvKernel::Generic => write!(f, "generic"),
-            ConvKernel::Blocked { px, cob } => write!(f, "px{px}-cob{cob}"),
+            ConvKernel::Blocked { px, cob, tex } => write!(f, "px{px}-cob{cob}{}", tex_suffix(*tex)),
             ConvKernel::Coop { mt, nt, rt } => write!(f, "coop-m{mt}-n{nt}-r{rt}"),
-            ConvKernel::Winograd { tx, cob } => write!(f, "wino-tx{tx}-cob{cob}"),
+            ConvKernel::Winograd { tx, cob, tex } => write!(f, "wino-tx{tx}-cob{cob}{}", tex_suffix(*tex)),
         }
     }
 }
 
 impl std::str::FromStr for ConvKernel {
     type Err = Error;
-    /// Parses `generic`, `pxP-cobC` or `coop-mM-nN-rR` (as [`ConvKernel`]'s `Display`
-    /// writes them).
-    fn from_str(s: &str) -> Result<Self> {
+    /// Parses `generic`, `pxP-cobC`, `wino-txT-cobC` (either with `-tex`: inputs read as
+    /// textures) or `coop-mM-nN-rR` (as [`ConvKernel`]'s `Display` writes them).
+    fn from_str(name: &str) -> Result<Self> {
         let bad = || {
             Error::Invalid(format!(
-                "conv kernel '{s}': expected 'generic', 'pxP-cobC' (e.g. px4-cob2), 'wino-txT-cobC' (e.g. wino-tx2-cob1) or 'coop-mM-nN-rR' (e.g. coop-m2-n2-r1)"
+                "conv kernel '{name}': expected 'generic', 'pxP-cobC' (e.g. px4-cob2), 'wino-txT-cobC' (e.g. wino-tx2-cob1), either with '-tex' (e.g. px16-cob2-tex), or 'coop-mM-nN-rR' (e.g. coop-m2-n2-r1)"
             ))
         };
-        if s == "generic" {
+        if name == "generic" {
             return Ok(ConvKernel::Generic);
         }
+        let (s, tex) = match name.strip_suffix(TEX_SUFFIX) {
+            Some(rest) => (rest, true),
+            None => (name, false),
+        };
         // `NAMEa-NAMEb` fields after a prefix, each a number after its name.
         let fields = |rest: &str, names: &[&str]| -> Result<Vec<u32>> {
             let parts: Vec<&str> = rest.split('-').collect();
@@ -156,8 +190,15 @@ impl std::str::FromStr for ConvKernel {
         };
         let k = if let Some(rest) = s.strip_prefix("wino-") {
             let f = fields(rest, &["tx", "cob"])?;
-            ConvKernel::Winograd { tx: f[0], cob: f[1] }
+            ConvKernel::Winograd {
+                tx: f[0],
+                cob: f[1],
+                tex,
+            }
         } else if let Some(rest) = s.strip_prefix("coop-") {
+            if tex {
+                return Err(bad());
+            }
             let f = fields(rest, &["m", "n", "r"])?;
             ConvKernel::Coop {
                 mt: f[0],
@@ -166,10 +207,14 @@ impl std::str::FromStr for ConvKernel {
             }
         } else {
             let f = fields(s, &["px", "cob"])?;
-            ConvKernel::Blocked { px: f[0], cob: f[1] }
+            ConvKernel::Blocked {
+                px: f[0],
+                cob: f[1],
+                tex,
+            }
         };
         k.check_tiling()
-            .map_err(|m| Error::Invalid(format!("conv kernel '{s}': {m}")))?;
+            .map_err(|m| Error::Invalid(format!("conv kernel '{name}': {m}")))?;
         Ok(k)
     }
 }
@@ -183,7 +228,7 @@ impl ConvKernel {
         for px in [1, 2, 4, 8, 16] {
             for cob in [1, 2, 4, 8] {
                 if px * cob <= BLOCKED_MAX_ACC {
-                    v.push(ConvKernel::Blocked { px, cob });
+                    v.push(ConvKernel::Blocked { px, cob, tex: false });
                 }
             }
         }
@@ -199,30 +244,50 @@ impl ConvKernel {
         for tx in [1, 2, 4] {
             for cob in [1, 2, 4] {
                 if 16 * tx * cob <= WINOGRAD_MAX_ACC {
-                    v.push(ConvKernel::Winograd { tx, cob });
+                    v.push(ConvKernel::Winograd { tx, cob, tex: false });
                 }
             }
         }
         v
     }
 
+    /// The tilings the autotuner also tries with the inputs read as textures (`tex`): the
+    /// register-blocked and Winograd tilings that were fastest that way on a CPU driver
+    /// (README Performance; fewer than all, to bound the first tuning's compile time).
+    pub fn texture_tilings() -> Vec<ConvKernel> {
+        let blocked =
+            [(16, 2), (8, 4), (8, 2), (4, 4)].map(|(px, cob)| ConvKernel::Blocked { px, cob, tex: true });
+        let winograd = [(2, 2), (1, 4), (4, 1)].map(|(tx, cob)| ConvKernel::Winograd { tx, cob, tex: true });
+        blocked.into_iter().chain(winograd).collect()
+    }
+
+    /// Whether the kernel reads its inputs as textures.
+    pub fn reads_textures(&self) -> bool {
+        matches!(
+            self,
+            ConvKernel::Blocked { tex: true, .. } | ConvKernel::Winograd { tex: true, .. }
+        )
+    }
+
     /// How a kernel with weights in a uniform buffer (blocked, Winograd) is shaped; `None`
     /// for the others.
     pub(crate) fn uniform_layout(&self) -> Option<UniformLayout> {
         match *self {
-            ConvKernel::Blocked { px, cob } => Some(UniformLayout {
+            ConvKernel::Blocked { px, cob, tex } => Some(UniformLayout {
                 kernel: "nn/conv3x3_blocked",
                 positions: 9,
                 tiling: ("PX", px),
                 tile: [px, 1],
                 cob,
+                tex,
             }),
-            ConvKernel::Winograd { tx, cob } => Some(UniformLayout {
+            ConvKernel::Winograd { tx, cob, tex } => Some(UniformLayout {
                 kernel: "nn/conv3x3_winograd",
                 positions: 16,
                 tiling: ("TX", tx),
                 tile: [2 * tx, 2],
                 cob,
+                tex,
             }),
             ConvKernel::Generic | ConvKernel::Coop { .. } => None,
         }
@@ -247,7 +312,7 @@ impl ConvKernel {
 
     fn check_tiling(&self) -> std::result::Result<(), String> {
         match *self {
-            ConvKernel::Blocked { px, cob } => {
+            ConvKernel::Blocked { px, cob, .. } => {
                 if px == 0 || cob == 0 || px > BLOCKED_MAX_PX || px * cob > BLOCKED_MAX_ACC {
                     return Err(format!(
                         "px and cob must be >= 1, px <= {BLOCKED_MAX_PX} and px * cob <= {BLOCKED_MAX_ACC}"
@@ -265,7 +330,7 @@ impl ConvKernel {
                     ));
                 }
             }
-            ConvKernel::Winograd { tx, cob } => {
+            ConvKernel::Winograd { tx, cob, .. } => {
                 if ![1, 2, 4].contains(&tx) || ![1, 2, 4].contains(&cob) || 16 * tx * cob > WINOGRAD_MAX_ACC {
                     return Err(format!(
                         "tx and cob must be 1, 2 or 4, and 16 * tx * cob <= {WINOGRAD_MAX_ACC}"
@@ -292,6 +357,8 @@ pub(crate) struct UniformLayout {
     pub tile: [u32; 2],
     /// Output vec4s per invocation (template parameter `COB`).
     pub cob: u32,
+    /// Inputs read as textures (template flag `TEX_IN`).
+    pub tex: bool,
 }
 
 /// Winograd's F(2x2, 3x3) weight transform `U = G g G^T` of one 3x3 kernel `g` (row-major
@@ -664,12 +731,14 @@ impl Conv3x3 {
     }
 
     /// The kernels that can run this layer on `gpu`: [`ConvKernel::Generic`], every
-    /// blocked tiling of [`ConvKernel::blocked_tilings`] that fits, and the
+    /// blocked and Winograd tiling that fits (of [`ConvKernel::blocked_tilings`],
+    /// [`ConvKernel::winograd_tilings`] and [`ConvKernel::texture_tilings`]), and the
     /// cooperative-matrix tilings where the device has them.
     pub fn candidates(&self, gpu: &Gpu) -> Vec<ConvKernel> {
         std::iter::once(ConvKernel::Generic)
             .chain(ConvKernel::blocked_tilings())
             .chain(ConvKernel::winograd_tilings())
+            .chain(ConvKernel::texture_tilings())
             .chain(ConvKernel::coop_tilings())
             .filter(|&k| self.unsupported(gpu, k).is_none())
             .collect()
@@ -750,6 +819,63 @@ impl Conv3x3 {
     /// ([`Conv3x3::set_kernel`]; [`ConvKernel::Generic`], which runs every layer, unless set).
     pub fn bind(&self, gpu: &Gpu, inputs: &[&Tensor], out: &Tensor) -> Result<Dispatch> {
         self.bind_with(gpu, self.kernel, inputs, out)
+    }
+
+    /// The copy of input `i` (`t`) into a new texture array for a kernel that reads its
+    /// inputs as textures (`nn/to_texture`: one rgba32float layer per channel vec4), and
+    /// the view the kernel binds; an error naming the layer where the device's texture
+    /// limits cannot hold it.
+    fn to_texture(&self, gpu: &Gpu, i: usize, t: &Tensor) -> Result<(Dispatch, wgpu::TextureView)> {
+        let limits = gpu.device.limits();
+        let (side, layers) = (limits.max_texture_dimension_2d, limits.max_texture_array_layers);
+        if t.width > side || t.height > side || t.c4() > layers {
+            return Err(Error::shape(
+                &format!("conv3x3 '{}'", self.name),
+                format!(
+                    "input {i} ({}x{}, {} vec4s per pixel) exceeds the device's textures ({side} pixels a side, {layers} layers)",
+                    t.width,
+                    t.height,
+                    t.c4()
+                ),
+            ));
+        }
+        let texture = gpu.device.create_texture(&wgpu::TextureDescriptor {
+            label: Some(&format!("subpixel.conv.{}.in{i}", self.name)),
+            size: wgpu::Extent3d {
+                width: t.width,
+                height: t.height,
+                depth_or_array_layers: t.c4(),
+            },
+            mip_level_count: 1,
+            sample_count: 1,
+            dimension: wgpu::TextureDimension::D2,
+            format: wgpu::TextureFormat::Rgba32Float,
+            usage: wgpu::TextureUsages::STORAGE_BINDING | wgpu::TextureUsages::TEXTURE_BINDING,
+            view_formats: &[],
+        });
+        let view = texture.create_view(&wgpu::TextureViewDescriptor {
+            dimension: Some(wgpu::TextureViewDimension::D2Array),
+            ..Default::default()
+        });
+        let params = ToTextureParams {
+            width: t.width,
+            height: t.height,
+            c4: t.c4(),
+            _pad: 0,
+        };
+        let mut copy = gpu.kernels.dispatch_with(
+            "nn/to_texture",
+            &Specialisation(vec![("F16_IN0", t.dtype.f16_flag() as f64)]),
+            bytemuck::bytes_of(&params),
+            &[
+                t.buffer.as_entire_binding(),
+                wgpu::BindingResource::TextureView(&view),
+            ],
+            Grid::Invocations([t.width, t.height, t.c4()]),
+        )?;
+        copy.bytes_read = t.bytes() + std::mem::size_of::<ToTextureParams>() as u64;
+        copy.bytes_written = texture_bytes(t);
+        Ok((copy, view))
     }
 
     /// Binds `inputs` and `out` on `kernel`; an error names the layer and why when the
@@ -850,10 +976,20 @@ impl Conv3x3 {
                     tiling,
                     tile,
                     cob,
+                    tex,
                 } = kernel.uniform_layout().expect("a kernel with uniform weights");
                 let chunks = self.blocked_chunks(positions, cob);
                 let weights = self.blocked_buffers(gpu, positions, cob)?;
-                let mut parts = Vec::with_capacity(chunks.len());
+                // With `tex`, each input first copied to a texture array of its own.
+                let mut parts = Vec::with_capacity(chunks.len() + inputs.len());
+                let mut views = Vec::new();
+                if tex {
+                    for (i, t) in inputs.iter().enumerate() {
+                        let (copy, view) = self.to_texture(gpu, i, t)?;
+                        parts.push(copy);
+                        views.push(view);
+                    }
+                }
                 for (&(base, count), weights) in chunks.iter().zip(&weights) {
                     let mut spec = shaped();
                     spec.0.extend([
@@ -861,16 +997,31 @@ impl Conv3x3 {
                         ("CO_COUNT", count as f64),
                         (tiling.0, tiling.1 as f64),
                         ("COB", cob as f64),
+                        ("TEX_IN", tex as u32 as f64),
                     ]);
-                    let mut b = bufs.clone();
-                    b.extend([weights, &self.bias, &out.buffer]);
-                    parts.push(gpu.kernels.dispatch(
-                        name,
-                        &spec,
-                        bytemuck::bytes_of(&shaped_params),
-                        &b,
-                        Grid::Invocations([w.div_ceil(tile[0]), h.div_ceil(tile[1]), count.div_ceil(cob)]),
-                    )?);
+                    let grid =
+                        Grid::Invocations([w.div_ceil(tile[0]), h.div_ceil(tile[1]), count.div_ceil(cob)]);
+                    let params = bytemuck::bytes_of(&shaped_params);
+                    parts.push(if tex {
+                        let mut r: Vec<wgpu::BindingResource<'_>> =
+                            views.iter().map(wgpu::BindingResource::TextureView).collect();
+                        r.extend([
+                            weights.as_entire_binding(),
+                            self.bias.as_entire_binding(),
+                            out.buffer.as_entire_binding(),
+                        ]);
+                        let mut d = gpu.kernels.dispatch_with(name, &spec, params, &r, grid)?;
+                        // Traffic as `dispatch` counts it: the textures (rgba32float), the
+                        // parameters, weights and bias read, the output written.
+                        let textures: u64 = inputs.iter().map(|t| texture_bytes(t)).sum();
+                        d.bytes_read = textures + params.len() as u64 + weights.size() + self.bias.size();
+                        d.bytes_written = out.bytes();
+                        d
+                    } else {
+                        let mut b = bufs.clone();
+                        b.extend([weights, &self.bias, &out.buffer]);
+                        gpu.kernels.dispatch(name, &spec, params, &b, grid)?
+                    });
                 }
                 let mut parts = parts.into_iter();
                 let first = parts.next().expect("a supported layer has at least one chunk");
@@ -952,6 +1103,7 @@ pub const PARAM_SIZES: &[(&str, usize)] = &[
     ("nn/conv3x3_blocked", std::mem::size_of::<ShapedParams>()),
     ("nn/conv3x3_winograd", std::mem::size_of::<ShapedParams>()),
     ("nn/conv3x3_coop", std::mem::size_of::<ShapedParams>()),
+    ("nn/to_texture", std::mem::size_of::<ToTextureParams>()),
 ];
 
 #[cfg(test)]
@@ -963,6 +1115,7 @@ mod tests {
         for k in std::iter::once(ConvKernel::Generic)
             .chain(ConvKernel::blocked_tilings())
             .chain(ConvKernel::winograd_tilings())
+            .chain(ConvKernel::texture_tilings())
             .chain(ConvKernel::coop_tilings())
         {
             assert_eq!(k.to_string().parse::<ConvKernel>().unwrap(), k);

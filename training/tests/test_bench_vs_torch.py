@@ -55,6 +55,18 @@ def test_ratio_is_median_engine_over_median_torch(tmp_path, monkeypatch, capsys)
     assert res["network_ratio"] == pytest.approx(5.0)
 
 
+def test_a_cpu_adapter_is_timed_by_its_wall_time():
+    """On a CPU driver the engine's frame is its CPU wall time, the network its share by the
+    stages' timestamps; elsewhere the timestamps' sum."""
+    stages = [{"stage": "unet", "stats": {"median_ms": 6.0}}, {"stage": "output", "stats": {"median_ms": 2.0}}]
+    eng = {"total_ms": 8.0, "wall_ms": 12.0, "cpu_adapter": True, "stages": stages}
+    assert bvt.engine_frame_ms(eng) == pytest.approx(12.0)
+    assert bvt.engine_network_ms(eng) == pytest.approx(9.0)
+    gpu = dict(eng, cpu_adapter=False)
+    assert bvt.engine_frame_ms(gpu) == pytest.approx(8.0)
+    assert bvt.engine_network_ms(gpu) == pytest.approx(6.0)
+
+
 def test_missing_binary_is_named(tmp_path, capsys):
     missing = tmp_path / "no-such-subpixel"
     with pytest.raises(SystemExit):

@@ -18,6 +18,55 @@ override FETCH2: u32 = 0u;
 override FETCH3: u32 = 0u;
 
 //#repeat k N_IN
+//#if TEX_IN
+// With the template flag TEX_IN the inputs are texture arrays (the convolution copied each
+// to one with nn/to_texture: a layer per channel vec4) and `raw{k}` fetches texels, which CPU
+// drivers vectorise where they run storage-buffer loads lane by lane; the same arithmetic.
+fn raw{k}(x: u32, y: u32, ci: u32) -> vec4<f32> {
+    return textureLoad(in{k}, vec2<u32>(x, y), ci, 0);
+}
+
+// Channel vec4 `ci` of input {k} at pixel (x, y) of the layer's image (`c4` unused).
+fn load{k}(x: u32, y: u32, c4: u32, ci: u32) -> vec4<f32> {
+    let s = p.src[{k}].xy;
+    if (FETCH{k} == 0u) {
+        return raw{k}(x, y, ci);
+    }
+    if (FETCH{k} == 1u) {
+        return raw{k}(min(x / 2u, s.x - 1u), min(y / 2u, s.y - 1u), ci);
+    }
+    if (FETCH{k} == 2u) {
+        let fx = max((f32(x) + 0.5) * 0.5 - 0.5, 0.0);
+        let fy = max((f32(y) + 0.5) * 0.5 - 0.5, 0.0);
+        let x0 = min(u32(fx), s.x - 1u);
+        let y0 = min(u32(fy), s.y - 1u);
+        let x1 = min(x0 + 1u, s.x - 1u);
+        let y1 = min(y0 + 1u, s.y - 1u);
+        let tx = fx - f32(x0);
+        let ty = fy - f32(y0);
+        let a = raw{k}(x0, y0, ci);
+        let b = raw{k}(x1, y0, ci);
+        let d = raw{k}(x0, y1, ci);
+        let e = raw{k}(x1, y1, ci);
+        return mix(mix(a, b, tx), mix(d, e, tx), ty);
+    }
+    let x1 = min(2u * x + 1u, s.x - 1u);
+    let y1 = min(2u * y + 1u, s.y - 1u);
+    let a = raw{k}(2u * x, 2u * y, ci);
+    let b = raw{k}(x1, 2u * y, ci);
+    let d = raw{k}(2u * x, y1, ci);
+    let e = raw{k}(x1, y1, ci);
+    if (FETCH{k} == 3u) {
+        return max(max(a, b), max(d, e));
+    }
+    // Clipped taps repeat an in-window pixel; count each distinct pixel once.
+    var sum = a;
+    if (x1 != 2u * x) { sum += b; }
+    if (y1 != 2u * y) { sum += d; }
+    if (x1 != 2u * x && y1 != 2u * y) { sum += e; }
+    return sum / f32((x1 - 2u * x + 1u) * (y1 - 2u * y + 1u));
+}
+//#else
 // Channel vec4 `ci` (of `c4` per pixel) of input {k} at pixel (x, y) of the layer's image.
 fn load{k}(x: u32, y: u32, c4: u32, ci: u32) -> vec4<f32> {
     let s = p.src[{k}].xy;
@@ -59,4 +108,5 @@ fn load{k}(x: u32, y: u32, c4: u32, ci: u32) -> vec4<f32> {
     if (x1 != 2u * x && y1 != 2u * y) { sum += e; }
     return sum / f32((x1 - 2u * x + 1u) * (y1 - 2u * y + 1u));
 }
+//#end
 //#end

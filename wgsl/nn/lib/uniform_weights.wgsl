@@ -10,8 +10,14 @@ override CO_COUNT: u32 = 1u; // output vec4s of this dispatch (its weights)
 
 const MAX_WEIGHTS: u32 = 4096u; // vec4s: 64 KiB, WebGPU's default uniform binding size
 
+//#if TEX_IN
+//#repeat k N_IN
+@group(0) @binding({k+1}) var in{k}: texture_2d_array<f32>;
+//#end
+//#else
 //#repeat k N_IN
 @group(0) @binding({k+1}) var<storage, read> in{k}: array<In{k}>;
+//#end
 //#end
 @group(0) @binding({N_IN+1}) var<uniform> weights: array<vec4<f32>, MAX_WEIGHTS>;
 @group(0) @binding({N_IN+2}) var<storage, read> bias: array<vec4<f32>>;
