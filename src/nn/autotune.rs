@@ -659,12 +659,13 @@ pub fn timed_once(key: String, measure: impl FnOnce() -> Result<f64>) -> Result<
 /// Says once per process, before the first layer shape is measured, what is happening and
 /// how long it may take: on a CPU driver every candidate compiles at its first dispatch, and
 /// a first tuning of the SSR network with Mesa's shader cache empty took about 20 minutes on a
-/// 2-core machine (README Performance).
+/// 2-core machine before the texture-reading tilings joined the candidates, which add about
+/// 2.5 (README Performance).
 fn announce_first_tuning(gpu: &Gpu) {
     static ONCE: std::sync::Once = std::sync::Once::new();
     ONCE.call_once(|| {
         let cost = if gpu.kind() == AdapterKind::Cpu {
-            "on a CPU driver each candidate kernel compiles first: about 20 minutes for the SSR network on a 2-core machine the first time, about a minute once the driver's shader cache holds the kernels"
+            "on a CPU driver each candidate kernel compiles first: about 20-25 minutes for the SSR network on a 2-core machine the first time, about a minute once the driver's shader cache holds the kernels"
         } else {
             "seconds per layer shape"
         };

@@ -1,6 +1,6 @@
 //! The 3x3 convolution layer and its kernel family.
 //!
-//! One layer ([`Conv3x3`]) can run on two WGSL kernels, chosen per layer by
+//! One layer ([`Conv3x3`]) can run on four WGSL kernels, chosen per layer by
 //! [`ConvKernel`]:
 //! - `nn/conv3x3` ([`ConvKernel::Generic`]): one pixel and 16 output channels per
 //!   invocation, shapes as runtime parameters, weights in a storage buffer. Runs any layer.
@@ -12,6 +12,11 @@
 //!   adjacent 2x2 output tiles times `cob` output vec4s per invocation, 16 multiplications
 //!   per tile and channel pair instead of 36, otherwise as the blocked kernel (its weights
 //!   transformed on the host, 16 per input and output channel instead of 9).
+//! - Either of the last two with `tex` (`-tex` in its name): each input first copied to an
+//!   rgba32float texture array (`nn/to_texture`, one layer per channel vec4) and read by
+//!   texel fetches (template flag `TEX_IN`). CPU drivers vectorise texel fetches but load
+//!   storage buffers lane by lane, so there the copy pays for itself (README Performance);
+//!   the autotuner tries the tilings of [`ConvKernel::texture_tilings`].
 //! - `nn/conv3x3_coop` ([`ConvKernel::Coop`]): an implicit matrix product on cooperative
 //!   matrices (tensor cores), T x T matrices (16, or 8 where the adapter has only those),
 //!   one subgroup per `mt * T` pixels times `nt * T` output channels, f16 operands and f32
