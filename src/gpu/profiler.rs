@@ -70,7 +70,16 @@ pub struct Profiler {
 impl Profiler {
     /// A profiler for up to `max_scopes` timed passes per frame.
     pub fn new(gpu: &Gpu, max_scopes: u32) -> Self {
-        let timed = gpu.has(wgpu::Features::TIMESTAMP_QUERY);
+        Self::build(gpu, max_scopes, gpu.has(wgpu::Features::TIMESTAMP_QUERY))
+    }
+
+    /// A profiler that records CPU wall time only (around submit and wait), as on an
+    /// adapter without timestamps.
+    pub fn wall(gpu: &Gpu) -> Self {
+        Self::build(gpu, 1, false)
+    }
+
+    fn build(gpu: &Gpu, max_scopes: u32, timed: bool) -> Self {
         let capacity = 2 * max_scopes.max(1);
         let (query_set, resolve) = if timed {
             let qs = gpu.device.create_query_set(&wgpu::QuerySetDescriptor {
@@ -97,21 +106,6 @@ impl Profiler {
             samples: BTreeMap::new(),
             order: Vec::new(),
             gpu_timed: timed,
-        }
-    }
-
-    /// A profiler that records CPU wall time only (around submit and wait), as on an
-    /// adapter without timestamps.
-    pub fn wall(gpu: &Gpu) -> Self {
-        Self {
-            query_set: None,
-            resolve: None,
-            capacity: 2,
-            labels: Vec::new(),
-            period_ns: gpu.queue.get_timestamp_period() as f64,
-            samples: BTreeMap::new(),
-            order: Vec::new(),
-            gpu_timed: false,
         }
     }
 

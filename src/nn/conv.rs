@@ -268,10 +268,7 @@ impl ConvKernel {
 
     /// Whether the kernel reads its inputs as textures.
     pub fn reads_textures(&self) -> bool {
-        matches!(
-            self,
-            ConvKernel::Blocked { tex: true, .. } | ConvKernel::Winograd { tex: true, .. }
-        )
+        self.uniform_layout().is_some_and(|l| l.tex)
     }
 
     /// How a kernel with weights in a uniform buffer (blocked, Winograd) is shaped; `None`

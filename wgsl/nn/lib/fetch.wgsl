@@ -67,6 +67,10 @@ fn load{k}(x: u32, y: u32, c4: u32, ci: u32) -> vec4<f32> {
     return sum / f32((x1 - 2u * x + 1u) * (y1 - 2u * y + 1u));
 }
 //#else
+// The same arithmetic over storage buffers, written out rather than through a `raw{k}` as
+// above: this is the text every driver's shader cache already holds for the buffer tilings
+// (an extra function changes their SPIR-V, and a first tuning then recompiles all of them:
+// about 20 minutes on a 2-core CPU driver).
 // Channel vec4 `ci` (of `c4` per pixel) of input {k} at pixel (x, y) of the layer's image.
 fn load{k}(x: u32, y: u32, c4: u32, ci: u32) -> vec4<f32> {
     let s = p.src[{k}].xy;
