@@ -103,7 +103,7 @@ def stage_flops(model: SSRModel, wp: int, hp: int) -> Dict[str, int]:
     return out
 
 
-def make_stages(model: SSRModel) -> Tuple[Callable, Callable, Callable]:
+def make_stages(model: SSRModel) -> Tuple[Callable, Callable]:
     def tfa_stage(frame, a_acc_prev, o_prev, s_prev):
         # exposure, pack, warp of (A_acc, o), history test and re-exposure (model.history), TFA
         h = model.history(frame, (a_acc_prev, o_prev.to(a_acc_prev.dtype), s_prev))
@@ -117,10 +117,7 @@ def make_stages(model: SSRModel) -> Tuple[Callable, Callable, Callable]:
         albedo = model.remodulation_albedo(a_t, a_acc)
         return remodulate(o.float(), albedo.float()) * s[:, :RGB], o
 
-    def output_stage(out, frame, mc):
-        return output_pass(out, frame, mc)
-
-    return tfa_stage, unet_stage, output_stage
+    return tfa_stage, unet_stage
 
 
 def percentile(xs: List[float], q: float) -> float:
@@ -144,7 +141,7 @@ def bench_mode(
     inputs = [synthetic_frame(wp, hp, t, device) for t in range(4)]
     if channels_last:
         inputs = [{k: v.contiguous(memory_format=torch.channels_last) for k, v in f.items()} for f in inputs]
-    tfa_stage, unet_stage, output_stage = make_stages(m)
+    tfa_stage, unet_stage = make_stages(m)
     mc = mean_correction_of(model.cfg)
     compile_s = None
     if mode == "compile":
@@ -190,7 +187,7 @@ def bench_mode(
                     ev[2].record()
                 else:
                     w2 = time.perf_counter()
-                out = output_stage(out, f, mc)
+                out = output_pass(out, f, mc)
             if cuda:
                 ev[3].record()
             sync()

@@ -331,12 +331,25 @@ impl Gpu {
         height: u32,
         format: wgpu::TextureFormat,
     ) -> wgpu::Texture {
+        self.storage_texture_layers(label, width, height, 1, format)
+    }
+
+    /// [`Gpu::storage_texture`] with `layers` array layers (the convolutions' texture
+    /// copies of their inputs, one layer per channel vec4).
+    pub fn storage_texture_layers(
+        &self,
+        label: &str,
+        width: u32,
+        height: u32,
+        layers: u32,
+        format: wgpu::TextureFormat,
+    ) -> wgpu::Texture {
         self.device.create_texture(&wgpu::TextureDescriptor {
             label: Some(label),
             size: wgpu::Extent3d {
                 width,
                 height,
-                depth_or_array_layers: 1,
+                depth_or_array_layers: layers,
             },
             mip_level_count: 1,
             sample_count: 1,

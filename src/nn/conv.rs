@@ -841,20 +841,13 @@ impl Conv3x3 {
                 ),
             ));
         }
-        let texture = gpu.device.create_texture(&wgpu::TextureDescriptor {
-            label: Some(&format!("subpixel.conv.{}.in{i}", self.name)),
-            size: wgpu::Extent3d {
-                width: t.width,
-                height: t.height,
-                depth_or_array_layers: t.c4(),
-            },
-            mip_level_count: 1,
-            sample_count: 1,
-            dimension: wgpu::TextureDimension::D2,
-            format: wgpu::TextureFormat::Rgba32Float,
-            usage: wgpu::TextureUsages::STORAGE_BINDING | wgpu::TextureUsages::TEXTURE_BINDING,
-            view_formats: &[],
-        });
+        let texture = gpu.storage_texture_layers(
+            &format!("subpixel.conv.{}.in{i}", self.name),
+            t.width,
+            t.height,
+            t.c4(),
+            wgpu::TextureFormat::Rgba32Float,
+        );
         let view = texture.create_view(&wgpu::TextureViewDescriptor {
             dimension: Some(wgpu::TextureViewDimension::D2Array),
             ..Default::default()
