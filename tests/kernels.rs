@@ -173,6 +173,93 @@ fn conv3x3_every_autotuner_candidate_matches_reference() {
     assert!(chunked >= 5, "{chunked} chunked dispatches");
 }
 
+/// Issue 14, fewer copies: a kernel with uniform weights given a texture for its output
+/// (template flag TEX_OUT) stores every output vec4 there too, as `nn/to_texture` would copy
+/// it (the texture's layers hold the buffer's values to the bit, chunked layers included),
+/// and a convolution reading textures that finds its input there computes to the bit what
+/// it computes from a copy of its own.
+#[test]
+fn conv3x3_stores_its_output_to_a_texture_the_next_convolution_reads() {
+    use subpixel::nn::conv::{InputTexture, TextureIo, activation_texture};
+    let g = gpu();
+    type Shape = (&'static [u32], u32, (u32, u32));
+    // The second: more weights than one uniform buffer holds (chunked dispatches).
+    let shapes: &[Shape] = &[(&[15, 4], 16, (19, 9)), (&[64], 48, (9, 5))];
+    let mut tried = 0;
+    for (i, &(split, cout, (w, h))) in shapes.iter().enumerate() {
+        let inputs: Vec<HostTensor> = split
+            .iter()
+            .enumerate()
+            .map(|(k, &c)| random(700 + 10 * i as u64 + k as u64, w, h, c, -1.0, 1.0))
+            .collect();
+        let cin: u32 = split.iter().sum();
+        let weight = random_vec(70 + i as u64, (cout * cin * 9) as usize, -0.5, 0.5);
+        let bias = random_vec(80 + i as u64, cout as usize, -0.5, 0.5);
+        let conv = Conv3x3::new(&g, "producer", &weight, &bias, split, cout, Activation::Relu).unwrap();
+        // The next layer: 8 channels from the producer's output, read as a texture.
+        let next_w = random_vec(90 + i as u64, (8 * cout * 9) as usize, -0.5, 0.5);
+        let next = Conv3x3::new(&g, "consumer", &next_w, &[0.1; 8], &[cout], 8, Activation::None).unwrap();
+        let reader: ConvKernel = "px4-cob1-tex".parse().unwrap();
+        let gins: Vec<Tensor> = inputs.iter().map(|t| up(&g, "in", t)).collect();
+        let refs: Vec<&Tensor> = gins.iter().collect();
+        let hin: Vec<&HostTensor> = inputs.iter().collect();
+        let want = reference::conv3x3(&hin, &weight, &bias, cout, Activation::Relu);
+        for kernel in conv
+            .candidates(&g)
+            .into_iter()
+            .filter(|k| !matches!(k, ConvKernel::Generic | ConvKernel::Coop { .. }))
+        {
+            let case = format!("{kernel} {split:?}->{cout} {w}x{h}");
+            let out = Tensor::new(&g, "out", w, h, cout).unwrap();
+            let tex = activation_texture(&g, "out", &out).unwrap();
+            let io = TextureIo {
+                inputs: vec![],
+                output: Some(&tex.view),
+            };
+            ops::run(&g, &[&conv.bind_textured(&g, kernel, &refs, &out, &io).unwrap()]).unwrap();
+            assert_close(&case, &out.read(&g).unwrap(), &want, REDUCTION);
+            let stored: Vec<f32> =
+                bytemuck::pod_collect_to_vec(&g.read_buffer(&out.buffer, 0, out.bytes()).unwrap());
+            let texels: Vec<f32> = bytemuck::pod_collect_to_vec(&g.read_texture(&tex.texture).unwrap());
+            let c4 = out.c4() as usize;
+            let (wu, hu) = (w as usize, h as usize);
+            for l in 0..c4 {
+                for p in 0..wu * hu {
+                    for k in 0..4 {
+                        let (a, b) = (texels[(l * wu * hu + p) * 4 + k], stored[(p * c4 + l) * 4 + k]);
+                        assert_eq!(
+                            a.to_bits(),
+                            b.to_bits(),
+                            "{case}: layer {l}, pixel {p}, lane {k}: {a} against {b}"
+                        );
+                    }
+                }
+            }
+            // The next convolution on the texture, against the same kernel copying its input.
+            let got = Tensor::new(&g, "next", w, h, 8).unwrap();
+            let io = TextureIo {
+                inputs: vec![Some(InputTexture::Filled(&tex.view))],
+                output: None,
+            };
+            let d = next.bind_textured(&g, reader, &[&out], &got, &io).unwrap();
+            let own = Tensor::new(&g, "own", w, h, 8).unwrap();
+            let d_own = next.bind_with(&g, reader, &[&out], &own).unwrap();
+            assert_eq!(d.parts() + 1, d_own.parts(), "{case}: the copy left out");
+            ops::run(&g, &[&d, &d_own]).unwrap();
+            let (a, b) = (got.read(&g).unwrap(), own.read(&g).unwrap());
+            assert!(
+                a.data
+                    .iter()
+                    .zip(&b.data)
+                    .all(|(x, y)| x.to_bits() == y.to_bits()),
+                "{case}: next layer differs"
+            );
+            tried += 1;
+        }
+    }
+    assert!(tried >= 20, "{tried} kernel/shape pairs");
+}
+
 /// Issue 14, fusion: a convolution that reads an input resampled on load (2x2 max or
 /// average pooling of a tensor twice its size, odd sizes included so that windows are
 /// clipped; 2x nearest or bilinear upsampling of one half its size) agrees with the CPU

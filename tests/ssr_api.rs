@@ -201,6 +201,62 @@ fn fixed_kernels_fall_back_to_generic_where_they_cannot_run() {
     common::assert_close("fixed px4-cob1", &got, &want, common::REDUCTION);
 }
 
+/// Issue 14: the kernels reading textures run on textures the network shares (each tensor
+/// copied once a frame, or stored by the convolution producing it) and compute exactly
+/// what the same tiling reading buffers computes: the same sums in the same order, so the
+/// outputs of several frames (history included) are equal to the bit.
+#[test]
+fn texture_kernels_with_shared_textures_equal_buffer_kernels_to_the_bit() {
+    use subpixel::nn::autotune::{EngineOptions, KernelChoice, Precision};
+    use subpixel::nn::conv::ConvKernel;
+    let gpu = common::gpu();
+    let weights = Weights::load(golden_weights_path()).unwrap();
+    let frames: Vec<_> = (0..3).map(|i| random_frame(20, 12, 40 + i)).collect();
+    let run = |kernel: ConvKernel| {
+        let options = EngineOptions {
+            kernels: KernelChoice::Fixed(kernel),
+            precision: Precision::F32,
+            ..Default::default()
+        };
+        let mut den = Denoiser::with_options(&gpu, &weights, 20, 12, options).unwrap();
+        let used: Vec<ConvKernel> = den.network().conv_kernels().into_iter().map(|(_, k)| k).collect();
+        // Layers whose weights the tiling's uniform array cannot hold run on the generic
+        // kernel (whose outputs the texture readers then copy themselves).
+        assert!(
+            used.iter().all(|&k| k == kernel || k == ConvKernel::Generic),
+            "{kernel}: {used:?}"
+        );
+        assert!(
+            used.iter().filter(|&&k| k == kernel).count() >= used.len() / 2,
+            "{kernel}: {used:?}"
+        );
+        frames
+            .iter()
+            .map(|f| den.denoise_host(f).unwrap())
+            .collect::<Vec<_>>()
+    };
+    for (buffers, textures) in [
+        ("px4-cob1", "px4-cob1-tex"),
+        ("px2-cob2", "px2-cob2-tex"),
+        ("wino-tx1-cob1", "wino-tx1-cob1-tex"),
+    ] {
+        let want = run(buffers.parse().unwrap());
+        let got = run(textures.parse().unwrap());
+        for (i, (g, w)) in got.iter().zip(&want).enumerate() {
+            let differ = g
+                .data
+                .iter()
+                .zip(&w.data)
+                .filter(|(a, b)| a.to_bits() != b.to_bits())
+                .count();
+            assert_eq!(
+                differ, 0,
+                "{textures} against {buffers}, frame {i}: {differ} values differ"
+            );
+        }
+    }
+}
+
 #[test]
 fn odd_sizes_are_padded_internally() {
     let gpu = common::gpu();

@@ -109,7 +109,7 @@ impl<'a> FrameInputs<'a> {
     ];
 
     /// Every buffer's name, the optional two last, in [`FrameInputs::from_slice`]'s order;
-    /// [`crate::ssr::Config::input_names`] says how many of them a model needs.
+    /// [`crate::ssr::SsrConfig::input_names`] says how many of them a model needs.
     pub const ALL_NAMES: [&'static str; 8] = [
         Self::NAMES[0],
         Self::NAMES[1],

@@ -390,9 +390,10 @@ impl Gpu {
     }
 
     /// Copies a 2D texture (made with `COPY_SRC`, a format with a fixed texel size) to the
-    /// host and blocks until done: its rows, top to bottom, without padding.
+    /// host and blocks until done: its rows, top to bottom, without padding (layer after
+    /// layer for an array).
     pub fn read_texture(&self, texture: &wgpu::Texture) -> Result<Vec<u8>> {
-        let (w, h) = (texture.width(), texture.height());
+        let (w, h, layers) = (texture.width(), texture.height(), texture.depth_or_array_layers());
         let texel = texture.format().block_copy_size(None).ok_or_else(|| {
             Error::Readback(format!(
                 "texture format {:?} has no fixed texel size",
@@ -401,7 +402,7 @@ impl Gpu {
         })?;
         let row = w * texel;
         let padded = row.div_ceil(wgpu::COPY_BYTES_PER_ROW_ALIGNMENT) * wgpu::COPY_BYTES_PER_ROW_ALIGNMENT;
-        let bytes = self.read_back(padded as u64 * h as u64, |enc, staging| {
+        let bytes = self.read_back(padded as u64 * h as u64 * layers as u64, |enc, staging| {
             enc.copy_texture_to_buffer(
                 texture.as_image_copy(),
                 wgpu::TexelCopyBufferInfo {
@@ -409,13 +410,13 @@ impl Gpu {
                     layout: wgpu::TexelCopyBufferLayout {
                         offset: 0,
                         bytes_per_row: Some(padded),
-                        rows_per_image: None,
+                        rows_per_image: Some(h),
                     },
                 },
                 wgpu::Extent3d {
                     width: w,
                     height: h,
-                    depth_or_array_layers: 1,
+                    depth_or_array_layers: layers,
                 },
             )
         })?;

@@ -902,7 +902,14 @@ mod tests {
                         let name = match kernel {
                             ConvKernel::Blocked { .. } | ConvKernel::Winograd { .. } => {
                                 let l = kernel.uniform_layout().expect("uniform weights");
-                                template.extend([l.tiling, ("COB", l.cob), ("TEX_IN", l.tex as u32)]);
+                                // The texture output on half the cases.
+                                let tex_out = inputs % 2;
+                                template.extend([
+                                    l.tiling,
+                                    ("COB", l.cob),
+                                    ("TEX_IN", l.tex as u32),
+                                    ("TEX_OUT", tex_out),
+                                ]);
                                 l.kernel
                             }
                             ConvKernel::Coop { mt, nt, rt } => {

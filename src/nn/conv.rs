@@ -12,11 +12,14 @@
 //!   adjacent 2x2 output tiles times `cob` output vec4s per invocation, 16 multiplications
 //!   per tile and channel pair instead of 36, otherwise as the blocked kernel (its weights
 //!   transformed on the host, 16 per input and output channel instead of 9).
-//! - Either of the last two with `tex` (`-tex` in its name): each input first copied to an
-//!   rgba32float texture array (`nn/to_texture`, one layer per channel vec4) and read by
-//!   texel fetches (template flag `TEX_IN`). CPU drivers vectorise texel fetches but load
-//!   storage buffers lane by lane, so there the copy pays for itself (README Performance);
-//!   the autotuner tries the tilings of [`ConvKernel::texture_tilings`].
+//! - Either of the last two with `tex` (`-tex` in its name): the inputs read by texel
+//!   fetches (template flag `TEX_IN`) from rgba32float texture arrays, one layer per channel
+//!   vec4. CPU drivers vectorise texel fetches but load storage buffers lane by lane, so
+//!   there the copies pay for themselves (README Performance); the autotuner tries the
+//!   tilings of [`ConvKernel::texture_tilings`]. A bind alone copies each input to a texture
+//!   of its own (`nn/to_texture`); in the network ([`TextureIo`], `ssr::shared_textures`)
+//!   a tensor is copied once a frame for all its readers, or not at all when a kernel with
+//!   uniform weights produces it and stores its output to the texture too (`TEX_OUT`).
 //! - `nn/conv3x3_coop` ([`ConvKernel::Coop`]): an implicit matrix product on cooperative
 //!   matrices (tensor cores), T x T matrices (16, or 8 where the adapter has only those),
 //!   one subgroup per `mt * T` pixels times `nt * T` output channels, f16 operands and f32
@@ -78,6 +81,98 @@ struct ToTextureParams {
 /// Bytes of the rgba32float texture array `nn/to_texture` copies `t` to.
 fn texture_bytes(t: &Tensor) -> u64 {
     t.width as u64 * t.height as u64 * t.c4() as u64 * 16
+}
+
+/// A texture array that holds a tensor for the kernels reading their inputs as textures
+/// ([`activation_texture`]), and the view they bind.
+#[derive(Debug)]
+pub struct ActivationTexture {
+    /// One rgba32float layer per channel vec4 (exact for f32 and f16 storage).
+    pub texture: wgpu::Texture,
+    /// Its 2D-array view.
+    pub view: wgpu::TextureView,
+}
+
+/// An [`ActivationTexture`] for tensor `t`, filled by [`copy_to_texture`] or by the
+/// convolution producing `t` ([`TextureIo::output`]); an error naming `user` where the
+/// device's texture limits cannot hold it.
+pub fn activation_texture(gpu: &Gpu, user: &str, t: &Tensor) -> Result<ActivationTexture> {
+    let limits = gpu.device.limits();
+    let (side, layers) = (limits.max_texture_dimension_2d, limits.max_texture_array_layers);
+    if t.width > side || t.height > side || t.c4() > layers {
+        return Err(Error::shape(
+            user,
+            format!(
+                "{}x{} with {} vec4s per pixel exceeds the device's textures ({side} pixels a side, {layers} layers)",
+                t.width,
+                t.height,
+                t.c4()
+            ),
+        ));
+    }
+    let texture = gpu.storage_texture_layers(
+        &format!("subpixel.texture.{user}"),
+        t.width,
+        t.height,
+        t.c4(),
+        wgpu::TextureFormat::Rgba32Float,
+    );
+    let view = texture.create_view(&wgpu::TextureViewDescriptor {
+        dimension: Some(wgpu::TextureViewDimension::D2Array),
+        ..Default::default()
+    });
+    Ok(ActivationTexture { texture, view })
+}
+
+/// The dispatch of `nn/to_texture` copying `t` into `dst` (an [`activation_texture`] of it).
+pub fn copy_to_texture(gpu: &Gpu, t: &Tensor, dst: &wgpu::TextureView) -> Result<Dispatch> {
+    let params = ToTextureParams {
+        width: t.width,
+        height: t.height,
+        c4: t.c4(),
+        _pad: 0,
+    };
+    let mut copy = gpu.kernels.dispatch_with(
+        "nn/to_texture",
+        &Specialisation(vec![("F16_IN0", t.dtype.f16_flag() as f64)]),
+        bytemuck::bytes_of(&params),
+        &[
+            t.buffer.as_entire_binding(),
+            wgpu::BindingResource::TextureView(dst),
+        ],
+        Grid::Invocations([t.width, t.height, t.c4()]),
+    )?;
+    copy.bytes_read = t.bytes() + std::mem::size_of::<ToTextureParams>() as u64;
+    copy.bytes_written = texture_bytes(t);
+    Ok(copy)
+}
+
+/// Where an input of a convolution reading textures comes from ([`TextureIo::inputs`]).
+#[derive(Debug, Clone, Copy)]
+pub enum InputTexture<'a> {
+    /// This texture array, which the bind fills first (copies the input there): the first
+    /// reader of a tensor that no convolution writes as a texture.
+    Fill(&'a wgpu::TextureView),
+    /// This texture array, already holding the input when the bind's dispatches run:
+    /// written by the convolution producing it ([`TextureIo::output`]) or by an earlier
+    /// reader's [`InputTexture::Fill`].
+    Filled(&'a wgpu::TextureView),
+}
+
+/// The texture arrays one [`Conv3x3::bind_textured`] shares with the other steps of a
+/// network, so that a tensor several convolutions read as a texture is copied once, or not
+/// at all when a convolution produces it. The default shares nothing (as
+/// [`Conv3x3::bind_with`]: each input copied to a texture of the bind's own).
+#[derive(Debug, Clone, Default)]
+pub struct TextureIo<'a> {
+    /// Per input, in concatenation order, for a kernel reading textures (ignored by the
+    /// others): where it comes from; `None` (or a shorter list) copies it to a texture of
+    /// the bind's own.
+    pub inputs: Vec<Option<InputTexture<'a>>>,
+    /// An [`activation_texture`] of the output that a kernel with uniform weights
+    /// ([`ConvKernel::Blocked`], [`ConvKernel::Winograd`]) also stores to (template flag
+    /// `TEX_OUT`); an error for the other kernels.
+    pub output: Option<&'a wgpu::TextureView>,
 }
 
 /// Output channels one `nn/conv3x3` invocation computes (4 vec4s).
@@ -828,49 +923,8 @@ impl Conv3x3 {
     /// the view the kernel binds; an error naming the layer where the device's texture
     /// limits cannot hold it.
     fn to_texture(&self, gpu: &Gpu, i: usize, t: &Tensor) -> Result<(Dispatch, wgpu::TextureView)> {
-        let limits = gpu.device.limits();
-        let (side, layers) = (limits.max_texture_dimension_2d, limits.max_texture_array_layers);
-        if t.width > side || t.height > side || t.c4() > layers {
-            return Err(Error::shape(
-                &format!("conv3x3 '{}'", self.name),
-                format!(
-                    "input {i} ({}x{}, {} vec4s per pixel) exceeds the device's textures ({side} pixels a side, {layers} layers)",
-                    t.width,
-                    t.height,
-                    t.c4()
-                ),
-            ));
-        }
-        let texture = gpu.storage_texture_layers(
-            &format!("subpixel.conv.{}.in{i}", self.name),
-            t.width,
-            t.height,
-            t.c4(),
-            wgpu::TextureFormat::Rgba32Float,
-        );
-        let view = texture.create_view(&wgpu::TextureViewDescriptor {
-            dimension: Some(wgpu::TextureViewDimension::D2Array),
-            ..Default::default()
-        });
-        let params = ToTextureParams {
-            width: t.width,
-            height: t.height,
-            c4: t.c4(),
-            _pad: 0,
-        };
-        let mut copy = gpu.kernels.dispatch_with(
-            "nn/to_texture",
-            &Specialisation(vec![("F16_IN0", t.dtype.f16_flag() as f64)]),
-            bytemuck::bytes_of(&params),
-            &[
-                t.buffer.as_entire_binding(),
-                wgpu::BindingResource::TextureView(&view),
-            ],
-            Grid::Invocations([t.width, t.height, t.c4()]),
-        )?;
-        copy.bytes_read = t.bytes() + std::mem::size_of::<ToTextureParams>() as u64;
-        copy.bytes_written = texture_bytes(t);
-        Ok((copy, view))
+        let tex = activation_texture(gpu, &format!("conv3x3 '{}' input {i}", self.name), t)?;
+        Ok((copy_to_texture(gpu, t, &tex.view)?, tex.view))
     }
 
     /// Binds `inputs` and `out` on `kernel`; an error names the layer and why when the
@@ -882,7 +936,29 @@ impl Conv3x3 {
         inputs: &[&Tensor],
         out: &Tensor,
     ) -> Result<Dispatch> {
+        self.bind_textured(gpu, kernel, inputs, out, &TextureIo::default())
+    }
+
+    /// [`Conv3x3::bind_with`] sharing texture arrays with the rest of a network: the inputs
+    /// a kernel reading textures finds in `io.inputs`, and the texture `io.output` the
+    /// kernel also stores its output to (a network's producer of a tensor that convolutions
+    /// read as a texture); an error names the layer when `io.output` is given to a kernel
+    /// without uniform weights.
+    pub fn bind_textured(
+        &self,
+        gpu: &Gpu,
+        kernel: ConvKernel,
+        inputs: &[&Tensor],
+        out: &Tensor,
+        io: &TextureIo<'_>,
+    ) -> Result<Dispatch> {
         self.check(inputs, out)?;
+        if io.output.is_some() && kernel.uniform_layout().is_none() {
+            return Err(Error::shape(
+                &format!("conv3x3 '{}'", self.name),
+                format!("kernel {kernel} cannot store its output to a texture"),
+            ));
+        }
         if let Some(why) = self.unsupported(gpu, kernel) {
             return Err(Error::shape(
                 &format!("conv3x3 '{}'", self.name),
@@ -975,16 +1051,29 @@ impl Conv3x3 {
                 } = kernel.uniform_layout().expect("a kernel with uniform weights");
                 let chunks = self.blocked_chunks(positions, cob);
                 let weights = self.blocked_buffers(gpu, positions, cob)?;
-                // With `tex`, each input first copied to a texture array of its own.
+                // With `tex`, each input read from a texture array: the network's (filled
+                // first by this bind where `io` says so), else one of its own, copied first.
                 let mut parts = Vec::with_capacity(chunks.len() + inputs.len());
-                let mut views = Vec::new();
+                let mut own = Vec::new();
                 if tex {
                     for (i, t) in inputs.iter().enumerate() {
-                        let (copy, view) = self.to_texture(gpu, i, t)?;
-                        parts.push(copy);
-                        views.push(view);
+                        match io.inputs.get(i).copied().flatten() {
+                            Some(InputTexture::Fill(view)) => parts.push(copy_to_texture(gpu, t, view)?),
+                            Some(InputTexture::Filled(_)) => {}
+                            None => {
+                                let (copy, view) = self.to_texture(gpu, i, t)?;
+                                parts.push(copy);
+                                own.push((i, view));
+                            }
+                        }
                     }
                 }
+                let views: Vec<&wgpu::TextureView> = (0..if tex { inputs.len() } else { 0 })
+                    .map(|i| match io.inputs.get(i).copied().flatten() {
+                        Some(InputTexture::Fill(v) | InputTexture::Filled(v)) => v,
+                        None => &own.iter().find(|(j, _)| *j == i).expect("copied above").1,
+                    })
+                    .collect();
                 for (&(base, count), weights) in chunks.iter().zip(&weights) {
                     let mut spec = shaped();
                     spec.0.extend([
@@ -994,23 +1083,50 @@ impl Conv3x3 {
                         ("COB", cob as f64),
                         ("TEX_IN", tex as u32 as f64),
                     ]);
+                    if io.output.is_some() {
+                        spec.0.push(("TEX_OUT", 1.0));
+                    }
                     let grid =
                         Grid::Invocations([w.div_ceil(tile[0]), h.div_ceil(tile[1]), count.div_ceil(cob)]);
                     let params = bytemuck::bytes_of(&shaped_params);
-                    parts.push(if tex {
-                        let mut r: Vec<wgpu::BindingResource<'_>> =
-                            views.iter().map(wgpu::BindingResource::TextureView).collect();
+                    parts.push(if tex || io.output.is_some() {
+                        let mut r: Vec<wgpu::BindingResource<'_>> = if tex {
+                            views
+                                .iter()
+                                .map(|v| wgpu::BindingResource::TextureView(v))
+                                .collect()
+                        } else {
+                            bufs.iter().map(|b| b.as_entire_binding()).collect()
+                        };
                         r.extend([
                             weights.as_entire_binding(),
                             self.bias.as_entire_binding(),
                             out.buffer.as_entire_binding(),
                         ]);
+                        if let Some(view) = io.output {
+                            r.push(wgpu::BindingResource::TextureView(view));
+                        }
                         let mut d = gpu.kernels.dispatch_with(name, &spec, params, &r, grid)?;
-                        // Traffic as `dispatch` counts it: the textures (rgba32float), the
-                        // parameters, weights and bias read, the output written.
-                        let textures: u64 = inputs.iter().map(|t| texture_bytes(t)).sum();
-                        d.bytes_read = textures + params.len() as u64 + weights.size() + self.bias.size();
-                        d.bytes_written = out.bytes();
+                        // Traffic as `dispatch` counts it: the inputs (as textures, rgba32float,
+                        // or as stored), the parameters, weights and bias read, the output
+                        // written (and its texture).
+                        let read: u64 = if tex {
+                            inputs.iter().map(|t| texture_bytes(t)).sum()
+                        } else {
+                            // Each distinct buffer once.
+                            let mut seen: Vec<&wgpu::Buffer> = Vec::new();
+                            inputs
+                                .iter()
+                                .filter(|t| {
+                                    let new = !seen.contains(&&t.buffer);
+                                    seen.push(&t.buffer);
+                                    new
+                                })
+                                .map(|t| t.bytes())
+                                .sum()
+                        };
+                        d.bytes_read = read + params.len() as u64 + weights.size() + self.bias.size();
+                        d.bytes_written = out.bytes() + io.output.map_or(0, |_| texture_bytes(out));
                         d
                     } else {
                         let mut b = bufs.clone();

@@ -374,7 +374,7 @@ impl Tracer {
     /// A path-tracing dispatch writing `color` and `shadow` (4-channel tensors of the frame
     /// size); `accum` = (samples already in `color`, samples of this pass) in reference mode.
     /// In a frame with a background it also writes [`FrameBuffers::sample_emission`] (made
-    /// by [`Tracer::prepare_background`]).
+    /// by the tracer's background preparation).
     pub fn trace_dispatch(
         &self,
         scene: &GpuScene,

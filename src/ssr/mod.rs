@@ -6,6 +6,7 @@ mod denoiser;
 mod fold;
 pub mod graph;
 mod network;
+mod shared_textures;
 mod weights;
 
 pub use crate::frame::HostFrame;

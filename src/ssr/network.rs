@@ -8,11 +8,12 @@ use bytemuck::{Pod, Zeroable};
 
 use super::config::{CEILING_GAIN, CeilingMode, LayerSpec, SsrConfig};
 use super::graph::{self, Extent, Op, StepSpec, TensorId};
+use super::shared_textures::{self, StepTextures, TextureSource};
 use super::weights::Weights;
 use crate::error::{Error, Result};
 use crate::gpu::{Dispatch, Gpu, Grid, Profiler, time_dispatch};
 use crate::nn::autotune::{self, EngineOptions, KernelChoice, LayerStorage, Pooling, Precision};
-use crate::nn::conv::ConvKernel;
+use crate::nn::conv::{self, ConvKernel, InputTexture, TextureIo};
 use crate::nn::ops::{self, Conv3x3, Fetch, TfaBlend};
 use crate::nn::{DType, HostTensor, Tensor};
 
@@ -65,6 +66,11 @@ pub struct Network {
     stored: Stored,
     /// Storage of the interior activations ([`TensorId::may_store_f16`]).
     activations: DType,
+    /// The texture arrays of the tensors several convolutions read as textures, or one
+    /// produces for them ([`shared_textures::plan`]).
+    textures: BTreeMap<TensorId, conv::ActivationTexture>,
+    /// Per step, the shared textures it fills, reads or stores to.
+    step_textures: Vec<StepTextures>,
     /// `[parity][step]` -> its dispatch.
     dispatches: [Vec<Dispatch>; 2],
     parity: usize,
@@ -364,6 +370,21 @@ impl Network {
             alloc(TensorId::AAcc, "a_acc.1")?,
         ];
         let o = [alloc(TensorId::O, "o.0")?, alloc(TensorId::O, "o.1")?];
+        // Each tensor convolutions read as a texture is copied once a frame, or stored by
+        // the convolution producing it (as the kernels were chosen).
+        let (step_textures, shared) =
+            shared_textures::plan(&specs, |id| stored[&id].0, |layer| convs[layer].kernel());
+        let mut textures = BTreeMap::new();
+        for id in shared {
+            let t = match id {
+                TensorId::AAcc => &a_acc[0],
+                TensorId::AAccPrev => &a_acc[1],
+                TensorId::O => &o[0],
+                TensorId::OPrev => &o[1],
+                id => &tensors[&id],
+            };
+            textures.insert(id, conv::activation_texture(gpu, id.name(), t)?);
+        }
         let ones = Tensor::from_host(gpu, "ones", &HostTensor::from_fn(width, height, 1, |_, _, _| 1.0))?;
         // Without exposure normalisation (version-1 weights) the exposure is 1 for good.
         for id in [TensorId::Exposure, TensorId::ExposureRatio] {
@@ -383,6 +404,8 @@ impl Network {
             specs,
             stored,
             activations,
+            textures,
+            step_textures,
             dispatches: [Vec::new(), Vec::new()],
             parity: 0,
         };
@@ -394,7 +417,8 @@ impl Network {
             net.dispatches[p] = net
                 .specs
                 .iter()
-                .map(|s| net.bind(gpu, s, p))
+                .enumerate()
+                .map(|(i, s)| net.bind(gpu, s, &net.step_textures[i], p))
                 .collect::<Result<_>>()?;
         }
         Ok(net)
@@ -422,13 +446,27 @@ impl Network {
         }
     }
 
-    /// The dispatch of step `s` for the frame of parity `p`.
-    fn bind(&self, gpu: &Gpu, s: &StepSpec, p: usize) -> Result<Dispatch> {
+    /// The dispatch of step `s` for the frame of parity `p`, with its shared textures `tex`.
+    fn bind(&self, gpu: &Gpu, s: &StepSpec, tex: &StepTextures, p: usize) -> Result<Dispatch> {
         let t: Vec<&Tensor> = s.tensors.iter().map(|&id| self.at(id, p)).collect();
         match s.op {
             Op::Conv(layer) => {
                 let (out, inputs) = t.split_last().expect("a convolution has an output");
-                self.convs[layer].bind(gpu, inputs, out)
+                let io = TextureIo {
+                    inputs: tex
+                        .inputs
+                        .iter()
+                        .map(|a| {
+                            a.map(|a| match a {
+                                TextureSource::Fill(id) => InputTexture::Fill(&self.textures[&id].view),
+                                TextureSource::Filled(id) => InputTexture::Filled(&self.textures[&id].view),
+                            })
+                        })
+                        .collect(),
+                    output: tex.output.map(|id| &self.textures[&id].view),
+                };
+                let conv = &self.convs[layer];
+                conv.bind_textured(gpu, conv.kernel(), inputs, out, &io)
             }
             Op::WarpHistory { rescale, geometry } => {
                 // The kernel's fixed layout: A tensors of 4 vec4, o and motion of 1.

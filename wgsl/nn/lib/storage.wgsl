@@ -5,7 +5,9 @@
 // non-finite value becomes 0 and finite ones are clamped to +-OUT_MAX (1e15 in f32, far
 // beyond any real activation, so sums of them cannot overflow; f16's largest finite value,
 // 65504, in f16). Template flag TEX_IN (0 or 1): a convolution whose inputs are read from
-// texture arrays instead (nn/lib/fetch, nn/to_texture).
+// texture arrays instead (nn/lib/fetch, nn/to_texture); TEX_OUT (0 or 1): one that also
+// stores its output to a texture array for the convolutions that read it so
+// (nn/lib/uniform_weights), which then need no copy of it.
 //
 //#param F16_IN0 0
 //#param F16_IN1 0
@@ -14,6 +16,7 @@
 //#param F16_IN4 0
 //#param F16_OUT 0
 //#param TEX_IN 0
+//#param TEX_OUT 0
 //#if F16_IN0+F16_IN1+F16_IN2+F16_IN3+F16_IN4+F16_OUT
 enable f16;
 //#end

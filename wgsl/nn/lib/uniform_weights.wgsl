@@ -1,8 +1,8 @@
 // What the convolutions with weights in a uniform buffer (nn/conv3x3_blocked,
 // nn/conv3x3_winograd) share: the output range of one dispatch (a layer whose weights
 // exceed the uniform array runs as several, nn::conv packs them), the bindings after the
-// parameter block (N_IN inputs, the weights, the bias, the output) and the store of one
-// output vec4. A kernel including this library declares template parameter N_IN, `p:
+// parameter block (N_IN inputs, the weights, the bias, the output and, with the template
+// flag TEX_OUT, the output's texture array) and the store of one output vec4. A kernel including this library declares template parameter N_IN, `p:
 // Params` at binding 0, and includes nn/lib/storage and nn/lib/conv_shape.
 
 override CO_BASE: u32 = 0u; // first output vec4 of this dispatch
@@ -22,6 +22,12 @@ const MAX_WEIGHTS: u32 = 4096u; // vec4s: 64 KiB, WebGPU's default uniform bindi
 @group(0) @binding({N_IN+1}) var<uniform> weights: array<vec4<f32>, MAX_WEIGHTS>;
 @group(0) @binding({N_IN+2}) var<storage, read> bias: array<vec4<f32>>;
 @group(0) @binding({N_IN+3}) var<storage, read_write> out: array<Out>;
+//#if TEX_OUT
+// The output again, one layer per channel vec4, as nn/to_texture would copy it (the stored
+// value, f16 storage widened back to f32): the convolutions reading it as a texture
+// (TEX_IN) bind it instead of copying the output.
+@group(0) @binding({N_IN+4}) var out_tex: texture_storage_2d_array<rgba32float, write>;
+//#end
 
 // Activation and finiteness (nn/lib/storage's to_out, as in nn/conv3x3), stored when the
 // pixel and output block exist.
@@ -29,5 +35,11 @@ fn store(x: u32, y: u32, co4: u32, acc: vec4<f32>) {
     if (x >= p.width || y >= p.height || co4 >= min(COUT4, CO_BASE + CO_COUNT)) {
         return;
     }
+    //#if TEX_OUT
+    let v = to_out(activate(acc));
+    out[(y * p.width + x) * COUT4 + co4] = v;
+    textureStore(out_tex, vec2<u32>(x, y), co4, vec4<f32>(v));
+    //#else
     out[(y * p.width + x) * COUT4 + co4] = to_out(activate(acc));
+    //#end
 }
