@@ -1,0 +1,90 @@
+#!/usr/bin/env bash
+# The pre-registered runs of issue 11 that are still open, as registered (weights/README:
+# "Thirtieth session" for F6 and F7, "Thirty-first session" for F8), and the order in which a
+# new machine re-creates the data they need, so that neither has to be re-typed from prose.
+#
+#   training/registered.sh WORK data        # val, the named held-out scenes, then the train
+#                                           # split in ds-s30's order, the held-out procedural
+#                                           # seeds, the rest (dataset_recipe.sh, niced,
+#                                           # resumable: re-running continues)
+#   training/registered.sh WORK root        # WORK/ds-s30: the root F6, F7 and F8 train on
+#                                           # (checked: 177 windows of 8 frames)
+#   training/registered.sh WORK F6|F7|F8    # one run, one core (campaign.sh train); resumes
+#                                           # from WORK/runs/RUN when it has a checkpoint,
+#                                           # else from its committed restore point
+#
+# WORK is outside the repository (e.g. ~/work-data); SUBPIXEL names the renderer binary
+# (default WORK/subpixel-dist, a copy of `cargo build --profile dist`'s, so that rebuilding
+# the repository does not change the binary under a running render).
+set -euo pipefail
+here="$(cd "$(dirname "$0")" && pwd)"
+root="$(cd "$here/.." && pwd)"
+work="$(realpath -m "${1:?usage: registered.sh WORK data|root|F6|F7|F8}")"
+what="${2:?usage: registered.sh WORK data|root|F6|F7|F8}"
+py="${PYTHON:-$HOME/.cache/subpixel/venv/bin/python}"
+ds="$work/ds"
+
+case "$what" in
+  data)
+    bin="${SUBPIXEL:-$work/subpixel-dist}"
+    [ -x "$bin" ] || { echo "registered.sh: no renderer at $bin (cp target/dist/subpixel there, or set SUBPIXEL)" >&2; exit 2; }
+    # The twenty-seventh session's parameters (weights/README "Thirty-first session").
+    common=(SUBPIXEL="$bin" SPP=1024 TRAIN_SPP=512 VAL_SEEDS=6 BACKGROUND=8 HELDOUT_SEQUENCES=1 TEST_SEEDS=20)
+    # phase [VAR=VALUE ...] PHASE ...: one run of the recipe with extra settings.
+    phase() {
+      local vars=()
+      while [[ "$1" == *=* ]]; do vars+=("$1"); shift; done
+      env "${common[@]}" "${vars[@]}" nice -n 10 "$here/dataset_recipe.sh" "$ds" "$@"
+    }
+    phase val
+    phase PROCEDURAL=0 heldout
+    phase PROCEDURAL=0 train
+    phase TRAIN_SEEDS=0 train
+    phase TRAIN_SEEDS=110 SEED_SEQUENCES=1 train
+    phase heldout
+    phase TRAIN_SEEDS=280 train test
+    ;;
+  root)
+    # ds-s30: every complete train sequence of the fixed scenes, the sparse-light seeds and
+    # procedural seeds 0-109 (first sequences), the sparse-light ones linked 4 times.
+    tmp="$work/ds-s30-src"
+    rm -rf "$tmp"
+    mkdir -p "$tmp/train"
+    ln -s "$ds/val" "$tmp/val"
+    for d in "$ds"/train/*/; do
+      name="$(basename "$d")"
+      if [[ "$name" =~ ^procedural_([0-9]+)_train_([0-9]+)$ ]]; then
+        seed=$((10#${BASH_REMATCH[1]}))
+        k=$((10#${BASH_REMATCH[2]}))
+        if [ "$seed" -lt 300000 ] && { [ "$seed" -gt 109 ] || [ "$k" -gt 0 ]; }; then continue; fi
+      fi
+      ln -s "${d%/}" "$tmp/train/$name"
+    done
+    "$here/train_root.sh" "$tmp" "$work/ds-s30" 4
+    n=$(cd "$here" && "$py" -c "
+from ssr.data import SequenceDataset
+print(len(SequenceDataset('$work/ds-s30', 'train', window=8, crop=64, min_reference_psnr=22)))")
+    echo "ds-s30: $n windows of 8 frames (registered: 177)"
+    [ "$n" = 177 ] || { echo "registered.sh: ds-s30 is not the registered root yet (render incomplete?)" >&2; exit 1; }
+    ;;
+  F6 | F7 | F8)
+    base='--thin 0.5 --thin-keep-min 0.02 --seed 17 --lambda ssim=10 --lambda m=0 --lr 1.25e-4 --background loss --mean-correction loss --min-reference-psnr 22 --window 8 --frame-weights 1,1,1,1,1,1,1,1'
+    case "$what" in
+      F6) init="$root/weights/baselines/ssr-s30-F6-it4500.safetensors"; at=4500; run=ssr-s30-F6
+          mc='{"emission":"background"}' ;;
+      F7) init="$root/weights/baselines/ssr-s30-F7-it4000.safetensors"; at=4000; run=ssr-s30-F7
+          mc='{"emission":"background","escaped":"background"}' ;;
+      F8) init="$work/F8-init.safetensors"; at=0; run=ssr-s31-F8
+          mc='{"emission":"background","escaped":"background","exposure":"shared"}'
+          [ -f "$init" ] || cp "$root/weights/ssr.safetensors" "$init" ;;
+    esac
+    extra=""
+    if [ ! -f "$work/runs/$run/checkpoint.pt" ] && [ "$at" -gt 0 ]; then extra="--init-at $at"; fi
+    RUN=$run ITERS=6000 VAL_EVERY=0 THREADS=1 INIT="$init" DS="$work/ds-s30" \
+      TRAIN_ARGS="$base --model-config $mc $extra" exec "$here/campaign.sh" "$work" train
+    ;;
+  *)
+    echo "registered.sh: unknown '$what' (data, root, F6, F7, F8)" >&2
+    exit 2
+    ;;
+esac
