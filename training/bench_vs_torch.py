@@ -83,6 +83,8 @@ def main(argv=None) -> int:
     for path, what in ((args.bin, "the subpixel binary (cargo build --release)"), (args.weights, "the weights")):
         if not os.path.exists(path):
             ap.error(f"{path}: not found ({what})")
+    # PyTorch's side runs in training/: paths given relative to the caller's folder hold there too.
+    args.bin, args.weights = os.path.abspath(args.bin), os.path.abspath(args.weights)
     rounds = []
     for r in range(args.rounds):
         eng = run_engine(args.bin, args.weights, args.width, args.height, args.frames)

@@ -72,3 +72,23 @@ def test_missing_binary_is_named(tmp_path, capsys):
     with pytest.raises(SystemExit):
         bvt.main(["--bin", str(missing)])
     assert str(missing) in capsys.readouterr().err
+
+
+def test_relative_paths_reach_both_sides_absolute(tmp_path, monkeypatch, capsys):
+    """PyTorch's side runs in training/: weights given relative to the caller's folder (the
+    README's `--weights weights/ssr.safetensors` from the repository root) reach it as the
+    same file, absolute."""
+    engine = _fake_engine(tmp_path, [10.0], 1.0)
+    (tmp_path / "weights").mkdir()
+    (tmp_path / "weights" / "w.safetensors").write_bytes(b"x")
+    seen = []
+
+    def fake_torch(python, weights, w, h, frames, device):
+        seen.append(weights)
+        return {"results": [{"stages": {"total": {"median_ms": 5.0}, "network": {"median_ms": 4.0}}}],
+                "device_name": "stand-in CPU", "torch": "0"}
+
+    monkeypatch.setattr(bvt, "run_torch", fake_torch)
+    monkeypatch.chdir(tmp_path)
+    assert bvt.main(["--bin", "subpixel", "--weights", "weights/w.safetensors", "--rounds", "1"]) == 0
+    assert seen == [str(tmp_path / "weights" / "w.safetensors")]
