@@ -49,6 +49,30 @@ fn run_conv(inputs: &[HostTensor], cout: u32, act: Activation, seed: u64) -> (Ho
     )
 }
 
+/// Case `i` of a table of layer shapes: random inputs of `split` channels at `size` (seeds
+/// from `seeds.0`), and a layer `name` of `cout` outputs with random weights and bias (seeds
+/// from `seeds.1`): the inputs, weights, bias and layer.
+fn random_layer(
+    name: &str,
+    split: &[u32],
+    cout: u32,
+    act: Activation,
+    (w, h): (u32, u32),
+    seeds: (u64, u64),
+    i: u64,
+) -> (Vec<HostTensor>, Vec<f32>, Vec<f32>, Conv3x3) {
+    let inputs: Vec<HostTensor> = split
+        .iter()
+        .enumerate()
+        .map(|(k, &c)| random(seeds.0 + 10 * i + k as u64, w, h, c, -1.0, 1.0))
+        .collect();
+    let cin: u32 = split.iter().sum();
+    let weight = random_vec(seeds.1 + i, (cout * cin * 9) as usize, -0.5, 0.5);
+    let bias = random_vec(seeds.1 + 10 + i, cout as usize, -0.5, 0.5);
+    let conv = Conv3x3::new(&gpu(), name, &weight, &bias, split, cout, act).unwrap();
+    (inputs, weight, bias, conv)
+}
+
 #[test]
 fn conv3x3_matches_reference() {
     let mut seed = 0;
@@ -106,15 +130,8 @@ fn conv3x3_every_autotuner_candidate_matches_reference() {
     let mut chunked = 0;
     let mut tried = 0;
     for (i, &(split, cout, act, (w, h))) in shapes.iter().enumerate() {
-        let inputs: Vec<HostTensor> = split
-            .iter()
-            .enumerate()
-            .map(|(k, &c)| random(300 + 10 * i as u64 + k as u64, w, h, c, -1.0, 1.0))
-            .collect();
-        let cin: u32 = split.iter().sum();
-        let weight = random_vec(50 + i as u64, (cout * cin * 9) as usize, -0.5, 0.5);
-        let bias = random_vec(60 + i as u64, cout as usize, -0.5, 0.5);
-        let conv = Conv3x3::new(&g, "candidate", &weight, &bias, split, cout, act).unwrap();
+        let (inputs, weight, bias, conv) =
+            random_layer("candidate", split, cout, act, (w, h), (300, 50), i as u64);
         let gins: Vec<Tensor> = inputs.iter().map(|t| up(&g, "in", t)).collect();
         let refs: Vec<&Tensor> = gins.iter().collect();
         let hin: Vec<&HostTensor> = inputs.iter().collect();
@@ -187,15 +204,15 @@ fn conv3x3_stores_its_output_to_a_texture_the_next_convolution_reads() {
     let shapes: &[Shape] = &[(&[15, 4], 16, (19, 9)), (&[64], 48, (9, 5))];
     let mut tried = 0;
     for (i, &(split, cout, (w, h))) in shapes.iter().enumerate() {
-        let inputs: Vec<HostTensor> = split
-            .iter()
-            .enumerate()
-            .map(|(k, &c)| random(700 + 10 * i as u64 + k as u64, w, h, c, -1.0, 1.0))
-            .collect();
-        let cin: u32 = split.iter().sum();
-        let weight = random_vec(70 + i as u64, (cout * cin * 9) as usize, -0.5, 0.5);
-        let bias = random_vec(80 + i as u64, cout as usize, -0.5, 0.5);
-        let conv = Conv3x3::new(&g, "producer", &weight, &bias, split, cout, Activation::Relu).unwrap();
+        let (inputs, weight, bias, conv) = random_layer(
+            "producer",
+            split,
+            cout,
+            Activation::Relu,
+            (w, h),
+            (700, 70),
+            i as u64,
+        );
         // The next layer: 8 channels from the producer's output, read as a texture.
         let next_w = random_vec(90 + i as u64, (8 * cout * 9) as usize, -0.5, 0.5);
         let next = Conv3x3::new(&g, "consumer", &next_w, &[0.1; 8], &[cout], 8, Activation::None).unwrap();
