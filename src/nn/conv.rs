@@ -159,6 +159,15 @@ pub enum InputTexture<'a> {
     Filled(&'a wgpu::TextureView),
 }
 
+impl<'a> InputTexture<'a> {
+    /// The texture array, filled or to fill.
+    pub fn view(self) -> &'a wgpu::TextureView {
+        match self {
+            InputTexture::Fill(v) | InputTexture::Filled(v) => v,
+        }
+    }
+}
+
 /// The texture arrays one [`Conv3x3::bind_textured`] shares with the other steps of a
 /// network, so that a tensor several convolutions read as a texture is copied once, or not
 /// at all when a convolution produces it. The default shares nothing (as
@@ -918,15 +927,6 @@ impl Conv3x3 {
         self.bind_with(gpu, self.kernel, inputs, out)
     }
 
-    /// The copy of input `i` (`t`) into a new texture array for a kernel that reads its
-    /// inputs as textures (`nn/to_texture`: one rgba32float layer per channel vec4), and
-    /// the view the kernel binds; an error naming the layer where the device's texture
-    /// limits cannot hold it.
-    fn to_texture(&self, gpu: &Gpu, i: usize, t: &Tensor) -> Result<(Dispatch, wgpu::TextureView)> {
-        let tex = activation_texture(gpu, &format!("conv3x3 '{}' input {i}", self.name), t)?;
-        Ok((copy_to_texture(gpu, t, &tex.view)?, tex.view))
-    }
-
     /// Binds `inputs` and `out` on `kernel`; an error names the layer and why when the
     /// kernel cannot run it ([`Conv3x3::unsupported`]).
     pub fn bind_with(
@@ -1054,24 +1054,31 @@ impl Conv3x3 {
                 // With `tex`, each input read from a texture array: the network's (filled
                 // first by this bind where `io` says so), else one of its own, copied first.
                 let mut parts = Vec::with_capacity(chunks.len() + inputs.len());
-                let mut own = Vec::new();
+                let mut own: Vec<Option<wgpu::TextureView>> = Vec::new();
                 if tex {
                     for (i, t) in inputs.iter().enumerate() {
-                        match io.inputs.get(i).copied().flatten() {
-                            Some(InputTexture::Fill(view)) => parts.push(copy_to_texture(gpu, t, view)?),
-                            Some(InputTexture::Filled(_)) => {}
-                            None => {
-                                let (copy, view) = self.to_texture(gpu, i, t)?;
-                                parts.push(copy);
-                                own.push((i, view));
+                        own.push(match io.inputs.get(i).copied().flatten() {
+                            Some(InputTexture::Fill(view)) => {
+                                parts.push(copy_to_texture(gpu, t, view)?);
+                                None
                             }
-                        }
+                            Some(InputTexture::Filled(_)) => None,
+                            None => {
+                                let user = format!("conv3x3 '{}' input {i}", self.name);
+                                let texture = activation_texture(gpu, &user, t)?;
+                                parts.push(copy_to_texture(gpu, t, &texture.view)?);
+                                Some(texture.view)
+                            }
+                        });
                     }
                 }
-                let views: Vec<&wgpu::TextureView> = (0..if tex { inputs.len() } else { 0 })
-                    .map(|i| match io.inputs.get(i).copied().flatten() {
-                        Some(InputTexture::Fill(v) | InputTexture::Filled(v)) => v,
-                        None => &own.iter().find(|(j, _)| *j == i).expect("copied above").1,
+                let views: Vec<&wgpu::TextureView> = own
+                    .iter()
+                    .enumerate()
+                    .map(|(i, own)| match (own, io.inputs.get(i).copied().flatten()) {
+                        (Some(view), _) => view,
+                        (None, Some(shared)) => shared.view(),
+                        (None, None) => unreachable!("an input without a shared texture has its own"),
                     })
                     .collect();
                 for (&(base, count), weights) in chunks.iter().zip(&weights) {

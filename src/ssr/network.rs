@@ -374,17 +374,6 @@ impl Network {
         // the convolution producing it (as the kernels were chosen).
         let (step_textures, shared) =
             shared_textures::plan(&specs, |id| stored[&id].0, |layer| convs[layer].kernel());
-        let mut textures = BTreeMap::new();
-        for id in shared {
-            let t = match id {
-                TensorId::AAcc => &a_acc[0],
-                TensorId::AAccPrev => &a_acc[1],
-                TensorId::O => &o[0],
-                TensorId::OPrev => &o[1],
-                id => &tensors[&id],
-            };
-            textures.insert(id, conv::activation_texture(gpu, id.name(), t)?);
-        }
         let ones = Tensor::from_host(gpu, "ones", &HostTensor::from_fn(width, height, 1, |_, _, _| 1.0))?;
         // Without exposure normalisation (version-1 weights) the exposure is 1 for good.
         for id in [TensorId::Exposure, TensorId::ExposureRatio] {
@@ -404,7 +393,7 @@ impl Network {
             specs,
             stored,
             activations,
-            textures,
+            textures: BTreeMap::new(),
             step_textures,
             dispatches: [Vec::new(), Vec::new()],
             parity: 0,
@@ -412,6 +401,12 @@ impl Network {
         let (a_t, warp_acc) = (&net.tensors[&TensorId::ACur], &net.tensors[&TensorId::WarpAcc]);
         if a_t.dtype != warp_acc.dtype {
             net.first_copy = Some(ops::convert(gpu, a_t, warp_acc)?);
+        }
+        // A texture per shared tensor, the same for both parities: each is written and read
+        // within a frame.
+        for id in shared {
+            let texture = conv::activation_texture(gpu, id.name(), net.at(id, 0))?;
+            net.textures.insert(id, texture);
         }
         for p in 0..2 {
             net.dispatches[p] = net

@@ -47,46 +47,33 @@ pub fn plan(
 ) -> (Vec<StepTextures>, BTreeSet<TensorId>) {
     // Readers (step, argument) of each stored tensor, among the convolutions reading textures.
     let mut readers: BTreeMap<TensorId, Vec<(usize, usize)>> = BTreeMap::new();
-    // The convolution producing each stored tensor, where one does.
-    let mut producer: BTreeMap<TensorId, usize> = BTreeMap::new();
+    // The convolution (step, layer) producing each stored tensor, where one does.
+    let mut producer: BTreeMap<TensorId, (usize, &str)> = BTreeMap::new();
+    let mut steps = vec![StepTextures::default(); specs.len()];
     for (i, s) in specs.iter().enumerate() {
         let Op::Conv(layer) = s.op else { continue };
         let (out, ins) = s.tensors.split_last().expect("a convolution has an output");
-        producer.insert(stored(*out), i);
+        producer.insert(stored(*out), (i, layer));
         if kernel(layer).reads_textures() {
+            steps[i].inputs = vec![None; ins.len()];
             for (a, &id) in ins.iter().enumerate() {
                 readers.entry(stored(id)).or_default().push((i, a));
             }
         }
     }
-    let mut steps: Vec<StepTextures> = specs
-        .iter()
-        .map(|s| {
-            let reads = match s.op {
-                Op::Conv(layer) if kernel(layer).reads_textures() => s.tensors.len() - 1,
-                _ => 0,
-            };
-            StepTextures {
-                inputs: vec![None; reads],
-                output: None,
-            }
-        })
-        .collect();
     let mut shared = BTreeSet::new();
     for (id, rs) in readers {
         let (first, _) = rs[0];
-        // The producer stores the texture when it runs before every reader with uniform
-        // weights (the other kernels have no texture output).
-        let writer = producer.get(&id).copied().filter(|&p| {
-            let Op::Conv(layer) = specs[p].op else {
-                unreachable!("producers are convolutions")
-            };
-            p < first && kernel(layer).uniform_layout().is_some()
-        });
-        // A producer after a reader (a reader of last frame's value) is left alone too.
-        if producer.get(&id).is_some_and(|&p| p >= first) {
+        // A producer after a reader (a reader of last frame's value): left alone.
+        let producer = producer.get(&id).copied();
+        if producer.is_some_and(|(p, _)| p >= first) {
             continue;
         }
+        // The producer stores the texture when it has uniform weights (the other kernels
+        // have no texture output).
+        let writer = producer
+            .filter(|&(_, layer)| kernel(layer).uniform_layout().is_some())
+            .map(|(p, _)| p);
         let history = specs[first].history;
         if rs
             .iter()
