@@ -3,8 +3,9 @@
 # "Thirtieth session" for F6 and F7, "Thirty-first session" for F8), and the order in which a
 # new machine re-creates the data they need, so that neither has to be re-typed from prose.
 #
-#   training/registered.sh WORK data        # val, the named held-out scenes, then the train
-#                                           # split in ds-s30's order, the held-out procedural
+#   training/registered.sh WORK data        # the train split in ds-s30's order (what F6-F8
+#                                           # need to start), val (what their rules need), the
+#                                           # named held-out scenes, the held-out procedural
 #                                           # seeds, the rest (dataset_recipe.sh, niced,
 #                                           # resumable: re-running continues)
 #   training/registered.sh WORK root        # WORK/ds-s30: the root F6, F7 and F8 train on
@@ -36,11 +37,11 @@ case "$what" in
       while [[ "$1" == *=* ]]; do vars+=("$1"); shift; done
       env "${common[@]}" "${vars[@]}" nice -n 10 "$here/dataset_recipe.sh" "$ds" "$@"
     }
-    phase val
-    phase PROCEDURAL=0 heldout
     phase PROCEDURAL=0 train
     phase TRAIN_SEEDS=0 train
     phase TRAIN_SEEDS=110 SEED_SEQUENCES=1 train
+    phase val
+    phase PROCEDURAL=0 heldout
     phase heldout
     phase TRAIN_SEEDS=280 train test
     ;;
