@@ -1,6 +1,7 @@
 #!/usr/bin/env bash
 # The pre-registered runs of issue 11 that are still open, as registered (weights/README:
-# "Thirtieth session" for F6 and F7, "Thirty-first session" for F8), and the order in which a
+# "Thirtieth session" for F6 and F7, "Thirty-first session" for F8, "Thirty-fourth session"
+# for F9), and the order in which a
 # new machine re-creates the data they need, so that neither has to be re-typed from prose.
 #
 #   training/registered.sh WORK data        # the train split in ds-s30's order (what F6-F8
@@ -10,7 +11,7 @@
 #                                           # resumable: re-running continues)
 #   training/registered.sh WORK root        # WORK/ds-s30: the root F6, F7 and F8 train on
 #                                           # (checked: 177 windows of 8 frames)
-#   training/registered.sh WORK F6|F7|F8    # one run, one core (campaign.sh train); resumes
+#   training/registered.sh WORK F6|F7|F8|F9 # one run, one core (campaign.sh train); resumes
 #                                           # from WORK/runs/RUN when it has a checkpoint,
 #                                           # else from its committed restore point
 #
@@ -20,8 +21,8 @@
 set -euo pipefail
 here="$(cd "$(dirname "$0")" && pwd)"
 root="$(cd "$here/.." && pwd)"
-work="$(realpath -m "${1:?usage: registered.sh WORK data|root|F6|F7|F8}")"
-what="${2:?usage: registered.sh WORK data|root|F6|F7|F8}"
+work="$(realpath -m "${1:?usage: registered.sh WORK data|root|F6|F7|F8|F9}")"
+what="${2:?usage: registered.sh WORK data|root|F6|F7|F8|F9}"
 py="${PYTHON:-$HOME/.cache/subpixel/venv/bin/python}"
 ds="$work/ds"
 
@@ -68,7 +69,7 @@ print(len(SequenceDataset('$work/ds-s30', 'train', window=8, crop=64, min_refere
     echo "ds-s30: $n windows of 8 frames (registered: 177)"
     [ "$n" = 177 ] || { echo "registered.sh: ds-s30 is not the registered root yet (render incomplete?)" >&2; exit 1; }
     ;;
-  F6 | F7 | F8)
+  F6 | F7 | F8 | F9)
     base='--thin 0.5 --thin-keep-min 0.02 --seed 17 --lambda ssim=10 --lambda m=0 --lr 1.25e-4 --background loss --mean-correction loss --min-reference-psnr 22 --window 8 --frame-weights 1,1,1,1,1,1,1,1'
     case "$what" in
       F6) init="$root/weights/baselines/ssr-s30-F6-it4500.safetensors"; at=4500; run=ssr-s30-F6
@@ -78,6 +79,9 @@ print(len(SequenceDataset('$work/ds-s30', 'train', window=8, crop=64, min_refere
       F8) init="$work/F8-init.safetensors"; at=0; run=ssr-s31-F8
           mc='{"emission":"background","escaped":"background","exposure":"shared"}'
           [ -f "$init" ] || cp "$root/weights/ssr.safetensors" "$init" ;;
+      F9) init="$work/F9-init.safetensors"; at=0; run=ssr-s34-F9
+          mc='{"emission":"background"}'; base="$base --lambda mm=5"
+          [ -f "$init" ] || cp "$root/weights/ssr.safetensors" "$init" ;;
     esac
     extra=""
     if [ ! -f "$work/runs/$run/checkpoint.pt" ] && [ "$at" -gt 0 ]; then extra="--init-at $at"; fi
@@ -85,7 +89,7 @@ print(len(SequenceDataset('$work/ds-s30', 'train', window=8, crop=64, min_refere
       TRAIN_ARGS="$base --model-config $mc $extra" exec "$here/campaign.sh" "$work" train
     ;;
   *)
-    echo "registered.sh: unknown '$what' (data, root, F6, F7, F8)" >&2
+    echo "registered.sh: unknown '$what' (data, root, F6, F7, F8, F9)" >&2
     exit 2
     ;;
 esac

@@ -447,6 +447,8 @@ def loss_aux(results: Sequence[Dict[str, object]], frames: Sequence[Dict[str, to
     """`aux` for losses.total_loss from any learned model's run_sequence results."""
     last = results[-1]
     aux = {"motion": [f["motion"] for f in frames], "o": last["o"], "albedo_mod": last["albedo_mod"]}
+    if all("metallic" in f for f in frames):
+        aux["metallic"] = [f["metallic"] for f in frames]
     if "exposure" in last:
         aux["exposure"] = last["exposure"]
     return aux

@@ -15,6 +15,14 @@ Sequences are T = 5 frames. `preds` and `refs` are radiance (linear HDR, the rem
           few samples find light they leave the image's level loosely tied to the
           reference; this term ties the local mean radiance (issue 11; weight 5 took the
           val brightness error from 44.7 % to 30.7 %, training/README.md).
+    l_mm  metal brightness: l_m over the metal pixels alone (metallic >= METAL_THRESHOLD, the
+          region of ssr.brightness): per block, SMAPE between the sums of p_t and of r_t over
+          the block's metal pixels, averaged over the blocks weighted by their metal pixel
+          counts (so it is the metal's relative level error, whatever its coverage),
+          weighted by FRAME_WEIGHTS. Metal is the darkest region of every generic model's
+          output (training/README.md, Generalisation 27): its samples are the most
+          heavy-tailed of a frame, and the per-pixel terms reward a median. Weight 0 by
+          default (not computed; needs aux `metallic`); `--lambda mm=W` turns it on.
     l_ssim structural: 1 - SSIM(tm(p_t), tm(r_t)), weighted by FRAME_WEIGHTS, where tm is the
           metric's tonemap (metrics.py: Hable filmic, exposure 2, white 11.2, gamma 2.2) in
           [0, 1] without the 8-bit rounding, and SSIM the metric's (11x11 Gaussian window,
@@ -32,7 +40,7 @@ Sequences are T = 5 frames. `preds` and `refs` are radiance (linear HDR, the rem
 
 The frame-weighted terms are plain weighted sums sum_t w_t * l(t) (not normalised by
 sum w_t). total = 0.7 l_s + 0.1 l_t + 0.2 l_e + 0.4 l_wt + 5.0 l_a + 5.0 l_m + 0 l_ssim
-(LAMBDAS).
++ 0 l_mm (LAMBDAS).
 """
 
 from __future__ import annotations
@@ -47,7 +55,12 @@ from .metrics import EXPOSURE, GAMMA, HABLE, WHITE, hable_curve, ssim_mean
 from .model import demodulate, warp
 
 FRAME_WEIGHTS: Tuple[float, ...] = (0.05, 0.25, 0.5, 0.75, 1.0)
-LAMBDAS: Dict[str, float] = {"s": 0.7, "t": 0.1, "e": 0.2, "wt": 0.4, "a": 5.0, "m": 5.0, "ssim": 0.0}
+LAMBDAS: Dict[str, float] = {"s": 0.7, "t": 0.1, "e": 0.2, "wt": 0.4, "a": 5.0, "m": 5.0, "ssim": 0.0, "mm": 0.0}
+# Terms computed only where their weight is not 0 (their defaults are 0, so a run config
+# written before one of them existed means it at 0: train.normalised_config).
+OPTIONAL_TERMS: Tuple[str, ...] = ("ssim", "mm")
+# Metal pixels for l_mm: metallic at least this (ssr.brightness's `metal` region).
+METAL_THRESHOLD = 0.5
 # Below this the tonemap's gamma 1/2.2 has an unbounded slope: l_ssim clamps its input there.
 TONEMAP_FLOOR = 1e-4
 MEAN_BLOCK = 16
@@ -143,6 +156,29 @@ def mean_loss(preds: Frames, refs: Frames, frame_weights: Optional[Sequence[floa
     return sum(wt * smape(block_means(p[:, t], block), block_means(r[:, t], block)) for t, wt in enumerate(w))
 
 
+def metal_mean_loss(
+    preds: Frames, refs: Frames, metallic: Frames, frame_weights: Optional[Sequence[float]] = None, block: int = MEAN_BLOCK
+) -> torch.Tensor:
+    """l_mm: sum_t w_t of the metal-count-weighted mean over blocks of SMAPE(sum of p_t, sum
+    of r_t over the block's metal pixels); 0 for a frame without metal."""
+    p, r, m = _stack(preds, "preds"), _stack(refs, "refs"), _stack(metallic, "metallic")
+    if m.shape[:2] != p.shape[:2] or m.shape[2] != 1 or m.shape[3:] != p.shape[3:]:
+        raise ValueError(f"metallic {list(m.shape)} does not match preds {list(p.shape)} (expected one channel)")
+    w = _weights(p.shape[1], frame_weights)
+    total = p.new_zeros(())
+    for t, wt in enumerate(w):
+        metal = (m[:, t] >= METAL_THRESHOLD).to(p.dtype)
+        count = F.avg_pool2d(metal, block, ceil_mode=True)  # metal fraction per block
+        bp = F.avg_pool2d(p[:, t] * metal, block, ceil_mode=True)
+        br = F.avg_pool2d(r[:, t] * metal, block, ceil_mode=True)
+        # the block means of the metal's radiance, where a block holds metal
+        cm = torch.clamp(count, min=1e-6)
+        err = (bp - br).abs() / cm / ((bp.abs() + br.abs()) / cm + SMAPE_EPS)
+        weight = count.expand_as(err)
+        total = total + wt * (err * weight).sum() / torch.clamp(weight.sum(), min=1e-6)
+    return total
+
+
 def tonemap(x: torch.Tensor) -> torch.Tensor:
     """The metric's tonemap (metrics.tonemap), differentiable: [0, 1], no 8-bit rounding; the
     gamma's input is clamped to TONEMAP_FLOOR so that its slope stays finite."""
@@ -191,13 +227,14 @@ def total_loss(
     lambdas: Optional[Dict[str, float]] = None,
 ) -> Tuple[torch.Tensor, Dict[str, torch.Tensor]]:
     """Combined loss of a sequence. Returns (total, {"l_s", "l_t", "l_e", "l_wt", "l_a", "l_m"}, and
-    "l_ssim" where its weight is not 0).
+    "l_ssim" and "l_mm" where their weights are not 0).
 
     preds, refs: radiance [N, T, 3, H, W] (or lists). aux:
         motion      [N, T, 2, H, W] (or list): each frame's motion
         o           [N, 3, H, W]: the last frame's log-demodulated prediction
         albedo_mod  [N, 3, H, W]: the albedo the last frame was remodulated with
         exposure    (optional) [N, 9, 1, 1]: the last frame's exposure state (output = remodulate(o) * s[:, :3])
+        metallic    [N, T, 1, H, W] (or list; needed where the weight of `mm` is not 0)
     """
     lam = dict(LAMBDAS if lambdas is None else lambdas)
     p, r = _stack(preds, "preds"), _stack(refs, "refs")
@@ -216,6 +253,10 @@ def total_loss(
     }
     if lam.get("ssim", 0.0) != 0.0:
         parts["l_ssim"] = ssim_loss(p, r, frame_weights)
+    if lam.get("mm", 0.0) != 0.0:
+        if "metallic" not in aux:
+            raise KeyError("total_loss: the metal brightness term (lambda mm) needs aux `metallic`")
+        parts["l_mm"] = metal_mean_loss(p, r, aux["metallic"], frame_weights)
     unknown = set(lam) - set(LAMBDAS)
     if unknown:
         raise KeyError(f"total_loss: unknown loss weight(s) {sorted(unknown)}, expected {sorted(LAMBDAS)}")
@@ -237,5 +278,6 @@ def sequence_loss(
         "o": results[-1]["o"],
         "albedo_mod": results[-1]["albedo_mod"],
         "exposure": results[-1]["exposure"],
+        "metallic": [f["metallic"] for f in frames],
     }
     return total_loss(preds, refs, aux, frame_weights, lambdas)

@@ -540,9 +540,12 @@ def load_checkpoint(path: str, config: dict) -> dict:
 
 
 def normalised_config(saved: dict) -> dict:
-    """A checkpoint's run config with its SSR model config as this code writes it: options
-    added since the checkpoint was written (model.LATE_OPTIONS) take the value their absence
-    means, so a run begun before them resumes."""
+    """A checkpoint's run config as this code writes it: SSR model options added since the
+    checkpoint was written (model.LATE_OPTIONS) take the value their absence means, and so do
+    loss terms (losses.OPTIONAL_TERMS, weight 0), so a run begun before them resumes."""
+    lam = saved.get("lambdas")
+    if isinstance(lam, dict):
+        saved = {**saved, "lambdas": {**{t: 0.0 for t in losses.OPTIONAL_TERMS if t not in lam}, **lam}}
     mc = saved.get("model_config")
     if saved.get("model") != "ssr" or not isinstance(mc, dict):
         return saved

@@ -23,7 +23,7 @@ def _aux(refs, motion, albedo):
 
 def test_constants():
     assert L.FRAME_WEIGHTS == (0.05, 0.25, 0.5, 0.75, 1.0)
-    assert L.LAMBDAS == {"s": 0.7, "t": 0.1, "e": 0.2, "wt": 0.4, "a": 5.0, "m": 5.0, "ssim": 0.0}
+    assert L.LAMBDAS == {"s": 0.7, "t": 0.1, "e": 0.2, "wt": 0.4, "a": 5.0, "m": 5.0, "ssim": 0.0, "mm": 0.0}
 
 
 def test_zero_for_identical_inputs():
@@ -254,3 +254,59 @@ def test_losses_do_not_see_a_colour_permutation():
         torch.testing.assert_close(t_p, total, rtol=1e-5, atol=1e-7)
         wrong, _ = L.total_loss(preds[:, :, order], refs, aux, lambdas=lam)
         assert abs(wrong.item() - total.item()) > 1e-3 * total.item()
+
+
+def _metal_scene(coverage_rows: int):
+    """A sequence whose top `coverage_rows` rows are metal (metallic 1, the rest 0.2)."""
+    refs, motion, albedo = _seq(3)
+    metallic = torch.full((N, T, 1, H, W), 0.2)
+    metallic[..., :coverage_rows, :] = 1.0
+    return refs, motion, albedo, metallic
+
+
+def test_metal_mean_loss_measures_the_metal_level_alone():
+    """l_mm is 0 for the reference itself and for any change off the metal; a prediction
+    whose metal is uniformly 2x too dark gives SMAPE(1/2, 1) = 1/3 per frame (eps aside),
+    the sum of the frame weights, whatever the metal's coverage; no metal gives 0."""
+    for rows in (2, 8, 16):
+        refs, _, _, metallic = _metal_scene(rows)
+        metal = metallic >= L.METAL_THRESHOLD
+        assert L.metal_mean_loss(refs, refs, metallic).item() == 0.0
+        off = torch.where(metal, refs, refs * 3.0)
+        assert L.metal_mean_loss(off, refs, metallic).item() == 0.0
+        dark = torch.where(metal, refs * 0.5, refs)
+        want = sum(L.FRAME_WEIGHTS) / 3.0
+        got = L.metal_mean_loss(dark, refs, metallic).item()
+        assert abs(got - want) < 0.01 * want, (rows, got, want)
+    refs, _, _, metallic = _metal_scene(0)
+    zero = L.metal_mean_loss(refs * 0.5, refs, metallic)
+    assert zero.item() == 0.0 and torch.isfinite(zero)
+
+
+def test_metal_mean_loss_is_blind_to_detail_inside_a_block_and_gives_finite_gradients():
+    refs, _, _, metallic = _metal_scene(16)
+    # the metal's energy moved to one pixel per 16x16 block: the block sums are unchanged
+    block = L.block_means(refs.flatten(0, 1)) * 256.0
+    fire = torch.zeros_like(refs.flatten(0, 1))
+    fire[..., ::16, ::16] = block
+    fire = fire.view_as(refs)
+    assert L.metal_mean_loss(fire, refs, metallic).item() < 1e-6
+    preds = (refs * 0.7).requires_grad_()
+    L.metal_mean_loss(preds, refs, metallic).backward()
+    assert torch.isfinite(preds.grad).all() and preds.grad.abs().sum() > 0
+    with pytest.raises(ValueError, match="metallic"):
+        L.metal_mean_loss(refs, refs, metallic[:, :, :, :8])
+
+
+def test_total_loss_adds_the_metal_term_only_when_weighted():
+    refs, motion, albedo, metallic = _metal_scene(8)
+    preds = refs * 0.8
+    aux = _aux(refs, motion, albedo)
+    total, parts = L.total_loss(preds, refs, aux)
+    assert "l_mm" not in parts
+    with pytest.raises(KeyError, match="metallic"):
+        L.total_loss(preds, refs, aux, lambdas={**L.LAMBDAS, "mm": 5.0})
+    aux["metallic"] = metallic
+    total_mm, parts_mm = L.total_loss(preds, refs, aux, lambdas={**L.LAMBDAS, "mm": 5.0})
+    torch.testing.assert_close(parts_mm["l_mm"], L.metal_mean_loss(preds, refs, metallic))
+    torch.testing.assert_close(total_mm, total + 5.0 * parts_mm["l_mm"])

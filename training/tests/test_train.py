@@ -110,6 +110,24 @@ def test_train_checkpoint_resume_export(dataset, tmp_path, capsys):
     torch.save(ck, ck_path)
     T.train(args(dataset, b, "--resume"))
     assert "resumed from" in capsys.readouterr().out
+    # and so does one written before a loss term of weight 0 existed (here `mm`), but not
+    # into a run that weighs it
+    ck = torch.load(ck_path, weights_only=False)
+    ck["config"]["lambdas"].pop("mm")
+    torch.save(ck, ck_path)
+    T.train(args(dataset, b, "--resume"))
+    assert "resumed from" in capsys.readouterr().out
+    with pytest.raises(T.CheckpointError, match="lambdas"):
+        T.train(args(dataset, b, "--resume", "--lambda", "mm=5"))
+
+
+def test_the_metal_brightness_term_trains_and_is_logged(dataset, tmp_path, capsys):
+    """`--lambda mm=W` runs through the SSR model's sequence loss (the frames' metallic)."""
+    res = T.train(args(dataset, str(tmp_path / "mm"), "--lambda", "mm=5", iters=2))
+    log = [json.loads(l) for l in open(os.path.join(str(tmp_path / "mm"), "log.jsonl"))]
+    train = [r for r in log if r["event"] == "train"]
+    assert len(train) == 2 and all("l_mm" in json.dumps(r) for r in train)
+    assert res["iteration"] == 2
 
 
 def test_colour_permutation_trains_records_and_is_part_of_the_config(dataset, tmp_path, capsys):
