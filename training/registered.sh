@@ -4,6 +4,10 @@
 # for F9), and the order in which a
 # new machine re-creates the data they need, so that neither has to be re-typed from prose.
 #
+#   training/registered.sh WORK setup       # a new machine: lavapipe and the training
+#                                           # virtualenv (tools/machine_setup.sh), and the
+#                                           # renderer at WORK/subpixel-dist when absent
+#                                           # (`cargo build --profile dist`, ~10 min)
 #   training/registered.sh WORK data        # the train split in ds-s30's order (what F6-F8
 #                                           # need to start), val (what their rules need), the
 #                                           # named held-out scenes, the held-out procedural
@@ -21,15 +25,25 @@
 set -euo pipefail
 here="$(cd "$(dirname "$0")" && pwd)"
 root="$(cd "$here/.." && pwd)"
-work="$(realpath -m "${1:?usage: registered.sh WORK data|root|F6|F7|F8|F9}")"
-what="${2:?usage: registered.sh WORK data|root|F6|F7|F8|F9}"
+work="$(realpath -m "${1:?usage: registered.sh WORK setup|data|root|F6|F7|F8|F9}")"
+what="${2:?usage: registered.sh WORK setup|data|root|F6|F7|F8|F9}"
 py="${PYTHON:-$HOME/.cache/subpixel/venv/bin/python}"
 ds="$work/ds"
 
 case "$what" in
+  setup)
+    "$root/tools/machine_setup.sh" vulkan venv
+    bin="${SUBPIXEL:-$work/subpixel-dist}"
+    if [ ! -x "$bin" ]; then
+      (cd "$root" && cargo build --profile dist --bin subpixel)
+      mkdir -p "$(dirname "$bin")"
+      cp "$root/target/dist/subpixel" "$bin.tmp" && mv "$bin.tmp" "$bin"
+    fi
+    echo "registered.sh: set up; renderer $bin"
+    ;;
   data)
     bin="${SUBPIXEL:-$work/subpixel-dist}"
-    [ -x "$bin" ] || { echo "registered.sh: no renderer at $bin (cp target/dist/subpixel there, or set SUBPIXEL)" >&2; exit 2; }
+    [ -x "$bin" ] || { echo "registered.sh: no renderer at $bin (registered.sh WORK setup builds it, or set SUBPIXEL)" >&2; exit 2; }
     # The twenty-seventh session's parameters (weights/README "Thirty-first session").
     common=(SUBPIXEL="$bin" SPP=1024 TRAIN_SPP=512 VAL_SEEDS=6 BACKGROUND=8 HELDOUT_SEQUENCES=1 TEST_SEEDS=20)
     # phase [VAR=VALUE ...] PHASE ...: one run of the recipe with extra settings.
@@ -89,7 +103,7 @@ print(len(SequenceDataset('$work/ds-s30', 'train', window=8, crop=64, min_refere
       TRAIN_ARGS="$base --model-config $mc $extra" exec "$here/campaign.sh" "$work" train
     ;;
   *)
-    echo "registered.sh: unknown '$what' (data, root, F6, F7, F8, F9)" >&2
+    echo "registered.sh: unknown '$what' (setup, data, root, F6, F7, F8, F9)" >&2
     exit 2
     ;;
 esac
