@@ -16,9 +16,10 @@ Sequences are T = 5 frames. `preds` and `refs` are radiance (linear HDR, the rem
           reference; this term ties the local mean radiance (issue 11; weight 5 took the
           val brightness error from 44.7 % to 30.7 %, training/README.md).
     l_mm  metal brightness: l_m over the metal pixels alone (metallic >= METAL_THRESHOLD, the
-          region of ssr.brightness): per block, SMAPE between the sums of p_t and of r_t over
-          the block's metal pixels, averaged over the blocks weighted by their metal pixel
-          counts (so it is the metal's relative level error, whatever its coverage),
+          region of ssr.brightness): per block, SMAPE between the means of p_t and of r_t over
+          the block's metal pixels, averaged over the blocks of the whole batch weighted by
+          their metal pixel counts (the metal's relative level error per metal pixel, so a
+          frame with a little metal weighs little beside one with much),
           weighted by FRAME_WEIGHTS. Metal is the darkest region of every generic model's
           output (training/README.md, Generalisation 27): its samples are the most
           heavy-tailed of a frame, and the per-pixel terms reward a median. Weight 0 by
@@ -159,8 +160,8 @@ def mean_loss(preds: Frames, refs: Frames, frame_weights: Optional[Sequence[floa
 def metal_mean_loss(
     preds: Frames, refs: Frames, metallic: Frames, frame_weights: Optional[Sequence[float]] = None, block: int = MEAN_BLOCK
 ) -> torch.Tensor:
-    """l_mm: sum_t w_t of the metal-count-weighted mean over blocks of SMAPE(sum of p_t, sum
-    of r_t over the block's metal pixels); 0 for a frame without metal."""
+    """l_mm: sum_t w_t of the metal-count-weighted mean, over the blocks of the whole batch, of
+    SMAPE(mean of p_t, mean of r_t over the block's metal pixels); 0 for a frame without metal."""
     p, r, m = _stack(preds, "preds"), _stack(refs, "refs"), _stack(metallic, "metallic")
     if m.shape[:2] != p.shape[:2] or m.shape[2] != 1 or m.shape[3:] != p.shape[3:]:
         raise ValueError(f"metallic {list(m.shape)} does not match preds {list(p.shape)} (expected one channel)")
