@@ -8,11 +8,13 @@
 #                                           # virtualenv (tools/machine_setup.sh), and the
 #                                           # renderer at WORK/subpixel-dist when absent
 #                                           # (`cargo build --profile dist`, ~10 min)
-#   training/registered.sh WORK data        # the train split in ds-s30's order (what F6-F8
-#                                           # need to start), val (what their rules need), the
-#                                           # named held-out scenes, the held-out procedural
-#                                           # seeds, the rest (dataset_recipe.sh, niced,
-#                                           # resumable: re-running continues)
+#   training/registered.sh WORK data [PART ...]
+#                                           # PARTS (default all, in this order): train (ds-s30's
+#                                           # train split, what F6-F9 need to start), val (what
+#                                           # their rules need), heldout (the named held-out
+#                                           # scenes, then the held-out procedural seeds), rest
+#                                           # (dataset_recipe.sh, niced, resumable: re-running
+#                                           # continues)
 #   training/registered.sh WORK root        # WORK/ds-s30: the root F6, F7 and F8 train on
 #                                           # (checked: 177 windows of 8 frames)
 #   training/registered.sh WORK F6|F7|F8|F9 # one run, one core (campaign.sh train); resumes
@@ -52,13 +54,20 @@ case "$what" in
       while [[ "$1" == *=* ]]; do vars+=("$1"); shift; done
       env "${common[@]}" "${vars[@]}" nice -n 10 "$here/dataset_recipe.sh" "$ds" "$@"
     }
-    phase PROCEDURAL=0 train
-    phase TRAIN_SEEDS=0 train
-    phase TRAIN_SEEDS=110 SEED_SEQUENCES=1 train
-    phase val
-    phase PROCEDURAL=0 heldout
-    phase heldout
-    phase TRAIN_SEEDS=280 train test
+    parts=("${@:3}")
+    [ ${#parts[@]} -gt 0 ] || parts=(train val heldout rest)
+    for part in "${parts[@]}"; do
+      case "$part" in
+        train) phase PROCEDURAL=0 train
+               phase TRAIN_SEEDS=0 train
+               phase TRAIN_SEEDS=110 SEED_SEQUENCES=1 train ;;
+        val) phase val ;;
+        heldout) phase PROCEDURAL=0 heldout
+                 phase heldout ;;
+        rest) phase TRAIN_SEEDS=280 train test ;;
+        *) echo "registered.sh: unknown part '$part' of data (train, val, heldout, rest)" >&2; exit 2 ;;
+      esac
+    done
     ;;
   root)
     # ds-s30: every complete train sequence of the fixed scenes, the sparse-light seeds and
