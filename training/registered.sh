@@ -25,6 +25,9 @@
 # (default WORK/subpixel-dist, a copy of `cargo build --profile dist`'s, so that rebuilding
 # the repository does not change the binary under a running render).
 set -euo pipefail
+# The whole script is one brace group, read before any of it runs: a run of hours is not
+# thrown off when the file changes under it (bash otherwise reads a script as it goes).
+{
 here="$(cd "$(dirname "$0")" && pwd)"
 root="$(cd "$here/.." && pwd)"
 work="$(realpath -m "${1:?usage: registered.sh WORK setup|data|root|F6|F7|F8|F9}")"
@@ -116,3 +119,5 @@ print(len(SequenceDataset('$work/ds-s30', 'train', window=8, crop=64, min_refere
     exit 2
     ;;
 esac
+exit
+}
