@@ -33,6 +33,8 @@
 # PyTorch, e.g. THREADS=1 for `heldout` and `train` side by side on 2 cores:
 #   THREADS=1 nohup training/campaign.sh ~/work-data heldout > ~/work-data/heldout.log 2>&1 &
 #   THREADS=1 nohup training/campaign.sh ~/work-data train > ~/work-data/train.log 2>&1 &
+# DRY_RUN=1 makes `train` print its ssr.train arguments, one a line, instead of running it
+# (tests/test_registered.py checks the registered runs' commands that way).
 # Held-out scenes never enter training or model selection: the trainer validates on the val
 # split only, and the curve's held-out scores are written for the plot, never read back.
 set -euo pipefail
@@ -70,10 +72,15 @@ for phase in "$@"; do
       out="$work/runs/$run"
       resume=()
       [ -f "$out/checkpoint.pt" ] && resume=(--resume)
-      (cd "$here" && "$py" -m ssr.train --data "$ds" --out "$out" --iters "${ITERS:-7000}" --batch 8 --crop 64 \
+      args=(--data "$ds" --out "$out" --iters "${ITERS:-7000}" --batch 8 --crop 64 \
         --lr 5e-4 --workers 1 --cache memory --cache-mb 6000 --val-every "${VAL_EVERY:-1000}" --val-frames 8 \
         --log-every 50 --ckpt-every 250 --snapshot-every 500 --threads "$threads" "${init[@]}" "${resume[@]}" \
         ${TRAIN_ARGS:---thin 0.5 --thin-keep-min 0.02 --lambda ssim=10})
+      if [ "${DRY_RUN:-0}" = 1 ]; then
+        printf '%s\n' "${args[@]}"  # the ssr.train arguments, one a line, nothing run
+      else
+        (cd "$here" && "$py" -m ssr.train "${args[@]}")
+      fi
       ;;
     curve)
       (cd "$here" && "$py" -m ssr.curve --run "$work/runs/$run" --data "$ds" --split test --frames 8 \

@@ -96,6 +96,7 @@ print(len(SequenceDataset('$work/ds-s30', 'train', window=8, crop=64, min_refere
     [ "$n" = 177 ] || { echo "registered.sh: ds-s30 is not the registered root yet (render incomplete?)" >&2; exit 1; }
     ;;
   F6 | F7 | F8 | F9)
+    mkdir -p "$work"
     base='--thin 0.5 --thin-keep-min 0.02 --seed 17 --lambda ssim=10 --lambda m=0 --lr 1.25e-4 --background loss --mean-correction loss --min-reference-psnr 22 --window 8 --frame-weights 1,1,1,1,1,1,1,1'
     case "$what" in
       F6) init="$root/weights/baselines/ssr-s30-F6-it4500.safetensors"; at=4500; run=ssr-s30-F6

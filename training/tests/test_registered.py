@@ -1,0 +1,65 @@
+"""The pre-registered runs as `training/registered.sh` starts them (weights/README: F6 and F7
+of the thirtieth session, F8 of the thirty-first, F9 of the thirty-fourth): their ssr.train
+arguments, printed by campaign.sh's DRY_RUN, parse and say what the registrations say."""
+
+import filecmp
+import json
+import os
+import subprocess
+
+import pytest
+
+from ssr.train import parse_args
+
+HERE = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+ROOT = os.path.dirname(HERE)
+SCRIPT = os.path.join(HERE, "registered.sh")
+
+
+def dry_run(work, run):
+    out = subprocess.run(
+        [SCRIPT, str(work), run], env={**os.environ, "DRY_RUN": "1"}, capture_output=True, text=True, check=True
+    ).stdout
+    return parse_args(out.splitlines())
+
+
+@pytest.fixture(scope="module")
+def runs(tmp_path_factory):
+    work = tmp_path_factory.mktemp("work")
+    return work, {r: dry_run(work, r) for r in ("F6", "F7", "F8", "F9")}
+
+
+def test_every_registered_run_has_the_shared_options(runs):
+    work, args = runs
+    for name, a in args.items():
+        assert a.data == str(work / "ds-s30"), name
+        assert a.iters == 6000 and a.seed == 17 and a.lr == 1.25e-4 and a.threads == 1, name
+        assert a.window == 8 and a.frame_weights == (1.0,) * 8 and a.batch == 8 and a.crop == 64, name
+        assert a.thin == 0.5 and a.thin_keep_min == 0.02 and a.min_reference_psnr == 22, name
+        assert a.background == "loss" and a.mean_correction == "loss" and a.val_every == 0, name
+        assert a.lambdas["ssim"] == 10 and a.lambdas["m"] == 0, name
+        assert os.path.isfile(a.init), name
+
+
+def test_each_run_differs_as_registered(runs):
+    work, args = runs
+    f6, f7, f8, f9 = (args[k] for k in ("F6", "F7", "F8", "F9"))
+    assert f6.init == os.path.join(ROOT, "weights/baselines/ssr-s30-F6-it4500.safetensors") and f6.init_at == 4500
+    assert f7.init == os.path.join(ROOT, "weights/baselines/ssr-s30-F7-it4000.safetensors") and f7.init_at == 4000
+    assert json.loads(f6.model_config) == {"emission": "background"}
+    assert json.loads(f7.model_config) == {"emission": "background", "escaped": "background"}
+    assert json.loads(f8.model_config) == {"emission": "background", "escaped": "background", "exposure": "shared"}
+    for a in (f8, f9):  # both start from a copy of the shipped F5 at iteration 0
+        assert a.init_at == 0 and filecmp.cmp(a.init, os.path.join(ROOT, "weights/ssr.safetensors"), shallow=False)
+    assert [a.lambdas["mm"] for a in (f6, f7, f8, f9)] == [0, 0, 0, 5]
+    # F9 is F6 with the metal brightness term and nothing else (but its own run and start)
+    differ = {k for k in vars(f6) if vars(f6)[k] != vars(f9)[k]}
+    assert differ == {"out", "init", "init_at", "lambdas"}
+    assert {k: v for k, v in f9.lambdas.items() if f6.lambdas[k] != v} == {"mm": 5.0}
+
+
+def test_unknown_runs_and_parts_are_refused(tmp_path):
+    for argv, msg in [(["F5"], "unknown 'F5'"), (["data", "everything"], "unknown part 'everything'")]:
+        r = subprocess.run([SCRIPT, str(tmp_path), *argv], capture_output=True, text=True,
+                           env={**os.environ, "SUBPIXEL": "/bin/true"})
+        assert r.returncode == 2 and msg in r.stderr, r.stderr
