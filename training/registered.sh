@@ -20,6 +20,8 @@
 #   training/registered.sh WORK F6|F7|F8|F9 # one run, one core (campaign.sh train); resumes
 #                                           # from WORK/runs/RUN when it has a checkpoint,
 #                                           # else from its committed restore point
+#   training/registered.sh WORK rules       # engine val of F5 and the finished runs, then the
+#                                           # registered rules in their order (ssr.registered)
 #
 # WORK is outside the repository (e.g. ~/work-data); SUBPIXEL names the renderer binary
 # (default WORK/subpixel-dist, a copy of `cargo build --profile dist`'s, so that rebuilding
@@ -30,8 +32,8 @@ set -euo pipefail
 {
 here="$(cd "$(dirname "$0")" && pwd)"
 root="$(cd "$here/.." && pwd)"
-work="$(realpath -m "${1:?usage: registered.sh WORK setup|data|root|F6|F7|F8|F9}")"
-what="${2:?usage: registered.sh WORK setup|data|root|F6|F7|F8|F9}"
+work="$(realpath -m "${1:?usage: registered.sh WORK setup|data|root|rules|F6|F7|F8|F9}")"
+what="${2:?usage: registered.sh WORK setup|data|root|rules|F6|F7|F8|F9}"
 py="${PYTHON:-$HOME/.cache/subpixel/venv/bin/python}"
 ds="$work/ds"
 
@@ -95,6 +97,26 @@ print(len(SequenceDataset('$work/ds-s30', 'train', window=8, crop=64, min_refere
     echo "ds-s30: $n windows of 8 frames (registered: 177)"
     [ "$n" = 177 ] || { echo "registered.sh: ds-s30 is not the registered root yet (render incomplete?)" >&2; exit 1; }
     ;;
+  rules)
+    # Engine val of F5 and of every registered run that has finished (WORK/runs/RUN/
+    # weights.safetensors), scored and decided by ssr.registered (the order of the rules).
+    bin="${SUBPIXEL:-$work/subpixel-dist}"
+    [ -x "$bin" ] || { echo "registered.sh: no renderer at $bin (registered.sh WORK setup builds it, or set SUBPIXEL)" >&2; exit 2; }
+    models=(F5="$root/weights/ssr.safetensors")
+    for pair in F6:ssr-s30-F6 F7:ssr-s30-F7 F8:ssr-s31-F8 F9:ssr-s34-F9; do
+      w="$work/runs/${pair#*:}/weights.safetensors"
+      if [ -f "$w" ]; then models+=("${pair%%:*}=$w"); fi
+    done
+    for need in F6 F7; do
+      printf '%s\n' "${models[@]}" | grep -q "^$need=" ||
+        { echo "registered.sh: $need has not finished (no weights.safetensors in its run folder)" >&2; exit 1; }
+    done
+    # Any tiling gives the same val to 1e-6 of the range; a fixed one skips the first tuning.
+    SUBPIXEL_CONV_KERNEL="${SUBPIXEL_CONV_KERNEL:-px16-cob1-tex}" SUBPIXEL="$bin" \
+      "$here/engine_val.sh" "$ds" "$work/pred-rules" "${models[@]}"
+    "$bin" eval --table --json --pred "$work/pred-rules" --ref "$ds" --split val > "$work/rules-val.json"
+    (cd "$here" && "$py" -m ssr.registered "$work/rules-val.json")
+    ;;
   F6 | F7 | F8 | F9)
     mkdir -p "$work"
     base='--thin 0.5 --thin-keep-min 0.02 --seed 17 --lambda ssim=10 --lambda m=0 --lr 1.25e-4 --background loss --mean-correction loss --min-reference-psnr 22 --window 8 --frame-weights 1,1,1,1,1,1,1,1'
@@ -116,7 +138,7 @@ print(len(SequenceDataset('$work/ds-s30', 'train', window=8, crop=64, min_refere
       TRAIN_ARGS="$base --model-config $mc $extra" exec "$here/campaign.sh" "$work" train
     ;;
   *)
-    echo "registered.sh: unknown '$what' (setup, data, root, F6, F7, F8, F9)" >&2
+    echo "registered.sh: unknown '$what' (setup, data, root, rules, F6, F7, F8, F9)" >&2
     exit 2
     ;;
 esac

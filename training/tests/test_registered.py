@@ -63,3 +63,47 @@ def test_unknown_runs_and_parts_are_refused(tmp_path):
         r = subprocess.run([SCRIPT, str(tmp_path), *argv], capture_output=True, text=True,
                            env={**os.environ, "SUBPIXEL": "/bin/true"})
         assert r.returncode == 2 and msg in r.stderr, r.stderr
+
+
+def _table(rows):
+    """A table as `subpixel eval --table --json` prints it: {method: (procedural PSNR, SSIM,
+    guard PSNR)}, every guard column at the guard PSNR."""
+    from ssr.registered import GUARD_COLUMNS
+
+    out = []
+    for m, (p, s, g) in rows.items():
+        scenes = {"procedural": {"psnr": p, "ssim": s}}
+        scenes.update({c: {"psnr": g, "ssim": 0.9} for c in GUARD_COLUMNS})
+        out.append({"method": m, "scenes": scenes})
+    return out
+
+
+def test_the_registered_chain_reads_the_rule_in_its_order():
+    from ssr.registered import pick
+
+    base = {"F5": (25.44, 0.7298, 27.0), "F6": (25.50, 0.7300, 27.0), "F7": (25.52, 0.7310, 27.0)}
+    assert pick(_table(base))[0] == "F7"
+    # F7 loses to F6 (lower SSIM), F6 beats F5
+    assert pick(_table({**base, "F7": (25.60, 0.7299, 27.0)}))[0] == "F6"
+    # the guard: F7's SSIM is higher but the fixed scenes drop 0.5 dB, so F6 stays
+    assert pick(_table({**base, "F7": (25.52, 0.7310, 26.5)}))[0] == "F6"
+    # neither beats F5: F5 stays
+    assert pick(_table({**base, "F6": (25.40, 0.7290, 27.0), "F7": (25.41, 0.7289, 27.0)}))[0] == "F5"
+    # F8 against the pick
+    assert pick(_table({**base, "F8": (25.55, 0.7320, 27.0)}))[0] == "F8"
+    assert pick(_table({**base, "F8": (25.55, 0.7305, 27.0)}))[0] == "F7"
+    # F9 must beat F6 first, then the pick
+    best, steps = pick(_table({**base, "F9": (25.56, 0.7330, 27.0)}))
+    assert best == "F9" and len(steps) == 4
+    best, steps = pick(_table({**base, "F9": (25.56, 0.7305, 27.0)}))  # beats F6, not F7
+    assert best == "F7" and len(steps) == 4
+    best, steps = pick(_table({**base, "F9": (25.56, 0.7299, 27.0)}))  # loses to F6: no 4th step
+    assert best == "F7" and len(steps) == 3
+
+
+def test_the_registered_chain_names_what_is_missing(tmp_path):
+    from ssr.registered import main
+
+    path = tmp_path / "val.json"
+    path.write_text(json.dumps(_table({"F5": (25.0, 0.7, 27.0), "F6": (25.1, 0.71, 27.0)})))
+    assert main([str(path)]) == 2

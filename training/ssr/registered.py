@@ -1,0 +1,85 @@
+"""The registered decision of issue 11's open runs (weights/README: F6 and F7 of the thirtieth
+session, F8 of the thirty-first, F9 of the thirty-fourth), read off one engine-val table by
+the standing rule (`ssr.rule`: the procedural column, the fixed scenes as a guard of
+0.3 dB), so that the order of the comparisons is code, not prose:
+
+    1. F7 against F6, then the pick against the shipped F5 (the incumbent);
+    2. F8 (when the table has it) against that pick;
+    3. F9 (when the table has it) against F6: the A/B of the metal brightness term alone;
+       if F9 wins it, F9 against the pick of 1-2, which decides what ships.
+
+    python -m ssr.registered val.json [--json]
+
+val.json is `subpixel eval --table --json` over engine val at 6,000 iterations with the rows
+named F5, F6, F7 and, when they have finished, F8 and F9 (`training/registered.sh WORK rules`
+makes it). Prints every comparison and the winner; exit status 2 on a table that cannot
+decide (a missing row or column).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from typing import List, Optional, Sequence, Tuple
+
+from .rule import RuleError, column_means, decide, guard
+
+COLUMNS = ("procedural",)
+GUARD_COLUMNS = ("cbox", "cornell", "cornell-box", "dining-room", "room", "staircase2")
+GUARD_DB = 0.3
+
+
+def compare(table: Sequence[dict], incumbent: str, challenger: str) -> Tuple[str, str]:
+    """(winner, reason) of the standing rule with the registrations' columns and guard."""
+    inc, cha = column_means(table, incumbent, COLUMNS), column_means(table, challenger, COLUMNS)
+    picked, reason = decide(inc, cha)
+    if picked:
+        ok, why = guard(column_means(table, incumbent, GUARD_COLUMNS)[0], column_means(table, challenger, GUARD_COLUMNS)[0], GUARD_DB)
+        picked, reason = ok, f"{reason}; {why}"
+    return (challenger if picked else incumbent), f"{challenger} against {incumbent}: {challenger if picked else incumbent} ({reason})"
+
+
+def pick(table: Sequence[dict]) -> Tuple[str, List[str]]:
+    """The registered chain over `table`: (what ships, one line per comparison)."""
+    methods = {r.get("method") for r in table}
+    steps = []
+    first, why = compare(table, "F6", "F7")
+    steps.append(why)
+    best, why = compare(table, "F5", first)
+    steps.append(why)
+    if "F8" in methods:
+        best, why = compare(table, best, "F8")
+        steps.append(why)
+    if "F9" in methods:
+        ab, why = compare(table, "F6", "F9")
+        steps.append(why)
+        if ab == "F9" and best != "F9":
+            best, why = compare(table, best, "F9")
+            steps.append(why)
+    return best, steps
+
+
+def main(argv: Optional[List[str]] = None) -> int:
+    ap = argparse.ArgumentParser(prog="python -m ssr.registered", description=__doc__.split("\n\n")[0])
+    ap.add_argument("table", help="JSON of `subpixel eval --table --json` with rows F5, F6, F7[, F8, F9]")
+    ap.add_argument("--json", action="store_true", help="print the decision as JSON")
+    args = ap.parse_args(argv)
+    try:
+        table = json.load(open(args.table))
+        if not isinstance(table, list):
+            raise RuleError("expected the JSON list `subpixel eval --table --json` prints")
+        best, steps = pick(table)
+    except (OSError, json.JSONDecodeError, RuleError, KeyError, TypeError) as err:
+        print(f"error: {args.table}: {err}", file=sys.stderr)
+        return 2
+    if args.json:
+        print(json.dumps({"winner": best, "steps": steps}, indent=2))
+    else:
+        print("\n".join(steps))
+        print(f"ships: {best}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
