@@ -36,11 +36,18 @@ work="$(realpath -m "${1:?usage: registered.sh WORK setup|data|root|rules|F6|F7|
 what="${2:?usage: registered.sh WORK setup|data|root|rules|F6|F7|F8|F9}"
 py="${PYTHON:-$HOME/.cache/subpixel/venv/bin/python}"
 ds="$work/ds"
+bin="${SUBPIXEL:-$work/subpixel-dist}"
+need_bin() {
+  [ -x "$bin" ] || { echo "registered.sh: no renderer at $bin (registered.sh WORK setup builds it, or set SUBPIXEL)" >&2; exit 2; }
+}
+# run_of F6|F7|F8|F9: the run's folder name under WORK/runs.
+run_of() {
+  case "$1" in F6) echo ssr-s30-F6 ;; F7) echo ssr-s30-F7 ;; F8) echo ssr-s31-F8 ;; F9) echo ssr-s34-F9 ;; esac
+}
 
 case "$what" in
   setup)
     "$root/tools/machine_setup.sh" vulkan venv
-    bin="${SUBPIXEL:-$work/subpixel-dist}"
     if [ ! -x "$bin" ]; then
       (cd "$root" && cargo build --profile dist --bin subpixel)
       mkdir -p "$(dirname "$bin")"
@@ -49,8 +56,7 @@ case "$what" in
     echo "registered.sh: set up; renderer $bin"
     ;;
   data)
-    bin="${SUBPIXEL:-$work/subpixel-dist}"
-    [ -x "$bin" ] || { echo "registered.sh: no renderer at $bin (registered.sh WORK setup builds it, or set SUBPIXEL)" >&2; exit 2; }
+    need_bin
     # The twenty-seventh session's parameters (weights/README "Thirty-first session").
     common=(SUBPIXEL="$bin" SPP=1024 TRAIN_SPP=512 VAL_SEEDS=6 BACKGROUND=8 HELDOUT_SEQUENCES=1 TEST_SEEDS=20)
     # phase [VAR=VALUE ...] PHASE ...: one run of the recipe with extra settings.
@@ -100,16 +106,16 @@ print(len(SequenceDataset('$work/ds-s30', 'train', window=8, crop=64, min_refere
   rules)
     # Engine val of F5 and of every registered run that has finished (WORK/runs/RUN/
     # weights.safetensors), scored and decided by ssr.registered (the order of the rules).
-    bin="${SUBPIXEL:-$work/subpixel-dist}"
-    [ -x "$bin" ] || { echo "registered.sh: no renderer at $bin (registered.sh WORK setup builds it, or set SUBPIXEL)" >&2; exit 2; }
+    need_bin
     models=(F5="$root/weights/ssr.safetensors")
-    for pair in F6:ssr-s30-F6 F7:ssr-s30-F7 F8:ssr-s31-F8 F9:ssr-s34-F9; do
-      w="$work/runs/${pair#*:}/weights.safetensors"
-      if [ -f "$w" ]; then models+=("${pair%%:*}=$w"); fi
-    done
-    for need in F6 F7; do
-      printf '%s\n' "${models[@]}" | grep -q "^$need=" ||
-        { echo "registered.sh: $need has not finished (no weights.safetensors in its run folder)" >&2; exit 1; }
+    for r in F6 F7 F8 F9; do
+      w="$work/runs/$(run_of "$r")/weights.safetensors"
+      if [ -f "$w" ]; then
+        models+=("$r=$w")
+      elif [ "$r" = F6 ] || [ "$r" = F7 ]; then
+        echo "registered.sh: $r has not finished (no $w)" >&2
+        exit 1
+      fi
     done
     # Any tiling gives the same val to 1e-6 of the range; a fixed one skips the first tuning.
     SUBPIXEL_CONV_KERNEL="${SUBPIXEL_CONV_KERNEL:-px16-cob1-tex}" SUBPIXEL="$bin" \
@@ -121,17 +127,18 @@ print(len(SequenceDataset('$work/ds-s30', 'train', window=8, crop=64, min_refere
     mkdir -p "$work"
     base='--thin 0.5 --thin-keep-min 0.02 --seed 17 --lambda ssim=10 --lambda m=0 --lr 1.25e-4 --background loss --mean-correction loss --min-reference-psnr 22 --window 8 --frame-weights 1,1,1,1,1,1,1,1'
     case "$what" in
-      F6) init="$root/weights/baselines/ssr-s30-F6-it4500.safetensors"; at=4500; run=ssr-s30-F6
+      F6) init="$root/weights/baselines/ssr-s30-F6-it4500.safetensors"; at=4500
           mc='{"emission":"background"}' ;;
-      F7) init="$root/weights/baselines/ssr-s30-F7-it4000.safetensors"; at=4000; run=ssr-s30-F7
+      F7) init="$root/weights/baselines/ssr-s30-F7-it4000.safetensors"; at=4000
           mc='{"emission":"background","escaped":"background"}' ;;
-      F8) init="$work/F8-init.safetensors"; at=0; run=ssr-s31-F8
+      F8) init="$work/F8-init.safetensors"; at=0
           mc='{"emission":"background","escaped":"background","exposure":"shared"}'
           [ -f "$init" ] || cp "$root/weights/ssr.safetensors" "$init" ;;
-      F9) init="$work/F9-init.safetensors"; at=0; run=ssr-s34-F9
+      F9) init="$work/F9-init.safetensors"; at=0
           mc='{"emission":"background"}'; base="$base --lambda mm=5"
           [ -f "$init" ] || cp "$root/weights/ssr.safetensors" "$init" ;;
     esac
+    run="$(run_of "$what")"
     extra=""
     if [ ! -f "$work/runs/$run/checkpoint.pt" ] && [ "$at" -gt 0 ]; then extra="--init-at $at"; fi
     RUN=$run ITERS=6000 VAL_EVERY=0 THREADS=1 INIT="$init" DS="$work/ds-s30" \

@@ -23,7 +23,7 @@ import json
 import sys
 from typing import List, Optional, Sequence, Tuple
 
-from .rule import RuleError, column_means, decide, guard
+from .rule import RuleError, judge
 
 COLUMNS = ("procedural",)
 GUARD_COLUMNS = ("cbox", "cornell", "cornell-box", "dining-room", "room", "staircase2")
@@ -31,13 +31,10 @@ GUARD_DB = 0.3
 
 
 def compare(table: Sequence[dict], incumbent: str, challenger: str) -> Tuple[str, str]:
-    """(winner, reason) of the standing rule with the registrations' columns and guard."""
-    inc, cha = column_means(table, incumbent, COLUMNS), column_means(table, challenger, COLUMNS)
-    picked, reason = decide(inc, cha)
-    if picked:
-        ok, why = guard(column_means(table, incumbent, GUARD_COLUMNS)[0], column_means(table, challenger, GUARD_COLUMNS)[0], GUARD_DB)
-        picked, reason = ok, f"{reason}; {why}"
-    return (challenger if picked else incumbent), f"{challenger} against {incumbent}: {challenger if picked else incumbent} ({reason})"
+    """(winner, one line saying why) of the standing rule with the registrations' columns
+    and guard."""
+    winner, reason, _, _ = judge(table, incumbent, challenger, COLUMNS, GUARD_COLUMNS, GUARD_DB)
+    return winner, f"{challenger} against {incumbent}: {winner} ({reason})"
 
 
 def pick(table: Sequence[dict]) -> Tuple[str, List[str]]:

@@ -67,6 +67,30 @@ def guard(incumbent_psnr: float, challenger_psnr: float, max_drop_db: float) -> 
     return ok, f"guard PSNR {challenger_psnr:.2f} {word} than {max_drop_db:g} dB below {incumbent_psnr:.2f}"
 
 
+def judge(
+    table: Sequence[dict],
+    incumbent: str,
+    challenger: str,
+    columns: Optional[Sequence[str]] = None,
+    guard_columns: Optional[Sequence[str]] = None,
+    guard_db: float = 0.3,
+    margin: float = MARGIN_DB,
+) -> Tuple[str, str, Tuple[float, float], Tuple[float, float]]:
+    """The standing rule on `table`: (winner, reason, incumbent's and challenger's (PSNR,
+    SSIM) over `columns`), the guard applied when `guard_columns` are given. RuleError for
+    a missing method or column."""
+    inc = column_means(table, incumbent, columns)
+    cha = column_means(table, challenger, columns)
+    g = None
+    if guard_columns:
+        g = column_means(table, incumbent, guard_columns)[0], column_means(table, challenger, guard_columns)[0]
+    picked, reason = decide(inc, cha, margin)
+    if picked and g:
+        picked, why = guard(g[0], g[1], guard_db)
+        reason = f"{reason}; {why}"
+    return (challenger if picked else incumbent), reason, inc, cha
+
+
 def main(argv: Optional[List[str]] = None) -> int:
     ap = argparse.ArgumentParser(prog="python -m ssr.rule", description=__doc__.split("\n\n")[0])
     ap.add_argument("table", help="JSON of `subpixel eval --table --json` ('-' for stdin)")
@@ -84,20 +108,11 @@ def main(argv: Optional[List[str]] = None) -> int:
         if not isinstance(table, list):
             raise RuleError(f"{args.table}: expected the JSON list `subpixel eval --table --json` prints")
         cols = [c for c in args.columns.split(",") if c] if args.columns else None
-        inc = column_means(table, args.incumbent, cols)
-        cha = column_means(table, args.challenger, cols)
         gcols = [c for c in args.guard_columns.split(",") if c] if args.guard_columns else None
-        if gcols:
-            g_inc = column_means(table, args.incumbent, gcols)[0]
-            g_cha = column_means(table, args.challenger, gcols)[0]
+        winner, reason, inc, cha = judge(table, args.incumbent, args.challenger, cols, gcols, args.guard_db, args.margin)
     except (OSError, json.JSONDecodeError, RuleError, KeyError, TypeError) as err:
         print(f"error: {args.table}: {err}", file=sys.stderr)
         return 2
-    picked, reason = decide(inc, cha, args.margin)
-    if picked and gcols:
-        picked, why = guard(g_inc, g_cha, args.guard_db)
-        reason = f"{reason}; {why}"
-    winner = args.challenger if picked else args.incumbent
     over = ", ".join(cols) if cols else "every column"
     if args.json:
         out = {
