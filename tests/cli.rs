@@ -9,8 +9,27 @@ use subpixel::io::frames::frame_name;
 use subpixel::nn::HostTensor;
 use subpixel::ssr::HostFrame;
 
+/// The binary on one fixed convolution tiling, [`FIXED_KERNEL`]: the tests below are about
+/// what the commands do, not which kernels they pick (that is `bench kernels`' test here and
+/// the autotuner's in tests/ssr_api.rs and tests/kernels.rs). A first autotuning of the
+/// network compiles every candidate kernel of every layer shape, which on a CPU Vulkan
+/// driver with a cold shader cache takes tens of minutes; one tiling is compiled once and
+/// then found in the driver's shader cache by every later process. Its choices also follow
+/// timings, which a loaded machine can flip between two processes, and another tiling sums
+/// in another order: tests that compare two runs bit for bit need both on the same kernels.
 fn bin() -> Command {
-    Command::new(env!("CARGO_BIN_EXE_subpixel"))
+    bin_at(Path::new(env!("CARGO_BIN_EXE_subpixel")))
+}
+
+/// The tiling every command of these tests runs (`SUBPIXEL_CONV_KERNEL`) unless it says
+/// otherwise.
+const FIXED_KERNEL: &str = "px16-cob1";
+
+/// The binary at `exe` (the test binary's, or a copy of it) on [`FIXED_KERNEL`].
+fn bin_at(exe: &Path) -> Command {
+    let mut c = Command::new(exe);
+    c.env("SUBPIXEL_CONV_KERNEL", FIXED_KERNEL);
+    c
 }
 
 /// `subpixel bench denoise` of the network alone at 16x16.
@@ -70,14 +89,10 @@ fn golden_denoise(input: &Path, out: &Path) -> Command {
     denoise_cmd(&data("golden_weights.safetensors"), input, out)
 }
 
-/// `subpixel denoise --weights W --input I --out O` on one fixed convolution tiling. The
-/// autotuner's choices (and the pooling they imply) follow timings, which a loaded machine
-/// can flip between two processes, and another tiling sums in another order: tests that
-/// compare two runs bit for bit need both on the same kernels.
+/// `subpixel denoise --weights W --input I --out O`.
 fn denoise_cmd(weights: &Path, input: &Path, out: &Path) -> Command {
     let mut c = bin();
-    c.env("SUBPIXEL_CONV_KERNEL", "px16-cob1")
-        .args(["denoise", "--weights"])
+    c.args(["denoise", "--weights"])
         .arg(weights)
         .arg("--input")
         .arg(input)
@@ -393,7 +408,7 @@ fn every_command_that_loads_a_scene_takes_props() {
         if what != "bench render" {
             cmd.arg("--out").arg(out.join(what.replace(' ', "-")));
         }
-        let o = cmd.env("SUBPIXEL_CONV_KERNEL", "px16-cob1").output().unwrap();
+        let o = cmd.output().unwrap();
         let stderr = failed(&o, format!("{what} with a missing props folder"));
         assert!(stderr.contains("/nonexistent/props-dir"), "{what}: {stderr}");
     }
@@ -498,12 +513,10 @@ fn bench_denoise_models_passes_and_takes_fixed_kernels() {
             "f32 activations",
         ],
     );
-    // A fixed kernel: the f16 activations need no tuning here, and a first tuning of
-    // every layer's f16 variant takes minutes on a CPU driver with a cold shader cache.
+    // f16 activations on the fixed kernel (a first tuning of every layer's f16 variant
+    // takes minutes on a CPU driver with a cold shader cache).
     prints_all(
-        bench16()
-            .env("SUBPIXEL_CONV_KERNEL", "px16-cob1")
-            .args(["--precision", "f16"]),
+        bench16().args(["--precision", "f16"]),
         &["f16 activations", "modelled total"],
     );
     let o = bench16().env("SUBPIXEL_PRECISION", "half").output().unwrap();
@@ -1056,7 +1069,7 @@ fn default_weights_follow_the_binary_and_the_environment() {
     let moved = root.join("app/weights/ssr.safetensors");
     std::fs::copy(&weights, &moved).unwrap();
     let denoise = |exe: &Path, env: Option<&Path>, out: &str| {
-        let mut c = Command::new(exe);
+        let mut c = bin_at(exe);
         c.current_dir(&root).env_remove("SUBPIXEL_WEIGHTS");
         if let Some(e) = env {
             c.env("SUBPIXEL_WEIGHTS", e);
