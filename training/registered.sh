@@ -19,11 +19,20 @@
 #                                           # (checked: 177 windows of 8 frames)
 #   training/registered.sh WORK F6|F7|F8|F9 # one run, one core (campaign.sh train); resumes
 #                                           # from WORK/runs/RUN when it has a checkpoint,
-#                                           # else from its committed restore point
+#                                           # else from its newest whole checkpoint in
+#                                           # weights/restore (exactly, Adam included), else
+#                                           # from its committed weights-only restore point
+#   training/registered.sh WORK keep F6|F7|F8|F9
+#                                           # copies the run's newest snapshot checkpoint
+#                                           # (WORK/runs/RUN/snapshots/it_N.pt, every 500
+#                                           # iterations) to weights/restore/RUN-itN.pt and
+#                                           # drops that run's older ones there: commit it,
+#                                           # and a new machine continues the run from it
 #   training/registered.sh WORK rules       # engine val of F5 and the finished runs, then the
 #                                           # registered rules in their order (ssr.registered)
 #
-# WORK is outside the repository (e.g. ~/work-data); SUBPIXEL names the renderer binary
+# WORK is outside the repository (e.g. ~/work-data); RESTORE names the folder of whole
+# checkpoints (default weights/restore); SUBPIXEL names the renderer binary
 # (default WORK/subpixel-dist, a copy of `cargo build --profile dist`'s, so that rebuilding
 # the repository does not change the binary under a running render).
 set -euo pipefail
@@ -32,17 +41,25 @@ set -euo pipefail
 {
 here="$(cd "$(dirname "$0")" && pwd)"
 root="$(cd "$here/.." && pwd)"
-work="$(realpath -m "${1:?usage: registered.sh WORK setup|data|root|rules|F6|F7|F8|F9}")"
-what="${2:?usage: registered.sh WORK setup|data|root|rules|F6|F7|F8|F9}"
+work="$(realpath -m "${1:?usage: registered.sh WORK setup|data|root|rules|keep|F6|F7|F8|F9}")"
+what="${2:?usage: registered.sh WORK setup|data|root|rules|keep|F6|F7|F8|F9}"
 py="${PYTHON:-$HOME/.cache/subpixel/venv/bin/python}"
 ds="$work/ds"
 bin="${SUBPIXEL:-$work/subpixel-dist}"
+restore="$(realpath -m "${RESTORE:-$root/weights/restore}")"
 need_bin() {
   [ -x "$bin" ] || { echo "registered.sh: no renderer at $bin (registered.sh WORK setup builds it, or set SUBPIXEL)" >&2; exit 2; }
 }
 # run_of F6|F7|F8|F9: the run's folder name under WORK/runs.
 run_of() {
   case "$1" in F6) echo ssr-s30-F6 ;; F7) echo ssr-s30-F7 ;; F8) echo ssr-s31-F8 ;; F9) echo ssr-s34-F9 ;; esac
+}
+# newest_restore RUN: the path of RUN's whole checkpoint of the highest iteration in the
+# restore folder (names RUN-itNNNNNNN.pt, zero-padded so that they sort), or nothing.
+newest_restore() {
+  local f
+  f=$(ls "$restore/$1-it"*.pt 2>/dev/null | sort | tail -n 1 || true)
+  echo "$f"
 }
 
 case "$what" in
@@ -103,6 +120,21 @@ print(len(SequenceDataset('$work/ds-s30', 'train', window=8, crop=64, min_refere
     echo "ds-s30: $n windows of 8 frames (registered: 177)"
     [ "$n" = 177 ] || { echo "registered.sh: ds-s30 is not the registered root yet (render incomplete?)" >&2; exit 1; }
     ;;
+  keep)
+    r="${3:?usage: registered.sh WORK keep F6|F7|F8|F9}"
+    run="$(run_of "$r")"
+    [ -n "$run" ] || { echo "registered.sh: unknown run '$r' to keep (F6, F7, F8, F9)" >&2; exit 2; }
+    snap=$(ls "$work/runs/$run/snapshots/it_"*.pt 2>/dev/null | sort | tail -n 1 || true)
+    [ -n "$snap" ] || { echo "registered.sh: $run has no snapshot checkpoint in $work/runs/$run/snapshots yet" >&2; exit 1; }
+    n=$(basename "$snap" .pt)
+    n=${n#it_}
+    mkdir -p "$restore"
+    cp "$snap" "$restore/$run-it$n.pt.tmp" && mv "$restore/$run-it$n.pt.tmp" "$restore/$run-it$n.pt"
+    for old in "$restore/$run-it"*.pt; do
+      [ "$old" = "$restore/$run-it$n.pt" ] || rm -f "$old"
+    done
+    echo "registered.sh: kept $run at iteration $((10#$n)) as $restore/$run-it$n.pt"
+    ;;
   rules)
     # Engine val of F5 and of every registered run that has finished (WORK/runs/RUN/
     # weights.safetensors), scored and decided by ssr.registered (the order of the rules).
@@ -140,12 +172,19 @@ print(len(SequenceDataset('$work/ds-s30', 'train', window=8, crop=64, min_refere
     esac
     run="$(run_of "$what")"
     extra=""
-    if [ ! -f "$work/runs/$run/checkpoint.pt" ] && [ "$at" -gt 0 ]; then extra="--init-at $at"; fi
+    kept="$(newest_restore "$run")"
+    if [ -f "$work/runs/$run/checkpoint.pt" ]; then
+      :  # its own checkpoint (campaign.sh passes --resume)
+    elif [ -n "$kept" ]; then
+      extra="--resume-from $kept"
+    elif [ "$at" -gt 0 ]; then
+      extra="--init-at $at"
+    fi
     RUN=$run ITERS=6000 VAL_EVERY=0 THREADS=1 INIT="$init" DS="$work/ds-s30" \
       TRAIN_ARGS="$base --model-config $mc $extra" exec "$here/campaign.sh" "$work" train
     ;;
   *)
-    echo "registered.sh: unknown '$what' (setup, data, root, rules, F6, F7, F8, F9)" >&2
+    echo "registered.sh: unknown '$what' (setup, data, root, rules, keep, F6, F7, F8, F9)" >&2
     exit 2
     ;;
 esac

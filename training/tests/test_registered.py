@@ -16,9 +16,13 @@ ROOT = os.path.dirname(HERE)
 SCRIPT = os.path.join(HERE, "registered.sh")
 
 
-def dry_run(work, run):
+def dry_run(work, run, restore=None):
+    # An empty restore folder unless the test gives one: the registrations' own starts,
+    # whatever restore points the repository holds now.
+    restore = restore if restore is not None else work / "no-restore"
     out = subprocess.run(
-        [SCRIPT, str(work), run], env={**os.environ, "DRY_RUN": "1"}, capture_output=True, text=True, check=True
+        [SCRIPT, str(work), run], env={**os.environ, "DRY_RUN": "1", "RESTORE": str(restore)},
+        capture_output=True, text=True, check=True,
     ).stdout
     return parse_args(out.splitlines())
 
@@ -27,6 +31,41 @@ def dry_run(work, run):
 def runs(tmp_path_factory):
     work = tmp_path_factory.mktemp("work")
     return work, {r: dry_run(work, r) for r in ("F6", "F7", "F8", "F9")}
+
+
+def test_a_kept_whole_checkpoint_is_where_a_new_machine_resumes(tmp_path):
+    """`keep` copies a run's newest snapshot checkpoint into the restore folder and drops that
+    run's older ones; the run then resumes from it (--resume-from, no --init-at) on a machine
+    without the run's folder, and from its own checkpoint where there is one."""
+    work, restore = tmp_path / "work", tmp_path / "restore"
+    snaps = work / "runs" / "ssr-s30-F6" / "snapshots"
+    snaps.mkdir(parents=True)
+    env = {**os.environ, "RESTORE": str(restore)}
+    keep = subprocess.run([SCRIPT, str(work), "keep", "F6"], env=env, capture_output=True, text=True)
+    assert keep.returncode == 1 and "no snapshot checkpoint" in keep.stderr, keep.stderr
+    for it in (5000, 5500):
+        (snaps / f"it_{it:07d}.pt").write_bytes(b"checkpoint %d" % it)
+    restore.mkdir()
+    (restore / "ssr-s30-F6-it0004500.pt").write_bytes(b"older")
+    (restore / "ssr-s30-F7-it0004500.pt").write_bytes(b"another run's")
+    keep = subprocess.run([SCRIPT, str(work), "keep", "F6"], env=env, capture_output=True, text=True)
+    assert keep.returncode == 0, keep.stderr
+    assert sorted(p.name for p in restore.iterdir()) == ["ssr-s30-F6-it0005500.pt", "ssr-s30-F7-it0004500.pt"]
+    assert (restore / "ssr-s30-F6-it0005500.pt").read_bytes() == b"checkpoint 5500"
+    # a new machine: no run folder, the kept checkpoint
+    fresh = tmp_path / "fresh"
+    a = dry_run(fresh, "F6", restore)
+    assert a.resume_from == str(restore / "ssr-s30-F6-it0005500.pt") and a.init_at == 0
+    assert dry_run(fresh, "F7", restore).resume_from == str(restore / "ssr-s30-F7-it0004500.pt")
+    # F8 has none: its registered start
+    f8 = dry_run(fresh, "F8", restore)
+    assert f8.resume_from is None and f8.init_at == 0
+    # the run's own checkpoint comes first
+    (work / "runs" / "ssr-s30-F6" / "checkpoint.pt").write_bytes(b"own")
+    own = dry_run(work, "F6", restore)
+    assert own.resume and own.resume_from is None and own.init_at == 0
+    bad = subprocess.run([SCRIPT, str(work), "keep", "F5"], env=env, capture_output=True, text=True)
+    assert bad.returncode == 2 and "unknown run 'F5'" in bad.stderr
 
 
 def test_every_registered_run_has_the_shared_options(runs):
