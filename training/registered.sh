@@ -28,6 +28,15 @@
 #                                           # iterations) to weights/restore/RUN-itN.pt and
 #                                           # drops that run's older ones there: commit it,
 #                                           # and a new machine continues the run from it
+#   training/registered.sh WORK all         # everything below in the registered order,
+#                                           # unattended and resumable (re-running skips
+#                                           # what is done): setup, data train, root, F6
+#                                           # beside F7, data val, rules, F8 beside F9,
+#                                           # rules, data heldout rest. While runs train,
+#                                           # `keep` every KEEP_EVERY seconds (default 900);
+#                                           # with COMMIT=1 it also commits weights/restore
+#                                           # (that folder only), so a session cut off
+#                                           # keeps its training. DRY_RUN=1 prints the steps.
 #   training/registered.sh WORK rules       # engine val of F5 and the finished runs, then the
 #                                           # registered rules in their order (ssr.registered)
 #
@@ -41,8 +50,8 @@ set -euo pipefail
 {
 here="$(cd "$(dirname "$0")" && pwd)"
 root="$(cd "$here/.." && pwd)"
-work="$(realpath -m "${1:?usage: registered.sh WORK setup|data|root|rules|keep|F6|F7|F8|F9}")"
-what="${2:?usage: registered.sh WORK setup|data|root|rules|keep|F6|F7|F8|F9}"
+work="$(realpath -m "${1:?usage: registered.sh WORK all|setup|data|root|rules|keep|F6|F7|F8|F9}")"
+what="${2:?usage: registered.sh WORK all|setup|data|root|rules|keep|F6|F7|F8|F9}"
 py="${PYTHON:-$HOME/.cache/subpixel/venv/bin/python}"
 ds="$work/ds"
 bin="${SUBPIXEL:-$work/subpixel-dist}"
@@ -63,6 +72,68 @@ newest_restore() {
 }
 
 case "$what" in
+  all)
+    self="$here/registered.sh"
+    # step ARGS...: one step of the chain (printed instead with DRY_RUN=1).
+    step() {
+      echo "== registered.sh $(date -u +%FT%TZ) $*"
+      [ "${DRY_RUN:-0}" = 1 ] || "$self" "$work" "$@"
+    }
+    stop_if_asked() {
+      if [ -e "$ds/STOP" ]; then echo "registered.sh: $ds/STOP exists: the chain stops here"; exit 0; fi
+    }
+    # keep_restore R...: the runs' newest checkpoints into the restore folder (and, with
+    # COMMIT=1, into git, that folder alone); a run without a snapshot yet is passed over.
+    keep_restore() {
+      local r
+      for r in "$@"; do "$self" "$work" keep "$r" 2>/dev/null || true; done
+      if [ "${COMMIT:-0}" = 1 ] && [ -d "$restore" ]; then
+        git -C "$root" add -A -- "$restore" &&
+          git -C "$root" commit -q -m "weights/restore: the registered runs' newest whole checkpoints ($*)" -- "$restore" ||
+          true
+      fi
+    }
+    # pair R1 R2: the runs not yet finished, side by side (one core each), logs in
+    # WORK/RUN.log, their checkpoints kept while they train and once more at the end.
+    pair() {
+      local r pids=() names=() rc=0
+      for r in "$@"; do
+        if [ -f "$work/runs/$(run_of "$r")/weights.safetensors" ]; then
+          echo "== registered.sh $r finished before: $work/runs/$(run_of "$r")/weights.safetensors"
+          continue
+        fi
+        echo "== registered.sh $(date -u +%FT%TZ) $r (log $work/$r.log)"
+        [ "${DRY_RUN:-0}" = 1 ] && continue
+        "$self" "$work" "$r" >> "$work/$r.log" 2>&1 &
+        pids+=($!)
+        names+=("$r")
+      done
+      [ ${#pids[@]} -gt 0 ] || return 0
+      local waited=0
+      while [ -n "$(jobs -rp)" ]; do  # a run still going (exited ones are not listed)
+        sleep 30
+        waited=$((waited + 30))
+        if [ "$waited" -ge "${KEEP_EVERY:-900}" ]; then
+          keep_restore "${names[@]}"
+          waited=0
+        fi
+      done
+      for r in "${pids[@]}"; do wait "$r" || rc=$?; done
+      keep_restore "${names[@]}"
+      [ "$rc" = 0 ] || { echo "registered.sh: ${names[*]}: a run failed (exit $rc); see their logs" >&2; exit "$rc"; }
+    }
+    step setup
+    step data train
+    stop_if_asked
+    step root
+    pair F6 F7
+    step data val
+    stop_if_asked
+    step rules || true
+    pair F8 F9
+    step rules || true
+    step data heldout rest
+    ;;
   setup)
     "$root/tools/machine_setup.sh" vulkan venv
     if [ ! -x "$bin" ]; then
@@ -184,7 +255,7 @@ print(len(SequenceDataset('$work/ds-s30', 'train', window=8, crop=64, min_refere
       TRAIN_ARGS="$base --model-config $mc $extra" exec "$here/campaign.sh" "$work" train
     ;;
   *)
-    echo "registered.sh: unknown '$what' (setup, data, root, rules, keep, F6, F7, F8, F9)" >&2
+    echo "registered.sh: unknown '$what' (all, setup, data, root, rules, keep, F6, F7, F8, F9)" >&2
     exit 2
     ;;
 esac

@@ -146,3 +146,21 @@ def test_the_registered_chain_names_what_is_missing(tmp_path):
     path = tmp_path / "val.json"
     path.write_text(json.dumps(_table({"F5": (25.0, 0.7, 27.0), "F6": (25.1, 0.71, 27.0)})))
     assert main([str(path)]) == 2
+
+
+def test_the_whole_chain_runs_in_the_registered_order_and_skips_finished_runs(tmp_path):
+    """`all` (DRY_RUN: the steps printed, nothing run): the train split, the root, F6 beside
+    F7, val and the rules, F8 beside F9, the rules again, then the rest of the data; a run
+    whose final weights exist is not started again."""
+    done = tmp_path / "runs" / "ssr-s30-F7"
+    done.mkdir(parents=True)
+    (done / "weights.safetensors").write_bytes(b"finished")
+    out = subprocess.run([SCRIPT, str(tmp_path), "all"], env={**os.environ, "DRY_RUN": "1"},
+                         capture_output=True, text=True, check=True).stdout
+    steps = [line.split(" ", 3)[3] if line.split(" ")[2].startswith("20") else line.split(" ", 2)[2]
+             for line in out.splitlines() if line.startswith("== registered.sh")]
+    assert steps == [
+        "setup", "data train", "root", f"F6 (log {tmp_path}/F6.log)",
+        f"F7 finished before: {done}/weights.safetensors", "data val", "rules",
+        f"F8 (log {tmp_path}/F8.log)", f"F9 (log {tmp_path}/F9.log)", "rules", "data heldout rest",
+    ], out
