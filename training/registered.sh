@@ -23,9 +23,10 @@
 #                                           # weights/restore (exactly, Adam included), else
 #                                           # from its committed weights-only restore point
 #   training/registered.sh WORK keep F6|F7|F8|F9
-#                                           # copies the run's newest snapshot checkpoint
-#                                           # (WORK/runs/RUN/snapshots/it_N.pt, every 500
-#                                           # iterations) to weights/restore/RUN-itN.pt and
+#                                           # copies the run's newest whole checkpoint (its
+#                                           # snapshots/it_N.pt, every 500 iterations, or its
+#                                           # checkpoint.pt, every 250 and where it stopped)
+#                                           # to weights/restore/RUN-itN.pt and
 #                                           # drops that run's older ones there: commit it,
 #                                           # and a new machine continues the run from it
 #   training/registered.sh WORK all         # everything below in the registered order,
@@ -196,9 +197,19 @@ print(len(SequenceDataset('$work/ds-s30', 'train', window=8, crop=64, min_refere
     run="$(run_of "$r")"
     [ -n "$run" ] || { echo "registered.sh: unknown run '$r' to keep (F6, F7, F8, F9)" >&2; exit 2; }
     snap=$(ls "$work/runs/$run/snapshots/it_"*.pt 2>/dev/null | sort | tail -n 1 || true)
-    [ -n "$snap" ] || { echo "registered.sh: $run has no snapshot checkpoint in $work/runs/$run/snapshots yet" >&2; exit 1; }
-    n=$(basename "$snap" .pt)
-    n=${n#it_}
+    n=""
+    if [ -n "$snap" ]; then n=$(basename "$snap" .pt); n=${n#it_}; fi
+    # The run's own checkpoint (every 250 iterations, and where a stopped run stopped) when
+    # it is further on than its newest snapshot.
+    own="$work/runs/$run/checkpoint.pt"
+    if [ -f "$own" ]; then
+      at=$(cd "$here" && "$py" -c "import sys, torch; print(int(torch.load(sys.argv[1], map_location='cpu', weights_only=False)['iteration']))" "$own" 2>/dev/null || true)
+      if [[ "$at" =~ ^[0-9]+$ ]] && { [ -z "$n" ] || [ "$at" -gt "$((10#$n))" ]; }; then
+        snap="$own"
+        n=$(printf '%07d' "$at")
+      fi
+    fi
+    [ -n "$snap" ] || { echo "registered.sh: $run has no checkpoint in $work/runs/$run yet" >&2; exit 1; }
     mkdir -p "$restore"
     cp "$snap" "$restore/$run-it$n.pt.tmp" && mv "$restore/$run-it$n.pt.tmp" "$restore/$run-it$n.pt"
     for old in "$restore/$run-it"*.pt; do

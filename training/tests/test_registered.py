@@ -42,7 +42,7 @@ def test_a_kept_whole_checkpoint_is_where_a_new_machine_resumes(tmp_path):
     snaps.mkdir(parents=True)
     env = {**os.environ, "RESTORE": str(restore)}
     keep = subprocess.run([SCRIPT, str(work), "keep", "F6"], env=env, capture_output=True, text=True)
-    assert keep.returncode == 1 and "no snapshot checkpoint" in keep.stderr, keep.stderr
+    assert keep.returncode == 1 and "no checkpoint" in keep.stderr, keep.stderr
     for it in (5000, 5500):
         (snaps / f"it_{it:07d}.pt").write_bytes(b"checkpoint %d" % it)
     restore.mkdir()
@@ -64,6 +64,17 @@ def test_a_kept_whole_checkpoint_is_where_a_new_machine_resumes(tmp_path):
     (work / "runs" / "ssr-s30-F6" / "checkpoint.pt").write_bytes(b"own")
     own = dry_run(work, "F6", restore)
     assert own.resume and own.resume_from is None and own.init_at == 0
+    # the run's own checkpoint, when further on than its snapshots, is what is kept
+    import torch
+
+    torch.save({"iteration": 5750, "model": {}}, work / "runs" / "ssr-s30-F6" / "checkpoint.pt")
+    keep = subprocess.run([SCRIPT, str(work), "keep", "F6"], env=env, capture_output=True, text=True)
+    assert keep.returncode == 0, keep.stderr
+    assert sorted(p.name for p in restore.iterdir()) == ["ssr-s30-F6-it0005750.pt", "ssr-s30-F7-it0004500.pt"]
+    torch.save({"iteration": 5250, "model": {}}, work / "runs" / "ssr-s30-F6" / "checkpoint.pt")
+    (restore / "ssr-s30-F6-it0005750.pt").unlink()
+    subprocess.run([SCRIPT, str(work), "keep", "F6"], env=env, capture_output=True, text=True, check=True)
+    assert (restore / "ssr-s30-F6-it0005500.pt").read_bytes() == b"checkpoint 5500"  # the snapshot is newer
     bad = subprocess.run([SCRIPT, str(work), "keep", "F5"], env=env, capture_output=True, text=True)
     assert bad.returncode == 2 and "unknown run 'F5'" in bad.stderr
 
