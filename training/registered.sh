@@ -245,22 +245,23 @@ print(len(SequenceDataset('$work/ds-s30', 'train', window=8, crop=64, min_refere
           mc='{"emission":"background"}' ;;
       F7) init="$root/weights/baselines/ssr-s30-F7-it4000.safetensors"; at=4000
           mc='{"emission":"background","escaped":"background"}' ;;
-      F8) init="$work/F8-init.safetensors"; at=0
-          mc='{"emission":"background","escaped":"background","exposure":"shared"}'
-          [ -f "$init" ] || cp "$root/weights/ssr.safetensors" "$init" ;;
-      F9) init="$work/F9-init.safetensors"; at=0
-          mc='{"emission":"background"}'; base="$base --lambda mm=5"
-          [ -f "$init" ] || cp "$root/weights/ssr.safetensors" "$init" ;;
+      # F8 and F9 start from F5 as shipped when they were registered, committed as its own
+      # file so that shipping another model does not change their start (or refuse their
+      # checkpoints, which name the start's digest).
+      F8) init="$root/weights/baselines/ssr-s29-F5.safetensors"; at=0
+          mc='{"emission":"background","escaped":"background","exposure":"shared"}' ;;
+      F9) init="$root/weights/baselines/ssr-s29-F5.safetensors"; at=0
+          mc='{"emission":"background"}'; base="$base --lambda mm=5" ;;
     esac
     run="$(run_of "$what")"
+    # A run begun part-way through its schedule keeps --init-at in its options, also when it
+    # resumes (the checkpoint's config holds it); it resumes from its own checkpoint
+    # (campaign.sh passes --resume), else from its newest kept one.
     extra=""
+    if [ "$at" -gt 0 ]; then extra="--init-at $at"; fi
     kept="$(newest_restore "$run")"
-    if [ -f "$work/runs/$run/checkpoint.pt" ]; then
-      :  # its own checkpoint (campaign.sh passes --resume)
-    elif [ -n "$kept" ]; then
-      extra="--resume-from $kept"
-    elif [ "$at" -gt 0 ]; then
-      extra="--init-at $at"
+    if [ ! -f "$work/runs/$run/checkpoint.pt" ] && [ -n "$kept" ]; then
+      extra="$extra --resume-from $kept"
     fi
     RUN=$run ITERS=6000 VAL_EVERY=0 THREADS=1 INIT="$init" DS="$work/ds-s30" \
       TRAIN_ARGS="$base --model-config $mc $extra" exec "$here/campaign.sh" "$work" train

@@ -123,7 +123,7 @@ def parse_args(argv=None) -> argparse.Namespace:
         help="continue from this checkpoint file when RUN_DIR has none of its own (with one: as --resume), "
         "e.g. a restore point RUN_DIR/snapshots/it_NNNNNNN.pt of a run whose machine is gone, committed or copied: "
         "the run goes on exactly as from its own checkpoint (weights, Adam's moments, RNG, iteration); the other "
-        "options must be the run's",
+        "options must be the run's, --init and --init-at included for a run begun part-way through its schedule",
     )
     ap.add_argument("--ckpt-every", type=int, default=1000)
     ap.add_argument("--val-every", type=int, default=2000, help="0: only at the end")
@@ -194,8 +194,6 @@ def parse_args(argv=None) -> argparse.Namespace:
         ap.error(f"--init {args.init}: no such file")
     if args.resume_from is not None and not os.path.isfile(args.resume_from):
         ap.error(f"--resume-from {args.resume_from}: no such file")
-    if args.resume_from is not None and args.init_at:
-        ap.error("--resume-from and --init-at: the checkpoint holds its iteration; pass the run's options without --init-at")
     if args.init_at and args.init is None:
         ap.error("--init-at needs --init (the weights at that iteration)")
     if not 0 <= args.init_at < args.iters:

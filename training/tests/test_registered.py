@@ -2,7 +2,6 @@
 of the thirtieth session, F8 of the thirty-first, F9 of the thirty-fourth): their ssr.train
 arguments, printed by campaign.sh's DRY_RUN, parse and say what the registrations say."""
 
-import filecmp
 import json
 import os
 import subprocess
@@ -35,8 +34,8 @@ def runs(tmp_path_factory):
 
 def test_a_kept_whole_checkpoint_is_where_a_new_machine_resumes(tmp_path):
     """`keep` copies a run's newest snapshot checkpoint into the restore folder and drops that
-    run's older ones; the run then resumes from it (--resume-from, no --init-at) on a machine
-    without the run's folder, and from its own checkpoint where there is one."""
+    run's older ones; the run then resumes from it (--resume-from, with the --init-at it began
+    with) on a machine without the run's folder, and from its own checkpoint where there is one."""
     work, restore = tmp_path / "work", tmp_path / "restore"
     snaps = work / "runs" / "ssr-s30-F6" / "snapshots"
     snaps.mkdir(parents=True)
@@ -55,7 +54,7 @@ def test_a_kept_whole_checkpoint_is_where_a_new_machine_resumes(tmp_path):
     # a new machine: no run folder, the kept checkpoint
     fresh = tmp_path / "fresh"
     a = dry_run(fresh, "F6", restore)
-    assert a.resume_from == str(restore / "ssr-s30-F6-it0005500.pt") and a.init_at == 0
+    assert a.resume_from == str(restore / "ssr-s30-F6-it0005500.pt") and a.init_at == 4500
     assert dry_run(fresh, "F7", restore).resume_from == str(restore / "ssr-s30-F7-it0004500.pt")
     # F8 has none: its registered start
     f8 = dry_run(fresh, "F8", restore)
@@ -63,7 +62,7 @@ def test_a_kept_whole_checkpoint_is_where_a_new_machine_resumes(tmp_path):
     # the run's own checkpoint comes first
     (work / "runs" / "ssr-s30-F6" / "checkpoint.pt").write_bytes(b"own")
     own = dry_run(work, "F6", restore)
-    assert own.resume and own.resume_from is None and own.init_at == 0
+    assert own.resume and own.resume_from is None and own.init_at == 4500
     # the run's own checkpoint, when further on than its snapshots, is what is kept
     import torch
 
@@ -99,8 +98,13 @@ def test_each_run_differs_as_registered(runs):
     assert json.loads(f6.model_config) == {"emission": "background"}
     assert json.loads(f7.model_config) == {"emission": "background", "escaped": "background"}
     assert json.loads(f8.model_config) == {"emission": "background", "escaped": "background", "exposure": "shared"}
-    for a in (f8, f9):  # both start from a copy of the shipped F5 at iteration 0
-        assert a.init_at == 0 and filecmp.cmp(a.init, os.path.join(ROOT, "weights/ssr.safetensors"), shallow=False)
+    for a in (f8, f9):  # both start from F5 at iteration 0, committed as its own file
+        assert a.init == os.path.join(ROOT, "weights/baselines/ssr-s29-F5.safetensors") and a.init_at == 0
+    from safetensors import safe_open
+
+    with safe_open(f8.init, "pt") as f:
+        prov = json.loads(f.metadata()["provenance"])
+    assert prov["campaign_iterations"] == 83500, "F5: the shipped model when F8 and F9 were registered"
     assert [a.lambdas["mm"] for a in (f6, f7, f8, f9)] == [0, 0, 0, 5]
     # F9 is F6 with the metal brightness term and nothing else (but its own run and start)
     differ = {k for k in vars(f6) if vars(f6)[k] != vars(f9)[k]}

@@ -256,6 +256,20 @@ def test_init_at_continues_a_schedule_from_its_snapshot(dataset, tmp_path, capsy
     assert prov["iterations"] == 6 and prov["init_at"] == 4 and prov["campaign_iterations"] == 6
     # it resumes like any run, and is refused without --init or past the end
     T.train(args(dataset, b, "--init", snap, "--init-at", "4", "--lr", "1e-3", "--resume", iters=6))
+    # a restore point of such a run continues it exactly in a new folder, given the run's
+    # options (its --init and --init-at), and is refused without them
+    b2 = str(tmp_path / "b2")
+    T.train(args(dataset, b2, "--init", snap, "--init-at", "4", "--lr", "1e-3", "--snapshot-every", "5", iters=6))
+    straight, _ = load_weights(os.path.join(b2, "weights.safetensors"))
+    point = os.path.join(b2, "snapshots", "it_0000005.pt")
+    c2 = str(tmp_path / "c2")
+    res = T.train(args(dataset, c2, "--resume-from", point, "--init", snap, "--init-at", "4", "--lr", "1e-3", iters=6))
+    restored, meta = load_weights(res["weights"])
+    for k, v in straight.state_dict().items():
+        assert torch.equal(restored.state_dict()[k], v), k
+    assert meta["provenance"]["init_at"] == 4 and meta["provenance"]["campaign_iterations"] == 6
+    with pytest.raises(T.CheckpointError, match=r"differing keys: init_at: 4 in the checkpoint"):
+        T.train(args(dataset, str(tmp_path / "c3"), "--resume-from", point, "--init", snap, "--lr", "1e-3", iters=6))
     with pytest.raises(SystemExit):
         T.train(args(dataset, str(tmp_path / "c"), "--init-at", "2"))
     assert "--init-at needs --init" in capsys.readouterr().err
@@ -468,12 +482,14 @@ def test_a_restore_point_resumes_the_run_exactly_in_a_new_folder(dataset, tmp_pa
     for k, v in straight.state_dict().items():
         assert torch.equal(restored.state_dict()[k], v), k
     assert meta["provenance"]["iterations"] == 6
-    # another config is refused, naming the file; --init-at is the weights-only path
+    # another config is refused, naming the file and the keys (a start part-way through the
+    # schedule is part of the run's options)
     with pytest.raises(T.CheckpointError, match=r"it_0000004\.pt: checkpoint is from another config; differing keys: lr"):
         T.train(args(dataset, str(tmp_path / "d"), "--resume-from", point, iters=6))
-    with pytest.raises(SystemExit):
-        T.train(args(dataset, str(tmp_path / "e"), "--resume-from", point, "--init", point, "--init-at", "4", iters=6))
-    assert "--resume-from and --init-at" in capsys.readouterr().err
+    snap = os.path.join(a, "snapshots", "it_0000004.safetensors")
+    with pytest.raises(T.CheckpointError, match=r"differing keys: init: .*; init_at: "):
+        T.train(args(dataset, str(tmp_path / "e"), "--resume-from", point, "--init", snap, "--init-at", "4",
+                     "--lr", "1e-3", iters=6))
     with pytest.raises(SystemExit):
         T.train(args(dataset, str(tmp_path / "e"), "--resume-from", str(tmp_path / "none.pt"), iters=6))
     assert "no such file" in capsys.readouterr().err
