@@ -34,7 +34,7 @@
 #                                           # what is done): setup, data train, root, F6
 #                                           # beside F7, data val, rules, F8 beside F9,
 #                                           # rules, data heldout rest. While runs train,
-#                                           # `keep` every KEEP_EVERY seconds (default 900);
+#                                           # `keep` every KEEP_EVERY seconds (default 1800);
 #                                           # with COMMIT=1 it also commits weights/restore
 #                                           # (that folder only), so a session cut off
 #                                           # keeps its training. DRY_RUN=1 prints the steps.
@@ -114,7 +114,7 @@ case "$what" in
       while [ -n "$(jobs -rp)" ]; do  # a run still going (exited ones are not listed)
         sleep 30
         waited=$((waited + 30))
-        if [ "$waited" -ge "${KEEP_EVERY:-900}" ]; then
+        if [ "$waited" -ge "${KEEP_EVERY:-1800}" ]; then
           keep_restore "${names[@]}"
           waited=0
         fi
