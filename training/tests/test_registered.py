@@ -5,6 +5,7 @@ arguments, printed by campaign.sh's DRY_RUN, parse and say what the registration
 import json
 import os
 import subprocess
+import sys
 
 import pytest
 
@@ -39,7 +40,7 @@ def test_a_kept_whole_checkpoint_is_where_a_new_machine_resumes(tmp_path):
     work, restore = tmp_path / "work", tmp_path / "restore"
     snaps = work / "runs" / "ssr-s30-F6" / "snapshots"
     snaps.mkdir(parents=True)
-    env = {**os.environ, "RESTORE": str(restore)}
+    env = {**os.environ, "RESTORE": str(restore), "PYTHON": sys.executable}
     keep = subprocess.run([SCRIPT, str(work), "keep", "F6"], env=env, capture_output=True, text=True)
     assert keep.returncode == 1 and "no checkpoint" in keep.stderr, keep.stderr
     for it in (5000, 5500):
