@@ -84,7 +84,7 @@ case "$what" in
       if [ -e "$ds/STOP" ]; then echo "registered.sh: $ds/STOP exists: the chain stops here"; exit 0; fi
     }
     # keep_restore R...: the runs' newest checkpoints into the restore folder (and, with
-    # COMMIT=1, into git, that folder alone); a run without a snapshot yet is passed over.
+    # COMMIT=1, into git, that folder alone); a run without a checkpoint yet is passed over.
     keep_restore() {
       local r
       for r in "$@"; do "$self" "$work" keep "$r" 2>/dev/null || true; done
