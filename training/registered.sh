@@ -64,12 +64,11 @@ need_bin() {
 run_of() {
   case "$1" in F6) echo ssr-s30-F6 ;; F7) echo ssr-s30-F7 ;; F8) echo ssr-s31-F8 ;; F9) echo ssr-s34-F9 ;; esac
 }
-# newest_restore RUN: the path of RUN's whole checkpoint of the highest iteration in the
-# restore folder (names RUN-itNNNNNNN.pt, zero-padded so that they sort), or nothing.
-newest_restore() {
-  local f
-  f=$(ls "$restore/$1-it"*.pt 2>/dev/null | sort | tail -n 1 || true)
-  echo "$f"
+# newest PREFIX SUFFIX: the last in sort order of the files PREFIX*SUFFIX, or nothing: the
+# highest iteration of checkpoints named with zero-padded iterations (snapshots/it_N.pt,
+# RUN-itN.pt in the restore folder).
+newest() {
+  ls "$1"*"$2" 2>/dev/null | sort | tail -n 1 || true
 }
 
 case "$what" in
@@ -196,7 +195,7 @@ print(len(SequenceDataset('$work/ds-s30', 'train', window=8, crop=64, min_refere
     r="${3:?usage: registered.sh WORK keep F6|F7|F8|F9}"
     run="$(run_of "$r")"
     [ -n "$run" ] || { echo "registered.sh: unknown run '$r' to keep (F6, F7, F8, F9)" >&2; exit 2; }
-    snap=$(ls "$work/runs/$run/snapshots/it_"*.pt 2>/dev/null | sort | tail -n 1 || true)
+    snap="$(newest "$work/runs/$run/snapshots/it_" .pt)"
     n=""
     if [ -n "$snap" ]; then n=$(basename "$snap" .pt); n=${n#it_}; fi
     # The run's own checkpoint (every 250 iterations, and where a stopped run stopped) when
@@ -259,7 +258,7 @@ print(len(SequenceDataset('$work/ds-s30', 'train', window=8, crop=64, min_refere
     # (campaign.sh passes --resume), else from its newest kept one.
     extra=""
     if [ "$at" -gt 0 ]; then extra="--init-at $at"; fi
-    kept="$(newest_restore "$run")"
+    kept="$(newest "$restore/$run-it" .pt)"
     if [ ! -f "$work/runs/$run/checkpoint.pt" ] && [ -n "$kept" ]; then
       extra="$extra --resume-from $kept"
     fi
