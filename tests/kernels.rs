@@ -5,7 +5,7 @@ mod common;
 
 use common::*;
 use subpixel::gpu::Grid;
-use subpixel::nn::conv::COOP_TOLERANCE;
+use subpixel::nn::conv::{COOP_TOLERANCE, winograd_weights};
 use subpixel::nn::ops::{self, Activation, Conv3x3, ConvKernel, PoolMode, TfaBlend, UpsampleMode};
 use subpixel::nn::{DType, HostTensor, Tensor, reference};
 
@@ -381,10 +381,64 @@ fn to_f16(t: &HostTensor) -> HostTensor {
     r
 }
 
+/// What the Winograd kernel computes for an f16 output: F(2x2, 3x3) over 2x2 output tiles
+/// (V = B^T d B of each 4x4 input patch, zero outside the image; Y = A^T (sum over input
+/// channels of U . V) A), with each transformed 3x3 kernel U (`winograd_weights`) rounded
+/// to f16 as the kernel stores it; then bias and activation. `x` holds the inputs'
+/// channels concatenated; `weight` is OIHW.
+fn winograd_f16_reference(
+    x: &HostTensor,
+    weight: &[f32],
+    bias: &[f32],
+    cout: u32,
+    act: Activation,
+) -> HostTensor {
+    const BT: [[f32; 4]; 4] = [
+        [1.0, 0.0, -1.0, 0.0],
+        [0.0, 1.0, 1.0, 0.0],
+        [0.0, -1.0, 1.0, 0.0],
+        [0.0, 1.0, 0.0, -1.0],
+    ];
+    const AT: [[f32; 4]; 2] = [[1.0, 1.0, 1.0, 0.0], [0.0, 1.0, -1.0, -1.0]];
+    let cin = x.channels;
+    let u: Vec<[f32; 16]> = (0..(cout * cin) as usize)
+        .map(|k| {
+            let g: [f32; 9] = weight[k * 9..k * 9 + 9].try_into().unwrap();
+            winograd_weights(&g).map(|v| half::f16::from_f32(v).to_f32())
+        })
+        .collect();
+    let at = |xx: i64, yy: i64, c: u32| -> f32 {
+        if xx < 0 || yy < 0 || xx >= x.width as i64 || yy >= x.height as i64 {
+            0.0
+        } else {
+            x.at(xx as u32, yy as u32, c)
+        }
+    };
+    HostTensor::from_fn(x.width, x.height, cout, |px, py, co| {
+        let (tx, ty) = (px as i64 / 2 * 2, py as i64 / 2 * 2);
+        let (r, c) = ((py % 2) as usize, (px % 2) as usize);
+        let mut sum = 0.0f32;
+        for ci in 0..cin {
+            let d = |k: usize, l: usize| at(tx - 1 + l as i64, ty - 1 + k as i64, ci);
+            let uk = &u[(co * cin + ci) as usize];
+            for i in 0..4 {
+                for j in 0..4 {
+                    let v: f32 = (0..4)
+                        .map(|k| (0..4).map(|l| BT[i][k] * d(k, l) * BT[j][l]).sum::<f32>())
+                        .sum();
+                    sum += AT[r][i] * uk[i * 4 + j] * v * AT[c][j];
+                }
+            }
+        }
+        act.apply(sum + bias[co as usize])
+    })
+}
+
 /// f16 storage (issue 14): every conv kernel the autotuner may pick (the layer is wide
 /// enough for every tiling), with inputs stored as f16 and f32 mixed and an f16 output
 /// (and an f32 one for two of them), against the CPU reference computed in f32
-/// on the f16-rounded inputs, its result rounded to f16 for an f16 output. Stated
+/// on the f16-rounded inputs (and, for the blocked and Winograd kernels writing f16, the
+/// f16-rounded weights they store), its result rounded to f16 for an f16 output. Stated
 /// tolerance: the f32 kernels' (sums in another order) plus 2^-10 relative for the
 /// output's rounding (at most one f16 ulp: both sides round a value that differs by the
 /// f32 tolerance). Pooling with f16 storage is exact (max) or within it (average).
@@ -416,6 +470,13 @@ fn conv3x3_and_pooling_with_f16_storage_match_reference() {
     let refs: Vec<&Tensor> = gins.iter().collect();
     let hin: Vec<&HostTensor> = stored.iter().collect();
     let want = reference::conv3x3(&hin, &weight, &bias, cout, act);
+    // The kernels with uniform weights store them as f16 for an f16 output (`WeightStorage`):
+    // the blocked kernel's reference is the convolution with the f16-rounded weights, the
+    // Winograd kernel's F(2x2, 3x3) replayed on the CPU with its f16-rounded transformed
+    // weights.
+    let weight16: Vec<f32> = weight.iter().map(|&v| half::f16::from_f32(v).to_f32()).collect();
+    let want_w16 = reference::conv3x3(&hin, &weight16, &bias, cout, act);
+    let want_wino16 = winograd_f16_reference(&HostTensor::concat(&hin), &weight, &bias, cout, act);
     let mut tried = 0;
     let kernels = conv.candidates(&g);
     let coop = if g.has_coop_matrix() {
@@ -455,9 +516,11 @@ fn conv3x3_and_pooling_with_f16_storage_match_reference() {
                 "{kernel}"
             );
             ops::run(&g, &[&d]).unwrap();
-            let (expect, tol) = match out_dtype {
-                DType::F16 => (to_f16(&want), kernel_tol(kernel, &want, F16_OUT)),
-                DType::F32 => (want.clone(), kernel_tol(kernel, &want, REDUCTION)),
+            let (expect, tol) = match (out_dtype, kernel) {
+                (DType::F16, ConvKernel::Blocked { .. }) => (to_f16(&want_w16), F16_OUT),
+                (DType::F16, ConvKernel::Winograd { .. }) => (to_f16(&want_wino16), F16_OUT),
+                (DType::F16, _) => (to_f16(&want), kernel_tol(kernel, &want, F16_OUT)),
+                (DType::F32, _) => (want.clone(), kernel_tol(kernel, &want, REDUCTION)),
             };
             assert_tensor(
                 &format!("conv3x3 {kernel} f16/f32 inputs -> {}", out_dtype.name()),

@@ -29,7 +29,9 @@
 //! The first two compute the same sums (in another order: taps by row, then inputs, then
 //! columns in the blocked kernel), so both agree with the CPU reference
 //! ([`super::reference::conv3x3`]) to the same float tolerance; the cooperative kernel
-//! rounds its operands to f16 and agrees within [`COOP_TOLERANCE`]. Which one is fastest
+//! rounds its operands to f16 and agrees within [`COOP_TOLERANCE`]. A blocked or Winograd
+//! kernel writing f16 activations (the f16 precision) reads its weights rounded to f16
+//! too ([`WeightStorage`]): the same sums of the rounded weights. Which one is fastest
 //! depends on the adapter, which is what [`super::autotune`] measures.
 
 use std::collections::HashMap;
@@ -188,6 +190,53 @@ pub struct TextureIo<'a> {
 const GENERIC_COUT_BLOCK: u32 = 16;
 /// Capacity of `nn/conv3x3_blocked`'s uniform weight array, in vec4s (`MAX_WEIGHTS`).
 pub const BLOCKED_MAX_WEIGHTS: u32 = 4096;
+/// How the blocked and Winograd kernels store a layer's weights in their uniform array.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
+pub enum WeightStorage {
+    /// f32, the trained values.
+    F32,
+    /// The trained values rounded to f16, two to a u32 (template flag `W16` of
+    /// nn/lib/uniform_weights): for a layer that writes f16 activations (the f16 precision),
+    /// whose results are rounded to f16 anyway. Half the weight loads, which on CPU
+    /// drivers cost as much per lane as activation loads.
+    F16,
+}
+
+impl WeightStorage {
+    /// The storage of the weights of a layer writing `output`.
+    pub fn for_output(output: super::DType) -> Self {
+        match output {
+            super::DType::F16 => WeightStorage::F16,
+            super::DType::F32 => WeightStorage::F32,
+        }
+    }
+
+    fn name(self) -> &'static str {
+        match self {
+            WeightStorage::F32 => "f32",
+            WeightStorage::F16 => "f16",
+        }
+    }
+}
+
+/// `values` rounded to f16 (nearest, ties to even), two to a u32, the first in the low
+/// half (WGSL's `unpack2x16float`); an odd count ends with a zero half. `Err(i)` names
+/// the first value that f16 cannot hold (beyond its range or not finite).
+pub fn f16_pairs(values: &[f32]) -> std::result::Result<Vec<u32>, usize> {
+    let half = |i: usize| -> std::result::Result<u32, usize> {
+        let v = values.get(i).copied().unwrap_or(0.0);
+        let h = half::f16::from_f32(v);
+        if h.is_finite() {
+            Ok(h.to_bits() as u32)
+        } else {
+            Err(i)
+        }
+    };
+    (0..values.len().div_ceil(2))
+        .map(|k| Ok(half(2 * k)? | (half(2 * k + 1)? << 16)))
+        .collect()
+}
+
 /// Most accumulators (`px * cob` vec4s) one blocked invocation may hold (`MAX_ACC`).
 pub const BLOCKED_MAX_ACC: u32 = 32;
 /// Most pixels per blocked invocation (`MAX_PX`).
@@ -515,9 +564,9 @@ pub struct Conv3x3 {
     /// How it reads each input ([`Fetch::Direct`] until set).
     fetch: Vec<Fetch>,
     /// Uniform weight buffers of the blocked and Winograd kernels, by weight positions per
-    /// channel pair (9, 16) and output block `cob` (the packing's output stride depends on
-    /// it).
-    blocked: Mutex<HashMap<(u32, u32), Vec<wgpu::Buffer>>>,
+    /// channel pair (9, 16), output block `cob` (the packing's output stride depends on
+    /// it) and storage (f16 pairs for a layer writing f16: [`WeightStorage`]).
+    blocked: Mutex<HashMap<(u32, u32, WeightStorage), Vec<wgpu::Buffer>>>,
     /// f16 weight buffers of the cooperative-matrix kernel, by output tiles `nt` and matrix
     /// size.
     coop: Mutex<HashMap<(u32, u32), wgpu::Buffer>>,
@@ -1050,7 +1099,8 @@ impl Conv3x3 {
                     tex,
                 } = kernel.uniform_layout().expect("a kernel with uniform weights");
                 let chunks = self.blocked_chunks(positions, cob);
-                let weights = self.blocked_buffers(gpu, positions, cob)?;
+                let storage = WeightStorage::for_output(out.dtype);
+                let weights = self.blocked_buffers(gpu, positions, cob, storage)?;
                 // With `tex`, each input read from a texture array: the network's (filled
                 // first by this bind where `io` says so), else one of its own, copied first.
                 let mut parts = Vec::with_capacity(chunks.len() + inputs.len());
@@ -1089,6 +1139,7 @@ impl Conv3x3 {
                         (tiling.0, tiling.1 as f64),
                         ("COB", cob as f64),
                         ("TEX_IN", tex as u32 as f64),
+                        ("W16", (storage == WeightStorage::F16) as u32 as f64),
                     ]);
                     if io.output.is_some() {
                         spec.0.push(("TEX_OUT", 1.0));
@@ -1177,10 +1228,17 @@ impl Conv3x3 {
 
     /// The uniform weights of the blocked (`positions` 9) or Winograd (16) kernel for
     /// output block `cob`, one buffer per output range of [`Conv3x3::blocked_chunks`] (a
-    /// full 64 KiB array each, zero beyond the packed weights), uploaded on first use.
-    fn blocked_buffers(&self, gpu: &Gpu, positions: u32, cob: u32) -> Result<Vec<wgpu::Buffer>> {
+    /// full 64 KiB array each, zero beyond the packed weights), stored as `storage`,
+    /// uploaded on first use.
+    fn blocked_buffers(
+        &self,
+        gpu: &Gpu,
+        positions: u32,
+        cob: u32,
+        storage: WeightStorage,
+    ) -> Result<Vec<wgpu::Buffer>> {
         let mut cache = self.blocked.lock().unwrap();
-        if let Some(b) = cache.get(&(positions, cob)) {
+        if let Some(b) = cache.get(&(positions, cob, storage)) {
             return Ok(b.clone());
         }
         let cin: u32 = self.input_channels.iter().sum();
@@ -1200,17 +1258,32 @@ impl Conv3x3 {
                 positions,
             )?;
             packed.resize(BLOCKED_MAX_WEIGHTS as usize * 4, 0.0);
+            let bytes: Vec<u32> = match storage {
+                WeightStorage::F32 => bytemuck::cast_slice(&packed).to_vec(),
+                WeightStorage::F16 => {
+                    let mut pairs = f16_pairs(&packed).map_err(|i| {
+                        Error::Invalid(format!(
+                            "conv3x3 '{}': packed weight {i} ({}) is beyond f16's range, which the \
+                             f16 precision stores it in",
+                            self.name, packed[i]
+                        ))
+                    })?;
+                    pairs.resize(packed.len(), 0);
+                    pairs
+                }
+            };
             use wgpu::util::DeviceExt;
             buffers.push(gpu.device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
                 label: Some(&format!(
-                    "subpixel.{}.weight.p{positions}.cob{cob}.from{base}",
-                    self.name
+                    "subpixel.{}.weight.p{positions}.cob{cob}.{}.from{base}",
+                    self.name,
+                    storage.name()
                 )),
-                contents: bytemuck::cast_slice(&packed),
+                contents: bytemuck::cast_slice(&bytes),
                 usage: wgpu::BufferUsages::UNIFORM,
             }));
         }
-        cache.insert((positions, cob), buffers.clone());
+        cache.insert((positions, cob, storage), buffers.clone());
         Ok(buffers)
     }
 }
@@ -1427,6 +1500,23 @@ mod tests {
                 }
             }
         }
+    }
+
+    #[test]
+    fn f16_pairs_round_to_nearest_low_half_first() {
+        // 1 + 2^-11 is halfway between 1 and the next f16 (1 + 2^-10): ties to even, 1.0.
+        let v = [1.0, -2.0, 1.0 + 2f32.powi(-11), 0.1, 65504.0];
+        let p = f16_pairs(&v).unwrap();
+        assert_eq!(p.len(), 3);
+        assert_eq!(p[0], 0x3c00 | (0xc000 << 16));
+        assert_eq!(p[1] & 0xffff, 0x3c00);
+        assert_eq!(
+            half::f16::from_bits((p[1] >> 16) as u16).to_f32(),
+            half::f16::from_f32(0.1).to_f32()
+        );
+        assert_eq!(p[2], 0x7bff, "the last value alone, a zero high half");
+        assert_eq!(f16_pairs(&[0.5, 1.0e5]), Err(1));
+        assert_eq!(f16_pairs(&[f32::NAN]), Err(0));
     }
 
     /// The strided packing puts each weight where the blocked kernel reads it and zeroes

@@ -68,10 +68,19 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>) {
             //#repeat tx 3
             let wr{tx} = (((ty * 3u + {tx}u) * cin4_total + ci_base + ci) * cout4_stride + local0) * 4u;
             //#repeat j COB
+            //#if W16
+            let w{tx}_{j}_h0 = weights[(wr{tx} + {j}u * 4u) / 2u];
+            let w{tx}_{j}_h1 = weights[(wr{tx} + {j}u * 4u) / 2u + 1u];
+            let w{tx}_{j}_0 = halves(w{tx}_{j}_h0.xy);
+            let w{tx}_{j}_1 = halves(w{tx}_{j}_h0.zw);
+            let w{tx}_{j}_2 = halves(w{tx}_{j}_h1.xy);
+            let w{tx}_{j}_3 = halves(w{tx}_{j}_h1.zw);
+            //#else
             let w{tx}_{j}_0 = weights[wr{tx} + {j}u * 4u];
             let w{tx}_{j}_1 = weights[wr{tx} + {j}u * 4u + 1u];
             let w{tx}_{j}_2 = weights[wr{tx} + {j}u * 4u + 2u];
             let w{tx}_{j}_3 = weights[wr{tx} + {j}u * 4u + 3u];
+            //#end
             //#repeat q PX
             a{q}_{j} += w{tx}_{j}_0 * v{q+tx}.x + w{tx}_{j}_1 * v{q+tx}.y + w{tx}_{j}_2 * v{q+tx}.z + w{tx}_{j}_3 * v{q+tx}.w;
             //#end

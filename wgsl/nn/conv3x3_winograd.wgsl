@@ -92,10 +92,19 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>) {
         //#repeat j 4
         let wr{i}_{j} = (((({i}u * 4u + {j}u) * cin4_total + ci_base + ci) * cout4_stride) + local0) * 4u;
         //#repeat b COB
+        //#if W16
+        let u{i}_{j}_{b}_h0 = weights[(wr{i}_{j} + {b}u * 4u) / 2u];
+        let u{i}_{j}_{b}_h1 = weights[(wr{i}_{j} + {b}u * 4u) / 2u + 1u];
+        let u{i}_{j}_{b}_0 = halves(u{i}_{j}_{b}_h0.xy);
+        let u{i}_{j}_{b}_1 = halves(u{i}_{j}_{b}_h0.zw);
+        let u{i}_{j}_{b}_2 = halves(u{i}_{j}_{b}_h1.xy);
+        let u{i}_{j}_{b}_3 = halves(u{i}_{j}_{b}_h1.zw);
+        //#else
         let u{i}_{j}_{b}_0 = weights[wr{i}_{j} + {b}u * 4u];
         let u{i}_{j}_{b}_1 = weights[wr{i}_{j} + {b}u * 4u + 1u];
         let u{i}_{j}_{b}_2 = weights[wr{i}_{j} + {b}u * 4u + 2u];
         let u{i}_{j}_{b}_3 = weights[wr{i}_{j} + {b}u * 4u + 3u];
+        //#end
         //#repeat t TX
         m{t}_{i}_{j}_{b} += u{i}_{j}_{b}_0 * v{t}_{i}_{j}.x + u{i}_{j}_{b}_1 * v{t}_{i}_{j}.y + u{i}_{j}_{b}_2 * v{t}_{i}_{j}.z + u{i}_{j}_{b}_3 * v{t}_{i}_{j}.w;
         //#end

@@ -19,7 +19,17 @@ const MAX_WEIGHTS: u32 = 4096u; // vec4s: 64 KiB, WebGPU's default uniform bindi
 @group(0) @binding({k+1}) var<storage, read> in{k}: array<In{k}>;
 //#end
 //#end
+//#param W16 0
+// The weights: the packed f32 layout (nn::conv), or with the template flag W16 the same
+// values rounded to f16, two per u32 (a convolution writing f16 activations: the f16
+// precision of issue 14), so each vec4 of u32 holds two f32-layout vec4s, [4m + c] of
+// the f32 layout at [2m + c / 2], components 2 (c % 2) and 2 (c % 2) + 1. Half the
+// loads: on CPU drivers each per-lane weight load costs what an activation load does.
+//#if W16
+@group(0) @binding({N_IN+1}) var<uniform> weights: array<vec4<u32>, MAX_WEIGHTS>;
+//#else
 @group(0) @binding({N_IN+1}) var<uniform> weights: array<vec4<f32>, MAX_WEIGHTS>;
+//#end
 @group(0) @binding({N_IN+2}) var<storage, read> bias: array<vec4<f32>>;
 @group(0) @binding({N_IN+3}) var<storage, read_write> out: array<Out>;
 //#if TEX_OUT
@@ -42,4 +52,9 @@ fn store(x: u32, y: u32, co4: u32, acc: vec4<f32>) {
     //#else
     out[(y * p.width + x) * COUT4 + co4] = to_out(activate(acc));
     //#end
+}
+
+// Four weights from two u32s of f16 pairs (W16): low half first, as packed by nn::conv.
+fn halves(h: vec2<u32>) -> vec4<f32> {
+    return vec4<f32>(unpack2x16float(h.x), unpack2x16float(h.y));
 }
