@@ -5,7 +5,7 @@ mod common;
 
 use common::*;
 use subpixel::gpu::Grid;
-use subpixel::nn::conv::{COOP_TOLERANCE, winograd_weights};
+use subpixel::nn::conv::{COOP_TOLERANCE, WINOGRAD_AT, WINOGRAD_BT, winograd_weights};
 use subpixel::nn::ops::{self, Activation, Conv3x3, ConvKernel, PoolMode, TfaBlend, UpsampleMode};
 use subpixel::nn::{DType, HostTensor, Tensor, reference};
 
@@ -393,13 +393,8 @@ fn winograd_f16_reference(
     cout: u32,
     act: Activation,
 ) -> HostTensor {
-    const BT: [[f32; 4]; 4] = [
-        [1.0, 0.0, -1.0, 0.0],
-        [0.0, 1.0, 1.0, 0.0],
-        [0.0, -1.0, 1.0, 0.0],
-        [0.0, 1.0, 0.0, -1.0],
-    ];
-    const AT: [[f32; 4]; 2] = [[1.0, 1.0, 1.0, 0.0], [0.0, 1.0, -1.0, -1.0]];
+    const BT: [[f32; 4]; 4] = WINOGRAD_BT;
+    const AT: [[f32; 4]; 2] = WINOGRAD_AT;
     let cin = x.channels;
     let u: Vec<[f32; 16]> = (0..(cout * cin) as usize)
         .map(|k| {

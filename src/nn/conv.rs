@@ -516,6 +516,17 @@ pub(crate) struct UniformLayout {
     pub tex: bool,
 }
 
+/// Winograd F(2x2, 3x3)'s input transform B^T: V = B^T d B of a 4x4 input patch d (the
+/// kernel's arithmetic, for CPU replays of it).
+pub const WINOGRAD_BT: [[f32; 4]; 4] = [
+    [1.0, 0.0, -1.0, 0.0],
+    [0.0, 1.0, 1.0, 0.0],
+    [0.0, -1.0, 1.0, 0.0],
+    [0.0, 1.0, 0.0, -1.0],
+];
+/// Its output transform A^T: the 2x2 outputs Y = A^T M A of M = U . V summed over inputs.
+pub const WINOGRAD_AT: [[f32; 4]; 2] = [[1.0, 1.0, 1.0, 0.0], [0.0, 1.0, -1.0, -1.0]];
+
 /// Winograd's F(2x2, 3x3) weight transform `U = G g G^T` of one 3x3 kernel `g` (row-major
 /// taps), as `nn/conv3x3_winograd` reads it (row-major 4x4), with
 /// `G = [1 0 0; 1/2 1/2 1/2; 1/2 -1/2 1/2; 0 0 1]`.
@@ -1467,13 +1478,8 @@ mod tests {
             seed = seed.wrapping_mul(1664525).wrapping_add(1013904223);
             (seed >> 8) as f32 / (1u32 << 24) as f32 * 2.0 - 1.0
         };
-        const BT: [[f32; 4]; 4] = [
-            [1.0, 0.0, -1.0, 0.0],
-            [0.0, 1.0, 1.0, 0.0],
-            [0.0, -1.0, 1.0, 0.0],
-            [0.0, 1.0, 0.0, -1.0],
-        ];
-        const AT: [[f32; 4]; 2] = [[1.0, 1.0, 1.0, 0.0], [0.0, 1.0, -1.0, -1.0]];
+        const BT: [[f32; 4]; 4] = WINOGRAD_BT;
+        const AT: [[f32; 4]; 2] = WINOGRAD_AT;
         for _ in 0..100 {
             let g: [f32; 9] = std::array::from_fn(|_| rnd());
             let d: [[f32; 4]; 4] = std::array::from_fn(|_| std::array::from_fn(|_| rnd()));
