@@ -219,24 +219,6 @@ impl WeightStorage {
     }
 }
 
-/// `values` rounded to f16 (nearest, ties to even), two to a u32, the first in the low
-/// half (WGSL's `unpack2x16float`); an odd count ends with a zero half. `Err(i)` names
-/// the first value that f16 cannot hold (beyond its range or not finite).
-pub fn f16_pairs(values: &[f32]) -> std::result::Result<Vec<u32>, usize> {
-    let half = |i: usize| -> std::result::Result<u32, usize> {
-        let v = values.get(i).copied().unwrap_or(0.0);
-        let h = half::f16::from_f32(v);
-        if h.is_finite() {
-            Ok(h.to_bits() as u32)
-        } else {
-            Err(i)
-        }
-    };
-    (0..values.len().div_ceil(2))
-        .map(|k| Ok(half(2 * k)? | (half(2 * k + 1)? << 16)))
-        .collect()
-}
-
 /// Most accumulators (`px * cob` vec4s) one blocked invocation may hold (`MAX_ACC`).
 pub const BLOCKED_MAX_ACC: u32 = 32;
 /// Most pixels per blocked invocation (`MAX_PX`).
@@ -1269,18 +1251,21 @@ impl Conv3x3 {
                 positions,
             )?;
             packed.resize(BLOCKED_MAX_WEIGHTS as usize * 4, 0.0);
-            let bytes: Vec<u32> = match storage {
+            let bytes: Vec<u8> = match storage {
                 WeightStorage::F32 => bytemuck::cast_slice(&packed).to_vec(),
                 WeightStorage::F16 => {
-                    let mut pairs = f16_pairs(&packed).map_err(|i| {
-                        Error::Invalid(format!(
+                    // As the tensors' f16 uploads: consecutive halves, the first in the low
+                    // half of each u32 (`unpack2x16float`); the same 64 KiB array.
+                    let mut half: Vec<half::f16> = packed.iter().map(|&v| half::f16::from_f32(v)).collect();
+                    if let Some(i) = half.iter().position(|h| !h.is_finite()) {
+                        return Err(Error::Invalid(format!(
                             "conv3x3 '{}': packed weight {i} ({}) is beyond f16's range, which the \
                              f16 precision stores it in",
                             self.name, packed[i]
-                        ))
-                    })?;
-                    pairs.resize(packed.len(), 0);
-                    pairs
+                        )));
+                    }
+                    half.resize(packed.len() * 2, half::f16::ZERO);
+                    bytemuck::cast_slice(&half).to_vec()
                 }
             };
             use wgpu::util::DeviceExt;
@@ -1506,23 +1491,6 @@ mod tests {
                 }
             }
         }
-    }
-
-    #[test]
-    fn f16_pairs_round_to_nearest_low_half_first() {
-        // 1 + 2^-11 is halfway between 1 and the next f16 (1 + 2^-10): ties to even, 1.0.
-        let v = [1.0, -2.0, 1.0 + 2f32.powi(-11), 0.1, 65504.0];
-        let p = f16_pairs(&v).unwrap();
-        assert_eq!(p.len(), 3);
-        assert_eq!(p[0], 0x3c00 | (0xc000 << 16));
-        assert_eq!(p[1] & 0xffff, 0x3c00);
-        assert_eq!(
-            half::f16::from_bits((p[1] >> 16) as u16).to_f32(),
-            half::f16::from_f32(0.1).to_f32()
-        );
-        assert_eq!(p[2], 0x7bff, "the last value alone, a zero high half");
-        assert_eq!(f16_pairs(&[0.5, 1.0e5]), Err(1));
-        assert_eq!(f16_pairs(&[f32::NAN]), Err(0));
     }
 
     /// The strided packing puts each weight where the blocked kernel reads it and zeroes
