@@ -5,7 +5,7 @@ mod common;
 
 use common::*;
 use subpixel::gpu::Grid;
-use subpixel::nn::conv::{COOP_TOLERANCE, WINOGRAD_AT, WINOGRAD_BT, WeightStorage, winograd_weights};
+use subpixel::nn::conv::{COOP_TOLERANCE, WINOGRAD_AT, WINOGRAD_BT, winograd_weights};
 use subpixel::nn::ops::{self, Activation, Conv3x3, ConvKernel, PoolMode, TfaBlend, UpsampleMode};
 use subpixel::nn::{DType, HostTensor, Tensor, reference};
 
@@ -437,56 +437,6 @@ fn winograd_f16_reference(
 /// tolerance: the f32 kernels' (sums in another order) plus 2^-10 relative for the
 /// output's rounding (at most one f16 ulp: both sides round a value that differs by the
 /// f32 tolerance). Pooling with f16 storage is exact (max) or within it (average).
-/// The f16w precision (f32 activations, weights rounded to f16): the kernels with uniform
-/// weights read the f16-rounded weights (the blocked kernel against the convolution with
-/// those weights, the Winograd kernel against its F(2x2, 3x3) replayed on the CPU with its
-/// f16-rounded transformed weights), with f32 sums, on any adapter (no SHADER_F16). One
-/// tiling per kind of weight and input load; the f16 storage test below runs every tiling
-/// with f16 weights.
-#[test]
-fn conv3x3_with_f16_weights_matches_the_rounded_weights_reference() {
-    let g = gpu();
-    let (split, cout, act, (w, h)) = ([13u32, 8], 12u32, Activation::LeakyRelu(0.1), (19u32, 11u32));
-    let inputs: Vec<HostTensor> = split
-        .iter()
-        .enumerate()
-        .map(|(k, &c)| random(910 + k as u64, w, h, c, -2.0, 2.0))
-        .collect();
-    let cin: u32 = split.iter().sum();
-    let weight = random_vec(87, (cout * cin * 9) as usize, -0.5, 0.5);
-    let bias = random_vec(88, cout as usize, -0.5, 0.5);
-    let mut conv = Conv3x3::new(&g, "f16w", &weight, &bias, &split, cout, act).unwrap();
-    conv.set_weight_storage(WeightStorage::F16);
-    let gins: Vec<Tensor> = inputs.iter().map(|t| up(&g, "in", t)).collect();
-    let refs: Vec<&Tensor> = gins.iter().collect();
-    let hin: Vec<&HostTensor> = inputs.iter().collect();
-    let exact = reference::conv3x3(&hin, &weight, &bias, cout, act);
-    let weight16: Vec<f32> = weight.iter().map(|&v| half::f16::from_f32(v).to_f32()).collect();
-    let blocked = reference::conv3x3(&hin, &weight16, &bias, cout, act);
-    let winograd = winograd_f16_reference(&HostTensor::concat(&hin), &weight, &bias, cout, act);
-    // The rounding is visible at this tolerance: the test tells the storages apart.
-    let far = blocked
-        .data
-        .iter()
-        .zip(&exact.data)
-        .filter(|(a, b)| (*a - *b).abs() > REDUCTION.abs + REDUCTION.rel * b.abs())
-        .count();
-    assert!(
-        far > 0,
-        "f16 rounding of the weights should show beyond {REDUCTION:?}"
-    );
-    for name in ["px4-cob2", "px16-cob2-tex", "wino-tx2-cob2", "wino-tx2-cob2-tex"] {
-        let kernel: ConvKernel = name.parse().unwrap();
-        let out = Tensor::new(&g, "out", w, h, cout).unwrap();
-        ops::run(&g, &[&conv.bind_with(&g, kernel, &refs, &out).unwrap()]).unwrap();
-        let want = match kernel {
-            ConvKernel::Winograd { .. } => &winograd,
-            _ => &blocked,
-        };
-        assert_tensor(&format!("conv3x3 {kernel} f16 weights"), &out, want, REDUCTION);
-    }
-}
-
 #[test]
 fn conv3x3_and_pooling_with_f16_storage_match_reference() {
     let Some(g) = f16_gpu() else { return };
@@ -506,7 +456,7 @@ fn conv3x3_and_pooling_with_f16_storage_match_reference() {
     let cin: u32 = split.iter().sum();
     let weight = random_vec(77, (cout * cin * 9) as usize, -0.5, 0.5);
     let bias = random_vec(78, cout as usize, -0.5, 0.5);
-    let mut conv = Conv3x3::new(&g, "f16", &weight, &bias, &split, cout, act).unwrap();
+    let conv = Conv3x3::new(&g, "f16", &weight, &bias, &split, cout, act).unwrap();
     let gins: Vec<Tensor> = inputs
         .iter()
         .zip(dtypes)
@@ -515,8 +465,8 @@ fn conv3x3_and_pooling_with_f16_storage_match_reference() {
     let refs: Vec<&Tensor> = gins.iter().collect();
     let hin: Vec<&HostTensor> = stored.iter().collect();
     let want = reference::conv3x3(&hin, &weight, &bias, cout, act);
-    // The kernels with uniform weights store them as f16 in the f16 precision
-    // (`WeightStorage`): the blocked kernel's reference is the convolution with the f16-rounded weights, the
+    // The kernels with uniform weights store them as f16 for an f16 output (`WeightStorage`):
+    // the blocked kernel's reference is the convolution with the f16-rounded weights, the
     // Winograd kernel's F(2x2, 3x3) replayed on the CPU with its f16-rounded transformed
     // weights.
     let weight16: Vec<f32> = weight.iter().map(|&v| half::f16::from_f32(v).to_f32()).collect();
@@ -537,16 +487,12 @@ fn conv3x3_and_pooling_with_f16_storage_match_reference() {
             + coop
     );
     for &kernel in &kernels {
-        // Every kernel as the f16 precision runs it (f16 output, f16 weights); two with an f32
-        // output and f32 weights as well.
-        let cases: &[(DType, WeightStorage)] =
-            if kernel == ConvKernel::Generic || kernel.to_string() == "px4-cob2" {
-                &[(DType::F16, WeightStorage::F16), (DType::F32, WeightStorage::F32)]
-            } else {
-                &[(DType::F16, WeightStorage::F16)]
-            };
-        for &(out_dtype, weights) in cases {
-            conv.set_weight_storage(weights);
+        let outputs: &[DType] = if kernel == ConvKernel::Generic || kernel.to_string() == "px4-cob2" {
+            &[DType::F16, DType::F32]
+        } else {
+            &[DType::F16]
+        };
+        for &out_dtype in outputs {
             let out = Tensor::new_typed(&g, "out", w, h, cout, out_dtype).unwrap();
             let d = conv.bind_with(&g, kernel, &refs, &out).unwrap();
             // Traffic accounting follows the storage: an f16 output is half the bytes (and

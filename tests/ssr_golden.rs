@@ -12,7 +12,6 @@ mod common;
 use std::path::PathBuf;
 
 use subpixel::nn::autotune::{EngineOptions, KernelChoice, Pooling, Precision};
-use subpixel::nn::conv::WeightStorage;
 use subpixel::nn::{DType, HostTensor};
 use subpixel::ssr::{Denoiser, HostFrame, INTERMEDIATES, Weights};
 
@@ -111,19 +110,12 @@ fn f16_activations_match_pytorch_within_f16_tolerance() {
     golden_parity("golden_", 2, Precision::F16);
 }
 
-/// The f16w precision (f32 activations, the uniform-weight kernels' weights rounded to f16)
-/// against the same golden frames, within the f16 tolerances; any adapter.
-#[test]
-fn f16_weights_match_pytorch_within_f16_tolerance() {
-    golden_parity("golden_", 2, Precision::F16Weights);
-}
-
-/// Engine options of a golden run: `precision`, and for f16 and f16w one fixed tiling
-/// (every tiling's f16 storage is checked against the CPU reference in the kernel tests;
-/// this spares a fresh machine the tuning of f16 layer shapes).
+/// Engine options of a golden run: `precision`, and for f16 one fixed tiling (every
+/// tiling's f16 storage is checked against the CPU reference in the kernel tests; this
+/// spares a fresh machine the tuning of f16 layer shapes).
 fn options(precision: Precision, pooling: Pooling) -> EngineOptions {
     let kernels = match precision {
-        Precision::F16 | Precision::F16Weights => KernelChoice::Fixed("px4-cob2".parse().unwrap()),
+        Precision::F16 => KernelChoice::Fixed("px4-cob2".parse().unwrap()),
         _ => KernelChoice::FromEnv,
     };
     EngineOptions {
@@ -146,13 +138,9 @@ fn golden_parity_with(prefix: &str, version: u32, precision: Precision, pooling:
     );
     assert_eq!(weights.config.version, version);
     let mut den = Denoiser::with_options(&gpu, &weights, 40, 24, options(precision, pooling)).unwrap();
-    assert_eq!(
-        den.network().activations() == DType::F16,
-        precision == Precision::F16
-    );
-    let f16_weights = matches!(precision, Precision::F16 | Precision::F16Weights);
-    assert_eq!(den.network().weight_storage() == WeightStorage::F16, f16_weights);
-    let (output_tol, intermediate_tol) = if f16_weights {
+    let f16 = precision == Precision::F16;
+    assert_eq!(den.network().activations() == DType::F16, f16);
+    let (output_tol, intermediate_tol) = if f16 {
         (F16_TOL, F16_TOL)
     } else {
         (OUTPUT_TOL, INTERMEDIATE_TOL)

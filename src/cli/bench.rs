@@ -96,9 +96,8 @@ pub(super) struct DenoiseBenchArgs {
     /// GPU of the roofline model: h100 or rtx4070.
     #[arg(long, default_value = "h100")]
     model: String,
-    /// The network's numerics: f32, f16w (f32 activations, weights rounded to f16), f16
-    /// (activations and weights f16; needs SHADER_F16) or auto (whichever the autotuner
-    /// measures fastest); default: SUBPIXEL_PRECISION, else f32.
+    /// Storage of the network's interior activations: f32, f16 (needs SHADER_F16) or auto
+    /// (f16 where the autotuner measures it faster); default: SUBPIXEL_PRECISION, else f32.
     /// The roofline model counts the bytes the engine then moves.
     #[arg(long)]
     precision: Option<crate::nn::autotune::Precision>,

@@ -26,7 +26,7 @@ use std::hash::{Hash, Hasher};
 use std::path::PathBuf;
 use std::sync::{Mutex, OnceLock};
 
-use super::conv::{COOP_TOLERANCE, Conv3x3, ConvKernel, WeightStorage};
+use super::conv::{COOP_TOLERANCE, Conv3x3, ConvKernel};
 use super::ops::Fetch;
 use super::tensor::tensor_bytes;
 use super::{DType, HostTensor, Tensor};
@@ -101,25 +101,19 @@ impl KernelChoice {
     }
 }
 
-/// The network's numerics: how its interior activations (the tensors only convolutions and
-/// pooling touch; inputs, history and outputs stay f32) and its convolutions' weights
-/// ([`WeightStorage`]) are stored. Sums are f32 in every precision.
+/// Storage of the network's interior activations (the tensors only convolutions and
+/// pooling touch; inputs, history and outputs stay f32).
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
 pub enum Precision {
-    /// `SUBPIXEL_PRECISION` (`f32`, `f16w`, `f16` or `auto`) if set, else [`Precision::F32`].
+    /// `SUBPIXEL_PRECISION` (`f32`, `f16` or `auto`) if set, else [`Precision::F32`].
     #[default]
     FromEnv,
     /// f32: the trained model to float tolerance.
     F32,
-    /// f32 activations, weights rounded to f16 in the kernels with uniform weights (any
-    /// adapter: f16 pairs are unpacked to f32, no `SHADER_F16` needed). Half their weight
-    /// loads, which is what CPU drivers spend most of a convolution on.
-    F16Weights,
-    /// f16 activations and weights (needs `SHADER_F16`; an error without it).
+    /// f16 storage with f32 arithmetic (needs `SHADER_F16`; an error without it).
     F16,
-    /// Whichever of the above the adapter runs fastest by the autotuner's times of the
-    /// network's layers in total (f16 only with `SHADER_F16`); with fixed kernels
-    /// ([`KernelChoice::Fixed`], nothing tuned), f32.
+    /// f16 when the adapter has `SHADER_F16` and the autotuner's times of the network's
+    /// layers are lower with it in total, else f32.
     Auto,
 }
 
@@ -128,11 +122,10 @@ impl std::str::FromStr for Precision {
     fn from_str(s: &str) -> Result<Self> {
         match s.trim() {
             "f32" => Ok(Precision::F32),
-            "f16w" => Ok(Precision::F16Weights),
             "f16" => Ok(Precision::F16),
             "auto" => Ok(Precision::Auto),
             other => Err(Error::Invalid(format!(
-                "precision '{other}': expected f32, f16w, f16 or auto"
+                "precision '{other}': expected f32, f16 or auto"
             ))),
         }
     }
@@ -339,16 +332,12 @@ fn kernels_hash() -> String {
 }
 
 /// The cache key of `conv` tuned at `w x h` with `storage` on `gpu`: adapter, driver, the
-/// kernels' sources (a change of either kernel invalidates old choices), the layer's shape,
-/// its tensors' storage and its weights' (all-f32 keys are those of earlier versions).
+/// kernels' sources (a change of either kernel invalidates old choices), the layer's shape
+/// and its tensors' storage (all-f32 keys are those of earlier versions).
 pub fn key(gpu: &Gpu, conv: &Conv3x3, w: u32, h: u32, storage: &LayerStorage) -> String {
     let storage = match storage.describe().as_str() {
         "f32" => String::new(),
         s => format!(" {s}"),
-    };
-    let weights = match conv.weight_storage() {
-        WeightStorage::F32 => String::new(),
-        w => format!(" weights {}", w.name()),
     };
     // Inputs resampled on load (all-direct keys are those of earlier versions).
     let fetch = if conv.fetch().iter().all(|&f| f == Fetch::Direct) {
@@ -361,7 +350,7 @@ pub fn key(gpu: &Gpu, conv: &Conv3x3, w: u32, h: u32, storage: &LayerStorage) ->
     // earlier versions).
     let coop = gpu.coop_tile.map(|t| format!(" coop{t}")).unwrap_or_default();
     format!(
-        "{} | {:?} | {} {} | {} | conv3x3 {:?}->{} {:?} at {w}x{h}{storage}{weights}{fetch}{coop}",
+        "{} | {:?} | {} {} | {} | conv3x3 {:?}->{} {:?} at {w}x{h}{storage}{fetch}{coop}",
         gpu.info.name,
         gpu.info.backend,
         gpu.info.driver,
@@ -832,8 +821,7 @@ mod tests {
         assert_eq!("f16".parse::<Precision>().unwrap(), Precision::F16);
         assert_eq!(" auto".parse::<Precision>().unwrap(), Precision::Auto);
         let e = "half".parse::<Precision>().unwrap_err().to_string();
-        assert!(e.contains("half") && e.contains("f32, f16w, f16 or auto"), "{e}");
-        assert_eq!("f16w".parse::<Precision>().unwrap(), Precision::F16Weights);
+        assert!(e.contains("half") && e.contains("f32, f16 or auto"), "{e}");
         assert_eq!(Precision::F16.resolve().unwrap(), Precision::F16);
     }
 

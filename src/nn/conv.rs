@@ -30,8 +30,8 @@
 //! columns in the blocked kernel), so both agree with the CPU reference
 //! ([`super::reference::conv3x3`]) to the same float tolerance; the cooperative kernel
 //! rounds its operands to f16 and agrees within [`COOP_TOLERANCE`]. A blocked or Winograd
-//! kernel may read its weights rounded to f16 ([`WeightStorage`], set by the precisions
-//! `f16w` and `f16`): the same sums of the rounded weights. Which one is fastest
+//! kernel writing f16 activations (the f16 precision) reads its weights rounded to f16
+//! too ([`WeightStorage`]): the same sums of the rounded weights. Which one is fastest
 //! depends on the adapter, which is what [`super::autotune`] measures.
 
 use std::collections::HashMap;
@@ -190,24 +190,28 @@ pub struct TextureIo<'a> {
 const GENERIC_COUT_BLOCK: u32 = 16;
 /// Capacity of `nn/conv3x3_blocked`'s uniform weight array, in vec4s (`MAX_WEIGHTS`).
 pub const BLOCKED_MAX_WEIGHTS: u32 = 4096;
-/// How the blocked and Winograd kernels store a layer's weights in their uniform array
-/// ([`Conv3x3::set_weight_storage`]; the network sets it from its precision,
-/// [`super::autotune::Precision`]).
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Default)]
+/// How the blocked and Winograd kernels store a layer's weights in their uniform array.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
 pub enum WeightStorage {
     /// f32, the trained values.
-    #[default]
     F32,
     /// The trained values rounded to f16, two to a u32 (template flag `W16` of
-    /// nn/lib/uniform_weights), read back to f32 for f32 sums: half the weight loads, which
-    /// on CPU drivers cost as much per lane as activation loads. The f16 precisions
-    /// (`f16w`, and `f16` whose activations are rounded to f16 anyway).
+    /// nn/lib/uniform_weights): for a layer that writes f16 activations (the f16 precision),
+    /// whose results are rounded to f16 anyway. Half the weight loads, which on CPU
+    /// drivers cost as much per lane as activation loads.
     F16,
 }
 
 impl WeightStorage {
-    /// `f32` or `f16` (buffer labels, cache keys).
-    pub fn name(self) -> &'static str {
+    /// The storage of the weights of a layer writing `output`.
+    pub fn for_output(output: super::DType) -> Self {
+        match output {
+            super::DType::F16 => WeightStorage::F16,
+            super::DType::F32 => WeightStorage::F32,
+        }
+    }
+
+    fn name(self) -> &'static str {
         match self {
             WeightStorage::F32 => "f32",
             WeightStorage::F16 => "f16",
@@ -552,11 +556,9 @@ pub struct Conv3x3 {
     kernel: ConvKernel,
     /// How it reads each input ([`Fetch::Direct`] until set).
     fetch: Vec<Fetch>,
-    /// How the kernels with uniform weights store them ([`WeightStorage::F32`] until set).
-    weight_storage: WeightStorage,
     /// Uniform weight buffers of the blocked and Winograd kernels, by weight positions per
     /// channel pair (9, 16), output block `cob` (the packing's output stride depends on
-    /// it) and storage ([`WeightStorage`]).
+    /// it) and storage (f16 pairs for a layer writing f16: [`WeightStorage`]).
     blocked: Mutex<HashMap<(u32, u32, WeightStorage), Vec<wgpu::Buffer>>>,
     /// f16 weight buffers of the cooperative-matrix kernel, by output tiles `nt` and matrix
     /// size.
@@ -595,7 +597,6 @@ impl Conv3x3 {
             bias: mk("bias", &b),
             kernel: ConvKernel::Generic,
             fetch: vec![Fetch::Direct; input_channels.len()],
-            weight_storage: WeightStorage::F32,
             blocked: Mutex::new(HashMap::new()),
             coop: Mutex::new(HashMap::new()),
         })
@@ -949,18 +950,6 @@ impl Conv3x3 {
         Ok(())
     }
 
-    /// How the kernels with uniform weights (blocked, Winograd) store the weights.
-    pub fn weight_storage(&self) -> WeightStorage {
-        self.weight_storage
-    }
-
-    /// Makes the kernels with uniform weights read them stored as `storage` (rounded to
-    /// f16 with [`WeightStorage::F16`]; the generic and cooperative-matrix kernels keep
-    /// theirs). Part of the layer's autotuning key, as its fetch modes are.
-    pub fn set_weight_storage(&mut self, storage: WeightStorage) {
-        self.weight_storage = storage;
-    }
-
     /// Makes [`Conv3x3::bind`] use `kernel`; an error names the layer and why when the
     /// kernel cannot run it.
     pub fn set_kernel(&mut self, gpu: &Gpu, kernel: ConvKernel) -> Result<()> {
@@ -1103,7 +1092,7 @@ impl Conv3x3 {
                     tex,
                 } = kernel.uniform_layout().expect("a kernel with uniform weights");
                 let chunks = self.blocked_chunks(positions, cob);
-                let storage = self.weight_storage;
+                let storage = WeightStorage::for_output(out.dtype);
                 let weights = self.blocked_buffers(gpu, positions, cob, storage)?;
                 // With `tex`, each input read from a texture array: the network's (filled
                 // first by this bind where `io` says so), else one of its own, copied first.
@@ -1271,7 +1260,7 @@ impl Conv3x3 {
                     if let Some(i) = half.iter().position(|h| !h.is_finite()) {
                         return Err(Error::Invalid(format!(
                             "conv3x3 '{}': packed weight {i} ({}) is beyond f16's range, which the \
-                             f16 weight storage (precisions f16w and f16) rounds it to",
+                             f16 precision stores it in",
                             self.name, packed[i]
                         )));
                     }

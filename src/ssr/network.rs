@@ -13,7 +13,7 @@ use super::weights::Weights;
 use crate::error::{Error, Result};
 use crate::gpu::{Dispatch, Gpu, Grid, Profiler, time_dispatch};
 use crate::nn::autotune::{self, EngineOptions, KernelChoice, LayerStorage, Pooling, Precision};
-use crate::nn::conv::{self, ConvKernel, InputTexture, TextureIo, WeightStorage};
+use crate::nn::conv::{self, ConvKernel, InputTexture, TextureIo};
 use crate::nn::ops::{self, Conv3x3, Fetch, TfaBlend};
 use crate::nn::{DType, HostTensor, Tensor};
 
@@ -66,8 +66,6 @@ pub struct Network {
     stored: Stored,
     /// Storage of the interior activations ([`TensorId::may_store_f16`]).
     activations: DType,
-    /// Storage of the convolutions' weights ([`Conv3x3::set_weight_storage`]).
-    weights: WeightStorage,
     /// The texture arrays of the tensors several convolutions read as textures, or one
     /// produces for them ([`shared_textures::plan`]).
     textures: BTreeMap<TensorId, conv::ActivationTexture>,
@@ -120,61 +118,44 @@ fn layer_storage(specs: &[StepSpec], name: &str, dtype: DType) -> LayerStorage {
     }
 }
 
-/// The interior activations' storage and the convolutions' weight storage under
-/// `precision`, set on every layer of `convs`. For [`Precision::Auto`], the pair whose
-/// tuned times of a frame's layer runs (each layer at its `size`) are lowest in total,
-/// among f32, f16 weights and (with SHADER_F16) f16; with fixed kernels, f32.
-fn numerics(
+/// The interior activations' storage under `precision`: for [`Precision::Auto`], f16 when
+/// the device has SHADER_F16 and the tuned times of a frame's layer runs (each layer at
+/// its `size`) are lower with it.
+fn activation_storage(
     gpu: &Gpu,
     specs: &[StepSpec],
     layers: &[LayerSpec],
-    convs: &mut BTreeMap<String, Conv3x3>,
-    options: EngineOptions,
+    convs: &BTreeMap<String, Conv3x3>,
+    precision: Precision,
     size: impl Fn(&LayerSpec) -> (u32, u32),
-) -> Result<(DType, WeightStorage)> {
-    const F32: (DType, WeightStorage) = (DType::F32, WeightStorage::F32);
-    const F16_WEIGHTS: (DType, WeightStorage) = (DType::F32, WeightStorage::F16);
-    const F16: (DType, WeightStorage) = (DType::F16, WeightStorage::F16);
-    let set = |convs: &mut BTreeMap<String, Conv3x3>, weights: WeightStorage| {
-        for conv in convs.values_mut() {
-            conv.set_weight_storage(weights);
-        }
-    };
-    let chosen = match options.precision.resolve()? {
+) -> Result<DType> {
+    Ok(match precision.resolve()? {
         Precision::F16 => {
             gpu.require(wgpu::Features::SHADER_F16, "f16 activations")?;
-            F16
+            DType::F16
         }
-        Precision::F16Weights => F16_WEIGHTS,
-        Precision::Auto if !matches!(options.kernels.resolve()?, KernelChoice::Fixed(_)) => {
-            let mut options = vec![F32, F16_WEIGHTS];
-            if gpu.has(wgpu::Features::SHADER_F16) {
-                options.push(F16);
-            }
-            let mut best = (f64::INFINITY, F32);
-            for numerics in options {
-                set(convs, numerics.1);
-                let mut total = 0.0;
+        Precision::Auto if gpu.has(wgpu::Features::SHADER_F16) => {
+            let mut total = [0.0f64; 2];
+            for (i, dtype) in [DType::F32, DType::F16].into_iter().enumerate() {
                 for l in layers {
                     let (lw, lh) = size(l);
-                    let storage = layer_storage(specs, &l.name, numerics.0);
-                    total += autotune::tuned_ms(gpu, &convs[&l.name], lw, lh, &storage)? * l.runs as f64;
-                }
-                log::info!(
-                    "precision: tuned layers {total:.2} ms with {} activations and {} weights",
-                    numerics.0.name(),
-                    numerics.1.name()
-                );
-                if total < best.0 {
-                    best = (total, numerics);
+                    let storage = layer_storage(specs, &l.name, dtype);
+                    total[i] += autotune::tuned_ms(gpu, &convs[&l.name], lw, lh, &storage)? * l.runs as f64;
                 }
             }
-            best.1
+            log::info!(
+                "activations: tuned layers {:.2} ms with f32, {:.2} ms with f16 storage",
+                total[0],
+                total[1]
+            );
+            if total[1] < total[0] {
+                DType::F16
+            } else {
+                DType::F32
+            }
         }
-        _ => F32,
-    };
-    set(convs, chosen.1);
-    Ok(chosen)
+        _ => DType::F32,
+    })
 }
 
 /// Where each tensor of the graph is stored and how it is read ([`TensorId::stored`]).
@@ -308,7 +289,7 @@ impl Network {
         // pooling are chosen from it, then the graph is built as chosen.
         let (specs, stored) = graph_with(&config, false, &mut convs)?;
         let size = |l: &LayerSpec| (width >> l.level, height >> l.level);
-        let (activations, weights) = numerics(gpu, &specs, &layers, &mut convs, options, size)?;
+        let activations = activation_storage(gpu, &specs, &layers, &convs, options.precision, size)?;
         let pool_pass = pool_pass(gpu, &specs, &layers, &mut convs, options, activations, size)?;
         let (specs, stored) = if pool_pass {
             graph_with(&config, true, &mut convs)?
@@ -412,7 +393,6 @@ impl Network {
             specs,
             stored,
             activations,
-            weights,
             textures: BTreeMap::new(),
             step_textures,
             dispatches: [Vec::new(), Vec::new()],
@@ -440,16 +420,9 @@ impl Network {
     }
 
     /// Storage of the interior activations (f32, or f16 under [`Precision::F16`] or a
-    /// [`Precision::Auto`] that measured it fastest).
+    /// [`Precision::Auto`] that measured it faster).
     pub fn activations(&self) -> DType {
         self.activations
-    }
-
-    /// Storage of the convolutions' weights in the kernels with uniform weights (f32, or
-    /// f16 under [`Precision::F16Weights`], [`Precision::F16`] or a [`Precision::Auto`]
-    /// that measured it fastest).
-    pub fn weight_storage(&self) -> WeightStorage {
-        self.weights
     }
 
     /// Each convolution layer and the kernel it runs on.
