@@ -1,7 +1,7 @@
 // One level of the mean correction's edge-aware filter (config `mean_correction = "atrous"`,
-// issue 11; reference src/nn/reference.rs `mean_atrous_factors`): each invocation takes one
-// pixel of the W x H frame and averages the (samples, reconstruction) sums of ssr/mean_history
-// (textures `src_s`, `src_r`) over the 5 x 5 taps `p.step` pixels apart, each weighted by the
+// issue 11; reference src/nn/reference.rs `mean_atrous_factors`): for each pixel of the
+// W x H frame (PX of them per invocation, below), it averages the (samples,
+// reconstruction) sums of ssr/mean_history (textures `src_s`, `src_r`) over the 5 x 5 taps `p.step` pixels apart, each weighted by the
 // B-spline (1, 4, 6, 4, 1) / 16 per axis and by how well the tap's surface agrees with the
 // pixel's:
 //   max(n . n_q, 0)^(2^SQUARINGS) x exp(-|z - z_q| / max(z, z_q, 1e-4) / DEPTH_SIGMA)
@@ -45,53 +45,80 @@ override HI: f32 = 1.5;
 // The B-spline's taps: 1/16, 1/4, 3/8, 1/4, 1/16.
 const TAPS = array<f32, 5>(0.0625, 0.25, 0.375, 0.25, 0.0625);
 
+// Pixels per invocation: PX pixels of one row, `p.step` apart, whose taps share PX + 4
+// columns, so each tap texel (guide and sums) is fetched once for all of them instead of
+// once per pixel (on CPU drivers the fetches are most of the pass). Invocation x covers
+// the pixels base + k step, k < PX, base = (x / step) PX step + x % step: neighbouring
+// invocations take neighbouring pixels (the host dispatches ceil(W / (PX step)) step
+// invocations per row). Each pixel's sums add the same terms in the same order as with one
+// pixel per invocation.
+//#param PX 4
+
 // Straight-line code (template repeats, not loops: lavapipe does not unroll) without
-// branches: a tap outside the frame reads the nearest pixel inside it with weight 0.
+// branches: a tap outside the frame reads the nearest pixel inside it with weight 0, and a
+// pixel beyond the frame's right edge is computed like one inside but not stored.
 @compute @workgroup_size(8, 8, 1)
 fn main(@builtin(global_invocation_id) gid: vec3<u32>) {
-    if (gid.x >= p.width || gid.y >= p.height) {
+    let step = p.step;
+    let base = (gid.x / step) * ({PX} * step) + gid.x % step;
+    let y = gid.y;
+    if (base >= p.width || y >= p.height) {
         return;
     }
-    let g = textureLoad(guide, gid.xy, 0);
-    let n = g.xyz;
-    let z = g.w;
-    let step = i32(p.step);
     let w_max = i32(p.width) - 1;
     let h_max = i32(p.height) - 1;
-    var acc_s = vec4<f32>(0.0);
-    var acc_r = vec4<f32>(0.0);
-    var sum = 0.0;
+//#repeat k PX
+    let x{k} = base + {k}u * step;
+    let g{k} = textureLoad(guide, vec2<u32>(min(x{k}, p.width - 1u), y), 0);
+    let n{k} = g{k}.xyz;
+    let z{k} = g{k}.w;
+    var acc_s{k} = vec4<f32>(0.0);
+    var acc_r{k} = vec4<f32>(0.0);
+    var sum{k} = 0.0;
+//#end
 //#repeat j 5
     {
-        let qy = i32(gid.y) + (i32({j}) - 2) * step;
+        let qy = i32(y) + (i32({j}) - 2) * i32(step);
         let row = clamp(qy, 0, h_max);
         let in_y = qy >= 0 && qy <= h_max;
+        // The row's PX + 4 tap columns, each fetched once.
+//#repeat m PX+4
+        let qx{m} = i32(base) + (i32({m}) - 2) * i32(step);
+        let q{m} = vec2<i32>(clamp(qx{m}, 0, w_max), row);
+        let inside{m} = in_y && qx{m} >= 0 && qx{m} <= w_max;
+        let gq{m} = textureLoad(guide, q{m}, 0);
+        let s{m} = textureLoad(src_s, q{m}, 0);
+        let r{m} = textureLoad(src_r, q{m}, 0);
+//#end
+        // Pixel k's tap i is column k + i.
+//#repeat k PX
 //#repeat i 5
         {
-            let qx = i32(gid.x) + (i32({i}) - 2) * step;
-            let q = vec2<i32>(clamp(qx, 0, w_max), row);
-            let gq = textureLoad(guide, q, 0);
-            let zq = gq.w;
-            var c = max(dot(n, gq.xyz), 0.0);
-            for (var k = 0u; k < SQUARINGS; k++) {
+            let zq = gq{k+i}.w;
+            var c = max(dot(n{k}, gq{k+i}.xyz), 0.0);
+            for (var e = 0u; e < SQUARINGS; e++) {
                 c *= c;
             }
-            let rel = abs(z - zq) / max(max(z, zq), 1.0e-4);
-            let inside = in_y && qx >= 0 && qx <= w_max;
-            let w = select(0.0, TAPS[{j}] * TAPS[{i}] * c * exp(-rel / DEPTH_SIGMA), inside);
-            acc_s += w * textureLoad(src_s, q, 0);
-            acc_r += w * textureLoad(src_r, q, 0);
-            sum += w;
+            let rel = abs(z{k} - zq) / max(max(z{k}, zq), 1.0e-4);
+            let w = select(0.0, TAPS[{j}] * TAPS[{i}] * c * exp(-rel / DEPTH_SIGMA), inside{k+i});
+            acc_s{k} += w * s{k+i};
+            acc_r{k} += w * r{k+i};
+            sum{k} += w;
         }
+//#end
 //#end
     }
 //#end
-    let norm = 1.0 / max(sum, 1.0e-12);
+//#repeat k PX
+    if (x{k} < p.width) {
+        let norm = 1.0 / max(sum{k}, 1.0e-12);
 //#if FINAL
-    let f = clamp((acc_s.xyz * norm + EPS) / (acc_r.xyz * norm + EPS), vec3<f32>(LO), vec3<f32>(HI));
-    factors[gid.y * p.width + gid.x] = vec4<f32>(f, 1.0);
+        let f = clamp((acc_s{k}.xyz * norm + EPS) / (acc_r{k}.xyz * norm + EPS), vec3<f32>(LO), vec3<f32>(HI));
+        factors[y * p.width + x{k}] = vec4<f32>(f, 1.0);
 //#else
-    textureStore(dst_s, gid.xy, acc_s * norm);
-    textureStore(dst_r, gid.xy, acc_r * norm);
+        textureStore(dst_s, vec2<u32>(x{k}, y), acc_s{k} * norm);
+        textureStore(dst_r, vec2<u32>(x{k}, y), acc_r{k} * norm);
+//#end
+    }
 //#end
 }
