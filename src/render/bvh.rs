@@ -9,6 +9,7 @@ use obvhs::cwbvh::CwBvh;
 use obvhs::ray::{Ray, RayHit};
 use obvhs::triangle::Triangle;
 
+use super::wide_bvh::{MAX_TRIANGLES, WideBvh};
 use crate::error::{Error, Result};
 
 /// Entries of the per-ray traversal stack in `wgsl/trace/lib/bvh.wgsl` (`STACK_SIZE`). A
@@ -29,6 +30,8 @@ pub struct SceneBvh {
     pub build_time: Duration,
     /// Zero-area or non-finite triangles left out of the tree.
     pub skipped_degenerate: usize,
+    /// The same tree laid out for CPU traversal (float child boxes in lanes).
+    pub wide: WideBvh,
 }
 
 impl std::fmt::Debug for SceneBvh {
@@ -116,6 +119,12 @@ impl SceneBvh {
                  holds (many coincident or overlapping triangles?)"
             )));
         }
+        let wide = WideBvh::new(&bvh).ok_or_else(|| {
+            err(format!(
+                "{} triangles, more than the CPU traversal's {MAX_TRIANGLES}",
+                bvh.primitive_indices.len()
+            ))
+        })?;
         let order: Vec<u32> = bvh.primitive_indices.iter().map(|&p| kept[p as usize]).collect();
         let triangles: Vec<Triangle> = bvh.primitive_indices.iter().map(|&p| input[p as usize]).collect();
         let n = input.len();
@@ -137,6 +146,7 @@ impl SceneBvh {
             depth,
             build_time,
             skipped_degenerate: tris.len() - n,
+            wide,
         })
     }
 

@@ -28,6 +28,7 @@ pub mod procedural;
 pub mod scene;
 pub mod settings;
 pub mod tracer;
+pub mod wide_bvh;
 
 pub use backend::{Backend, FrameRenderer, GpuFrameRenderer};
 pub use camera::{Camera, CameraPath, CameraPathSpec};

@@ -21,9 +21,10 @@ pub(crate) fn mis_power(a: f32, b: f32) -> f32 {
     if a2 + b2 <= 0.0 { 0.0 } else { a2 / (a2 + b2) }
 }
 
-/// The environment's header values, and its conditional CDFs copied out of the packed
-/// (radiance, cdf) texels into one compact array: the same values, searched the same way,
-/// with a quarter of the cache lines per binary search (large maps do not fit in cache).
+/// The environment's header values and, per row, a guide table into its conditional CDF.
+/// Large maps do not fit in cache: a sample's cost is its cache misses, so the guide narrows
+/// the search to a few neighbouring packed (radiance, cdf) texels, the last of which holds
+/// the radiance the sample returns.
 #[derive(Debug, Clone)]
 pub(crate) struct EnvInfo {
     pub w: u32,
@@ -31,17 +32,16 @@ pub(crate) struct EnvInfo {
     pub total: f32,
     pub present: bool,
     pub floor: f32,
-    /// Conditional CDF of texel (i, j) at `j * w + i`.
-    cond: Vec<f32>,
     /// Per row j, at `j * (GUIDE + 1) + k`: the first texel whose conditional CDF exceeds
     /// `k / GUIDE` (`w - 1` when none does). The texel sampled for `u` lies between the
     /// entries of `floor(u * GUIDE)` and the next, so the binary search runs over a few
-    /// cached entries instead of the whole row, and finds the same texel.
+    /// texels instead of the whole row, and finds the same texel.
     guide: Vec<u32>,
 }
 
-/// Buckets of the per-row guide tables.
-const GUIDE: usize = 32;
+/// Buckets of the per-row guide tables: about `w / GUIDE` texels (two or three cache lines
+/// for a 2048-wide map) per search where the row is even.
+const GUIDE: usize = 256;
 
 /// Threshold of guide bucket `k` (f32, as the searches compare).
 #[inline]
@@ -55,19 +55,12 @@ impl EnvInfo {
         let (w, h) = (e[0].to_bits(), e[1].to_bits());
         let present = e[3].to_bits() != 0;
         let base = ENV_HDR + h as usize;
-        let cond: Vec<f32> = if present {
-            sc.env[base..base + (w * h) as usize]
-                .iter()
-                .map(|t| t[3])
-                .collect()
-        } else {
-            Vec::new()
-        };
         let mut guide = Vec::new();
         if present {
             guide.reserve(h as usize * (GUIDE + 1));
-            for row in cond.chunks_exact(w as usize) {
-                guide.extend(guide_row(row));
+            for texels in sc.env[base..base + (w * h) as usize].chunks_exact(w as usize) {
+                let row: Vec<f32> = texels.iter().map(|t| t[3]).collect();
+                guide.extend(guide_row(&row));
             }
         }
         Self {
@@ -76,7 +69,6 @@ impl EnvInfo {
             total: e[2],
             present,
             floor: sc.env[1][0],
-            cond,
             guide,
         }
     }
@@ -164,8 +156,10 @@ fn guide_row(row: &[f32]) -> impl Iterator<Item = u32> + '_ {
     })
 }
 
-/// [`search`] over `row` (an inclusive CDF), restricted by its guide table `guide`.
-fn guided_search(row: &[f32], guide: &[u32], u: f32) -> u32 {
+/// [`search`] over a row whose inclusive CDF is `cdf(i)`, restricted by its guide table
+/// `guide`.
+#[inline]
+fn guided_search(guide: &[u32], u: f32, cdf: impl Fn(u32) -> f32) -> u32 {
     // The bucket k with threshold(k) <= u < threshold(k + 1).
     let mut k = ((u * GUIDE as f32) as usize).min(GUIDE - 1);
     while k > 0 && guide_threshold(k) > u {
@@ -175,7 +169,7 @@ fn guided_search(row: &[f32], guide: &[u32], u: f32) -> u32 {
         k += 1;
     }
     let (lo, hi) = (guide[k], guide[k + 1]);
-    lo + search(hi - lo + 1, u, |m| row[(lo + m) as usize])
+    lo + search(hi - lo + 1, u, |m| cdf(lo + m))
 }
 
 /// One light sample (WGSL `LightSample`).
@@ -198,12 +192,12 @@ fn env_sample(sc: &PackedScene, ei: &EnvInfo, u: [f32; 2]) -> Option<LightSample
     let c1 = marg(j);
     let fv = ((u[1] - c0) / (c1 - c0).max(1.0e-12)).clamp(0.0, 0.99999);
     let base = ENV_HDR + (h + j * w) as usize;
-    let row = &ei.cond[(j * w) as usize..((j + 1) * w) as usize];
-    let cond = |i: u32| row[i as usize];
+    let row = &sc.env[base..base + w as usize];
+    let cond = |i: u32| row[i as usize][3];
     let i = guided_search(
-        row,
         &ei.guide[j as usize * (GUIDE + 1)..(j as usize + 1) * (GUIDE + 1)],
         u[0],
+        cond,
     );
     let r0 = if i > 0 { cond(i - 1) } else { 0.0 };
     let r1 = cond(i);
@@ -219,7 +213,7 @@ fn env_sample(sc: &PackedScene, ei: &EnvInfo, u: [f32; 2]) -> Option<LightSample
     (pdf > 0.0).then(|| LightSample {
         wi: d,
         dist: BIG,
-        le: v3(sc.env[base + i as usize]),
+        le: v3(row[i as usize]),
         pdf,
     })
 }
@@ -446,7 +440,11 @@ mod tests {
                 for u in us {
                     let u = u.min(0.999_999_94);
                     let want = search(w as u32, u, |i| row[i as usize]);
-                    assert_eq!(guided_search(&row, &guide, u), want, "w {w} kind {kind} u {u}");
+                    assert_eq!(
+                        guided_search(&guide, u, |i| row[i as usize]),
+                        want,
+                        "w {w} kind {kind} u {u}"
+                    );
                 }
             }
         }

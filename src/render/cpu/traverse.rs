@@ -1,15 +1,18 @@
-//! Twin of `wgsl/trace/lib/bvh.wgsl` over obvhs's own CPU CWBVH traversal: closest and any
+//! Twin of `wgsl/trace/lib/bvh.wgsl` over the same CWBVH laid out for the CPU
+//! ([`crate::render::wide_bvh`]): closest and any
 //! hit, the triangle a ray leaves from skipped, alpha-masked triangles tested against their
 //! material's cutoff, and the same Moeller-Trumbore test as the GPU.
 
 use glam::Vec3A as Vec3;
-use obvhs::ray::{Ray, RayHit};
 
 use super::common::{BIG, Hit, NO_HIT};
 use super::material::alpha_passes;
 use crate::render::packed::{PackedScene, TRI_FLAG_ALPHA, TRI_FLAG_PASS};
+use crate::render::wide_bvh::WideRay;
 
 /// `(t, u, v)` of the hit of triangle `prim` within `[tmin, tmax]`, as `intersect_tri`.
+/// Most misses are told by the signs of `u` and `v` before the division: a product's sign
+/// is the exclusive or of its factors', so the result is the GPU's to the bit.
 #[inline(always)]
 pub(crate) fn intersect_tri(
     sc: &PackedScene,
@@ -19,11 +22,32 @@ pub(crate) fn intersect_tri(
     tmin: f32,
     tmax: f32,
 ) -> Option<(f32, f32, f32)> {
-    let (t, u, v) = plane_hit(sc, prim, o, d)?;
-    let w = 1.0 - u - v;
-    if (u.to_bits() | v.to_bits() | w.to_bits()) & 0x8000_0000 != 0 {
+    const SIGN: u32 = 0x8000_0000;
+    let t4 = &sc.tris[4 * prim as usize..4 * prim as usize + 3];
+    let (v0, e1, e2) = (
+        Vec3::from_slice(&t4[0][..3]),
+        Vec3::from_slice(&t4[1][..3]),
+        Vec3::from_slice(&t4[2][..3]),
+    );
+    let n = Vec3::new(t4[0][3], t4[1][3], t4[2][3]);
+    let c = v0 - o;
+    let r = d.cross(c);
+    let det = n.dot(d);
+    if det == 0.0 {
         return None;
     }
+    let (un, vn) = (r.dot(e2), r.dot(e1));
+    let ds = det.to_bits() & SIGN;
+    if ((un.to_bits() ^ ds) | (vn.to_bits() ^ ds)) & SIGN != 0 {
+        return None;
+    }
+    let inv_det = 1.0 / det;
+    let (u, v) = (un * inv_det, vn * inv_det);
+    let w = 1.0 - u - v;
+    if (u.to_bits() | v.to_bits() | w.to_bits()) & SIGN != 0 {
+        return None;
+    }
+    let t = n.dot(c) * inv_det;
     (t >= tmin && t <= tmax).then_some((t, u, v))
 }
 
@@ -50,8 +74,10 @@ pub(crate) fn plane_hit(sc: &PackedScene, prim: u32, o: Vec3, d: Vec3) -> Option
 }
 
 /// Closest hit (or, with `any_hit`, any hit of a triangle that does not pass light straight
-/// through: what blocks a shadow ray) along `o + t d` for `t` in `[0, tmax]`, ignoring
-/// triangle `skip`. Counts one ray in `rays`.
+/// through: what blocks a shadow ray) along `o + t d` for `t` in `[0, tmax)`, ignoring
+/// triangle `skip`, over the scene's [`WideBvh`](crate::render::wide_bvh::WideBvh). Of hits at
+/// the same distance the lower triangle index wins, so the answer does not depend on the
+/// traversal order. Counts one ray in `rays`.
 pub(crate) fn traverse(
     sc: &PackedScene,
     o: Vec3,
@@ -68,41 +94,59 @@ pub(crate) fn traverse(
         u: 0.0,
         v: 0.0,
     };
-    let bvh = &sc.bvh.bvh;
-    if bvh.nodes.is_empty() {
-        return best;
-    }
-    let ray = crate::render::bvh::ray(o, d, best.t);
-    // The candidate test: the GPU's triangle test, then the skip and alpha rules. Passed by
-    // value so that obvhs's traversal inlines it.
-    let test = |r: &Ray, id: usize, best: &mut Hit| -> f32 {
-        let prim = id as u32;
-        if prim == skip {
-            return f32::INFINITY;
-        }
-        let Some((t, u, v)) = intersect_tri(sc, prim, o, d, 0.0, r.tmax) else {
-            return f32::INFINITY;
-        };
-        if t >= r.tmax {
-            return f32::INFINITY;
-        }
-        let info = sc.tris[4 * id + 3][3].to_bits();
-        if any_hit && info & TRI_FLAG_PASS != 0 {
-            return f32::INFINITY;
-        }
-        if info & TRI_FLAG_ALPHA != 0 && !alpha_passes(sc, prim, u, v) {
-            return f32::INFINITY;
-        }
-        *best = Hit { t, prim, u, v };
-        t
+    let ray = WideRay::new(o, d);
+    let wide = &sc.bvh.wide;
+    let limit = best.t;
+    let test = Candidate {
+        sc,
+        o,
+        d,
+        any_hit,
+        skip,
     };
     if any_hit {
-        bvh.ray_traverse_miss(ray, |r, id| test(r, id, &mut best));
+        wide.any(&ray, limit, |prim| test.accept(prim, &mut best));
     } else {
-        let mut hit = RayHit::none();
-        bvh.ray_traverse(ray, &mut hit, |r, id| test(r, id, &mut best));
+        wide.closest(&ray, limit, |prim| test.accept(prim, &mut best).then_some(best.t));
     }
     best
+}
+
+/// The candidate test of [`traverse`]: the GPU's triangle test, then the skip and alpha
+/// rules.
+struct Candidate<'a> {
+    sc: &'a PackedScene,
+    o: Vec3,
+    d: Vec3,
+    any_hit: bool,
+    skip: u32,
+}
+
+impl Candidate<'_> {
+    /// Whether triangle `prim` is hit nearer than `best` (or as near, with a lower index),
+    /// and then `best` becomes its hit.
+    #[inline(always)]
+    fn accept(&self, prim: u32, best: &mut Hit) -> bool {
+        let sc = self.sc;
+        if prim == self.skip {
+            return false;
+        }
+        let Some((t, u, v)) = intersect_tri(sc, prim, self.o, self.d, 0.0, best.t) else {
+            return false;
+        };
+        if !(t < best.t || (t == best.t && best.prim != NO_HIT && prim < best.prim)) {
+            return false;
+        }
+        let info = sc.tris[4 * prim as usize + 3][3].to_bits();
+        if self.any_hit && info & TRI_FLAG_PASS != 0 {
+            return false;
+        }
+        if info & TRI_FLAG_ALPHA != 0 && !alpha_passes(sc, prim, u, v) {
+            return false;
+        }
+        *best = Hit { t, prim, u, v };
+        true
+    }
 }
 
 /// Whether anything opaque (anything but surfaces that pass light straight through) blocks
@@ -110,4 +154,118 @@ pub(crate) fn traverse(
 #[inline]
 pub(crate) fn occluded(sc: &PackedScene, o: Vec3, d: Vec3, dist: f32, skip: u32, rays: &mut u64) -> bool {
     traverse(sc, o, d, dist, true, skip, rays).prim != NO_HIT
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::render::cpu::common::Rng;
+    use crate::render::load::load_scene;
+
+    /// The independent expectation: every triangle tested, the nearest accepted hit below
+    /// `tmax` kept (the lower index at equal distance); for `any_hit`, whether any is
+    /// accepted.
+    fn brute_force(sc: &PackedScene, o: Vec3, d: Vec3, tmax: f32, any_hit: bool, skip: u32) -> Hit {
+        let mut best = Hit {
+            t: tmax.min(BIG),
+            prim: NO_HIT,
+            u: 0.0,
+            v: 0.0,
+        };
+        for prim in 0..sc.bvh.triangles.len() as u32 {
+            if prim == skip {
+                continue;
+            }
+            let Some((t, u, v)) = intersect_tri(sc, prim, o, d, 0.0, tmax.min(BIG)) else {
+                continue;
+            };
+            let info = sc.tris[4 * prim as usize + 3][3].to_bits();
+            if t >= tmax.min(BIG)
+                || (any_hit && info & TRI_FLAG_PASS != 0)
+                || (info & TRI_FLAG_ALPHA != 0 && !alpha_passes(sc, prim, u, v))
+            {
+                continue;
+            }
+            if best.prim == NO_HIT || t < best.t || (t == best.t && prim < best.prim) {
+                best = Hit { t, prim, u, v };
+            }
+        }
+        best
+    }
+
+    fn uniform_dir(rng: &mut Rng) -> Vec3 {
+        let z = 1.0 - 2.0 * rng.next();
+        let r = (1.0 - z * z).max(0.0).sqrt();
+        let phi = std::f32::consts::TAU * rng.next();
+        Vec3::new(r * phi.cos(), r * phi.sin(), z)
+    }
+
+    /// Rays from random points of the scene's bounds, from points on triangles (leaving
+    /// them, as paths do) and along the axes (zero direction components): the traversal's
+    /// closest and any hits equal the brute-force ones, to the bit.
+    #[test]
+    fn wide_traversal_matches_brute_force() {
+        for name in [
+            "builtin:cornell",
+            "builtin:room",
+            "builtin:procedural:3",
+            "builtin:procedural:11",
+        ] {
+            let scene = load_scene(name).unwrap();
+            let sc = PackedScene::new(&scene, u64::MAX).unwrap();
+            let (mut lo, mut hi) = (Vec3::splat(f32::MAX), Vec3::splat(f32::MIN));
+            for t in &sc.bvh.triangles {
+                for v in [t.v0, t.v1, t.v2] {
+                    lo = lo.min(v);
+                    hi = hi.max(v);
+                }
+            }
+            let n = sc.bvh.triangles.len() as u32;
+            let mut rng = Rng(0x5eed ^ n);
+            let (mut hits, mut ties) = (0, 0);
+            for k in 0..3000 {
+                let (o, skip) = if k % 3 == 0 {
+                    let prim = (rng.next() * n as f32) as u32 % n;
+                    let t = &sc.bvh.triangles[prim as usize];
+                    let (a, b) = (rng.next(), rng.next());
+                    let (a, b) = if a + b > 1.0 { (1.0 - a, 1.0 - b) } else { (a, b) };
+                    (t.v0 + a * (t.v1 - t.v0) + b * (t.v2 - t.v0), prim)
+                } else {
+                    (lo + (hi - lo) * rng.next3(), NO_HIT)
+                };
+                let d = if k % 10 == 1 {
+                    [Vec3::X, Vec3::NEG_X, Vec3::Y, Vec3::NEG_Y, Vec3::Z, Vec3::NEG_Z][k / 10 % 6]
+                } else {
+                    uniform_dir(&mut rng)
+                };
+                let tmax = if k % 4 == 0 {
+                    (hi - lo).length() * rng.next()
+                } else {
+                    BIG
+                };
+                for any_hit in [false, true] {
+                    let mut rays = 0;
+                    let got = traverse(&sc, o, d, tmax, any_hit, skip, &mut rays);
+                    let want = brute_force(&sc, o, d, tmax, any_hit, skip);
+                    assert_eq!(rays, 1);
+                    if any_hit {
+                        assert_eq!(got.prim != NO_HIT, want.prim != NO_HIT, "{name} ray {k}: any hit");
+                    } else {
+                        assert_eq!(
+                            (got.prim, got.t.to_bits(), got.u.to_bits(), got.v.to_bits()),
+                            (want.prim, want.t.to_bits(), want.u.to_bits(), want.v.to_bits()),
+                            "{name} ray {k} from {o} along {d}"
+                        );
+                        hits += (want.prim != NO_HIT) as u32;
+                    }
+                }
+                ties += (skip != NO_HIT) as u32;
+            }
+            // Most rays hit something: the comparison is not vacuous.
+            assert!(
+                hits > 1500,
+                "{name}: {hits} hits of 3000 rays ({ties} from surfaces)"
+            );
+        }
+    }
 }
