@@ -7,8 +7,8 @@ use glam::{Vec2, Vec3A as Vec3};
 use super::bsdf::{Lobes, bsdf_eval_with, bsdf_sample_with, pass_through};
 use super::common::{BIG, Hit, NO_HIT, Rng, finite3, max3, offset_ray, rng_seed};
 use super::lights::{
-    EnvInfo, env_light_pdf, env_radiance, env_select_prob, has_lights, has_pass, mis_power, sample_light,
-    tri_light_pdf,
+    EnvInfo, env_light_pdf, env_radiance, env_select_prob, has_lights, has_pass, mis_power, prefetch_light,
+    sample_light, tri_light_pdf,
 };
 use super::material::surface_at;
 use super::traverse::{occluded, traverse};
@@ -87,6 +87,18 @@ pub(crate) fn trace_path(
     let mut passes = 0;
     let mut depth = 1;
     while depth <= max_depth {
+        if lights_on && depth < max_depth {
+            // The light sample after this segment draws the next three numbers, and the one
+            // after the next segment three more after the BSDF's three and Russian
+            // roulette's one (unless a surface that passes light draws one first).
+            let mut ahead = *rng;
+            let u = ahead.next3();
+            ahead.next3();
+            if depth >= 3 {
+                ahead.next();
+            }
+            prefetch_light(sc, ei, u, ahead.next3());
+        }
         let hit = traverse(sc, ro, rd, BIG, false, skip, rays);
         if hit.prim == NO_HIT {
             if ei.present {

@@ -184,6 +184,46 @@ pub(crate) struct LightSample {
     pub pdf: f32,
 }
 
+/// Starts loading into the cache what [`sample_light`] will read when it samples the map:
+/// for random numbers `u`, the texels its search ends among (their guide entries already
+/// cached), and for `u_next`, the numbers of the sample after, the guide entries. A path
+/// calls it before tracing each segment, so that the misses of a large map overlap the
+/// traversal instead of following it. Only a hint: it changes no result.
+#[inline]
+pub(crate) fn prefetch_light(sc: &PackedScene, ei: &EnvInfo, u: Vec3, u_next: Vec3) {
+    let pe = env_select_prob(sc);
+    if !ei.present || portal_count(sc) != 0 {
+        return;
+    }
+    let (w, h) = (ei.w, ei.h);
+    let row_guide = |u: Vec3| {
+        let j = search(h, u.y, |j| sc.env[ENV_HDR + j as usize][0]);
+        let k = ((u.x * GUIDE as f32) as usize).min(GUIDE - 1);
+        (j, j as usize * (GUIDE + 1) + k)
+    };
+    if u.z < pe {
+        let (j, g) = row_guide(u);
+        let base = ENV_HDR + (h + j * w) as usize;
+        prefetch(&sc.env[base + ei.guide[g] as usize]);
+        prefetch(&sc.env[base + ei.guide[g + 1] as usize]);
+    }
+    if u_next.z < pe {
+        prefetch(&ei.guide[row_guide(u_next).1]);
+    }
+}
+
+/// A hint to load the cache line of `v`.
+#[inline(always)]
+fn prefetch<T>(v: &T) {
+    #[cfg(target_arch = "x86_64")]
+    // SAFETY: a prefetch reads nothing into the program and cannot fault.
+    unsafe {
+        std::arch::x86_64::_mm_prefetch::<{ std::arch::x86_64::_MM_HINT_T0 }>((v as *const T).cast());
+    }
+    #[cfg(not(target_arch = "x86_64"))]
+    let _ = v;
+}
+
 fn env_sample(sc: &PackedScene, ei: &EnvInfo, u: [f32; 2]) -> Option<LightSample> {
     let (w, h) = (ei.w, ei.h);
     let marg = |j: u32| sc.env[ENV_HDR + j as usize][0];
