@@ -30,6 +30,13 @@ const STACK: usize = 7 * crate::render::bvh::STACK_SIZE as usize + 8;
 const NEAR_SLACK: f32 = 1.0 - 1.0 / (1 << 16) as f32;
 const FAR_SLACK: f32 = 1.0 + 1.0 / (1 << 16) as f32;
 
+/// The triangle test of a traversal.
+pub trait TriangleTest {
+    /// Tests triangle `tri` (BVH order) against the hit so far at distance `best`, which it
+    /// lowers when it accepts a nearer hit; returns whether the traversal stops.
+    fn test(&mut self, tri: u32, best: &mut f32) -> bool;
+}
+
 /// One node: its eight children's boxes (`lo`, `hi` per axis, one lane per child; an empty
 /// child's box is inverted so that no ray meets it) and references (an inner child's node
 /// index, or [`LEAF`] with a triangle range).
@@ -162,68 +169,48 @@ impl WideBvh {
         mask
     }
 
-    /// Front-to-back closest-hit traversal of `r` within `[0, tmax]`: `leaf(triangle)` tests
-    /// one triangle (BVH order) and returns the new closest distance when it accepts it.
-    /// Boxes farther than the closest distance so far are skipped; boxes at exactly that
-    /// distance are not (the caller breaks ties by triangle index).
+    /// Front-to-back closest-hit traversal of `r` within `[0, tmax]`: `test` sees each
+    /// triangle whose box the ray enters nearer than the closest hit so far (or as near).
+    /// Boxes farther than the closest distance are skipped; boxes at exactly that distance
+    /// are not (the test breaks ties by triangle index).
     #[inline(always)]
-    pub fn closest(&self, r: &WideRay, tmax: f32, mut leaf: impl FnMut(u32) -> Option<f32>) {
+    pub fn closest(&self, r: &WideRay, tmax: f32, test: &mut impl TriangleTest) {
         let mut best = tmax;
-        self.dispatch::<false>(r, &mut best, |tri, best| {
-            if let Some(t) = leaf(tri) {
-                *best = t;
-            }
-            false
-        });
+        self.dispatch::<false>(r, &mut best, test);
     }
 
-    /// Any-hit traversal of `r` within `[0, tmax]`, in no particular order: stops at the
-    /// first triangle that `leaf(triangle)` accepts; whether one did.
+    /// Any-hit traversal of `r` within `[0, tmax]`, in no particular order, until `test`
+    /// asks to stop; whether it did.
     #[inline(always)]
-    pub fn any(&self, r: &WideRay, tmax: f32, mut leaf: impl FnMut(u32) -> bool) -> bool {
+    pub fn any(&self, r: &WideRay, tmax: f32, test: &mut impl TriangleTest) -> bool {
         let mut best = tmax;
-        self.dispatch::<true>(r, &mut best, |tri, _| leaf(tri))
+        self.dispatch::<true>(r, &mut best, test)
     }
 
-    /// [`Self::walk`] compiled for AVX2 (eight lanes in one register, the caller's leaf test
+    /// [`Self::walk`] compiled for AVX2 (eight lanes in one register, the caller's test
     /// inlined into it) where the CPU has it. Only the instruction encoding differs: the
     /// arithmetic is the same IEEE operations, so the results are the same to the bit.
     #[inline(always)]
-    fn dispatch<const ANY: bool>(
-        &self,
-        r: &WideRay,
-        best: &mut f32,
-        leaf: impl FnMut(u32, &mut f32) -> bool,
-    ) -> bool {
+    fn dispatch<const ANY: bool>(&self, r: &WideRay, best: &mut f32, test: &mut impl TriangleTest) -> bool {
         #[cfg(target_arch = "x86_64")]
         if std::arch::is_x86_feature_detected!("avx2") {
             // SAFETY: the CPU has AVX2.
-            return unsafe { self.walk_avx2::<ANY>(r, best, leaf) };
+            return unsafe { self.walk_avx2::<ANY>(r, best, test) };
         }
-        self.walk::<ANY>(r, best, leaf)
+        self.walk::<ANY>(r, best, test)
     }
 
     #[cfg(target_arch = "x86_64")]
     #[target_feature(enable = "avx2")]
-    fn walk_avx2<const ANY: bool>(
-        &self,
-        r: &WideRay,
-        best: &mut f32,
-        leaf: impl FnMut(u32, &mut f32) -> bool,
-    ) -> bool {
-        self.walk::<ANY>(r, best, leaf)
+    fn walk_avx2<const ANY: bool>(&self, r: &WideRay, best: &mut f32, test: &mut impl TriangleTest) -> bool {
+        self.walk::<ANY>(r, best, test)
     }
 
-    /// The traversal: `leaf(triangle, best)` may lower `best` and returns whether to stop.
-    /// With `ANY`, children are visited in slot order; otherwise nearest first, and
-    /// postponed ones whose entry is beyond `best` are dropped.
+    /// The traversal: `test` may lower `best` and stops it. With `ANY`, children are
+    /// visited in slot order; otherwise nearest first, and postponed ones whose entry is
+    /// beyond `best` are dropped.
     #[inline(always)]
-    fn walk<const ANY: bool>(
-        &self,
-        r: &WideRay,
-        best: &mut f32,
-        mut leaf: impl FnMut(u32, &mut f32) -> bool,
-    ) -> bool {
+    fn walk<const ANY: bool>(&self, r: &WideRay, best: &mut f32, test: &mut impl TriangleTest) -> bool {
         if self.nodes.is_empty() {
             return false;
         }
@@ -280,7 +267,7 @@ impl WideBvh {
                 let first = cur & FIRST_MASK;
                 let count = (cur & !LEAF) >> COUNT_SHIFT;
                 for tri in first..first + count {
-                    if leaf(tri, best) {
+                    if test.test(tri, best) {
                         return true;
                     }
                 }

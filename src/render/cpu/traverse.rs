@@ -8,7 +8,7 @@ use glam::Vec3A as Vec3;
 use super::common::{BIG, Hit, NO_HIT};
 use super::material::alpha_passes;
 use crate::render::packed::{PackedScene, TRI_FLAG_ALPHA, TRI_FLAG_PASS};
-use crate::render::wide_bvh::WideRay;
+use crate::render::wide_bvh::{TriangleTest, WideRay};
 
 /// `(t, u, v)` of the hit of triangle `prim` within `[tmin, tmax]`, as `intersect_tri`.
 /// Most misses are told by the signs of `u` and `v` before the division: a product's sign
@@ -88,7 +88,7 @@ pub(crate) fn traverse(
     rays: &mut u64,
 ) -> Hit {
     *rays += 1;
-    let mut best = Hit {
+    let best = Hit {
         t: tmax.min(BIG),
         prim: NO_HIT,
         u: 0.0,
@@ -97,19 +97,20 @@ pub(crate) fn traverse(
     let ray = WideRay::new(o, d);
     let wide = &sc.bvh.wide;
     let limit = best.t;
-    let test = Candidate {
+    let mut test = Candidate {
         sc,
         o,
         d,
         any_hit,
         skip,
+        best,
     };
     if any_hit {
-        wide.any(&ray, limit, |prim| test.accept(prim, &mut best));
+        wide.any(&ray, limit, &mut test);
     } else {
-        wide.closest(&ray, limit, |prim| test.accept(prim, &mut best).then_some(best.t));
+        wide.closest(&ray, limit, &mut test);
     }
-    best
+    test.best
 }
 
 /// The candidate test of [`traverse`]: the GPU's triangle test, then the skip and alpha
@@ -120,14 +121,27 @@ struct Candidate<'a> {
     d: Vec3,
     any_hit: bool,
     skip: u32,
+    /// The hit so far.
+    best: Hit,
+}
+
+impl TriangleTest for Candidate<'_> {
+    #[inline(always)]
+    fn test(&mut self, prim: u32, best_t: &mut f32) -> bool {
+        if self.accept(prim) {
+            *best_t = self.best.t;
+            return self.any_hit;
+        }
+        false
+    }
 }
 
 impl Candidate<'_> {
-    /// Whether triangle `prim` is hit nearer than `best` (or as near, with a lower index),
-    /// and then `best` becomes its hit.
+    /// Whether triangle `prim` is hit nearer than the hit so far (or as near, with a lower
+    /// index), and then it becomes the hit so far.
     #[inline(always)]
-    fn accept(&self, prim: u32, best: &mut Hit) -> bool {
-        let sc = self.sc;
+    fn accept(&mut self, prim: u32) -> bool {
+        let (sc, best) = (self.sc, &mut self.best);
         if prim == self.skip {
             return false;
         }
