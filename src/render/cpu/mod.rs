@@ -1,6 +1,7 @@
 //! The CPU twin of the WGSL path tracer: the same integrator (materials and textures, BSDF
 //! sampling and evaluation, light sampling, MIS, Russian roulette, alpha cut-outs,
-//! dielectrics) and the same G-buffers, in Rust over obvhs's CPU CWBVH traversal, reading
+//! dielectrics) and the same G-buffers, in Rust over the same CWBVH laid out for the CPU
+//! ([`crate::render::wide_bvh`]), reading
 //! the same [`PackedScene`] arrays as the GPU and drawing the same PCG random numbers, in
 //! parallel over all cores (rayon). For a seed it is deterministic, whatever the thread
 //! count. Each file mirrors one WGSL library file. Its vectors are glam's SIMD `Vec3A` and
