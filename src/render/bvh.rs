@@ -9,7 +9,7 @@ use obvhs::cwbvh::CwBvh;
 use obvhs::ray::{Ray, RayHit};
 use obvhs::triangle::Triangle;
 
-use super::wide_bvh::{MAX_TRIANGLES, WideBvh};
+use super::wide_bvh::WideBvh;
 use crate::error::{Error, Result};
 
 /// Entries of the per-ray traversal stack in `wgsl/trace/lib/bvh.wgsl` (`STACK_SIZE`). A
@@ -119,12 +119,7 @@ impl SceneBvh {
                  holds (many coincident or overlapping triangles?)"
             )));
         }
-        let wide = WideBvh::new(&bvh).ok_or_else(|| {
-            err(format!(
-                "{} triangles, more than the CPU traversal's {MAX_TRIANGLES}",
-                bvh.primitive_indices.len()
-            ))
-        })?;
+        let wide = WideBvh::new(&bvh);
         let order: Vec<u32> = bvh.primitive_indices.iter().map(|&p| kept[p as usize]).collect();
         let triangles: Vec<Triangle> = bvh.primitive_indices.iter().map(|&p| input[p as usize]).collect();
         let n = input.len();
