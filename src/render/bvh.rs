@@ -30,7 +30,8 @@ pub struct SceneBvh {
     pub build_time: Duration,
     /// Zero-area or non-finite triangles left out of the tree.
     pub skipped_degenerate: usize,
-    /// The same tree laid out for CPU traversal (float child boxes in lanes).
+    /// The same tree laid out for the CPU twin's traversal (its quantised bounds converted
+    /// to floats once, in lanes).
     pub wide: WideBvh,
 }
 
