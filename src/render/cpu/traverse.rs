@@ -10,6 +10,25 @@ use super::material::alpha_passes;
 use crate::render::packed::{PackedScene, TRI_FLAG_ALPHA, TRI_FLAG_PASS};
 use crate::render::wide_bvh::{TriangleTest, WideRay};
 
+/// The Moeller-Trumbore terms of triangle `prim` for the ray `o + t d`, in the form obvhs's
+/// `Triangle::intersect` and the WGSL `intersect_tri` use: the numerators of `t` and of the
+/// barycentric weights `u`, `v` of v1 and v2, and their common denominator (zero parallel
+/// to the plane).
+#[inline(always)]
+fn mt_terms(sc: &PackedScene, prim: u32, o: Vec3, d: Vec3) -> (f32, f32, f32, f32) {
+    let t4 = &sc.tris[4 * prim as usize..4 * prim as usize + 3];
+    let (v0, e1, e2) = (
+        Vec3::from_slice(&t4[0][..3]),
+        Vec3::from_slice(&t4[1][..3]),
+        Vec3::from_slice(&t4[2][..3]),
+    );
+    // The packed normal e1 x e2 (computed once per triangle when packing).
+    let n = Vec3::new(t4[0][3], t4[1][3], t4[2][3]);
+    let c = v0 - o;
+    let r = d.cross(c);
+    (n.dot(c), r.dot(e2), r.dot(e1), n.dot(d))
+}
+
 /// `(t, u, v)` of the hit of triangle `prim` within `[tmin, tmax]`, as `intersect_tri`.
 /// Most misses are told by the signs of `u` and `v` before the division: a product's sign
 /// is the exclusive or of its factors', so the result is the GPU's to the bit.
@@ -23,20 +42,10 @@ pub(crate) fn intersect_tri(
     tmax: f32,
 ) -> Option<(f32, f32, f32)> {
     const SIGN: u32 = 0x8000_0000;
-    let t4 = &sc.tris[4 * prim as usize..4 * prim as usize + 3];
-    let (v0, e1, e2) = (
-        Vec3::from_slice(&t4[0][..3]),
-        Vec3::from_slice(&t4[1][..3]),
-        Vec3::from_slice(&t4[2][..3]),
-    );
-    let n = Vec3::new(t4[0][3], t4[1][3], t4[2][3]);
-    let c = v0 - o;
-    let r = d.cross(c);
-    let det = n.dot(d);
+    let (tn, un, vn, det) = mt_terms(sc, prim, o, d);
     if det == 0.0 {
         return None;
     }
-    let (un, vn) = (r.dot(e2), r.dot(e1));
     let ds = det.to_bits() & SIGN;
     if ((un.to_bits() ^ ds) | (vn.to_bits() ^ ds)) & SIGN != 0 {
         return None;
@@ -47,7 +56,7 @@ pub(crate) fn intersect_tri(
     if (u.to_bits() | v.to_bits() | w.to_bits()) & SIGN != 0 {
         return None;
     }
-    let t = n.dot(c) * inv_det;
+    let t = tn * inv_det;
     (t >= tmin && t <= tmax).then_some((t, u, v))
 }
 
@@ -55,22 +64,12 @@ pub(crate) fn intersect_tri(
 /// weights of v1 and v2 (outside `[0, 1]` off the triangle); `None` parallel to it.
 #[inline(always)]
 pub(crate) fn plane_hit(sc: &PackedScene, prim: u32, o: Vec3, d: Vec3) -> Option<(f32, f32, f32)> {
-    let t4 = &sc.tris[4 * prim as usize..4 * prim as usize + 3];
-    let (v0, e1, e2) = (
-        Vec3::from_slice(&t4[0][..3]),
-        Vec3::from_slice(&t4[1][..3]),
-        Vec3::from_slice(&t4[2][..3]),
-    );
-    // The packed normal e1 x e2 (computed once per triangle when packing).
-    let n = Vec3::new(t4[0][3], t4[1][3], t4[2][3]);
-    let c = v0 - o;
-    let r = d.cross(c);
-    let det = n.dot(d);
+    let (tn, un, vn, det) = mt_terms(sc, prim, o, d);
     if det == 0.0 {
         return None;
     }
     let inv_det = 1.0 / det;
-    Some((n.dot(c) * inv_det, r.dot(e2) * inv_det, r.dot(e1) * inv_det))
+    Some((tn * inv_det, un * inv_det, vn * inv_det))
 }
 
 /// Closest hit (or, with `any_hit`, any hit of a triangle that does not pass light straight
