@@ -56,7 +56,7 @@ struct WideNode {
 }
 
 /// The CPU layout of a scene's CWBVH (see the module documentation).
-#[derive(Debug, Clone, Default)]
+#[derive(Debug, Clone)]
 pub struct WideBvh {
     nodes: Vec<WideNode>,
 }

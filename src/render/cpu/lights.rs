@@ -59,8 +59,7 @@ impl EnvInfo {
         if present {
             guide.reserve(h as usize * (GUIDE + 1));
             for texels in sc.env[base..base + (w * h) as usize].chunks_exact(w as usize) {
-                let row: Vec<f32> = texels.iter().map(|t| t[3]).collect();
-                guide.extend(guide_row(&row));
+                guide.extend(guide_row(texels.len(), |i| texels[i][3]));
             }
         }
         Self {
@@ -144,12 +143,12 @@ fn search(n: u32, u: f32, cdf: impl Fn(u32) -> f32) -> u32 {
     lo
 }
 
-/// Guide table of one CDF row (see [`EnvInfo`]).
-fn guide_row(row: &[f32]) -> impl Iterator<Item = u32> + '_ {
+/// Guide table of one CDF row of `len` entries, `cdf(i)` each (see [`EnvInfo`]).
+fn guide_row(len: usize, cdf: impl Fn(usize) -> f32) -> impl Iterator<Item = u32> {
     let mut i = 0usize;
     (0..=GUIDE).map(move |k| {
         let t = guide_threshold(k);
-        while i + 1 < row.len() && row[i] <= t {
+        while i + 1 < len && cdf(i) <= t {
             i += 1;
         }
         i as u32
@@ -473,7 +472,7 @@ mod tests {
                     })
                     .collect();
                 *row.last_mut().unwrap() = 1.0;
-                let guide: Vec<u32> = guide_row(&row).collect();
+                let guide: Vec<u32> = guide_row(row.len(), |i| row[i]).collect();
                 let mut us: Vec<f32> = (0..2000).map(|_| rng.next()).collect();
                 us.extend((0..=GUIDE).map(guide_threshold));
                 us.extend(row.iter().copied());

@@ -87,22 +87,21 @@ pub(crate) fn traverse(
     rays: &mut u64,
 ) -> Hit {
     *rays += 1;
-    let best = Hit {
-        t: tmax.min(BIG),
-        prim: NO_HIT,
-        u: 0.0,
-        v: 0.0,
-    };
+    let limit = tmax.min(BIG);
     let ray = WideRay::new(o, d);
     let wide = &sc.bvh.wide;
-    let limit = best.t;
     let mut test = Candidate {
         sc,
         o,
         d,
         any_hit,
         skip,
-        best,
+        best: Hit {
+            t: limit,
+            prim: NO_HIT,
+            u: 0.0,
+            v: 0.0,
+        },
     };
     if any_hit {
         wide.any(&ray, limit, &mut test);
@@ -140,25 +139,24 @@ impl Candidate<'_> {
     /// hit so far.
     #[inline(always)]
     fn accept(&mut self, prim: u32) -> bool {
-        let (sc, best) = (self.sc, &mut self.best);
-        if prim == self.skip {
-            return false;
-        }
-        let Some((t, u, v)) = intersect_tri(sc, prim, self.o, self.d, 0.0, best.t) else {
+        let Some((t, u, v)) = intersect_tri(self.sc, prim, self.o, self.d, 0.0, self.best.t) else {
             return false;
         };
-        if !(t < best.t) {
+        if !(t < self.best.t) || !self.admits(prim, u, v) {
             return false;
         }
-        let info = sc.tris[4 * prim as usize + 3][3].to_bits();
-        if self.any_hit && info & TRI_FLAG_PASS != 0 {
-            return false;
-        }
-        if info & TRI_FLAG_ALPHA != 0 && !alpha_passes(sc, prim, u, v) {
-            return false;
-        }
-        *best = Hit { t, prim, u, v };
+        self.best = Hit { t, prim, u, v };
         true
+    }
+
+    /// The rules after the triangle test: not the skipped triangle, not a surface that
+    /// passes light for a shadow ray, not cut out by its alpha at `(u, v)`.
+    #[inline(always)]
+    fn admits(&self, prim: u32, u: f32, v: f32) -> bool {
+        let info = self.sc.tris[4 * prim as usize + 3][3].to_bits();
+        prim != self.skip
+            && !(self.any_hit && info & TRI_FLAG_PASS != 0)
+            && (info & TRI_FLAG_ALPHA == 0 || alpha_passes(self.sc, prim, u, v))
     }
 }
 
@@ -176,9 +174,29 @@ mod tests {
     use crate::render::load::load_scene;
     use obvhs::ray::RayHit;
 
+    /// The twin's hit rules (skip, pass-through, alpha) for the ray `o + t d`, for the
+    /// references below.
+    fn rules(sc: &PackedScene, o: Vec3, d: Vec3, any_hit: bool, skip: u32) -> Candidate<'_> {
+        let best = Hit {
+            t: BIG,
+            prim: NO_HIT,
+            u: 0.0,
+            v: 0.0,
+        };
+        Candidate {
+            sc,
+            o,
+            d,
+            any_hit,
+            skip,
+            best,
+        }
+    }
+
     /// The same rules over obvhs's own CWBVH traversal (what the twin used before the wide
     /// layout, in the GPU's order).
-    fn obvhs_traverse(sc: &PackedScene, o: Vec3, d: Vec3, tmax: f32, any_hit: bool, skip: u32) -> Hit {
+    fn obvhs_traverse(rules: &Candidate, tmax: f32) -> Hit {
+        let (sc, o, d) = (rules.sc, rules.o, rules.d);
         let mut best = Hit {
             t: tmax.min(BIG),
             prim: NO_HIT,
@@ -191,18 +209,13 @@ mod tests {
             let Some((t, u, v)) = intersect_tri(sc, prim, o, d, 0.0, r.tmax) else {
                 return f32::INFINITY;
             };
-            let info = sc.tris[4 * id + 3][3].to_bits();
-            if prim == skip
-                || t >= r.tmax
-                || (any_hit && info & TRI_FLAG_PASS != 0)
-                || (info & TRI_FLAG_ALPHA != 0 && !alpha_passes(sc, prim, u, v))
-            {
+            if t >= r.tmax || !rules.admits(prim, u, v) {
                 return f32::INFINITY;
             }
             *best = Hit { t, prim, u, v };
             t
         };
-        if any_hit {
+        if rules.any_hit {
             sc.bvh.bvh.ray_traverse_miss(ray, |r, id| test(r, id, &mut best));
         } else {
             sc.bvh
@@ -214,25 +227,14 @@ mod tests {
 
     /// The independent expectation: every triangle tested; the nearest accepted distance
     /// below `tmax` and every triangle hit there (several where the ray meets a shared edge).
-    fn brute_force(
-        sc: &PackedScene,
-        o: Vec3,
-        d: Vec3,
-        tmax: f32,
-        any_hit: bool,
-        skip: u32,
-    ) -> (f32, Vec<u32>) {
+    fn brute_force(rules: &Candidate, tmax: f32) -> (f32, Vec<u32>) {
+        let (sc, o, d) = (rules.sc, rules.o, rules.d);
         let (mut best, mut at) = (tmax.min(BIG), Vec::new());
         for prim in 0..sc.bvh.triangles.len() as u32 {
             let Some((t, u, v)) = intersect_tri(sc, prim, o, d, 0.0, tmax.min(BIG)) else {
                 continue;
             };
-            let info = sc.tris[4 * prim as usize + 3][3].to_bits();
-            if prim == skip
-                || t >= tmax.min(BIG)
-                || (any_hit && info & TRI_FLAG_PASS != 0)
-                || (info & TRI_FLAG_ALPHA != 0 && !alpha_passes(sc, prim, u, v))
-            {
+            if t >= tmax.min(BIG) || !rules.admits(prim, u, v) {
                 continue;
             }
             if at.is_empty() || t < best {
@@ -305,8 +307,9 @@ mod tests {
                 for any_hit in [false, true] {
                     let mut rays = 0;
                     let got = traverse(&sc, o, d, tmax, any_hit, skip, &mut rays);
-                    let old = obvhs_traverse(&sc, o, d, tmax, any_hit, skip);
-                    let (t_min, at) = brute_force(&sc, o, d, tmax, any_hit, skip);
+                    let rules = rules(&sc, o, d, any_hit, skip);
+                    let old = obvhs_traverse(&rules, tmax);
+                    let (t_min, at) = brute_force(&rules, tmax);
                     assert_eq!(rays, 1);
                     let why = format!("{name} ray {k} from {o} along {d} (any hit: {any_hit})");
                     assert_eq!(got.prim != NO_HIT, old.prim != NO_HIT, "{why}: against obvhs");
