@@ -1,7 +1,7 @@
 #!/usr/bin/env bash
 # The pre-registered runs of issue 11 that are still open, as registered (weights/README:
 # "Thirtieth session" for F6 and F7, "Thirty-first session" for F8, "Thirty-fourth session"
-# for F9), and the order in which a
+# for F9, "Thirty-ninth session" for F10 and F11), and the order in which a
 # new machine re-creates the data they need, so that neither has to be re-typed from prose.
 #
 #   training/registered.sh WORK setup       # a new machine: lavapipe and the training
@@ -12,17 +12,22 @@
 #                                           # PARTS (default all, in this order): train (ds-s30's
 #                                           # train split, what F6-F9 need to start), val (what
 #                                           # their rules need), heldout (the named held-out
-#                                           # scenes, then the held-out procedural seeds), rest
+#                                           # scenes, then the held-out procedural seeds), first
+#                                           # (the first sequence of every procedural train
+#                                           # seed up to 279: what F10 and F11 need), rest
 #                                           # (dataset_recipe.sh, niced, resumable: re-running
 #                                           # continues)
-#   training/registered.sh WORK root        # WORK/ds-s30: the root F6, F7 and F8 train on
-#                                           # (checked: 177 windows of 8 frames)
-#   training/registered.sh WORK F6|F7|F8|F9 # one run, one core (campaign.sh train); resumes
+#   training/registered.sh WORK root [s30|s39]
+#                                           # WORK/ds-s30 (the default): the root F6-F9 train
+#                                           # on (checked: 177 windows of 8 frames); WORK/ds-s39:
+#                                           # the root F10 and F11 train on (checked: the
+#                                           # first sequence of all 280 procedural seeds)
+#   training/registered.sh WORK F6|...|F11  # one run, one core (campaign.sh train); resumes
 #                                           # from WORK/runs/RUN when it has a checkpoint,
 #                                           # else from its newest whole checkpoint in
 #                                           # weights/restore (exactly, Adam included), else
 #                                           # from its committed weights-only restore point
-#   training/registered.sh WORK keep F6|F7|F8|F9
+#   training/registered.sh WORK keep F6|...|F11
 #                                           # copies the run's newest whole checkpoint (its
 #                                           # snapshots/it_N.pt, every 500 iterations, or its
 #                                           # checkpoint.pt, every 250 and where it stopped)
@@ -33,7 +38,8 @@
 #                                           # unattended and resumable (re-running skips
 #                                           # what is done): setup, data train, root, F6
 #                                           # beside F7, data val, rules, F8 beside F9,
-#                                           # rules, data heldout rest. While runs train,
+#                                           # rules, data heldout first, root s39, F10 beside
+#                                           # F11, rules, data rest. While runs train,
 #                                           # `keep` every KEEP_EVERY seconds (default 1800);
 #                                           # with COMMIT=1 it also commits weights/restore
 #                                           # (that folder only), so a session cut off
@@ -51,8 +57,9 @@ set -euo pipefail
 {
 here="$(cd "$(dirname "$0")" && pwd)"
 root="$(cd "$here/.." && pwd)"
-work="$(realpath -m "${1:?usage: registered.sh WORK all|setup|data|root|rules|keep|F6|F7|F8|F9}")"
-what="${2:?usage: registered.sh WORK all|setup|data|root|rules|keep|F6|F7|F8|F9}"
+usage="usage: registered.sh WORK all|setup|data|root|rules|keep|F6|F7|F8|F9|F10|F11"
+work="$(realpath -m "${1:?$usage}")"
+what="${2:?$usage}"
 py="${PYTHON:-$HOME/.cache/subpixel/venv/bin/python}"
 ds="$work/ds"
 bin="${SUBPIXEL:-$work/subpixel-dist}"
@@ -60,9 +67,13 @@ restore="$(realpath -m "${RESTORE:-$root/weights/restore}")"
 need_bin() {
   [ -x "$bin" ] || { echo "registered.sh: no renderer at $bin (registered.sh WORK setup builds it, or set SUBPIXEL)" >&2; exit 2; }
 }
-# run_of F6|F7|F8|F9: the run's folder name under WORK/runs.
+# run_of F6|...|F11: the run's folder name under WORK/runs.
+runs=(F6 F7 F8 F9 F10 F11)
 run_of() {
-  case "$1" in F6) echo ssr-s30-F6 ;; F7) echo ssr-s30-F7 ;; F8) echo ssr-s31-F8 ;; F9) echo ssr-s34-F9 ;; esac
+  case "$1" in
+    F6) echo ssr-s30-F6 ;; F7) echo ssr-s30-F7 ;; F8) echo ssr-s31-F8 ;; F9) echo ssr-s34-F9 ;;
+    F10) echo ssr-s39-F10 ;; F11) echo ssr-s39-F11 ;;
+  esac
 }
 # newest PREFIX SUFFIX: the last in sort order of the files PREFIX*SUFFIX, or nothing: the
 # highest iteration of checkpoints named with zero-padded iterations (snapshots/it_N.pt,
@@ -132,7 +143,12 @@ case "$what" in
     step rules || true
     pair F8 F9
     step rules || true
-    step data heldout rest
+    step data heldout first
+    stop_if_asked
+    step root s39
+    pair F10 F11
+    step rules || true
+    step data rest
     ;;
   setup)
     "$root/tools/machine_setup.sh" vulkan venv
@@ -154,7 +170,7 @@ case "$what" in
       env "${common[@]}" "${vars[@]}" nice -n 10 "$here/dataset_recipe.sh" "$ds" "$@"
     }
     parts=("${@:3}")
-    [ ${#parts[@]} -gt 0 ] || parts=(train val heldout rest)
+    [ ${#parts[@]} -gt 0 ] || parts=(train val heldout first rest)
     for part in "${parts[@]}"; do
       case "$part" in
         train) phase PROCEDURAL=0 train
@@ -163,38 +179,59 @@ case "$what" in
         val) phase val ;;
         heldout) phase PROCEDURAL=0 heldout
                  phase heldout ;;
+        first) phase TRAIN_SEEDS=280 SEED_SEQUENCES=1 train ;;
         rest) phase TRAIN_SEEDS=280 train test ;;
-        *) echo "registered.sh: unknown part '$part' of data (train, val, heldout, rest)" >&2; exit 2 ;;
+        *) echo "registered.sh: unknown part '$part' of data (train, val, heldout, first, rest)" >&2; exit 2 ;;
       esac
     done
     ;;
   root)
     # ds-s30: every complete train sequence of the fixed scenes, the sparse-light seeds and
     # procedural seeds 0-109 (first sequences), the sparse-light ones linked 4 times.
-    tmp="$work/ds-s30-src"
+    # ds-s39: the same with procedural seeds 0-279 (first sequences).
+    name="${3:-s30}"
+    case "$name" in
+      s30) last_seed=109 ;;
+      s39) last_seed=279 ;;
+      *) echo "registered.sh: unknown root '$name' (s30, s39)" >&2; exit 2 ;;
+    esac
+    tmp="$work/ds-$name-src"
     rm -rf "$tmp"
     mkdir -p "$tmp/train"
     ln -s "$ds/val" "$tmp/val"
     for d in "$ds"/train/*/; do
-      name="$(basename "$d")"
-      if [[ "$name" =~ ^procedural_([0-9]+)_train_([0-9]+)$ ]]; then
+      name_="$(basename "$d")"
+      if [[ "$name_" =~ ^procedural_([0-9]+)_train_([0-9]+)$ ]]; then
         seed=$((10#${BASH_REMATCH[1]}))
         k=$((10#${BASH_REMATCH[2]}))
-        if [ "$seed" -lt 300000 ] && { [ "$seed" -gt 109 ] || [ "$k" -gt 0 ]; }; then continue; fi
+        if [ "$seed" -lt 300000 ] && { [ "$seed" -gt "$last_seed" ] || [ "$k" -gt 0 ]; }; then continue; fi
       fi
-      ln -s "${d%/}" "$tmp/train/$name"
+      ln -s "${d%/}" "$tmp/train/$name_"
     done
-    "$here/train_root.sh" "$tmp" "$work/ds-s30" 4
+    "$here/train_root.sh" "$tmp" "$work/ds-$name" 4
+    if [ "$name" = s39 ]; then
+      # Registered as the first sequence of every procedural seed 0-279, complete (the
+      # windows after --min-reference-psnr 22 are whatever those renders give: printed).
+      have=0
+      for seed in $(seq 0 "$last_seed"); do
+        [ -e "$work/ds-$name/train/procedural_${seed}_train_000" ] && have=$((have + 1))
+      done
+      echo "ds-$name: $have of the $((last_seed + 1)) procedural seeds' first sequences"
+      [ "$have" = $((last_seed + 1)) ] || { echo "registered.sh: ds-$name is not the registered root yet (render incomplete: registered.sh WORK data first)" >&2; exit 1; }
+    fi
     n=$(cd "$here" && "$py" -c "
 from ssr.data import SequenceDataset
-print(len(SequenceDataset('$work/ds-s30', 'train', window=8, crop=64, min_reference_psnr=22)))")
-    echo "ds-s30: $n windows of 8 frames (registered: 177)"
-    [ "$n" = 177 ] || { echo "registered.sh: ds-s30 is not the registered root yet (render incomplete?)" >&2; exit 1; }
+print(len(SequenceDataset('$work/ds-$name', 'train', window=8, crop=64, min_reference_psnr=22)))")
+    echo "ds-$name: $n windows of 8 frames"
+    if [ "$name" = s30 ] && [ "$n" != 177 ]; then
+      echo "registered.sh: ds-s30 is not the registered root yet (177 windows registered; render incomplete?)" >&2
+      exit 1
+    fi
     ;;
   keep)
-    r="${3:?usage: registered.sh WORK keep F6|F7|F8|F9}"
+    r="${3:?usage: registered.sh WORK keep F6|...|F11}"
     run="$(run_of "$r")"
-    [ -n "$run" ] || { echo "registered.sh: unknown run '$r' to keep (F6, F7, F8, F9)" >&2; exit 2; }
+    [ -n "$run" ] || { echo "registered.sh: unknown run '$r' to keep (${runs[*]})" >&2; exit 2; }
     snap="$(newest "$work/runs/$run/snapshots/it_" .pt)"
     n=""
     if [ -n "$snap" ]; then n=$(basename "$snap" .pt); n=${n#it_}; fi
@@ -221,7 +258,7 @@ print(len(SequenceDataset('$work/ds-s30', 'train', window=8, crop=64, min_refere
     # weights.safetensors), scored and decided by ssr.registered (the order of the rules).
     need_bin
     models=(F5="$root/weights/ssr.safetensors")
-    for r in F6 F7 F8 F9; do
+    for r in "${runs[@]}"; do
       w="$work/runs/$(run_of "$r")/weights.safetensors"
       if [ -f "$w" ]; then
         models+=("$r=$w")
@@ -236,8 +273,9 @@ print(len(SequenceDataset('$work/ds-s30', 'train', window=8, crop=64, min_refere
     "$bin" eval --table --json --pred "$work/pred-rules" --ref "$ds" --split val > "$work/rules-val.json"
     (cd "$here" && "$py" -m ssr.registered "$work/rules-val.json")
     ;;
-  F6 | F7 | F8 | F9)
+  F6 | F7 | F8 | F9 | F10 | F11)
     mkdir -p "$work"
+    root_ds="$work/ds-s30"
     base='--thin 0.5 --thin-keep-min 0.02 --seed 17 --lambda ssim=10 --lambda m=0 --lr 1.25e-4 --background loss --mean-correction loss --min-reference-psnr 22 --window 8 --frame-weights 1,1,1,1,1,1,1,1'
     case "$what" in
       F6) init="$root/weights/baselines/ssr-s30-F6-it4500.safetensors"; at=4500
@@ -251,6 +289,12 @@ print(len(SequenceDataset('$work/ds-s30', 'train', window=8, crop=64, min_refere
           mc='{"emission":"background","escaped":"background","exposure":"shared"}' ;;
       F9) init="$root/weights/baselines/ssr-s29-F5.safetensors"; at=0
           mc='{"emission":"background"}'; base="$base --lambda mm=5" ;;
+      # F10 and F11: F6's and F9's settings from F5, on the root with procedural seeds
+      # 0-279 (ds-s39): the same runs over 170 more distinct scenes.
+      F10) init="$root/weights/baselines/ssr-s29-F5.safetensors"; at=0; root_ds="$work/ds-s39"
+          mc='{"emission":"background"}' ;;
+      F11) init="$root/weights/baselines/ssr-s29-F5.safetensors"; at=0; root_ds="$work/ds-s39"
+          mc='{"emission":"background"}'; base="$base --lambda mm=5" ;;
     esac
     run="$(run_of "$what")"
     # A run begun part-way through its schedule keeps --init-at in its options, also when it
@@ -262,11 +306,11 @@ print(len(SequenceDataset('$work/ds-s30', 'train', window=8, crop=64, min_refere
     if [ ! -f "$work/runs/$run/checkpoint.pt" ] && [ -n "$kept" ]; then
       extra="$extra --resume-from $kept"
     fi
-    RUN=$run ITERS=6000 VAL_EVERY=0 THREADS=1 INIT="$init" DS="$work/ds-s30" \
+    RUN=$run ITERS=6000 VAL_EVERY=0 THREADS=1 INIT="$init" DS="$root_ds" \
       TRAIN_ARGS="$base --model-config $mc $extra" exec "$here/campaign.sh" "$work" train
     ;;
   *)
-    echo "registered.sh: unknown '$what' (all, setup, data, root, rules, keep, F6, F7, F8, F9)" >&2
+    echo "registered.sh: unknown '$what' (all, setup, data, root, rules, keep, ${runs[*]})" >&2
     exit 2
     ;;
 esac

@@ -30,7 +30,7 @@ def dry_run(work, run, restore=None):
 @pytest.fixture(scope="module")
 def runs(tmp_path_factory):
     work = tmp_path_factory.mktemp("work")
-    return work, {r: dry_run(work, r) for r in ("F6", "F7", "F8", "F9")}
+    return work, {r: dry_run(work, r) for r in ("F6", "F7", "F8", "F9", "F10", "F11")}
 
 
 def test_a_kept_whole_checkpoint_is_where_a_new_machine_resumes(tmp_path):
@@ -82,7 +82,8 @@ def test_a_kept_whole_checkpoint_is_where_a_new_machine_resumes(tmp_path):
 def test_every_registered_run_has_the_shared_options(runs):
     work, args = runs
     for name, a in args.items():
-        assert a.data == str(work / "ds-s30"), name
+        root = "ds-s39" if name in ("F10", "F11") else "ds-s30"
+        assert a.data == str(work / root), name
         assert a.iters == 6000 and a.seed == 17 and a.lr == 1.25e-4 and a.threads == 1, name
         assert a.window == 8 and a.frame_weights == (1.0,) * 8 and a.batch == 8 and a.crop == 64, name
         assert a.thin == 0.5 and a.thin_keep_min == 0.02 and a.min_reference_psnr == 22, name
@@ -113,11 +114,47 @@ def test_each_run_differs_as_registered(runs):
     assert {k: v for k, v in f9.lambdas.items() if f6.lambdas[k] != v} == {"mm": 5.0}
 
 
+def test_f10_and_f11_are_f6_and_f9_from_f5_on_the_larger_root(runs):
+    """F10 and F11 (thirty-ninth session): F6's and F9's options, from F5 as F8 and F9 start,
+    on ds-s39 (procedural seeds 0-279) instead of ds-s30; nothing else differs."""
+    work, args = runs
+    for new, old in (("F10", "F6"), ("F11", "F9")):
+        a, b = vars(args[new]), vars(args[old])
+        assert {k for k in a if a[k] != b[k]} - {"init", "init_at"} == {"out", "data"}, new
+        assert args[new].data == str(work / "ds-s39") and args[new].out.endswith(f"ssr-s39-{new}")
+        assert args[new].init == args["F9"].init and args[new].init_at == 0
+
+
 def test_unknown_runs_and_parts_are_refused(tmp_path):
     for argv, msg in [(["F5"], "unknown 'F5'"), (["data", "everything"], "unknown part 'everything'")]:
         r = subprocess.run([SCRIPT, str(tmp_path), *argv], capture_output=True, text=True,
                            env={**os.environ, "SUBPIXEL": "/bin/true"})
         assert r.returncode == 2 and msg in r.stderr, r.stderr
+
+
+def test_the_larger_root_refuses_an_incomplete_render(tmp_path):
+    """`root s39` links the first sequence of procedural seeds 0-279 (and the fixed and
+    sparse-light ones; never a second sequence or a seed past 279) and refuses, naming what
+    to run, until all 280 are complete; an unknown root is refused."""
+    train = tmp_path / "ds" / "train"
+    for name in ("procedural_0_train_000", "procedural_0_train_001", "procedural_279_train_000",
+                 "procedural_280_train_000", "procedural_300016_train_000", "cbox_train_003",
+                 "procedural_5_train_000"):
+        (train / name).mkdir(parents=True)
+        (train / name / "sequence.json").write_text("{}")
+        if name != "procedural_5_train_000":  # still rendering: no last frame
+            (train / name / "frame_0007.exr").write_bytes(b"")
+    (tmp_path / "ds" / "val").mkdir()
+    env = {**os.environ, "PYTHON": sys.executable}
+    r = subprocess.run([SCRIPT, str(tmp_path), "root", "s39"], env=env, capture_output=True, text=True)
+    assert r.returncode == 1 and "registered.sh WORK data first" in r.stderr, r.stderr
+    assert "2 of the 280 procedural seeds" in r.stdout, r.stdout
+    linked = sorted(p.name for p in (tmp_path / "ds-s39" / "train").iterdir())
+    assert linked == ["cbox_train_003", "procedural_0_train_000", "procedural_279_train_000",
+                      "procedural_300016_train_000", "procedural_300016_train_000_x1",
+                      "procedural_300016_train_000_x2", "procedural_300016_train_000_x3"]
+    r = subprocess.run([SCRIPT, str(tmp_path), "root", "s40"], env=env, capture_output=True, text=True)
+    assert r.returncode == 2 and "unknown root 's40'" in r.stderr, r.stderr
 
 
 def _table(rows):
@@ -154,6 +191,20 @@ def test_the_registered_chain_reads_the_rule_in_its_order():
     assert best == "F7" and len(steps) == 4
     best, steps = pick(_table({**base, "F9": (25.56, 0.7299, 27.0)}))  # loses to F6: no 4th step
     assert best == "F7" and len(steps) == 3
+    # F11 against F10, then the pick against the pick so far; F10 against F6 and F11 against
+    # F9 are reported beside and decide nothing
+    full = {**base, "F9": (25.56, 0.7299, 27.0), "F10": (25.70, 0.7350, 27.0), "F11": (25.75, 0.7340, 27.0)}
+    best, steps = pick(_table(full))
+    assert best == "F10" and steps[3].startswith("F10 against F6") and steps[4].startswith("F11 against F9")
+    assert all("not deciding" in s for s in steps[3:5]) and steps[5].startswith("F11 against F10: F10")
+    assert steps[6].startswith("F10 against F7: F10") and len(steps) == 7
+    best, steps = pick(_table({**full, "F11": (25.75, 0.7360, 27.0)}))
+    assert best == "F11" and steps[-1].startswith("F11 against F7: F11")
+    # neither beats the pick so far: it stays, whatever F10 did against F6
+    best, _ = pick(_table({**full, "F10": (25.70, 0.7305, 27.0), "F11": (25.75, 0.7300, 27.0)}))
+    assert best == "F7"
+    # only one of the two finished: no step 4
+    assert len(pick(_table({**base, "F10": (25.70, 0.7350, 27.0)}))[1]) == 2
 
 
 def test_the_registered_chain_names_what_is_missing(tmp_path):
@@ -166,8 +217,9 @@ def test_the_registered_chain_names_what_is_missing(tmp_path):
 
 def test_the_whole_chain_runs_in_the_registered_order_and_skips_finished_runs(tmp_path):
     """`all` (DRY_RUN: the steps printed, nothing run): the train split, the root, F6 beside
-    F7, val and the rules, F8 beside F9, the rules again, then the rest of the data; a run
-    whose final weights exist is not started again."""
+    F7, val and the rules, F8 beside F9, the rules again, the held-out split and the first
+    sequences of seeds 0-279, their root, F10 beside F11, the rules again, then the rest of
+    the data; a run whose final weights exist is not started again."""
     done = tmp_path / "runs" / "ssr-s30-F7"
     done.mkdir(parents=True)
     (done / "weights.safetensors").write_bytes(b"finished")
@@ -178,5 +230,6 @@ def test_the_whole_chain_runs_in_the_registered_order_and_skips_finished_runs(tm
     assert steps == [
         "setup", "data train", "root", f"F6 (log {tmp_path}/F6.log)",
         f"F7 finished before: {done}/weights.safetensors", "data val", "rules",
-        f"F8 (log {tmp_path}/F8.log)", f"F9 (log {tmp_path}/F9.log)", "rules", "data heldout rest",
+        f"F8 (log {tmp_path}/F8.log)", f"F9 (log {tmp_path}/F9.log)", "rules", "data heldout first",
+        "root s39", f"F10 (log {tmp_path}/F10.log)", f"F11 (log {tmp_path}/F11.log)", "rules", "data rest",
     ], out
