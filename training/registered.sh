@@ -36,10 +36,13 @@
 #                                           # and a new machine continues the run from it
 #   training/registered.sh WORK all         # everything below in the registered order,
 #                                           # unattended and resumable (re-running skips
-#                                           # what is done): setup, data train, root, F6
-#                                           # beside F7, data val, rules, F8 beside F9,
-#                                           # rules, data heldout first, root s39, F10 beside
-#                                           # F11, rules, data rest. While runs train,
+#                                           # what is done): setup, data train first (what
+#                                           # F10 and F11 need), root s39, F10 beside F11,
+#                                           # data val, rules, data heldout rest (F6-F9,
+#                                           # finished and committed, are trained again
+#                                           # first only where their weights are missing:
+#                                           # root, F6 beside F7, val, rules, F8 beside F9,
+#                                           # rules). While runs train,
 #                                           # `keep` every KEEP_EVERY seconds (default 1800);
 #                                           # with COMMIT=1 it also commits weights/restore
 #                                           # (that folder only), so a session cut off
@@ -82,6 +85,29 @@ newest() {
   ls "$1"*"$2" 2>/dev/null | sort | tail -n 1 || true
 }
 
+# finished_of F6|...|F11: the committed final weights of a registered run that finished in
+# an earlier session (nothing for a run still open).
+finished_of() {
+  case "$1" in
+    F6) echo "$root/weights/baselines/ssr-s30-F6.safetensors" ;;
+    F7) echo "$root/weights/baselines/ssr-s30-F7.safetensors" ;;
+    F8) echo "$root/weights/baselines/ssr-s31-F8.safetensors" ;;
+    F9) echo "$root/weights/baselines/ssr-s34-F9.safetensors" ;;
+  esac
+}
+# weights_of R: the run's final weights, its own (WORK/runs/RUN) or committed; nothing while
+# it has not finished.
+weights_of() {
+  local w="$work/runs/$(run_of "$1")/weights.safetensors" c
+  c="$(finished_of "$1")"
+  if [ -f "$w" ]; then echo "$w"; elif [ -n "$c" ] && [ -f "$c" ]; then echo "$c"; fi
+}
+# finished_all R...: every one of the runs has final weights.
+finished_all() {
+  local r
+  for r in "$@"; do [ -n "$(weights_of "$r")" ] || return 1; done
+}
+
 case "$what" in
   all)
     self="$here/registered.sh"
@@ -109,8 +135,8 @@ case "$what" in
     pair() {
       local r pids=() names=() rc=0
       for r in "$@"; do
-        if [ -f "$work/runs/$(run_of "$r")/weights.safetensors" ]; then
-          echo "== registered.sh $r finished before: $work/runs/$(run_of "$r")/weights.safetensors"
+        if [ -n "$(weights_of "$r")" ]; then
+          echo "== registered.sh $r finished before: $(weights_of "$r")"
           continue
         fi
         echo "== registered.sh $(date -u +%FT%TZ) $r (log $work/$r.log)"
@@ -134,21 +160,28 @@ case "$what" in
       [ "$rc" = 0 ] || { echo "registered.sh: ${names[*]}: a run failed (exit $rc); see their logs" >&2; exit "$rc"; }
     }
     step setup
-    step data train
+    # F6-F9 finished in the thirty-sixth and thirty-eighth sessions and their rules were
+    # applied (F5 kept); their final weights are committed (finished_of), so a new machine
+    # renders first what the open runs need: the train split of ds-s30 and the first
+    # sequences of procedural seeds 110-279 (ds-s39), then F10 beside F11, then val and the
+    # rules, then the rest. The order of rendering changes no image and no registration.
+    step data train first
     stop_if_asked
-    step root
-    pair F6 F7
+    if ! finished_all F6 F7 F8 F9; then
+      step root
+      pair F6 F7
+      step data val
+      stop_if_asked
+      step rules || true
+      pair F8 F9
+      step rules || true
+    fi
+    step root s39
+    pair F10 F11
     step data val
     stop_if_asked
     step rules || true
-    pair F8 F9
-    step rules || true
-    step data heldout first
-    stop_if_asked
-    step root s39
-    pair F10 F11
-    step rules || true
-    step data rest
+    step data heldout rest
     ;;
   setup)
     "$root/tools/machine_setup.sh" vulkan venv
@@ -255,15 +288,15 @@ print(len(SequenceDataset('$work/ds-$name', 'train', window=8, crop=64, min_refe
     ;;
   rules)
     # Engine val of F5 and of every registered run that has finished (WORK/runs/RUN/
-    # weights.safetensors), scored and decided by ssr.registered (the order of the rules).
+    # weights.safetensors, or its committed final weights: finished_of), scored and decided by ssr.registered (the order of the rules).
     need_bin
     models=(F5="$root/weights/ssr.safetensors")
     for r in "${runs[@]}"; do
-      w="$work/runs/$(run_of "$r")/weights.safetensors"
-      if [ -f "$w" ]; then
+      w="$(weights_of "$r")"
+      if [ -n "$w" ]; then
         models+=("$r=$w")
       elif [ "$r" = F6 ] || [ "$r" = F7 ]; then
-        echo "registered.sh: $r has not finished (no $w)" >&2
+        echo "registered.sh: $r has not finished (no $work/runs/$(run_of "$r")/weights.safetensors)" >&2
         exit 1
       fi
     done
