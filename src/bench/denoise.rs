@@ -327,14 +327,17 @@ pub fn table(b: &DenoiseBench) -> String {
         b.activations
     );
     // Beside each pass, its own measured time where it was timed alone (the per-layer run)
-    // and the adapter's per-pass timestamps are meaningful.
+    // and the adapter's per-pass timestamps are meaningful. A stage timed as a whole (its
+    // layer named after the stage: `pack`, `output`) gets its measured time on a row of its
+    // own after its last pass, against the sum of its passes' modelled times.
     let per_pass = b.frames > 0 && b.per_pass_timestamps;
-    let measured = |p: &ModelledPass| {
+    let timed = |stage: &str, name: &str| {
         b.layers
             .iter()
-            .find(|l| l.stage == p.stage && (l.name == p.name || (p.stage == "output" && l.name == "output")))
+            .find(|l| l.stage == stage && l.name == name)
             .map(|l| l.stats.median_ms)
     };
+    let measured = |p: &ModelledPass| timed(&p.stage, &p.name);
     s += &format!(
         "{:<7} {:<20} {:>10} {:>10} {:>10} {:>8} {:>12}{}\n",
         "stage",
@@ -350,22 +353,39 @@ pub fn table(b: &DenoiseBench) -> String {
             ""
         }
     );
-    for p in &b.modelled {
-        let beside = match measured(p).filter(|_| per_pass) {
-            Some(m) => format!(" {m:>12.4} {:>18.1}", m / p.modelled_ms),
-            None if per_pass => format!(" {:>12} {:>18}", "-", "-"),
-            None => String::new(),
-        };
+    let beside = |measured: Option<f64>, modelled_ms: f64| match measured.filter(|_| per_pass) {
+        Some(m) => format!(" {m:>12.4} {:>18.1}", m / modelled_ms),
+        None if per_pass => format!(" {:>12} {:>18}", "-", "-"),
+        None => String::new(),
+    };
+    for (i, p) in b.modelled.iter().enumerate() {
         s += &format!(
-            "{:<7} {:<20} {:>10.1} {:>10.2} {:>10.2} {:>8} {:>12.4}{beside}\n",
+            "{:<7} {:<20} {:>10.1} {:>10.2} {:>10.2} {:>8} {:>12.4}{}\n",
             p.stage,
             p.name,
             p.flops as f64 * 1e-6,
             p.bytes_read as f64 * 1e-6,
             p.bytes_written as f64 * 1e-6,
             p.bound,
-            p.modelled_ms
+            p.modelled_ms,
+            beside(measured(p), p.modelled_ms)
         );
+        let last_of_stage = b.modelled.get(i + 1).is_none_or(|n| n.stage != p.stage);
+        if let Some(m) = timed(&p.stage, &p.stage).filter(|_| per_pass && last_of_stage) {
+            let passes: Vec<_> = b.modelled.iter().filter(|q| q.stage == p.stage).collect();
+            let modelled: f64 = passes.iter().map(|q| q.modelled_ms).sum();
+            s += &format!(
+                "{:<7} {:<20} {:>10.1} {:>10.2} {:>10.2} {:>8} {:>12.4}{}\n",
+                p.stage,
+                format!("(stage, {} passes)", passes.len()),
+                passes.iter().map(|q| q.flops).sum::<u64>() as f64 * 1e-6,
+                passes.iter().map(|q| q.bytes_read).sum::<u64>() as f64 * 1e-6,
+                passes.iter().map(|q| q.bytes_written).sum::<u64>() as f64 * 1e-6,
+                "",
+                modelled,
+                beside(Some(m), modelled)
+            );
+        }
     }
     let bytes: u64 = b.modelled.iter().map(|p| p.bytes_read + p.bytes_written).sum();
     let measured = if b.frames > 0 {
@@ -417,7 +437,10 @@ mod tests {
             cpu_adapter: false,
             wall_ms: 0.7,
             per_pass_timestamps,
-            layers: vec![timed("unet", "unet.enc1.0", 0.5), timed("output", "output", 0.03)],
+            layers: vec![
+                timed("unet", "unet.enc1.0", 0.5),
+                timed("output", "output", 0.03),
+            ],
             stages: Vec::new(),
             total_ms: 0.6,
             total_flops: 0,
@@ -432,6 +455,7 @@ mod tests {
             modelled: vec![
                 pass("pack", "pack_inputs", 0.1),
                 pass("unet", "unet.enc1.0", 0.25),
+                pass("output", "mean history", 0.005),
                 pass("output", "store output", 0.01),
             ],
             modelled_ms: 0.36,
@@ -439,8 +463,9 @@ mod tests {
     }
 
     /// Each modelled pass shows its own measured time and the ratio where it was timed
-    /// alone (the stage's output pass is timed as `output`), `-` where not; a CPU driver's
-    /// per-pass timestamps are left out.
+    /// alone, `-` where not; a stage timed as a whole (`output`) gets one row after its
+    /// passes, its time against their modelled sum; a CPU driver's per-pass timestamps are
+    /// left out.
     #[test]
     fn modelled_passes_show_their_measured_time() {
         let t = table(&bench(true));
@@ -453,12 +478,12 @@ mod tests {
                 .ends_with("0.5000                2.0"),
             "{t}"
         );
-        assert!(
-            row("store output")
-                .trim_end()
-                .ends_with("0.0300                3.0"),
-            "{t}"
-        );
+        assert!(row("store output").trim_end().ends_with('-'), "{t}");
+        assert!(row("mean history").trim_end().ends_with('-'), "{t}");
+        let stage = row("(stage, 2 passes)");
+        assert!(stage.starts_with("output "), "{t}");
+        assert!(stage.trim_end().ends_with("0.0150       0.0300                2.0"), "{t}");
+        assert!(!model.contains("(stage, 1 passes)"), "pack was not timed as a stage: {t}");
         assert!(row("pack_inputs").trim_end().ends_with('-'), "{t}");
         let t = table(&bench(false));
         assert!(!t.contains("measured/modelled"));
