@@ -437,10 +437,7 @@ mod tests {
             cpu_adapter: false,
             wall_ms: 0.7,
             per_pass_timestamps,
-            layers: vec![
-                timed("unet", "unet.enc1.0", 0.5),
-                timed("output", "output", 0.03),
-            ],
+            layers: vec![timed("unet", "unet.enc1.0", 0.5), timed("output", "output", 0.03)],
             stages: Vec::new(),
             total_ms: 0.6,
             total_flops: 0,
@@ -482,8 +479,16 @@ mod tests {
         assert!(row("mean history").trim_end().ends_with('-'), "{t}");
         let stage = row("(stage, 2 passes)");
         assert!(stage.starts_with("output "), "{t}");
-        assert!(stage.trim_end().ends_with("0.0150       0.0300                2.0"), "{t}");
-        assert!(!model.contains("(stage, 1 passes)"), "pack was not timed as a stage: {t}");
+        assert!(
+            stage
+                .trim_end()
+                .ends_with("0.0150       0.0300                2.0"),
+            "{t}"
+        );
+        assert!(
+            !model.contains("(stage, 1 passes)"),
+            "pack was not timed as a stage: {t}"
+        );
         assert!(row("pack_inputs").trim_end().ends_with('-'), "{t}");
         let t = table(&bench(false));
         assert!(!t.contains("measured/modelled"));
