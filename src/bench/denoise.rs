@@ -176,7 +176,10 @@ pub fn bench_denoise(
     for (stage, label, f) in &flops {
         layers.extend(timing(&lp, stage, label, *f));
     }
-    layers.extend(timing(&lp, "output", "output", 0));
+    // The output stage's passes, each timed alone (their labels are the denoiser's).
+    for c in den.step_costs().iter().filter(|c| c.stage == "output") {
+        layers.extend(timing(&lp, "output", &c.label, c.flops));
+    }
     let (sp, walls) = run(Granularity::Stage)?;
     let wall_ms = Stats::from_samples(&walls).map_or(0.0, |s| s.median_ms);
     let stage_flops = |s: &str| flops.iter().filter(|f| f.0 == s).map(|f| f.2).sum::<u64>();

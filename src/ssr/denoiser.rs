@@ -714,21 +714,34 @@ impl Denoiser {
         }
         self.net
             .record(encoder, self.first, profiler.as_deref_mut(), granularity);
-        {
-            let mut pass = Profiler::pass(encoder, "output", profiler);
-            if let (Some(d), Some(m)) = (&passes.mean, self.mean.as_mut()) {
-                // On a first frame any slot will do: that dispatch clears the others (tiles)
-                // or ignores the history (`"atrous"`).
-                d[(m.slot + if self.first { MEAN_RING } else { 0 }) as usize].record(&mut pass);
-                // With `"atrous"`, the filter of the history pair that slot wrote.
-                if let Some(levels) = passes.mean_filter.get(m.slot as usize % 2) {
-                    for d in levels {
-                        d.record(&mut pass);
-                    }
-                }
-                m.slot = (m.slot + 1) % MEAN_RING;
+        // The output stage's dispatches, labelled as in `step_costs`: one timed pass for
+        // the stage, or (per layer) one each.
+        let mut output: Vec<(String, &Dispatch)> = Vec::new();
+        if let (Some(d), Some(m)) = (&passes.mean, self.mean.as_mut()) {
+            // On a first frame any slot will do: that dispatch clears the others (tiles)
+            // or ignores the history (`"atrous"`).
+            let levels = passes.mean_filter.get(m.slot as usize % 2);
+            let label = if levels.is_some() { "mean history" } else { "mean tiles" };
+            output.push((
+                label.into(),
+                &d[(m.slot + if self.first { MEAN_RING } else { 0 }) as usize],
+            ));
+            // With `"atrous"`, the filter of the history pair that slot wrote.
+            for (level, d) in levels.into_iter().flatten().enumerate() {
+                output.push((format!("mean atrous {level}"), d));
             }
-            passes.store.record(&mut pass);
+            m.slot = (m.slot + 1) % MEAN_RING;
+        }
+        output.push(("store output".into(), &passes.store));
+        if granularity == Granularity::Layer {
+            for (label, d) in output {
+                d.record(&mut Profiler::pass(encoder, &label, profiler.as_deref_mut()));
+            }
+        } else {
+            let mut pass = Profiler::pass(encoder, "output", profiler);
+            for (_, d) in output {
+                d.record(&mut pass);
+            }
         }
         self.first = false;
         self.frames += 1;
