@@ -140,6 +140,11 @@ pub fn bench_denoise(
         .map(|c| (c.stage, c.label, c.flops))
         .collect();
     let total_flops: u64 = flops.iter().map(|f| f.2).sum();
+    let output_costs: Vec<_> = den
+        .step_costs()
+        .into_iter()
+        .filter(|c| c.stage == "output")
+        .collect();
     let (warmup, frames) = if frames == 0 { (1, 0) } else { (warmup, frames) };
     let mut run = |granularity: Granularity| -> Result<(Profiler, Vec<f64>)> {
         let mut prof = Profiler::new(gpu, 64);
@@ -177,7 +182,7 @@ pub fn bench_denoise(
         layers.extend(timing(&lp, stage, label, *f));
     }
     // The output stage's passes, each timed alone (their labels are the denoiser's).
-    for c in den.step_costs().iter().filter(|c| c.stage == "output") {
+    for c in output_costs.iter() {
         layers.extend(timing(&lp, "output", &c.label, c.flops));
     }
     let (sp, walls) = run(Granularity::Stage)?;

@@ -721,7 +721,11 @@ impl Denoiser {
             // On a first frame any slot will do: that dispatch clears the others (tiles)
             // or ignores the history (`"atrous"`).
             let levels = passes.mean_filter.get(m.slot as usize % 2);
-            let label = if levels.is_some() { "mean history" } else { "mean tiles" };
+            let label = if levels.is_some() {
+                "mean history"
+            } else {
+                "mean tiles"
+            };
             output.push((
                 label.into(),
                 &d[(m.slot + if self.first { MEAN_RING } else { 0 }) as usize],
