@@ -259,6 +259,9 @@ pub fn assert_backgrounds_match(what: &str, g: &Background, c: &Background, n: u
         c.albedo.as_ref().expect("CPU footprint albedo"),
     );
     let (mut same_coverage, mut albedo_close, mut albedo_diff) = (0, 0, 0f64);
+    // The pixels of equal coverage whose footprint albedo differs (index: GPU vs CPU), for
+    // the failure message.
+    let mut apart = Vec::new();
     let (mut exact, mut grazing, mut rel_sum) = (0, 0, 0f64);
     for i in 0..all {
         let (gcol, ccol) = (&ga.data[3 * i..3 * i + 3], &ca.data[3 * i..3 * i + 3]);
@@ -277,10 +280,15 @@ pub fn assert_backgrounds_match(what: &str, g: &Background, c: &Background, n: u
         let (gc, cc) = (g.coverage.data[i], c.coverage.data[i]);
         if gc == cc {
             same_coverage += 1;
-            albedo_close += gcol
+            if gcol
                 .iter()
                 .zip(ccol)
-                .all(|(a, b)| (a - b).abs() <= 1e-4 + 1e-4 * b.abs()) as usize;
+                .all(|(a, b)| (a - b).abs() <= 1e-4 + 1e-4 * b.abs())
+            {
+                albedo_close += 1;
+            } else {
+                apart.push(format!("{i}: {gcol:?} vs {ccol:?} (coverage {gc})"));
+            }
         }
         let (gr, cr) = (
             &g.radiance.data[3 * i..3 * i + 3],
@@ -315,7 +323,8 @@ pub fn assert_backgrounds_match(what: &str, g: &Background, c: &Background, n: u
     );
     assert!(
         albedo_close * 100 >= same_coverage * 95 && albedo_diff < 1e-3,
-        "{what}: footprint albedo close at {albedo_close} of {same_coverage} pixels of equal coverage, mean absolute difference {albedo_diff:.2e}"
+        "{what}: footprint albedo close at {albedo_close} of {same_coverage} pixels of equal coverage, mean absolute difference {albedo_diff:.2e}; apart (pixel index: GPU vs CPU): {}",
+        apart.join("; ")
     );
     // The footprint's first-hit emission: the same rays, so the same surfaces but where a
     // ray grazes an edge (as the albedo).
