@@ -8,31 +8,8 @@
 # autotuned with the Winograd candidates (the tuning cache keeps every candidate's time per
 # layer), with tensor cores, the engine against PyTorch, then a short tools/gpu_train.sh.
 set -u
-O=$(realpath -m "${1:?OUT_DIR}")
-mkdir -p "$O"
-T0=$SECONDS
 DEADLINE=${DEADLINE:-520}
-W=${W:-1920} H=${H:-1080}
-BIN=${BIN:-/tmp/bin}
-if [ ! -x "$BIN/subpixel" ]; then
-  mkdir -p "$BIN"
-  python3 -c "import tarfile; tarfile.open('.devpack/bins.tar.xz').extractall('$BIN')"
-  for f in .devpack/.gl/*.deb; do dpkg -x "$f" /; done
-  ldconfig
-fi
-. tools/gpu_env.sh "$BIN"
-export RUST_LOG=${RUST_LOG:-warn} SUBPIXEL_CACHE_DIR="$O/cache"
-step() { # name limit command...
-  local name=$1 limit=$2; shift 2
-  local left=$((DEADLINE - (SECONDS - T0)))
-  [ "$limit" -gt "$left" ] && limit=$left
-  if [ "$limit" -lt 10 ]; then echo "== $name: skipped (deadline)" | tee -a "$O/summary.txt"; return; fi
-  local t0=$SECONDS
-  timeout "$limit" "$@" > "$O/$name.log" 2>&1
-  echo "== $name: rc $? in $((SECONDS - t0)) s" | tee -a "$O/summary.txt"
-}
-nvidia-smi --query-gpu=name,driver_version,clocks.sm,clocks.max.sm,memory.total --format=csv > "$O/gpu.txt" 2>&1
-cat "$O/gpu.txt"
+. tools/gpu_call.sh "${1:?OUT_DIR}"
 step test_kernels 90 env SUBPIXEL_COOP_MATRIX=1 "$BIN/kernels" --test-threads 8
 step kernels 60 env SUBPIXEL_COOP_MATRIX=1 "$BIN/subpixel" bench kernels --width "$W" --height "$H" --channels 32
 step denoise_f32 150 "$BIN/subpixel" bench denoise --width "$W" --height "$H" --precision f32

@@ -6,32 +6,13 @@
 # lease: texture-reading tilings, f16 weights, shared textures, the pooling choice, the
 # output pass with its edge-aware mean correction), and the GPU-facing tests, in order of
 # value, each with its own limit, all inside DEADLINE seconds.
+# As run on a fresh H200: test_kernels, coop_denoise, test_ssr_golden and test_ssr_api hit
+# their limits (the drivers' first pipeline compiles); three follow-up calls on the warm
+# machine ran the tests with --test-threads 16 (all passed within 41 s each) and the tensor-core
+# tuning to its end (gc/*.call2-4.log).
 set -u
-O=$(realpath -m "${1:?OUT_DIR}")
-mkdir -p "$O"
-T0=$SECONDS
 DEADLINE=${DEADLINE:-500}
-W=${W:-1920} H=${H:-1080}
-BIN=${BIN:-/tmp/bin}
-if [ ! -x "$BIN/subpixel" ]; then
-  mkdir -p "$BIN"
-  python3 -c "import tarfile; tarfile.open('.devpack/bins.tar.xz').extractall('$BIN')"
-  for f in .devpack/.gl/*.deb; do dpkg -x "$f" /; done
-  ldconfig
-fi
-. tools/gpu_env.sh "$BIN"
-export RUST_LOG=${RUST_LOG:-warn} SUBPIXEL_CACHE_DIR="$O/cache"
-step() { # name limit command...
-  local name=$1 limit=$2; shift 2
-  local left=$((DEADLINE - (SECONDS - T0)))
-  [ "$limit" -gt "$left" ] && limit=$left
-  if [ "$limit" -lt 10 ]; then echo "== $name: skipped (deadline)" | tee -a "$O/summary.txt"; return; fi
-  local t0=$SECONDS
-  timeout "$limit" "$@" > "$O/$name.log" 2>&1
-  echo "== $name: rc $? in $((SECONDS - t0)) s" | tee -a "$O/summary.txt"
-}
-nvidia-smi --query-gpu=name,driver_version,clocks.sm,clocks.max.sm,memory.total --format=csv > "$O/gpu.txt" 2>&1
-cat "$O/gpu.txt"
+. tools/gpu_call.sh "${1:?OUT_DIR}"
 # Parity first (it also brings the GPU up from idle clocks before anything is timed).
 step test_kernels 90 env SUBPIXEL_COOP_MATRIX=1 "$BIN/kernels" --test-threads 8
 step denoise_f32 150 "$BIN/subpixel" bench denoise --width "$W" --height "$H" --precision f32
