@@ -679,7 +679,37 @@ fn announce_first_tuning(gpu: &Gpu) {
              {ENV_KERNEL}=px16-cob1, a tiling every layer can run, skips it)",
             gpu.describe()
         );
+        // A CPU driver's kernels share the cores with whatever else runs: other work slows
+        // the candidates unevenly, and a tuning beside it chose a network about 3 % slower
+        // than a quiet one even after the interleaved re-timing (README Performance,
+        // fortieth session).
+        let load = std::fs::read_to_string("/proc/loadavg").ok().and_then(|s| load_average(&s));
+        let cores = std::thread::available_parallelism().map_or(1, |n| n.get());
+        if gpu.kind() == AdapterKind::Cpu
+            && let Some(load) = load.filter(|&l| busy(l, cores))
+        {
+            log::warn!(
+                "autotune: this machine is busy (load average {load:.2} on {cores} cores): other work \
+                 skews the timings of a CPU driver's kernels, so the tuning may choose slower ones; \
+                 to tune again when it is quiet, remove {}",
+                cache_file().map_or_else(|| "the autotune cache".to_string(), |p| p.display().to_string())
+            );
+        }
     });
+}
+
+/// The one-minute load average of a `/proc/loadavg` line.
+fn load_average(line: &str) -> Option<f64> {
+    line.split_whitespace()
+        .next()?
+        .parse()
+        .ok()
+        .filter(|l: &f64| l.is_finite())
+}
+
+/// Whether a load average means other work holds at least half the cores.
+fn busy(load: f64, cores: usize) -> bool {
+    load >= 0.5 * cores as f64
 }
 
 /// The kernel `conv` runs on for a `w x h` layer with `storage` under `choice`.
@@ -755,6 +785,15 @@ mod tests {
         for i in (0..truth.len()).filter(|i| !ranked.contains(i)) {
             assert_eq!(medians[i], first[i], "candidates not re-timed keep their time");
         }
+    }
+
+    #[test]
+    fn a_busy_machine_is_told_from_its_load_average() {
+        assert_eq!(load_average("2.05 1.98 1.51 3/180 24601\n"), Some(2.05));
+        assert_eq!(load_average(""), None);
+        assert_eq!(load_average("busy 1 2"), None);
+        assert!(busy(2.05, 2) && busy(1.0, 2));
+        assert!(!busy(0.4, 2) && !busy(3.9, 16));
     }
 
     #[test]
