@@ -336,7 +336,7 @@ pub fn table(b: &DenoiseBench) -> String {
     );
     // Beside each pass, its own measured time where it was timed alone (the per-layer run)
     // and the adapter's per-pass timestamps are meaningful. A stage timed as a whole (its
-    // layer named after the stage: `pack`, `output`) gets its measured time on a row of its
+    // layer named after the stage, as `pack`) gets its measured time on a row of its
     // own after its last pass, against the sum of its passes' modelled times.
     let per_pass = b.frames > 0 && b.per_pass_timestamps;
     let timed = |stage: &str, name: &str| {
