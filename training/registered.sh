@@ -135,8 +135,10 @@ case "$what" in
     pair() {
       local r pids=() names=() rc=0
       for r in "$@"; do
-        if [ -n "$(weights_of "$r")" ]; then
-          echo "== registered.sh $r finished before: $(weights_of "$r")"
+        local done_w
+        done_w="$(weights_of "$r")"
+        if [ -n "$done_w" ]; then
+          echo "== registered.sh $r finished before: $done_w"
           continue
         fi
         echo "== registered.sh $(date -u +%FT%TZ) $r (log $work/$r.log)"
@@ -288,7 +290,8 @@ print(len(SequenceDataset('$work/ds-$name', 'train', window=8, crop=64, min_refe
     ;;
   rules)
     # Engine val of F5 and of every registered run that has finished (WORK/runs/RUN/
-    # weights.safetensors, or its committed final weights: finished_of), scored and decided by ssr.registered (the order of the rules).
+    # weights.safetensors, or its committed final weights: finished_of), scored and decided
+    # by ssr.registered (the order of the rules).
     need_bin
     models=(F5="$root/weights/ssr.safetensors")
     for r in "${runs[@]}"; do

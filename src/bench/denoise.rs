@@ -140,13 +140,8 @@ pub fn bench_denoise(
         .map(|c| (c.stage, c.label, c.flops))
         .collect();
     let total_flops: u64 = flops.iter().map(|f| f.2).sum();
-    let output_costs: Vec<_> = den
-        .step_costs()
-        .into_iter()
-        .filter(|c| c.stage == "output")
-        .collect();
     let (warmup, frames) = if frames == 0 { (1, 0) } else { (warmup, frames) };
-    let mut run = |granularity: Granularity| -> Result<(Profiler, Vec<f64>)> {
+    let run = |den: &mut Denoiser, granularity: Granularity| -> Result<(Profiler, Vec<f64>)> {
         let mut prof = Profiler::new(gpu, 64);
         let mut totals = Vec::new();
         for i in 0..warmup + frames {
@@ -175,17 +170,19 @@ pub fn bench_denoise(
             stats,
         })
     };
-    let (lp, _) = run(Granularity::Layer)?;
+    let (lp, _) = run(&mut den, Granularity::Layer)?;
     let mut layers = Vec::new();
     layers.extend(timing(&lp, "pack", "pack", 0));
     for (stage, label, f) in &flops {
         layers.extend(timing(&lp, stage, label, *f));
     }
-    // The output stage's passes, each timed alone (their labels are the denoiser's).
-    for c in output_costs.iter() {
+    // Every pass's cost (the packing's known once a frame has bound the inputs); the
+    // output stage's passes, each timed alone, under these labels.
+    let costs = den.step_costs();
+    for c in costs.iter().filter(|c| c.stage == "output") {
         layers.extend(timing(&lp, "output", &c.label, c.flops));
     }
-    let (sp, walls) = run(Granularity::Stage)?;
+    let (sp, walls) = run(&mut den, Granularity::Stage)?;
     let wall_ms = Stats::from_samples(&walls).map_or(0.0, |s| s.median_ms);
     let stage_flops = |s: &str| flops.iter().filter(|f| f.0 == s).map(|f| f.2).sum::<u64>();
     let stages: Vec<LayerTiming> = ["pack", "tfa", "unet", "output"]
@@ -203,7 +200,6 @@ pub fn bench_denoise(
         0.0
     };
     let peak = crate::bench::peak_fp32_gflops(&gpu.info.name);
-    let costs = den.step_costs();
     let modelled = roofline::model(model, &costs);
     let modelled_ms = modelled.iter().map(|p| p.modelled_ms).sum();
     Ok(DenoiseBench {

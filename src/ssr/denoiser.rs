@@ -88,6 +88,16 @@ struct OutputParams {
     first: u32,
 }
 
+/// The names of the [`ATROUS_LEVELS`] levels of the mean correction's filter, as passes
+/// (profiler scopes, `step_costs`).
+const ATROUS_LABELS: [&str; ATROUS_LEVELS as usize] = [
+    "mean atrous 0",
+    "mean atrous 1",
+    "mean atrous 2",
+    "mean atrous 3",
+    "mean atrous 4",
+];
+
 /// Pixels of one row each `ssr/mean_atrous` invocation filters (template parameter `PX`):
 /// their taps share columns, each tap fetched once for all (on a CPU driver, 128x128 frame,
 /// the five levels took 8-10 ms of a 50-70 ms frame with one pixel per invocation, most of
@@ -600,11 +610,11 @@ impl Denoiser {
                     bytes_written: 3 * px,
                     matrix: false,
                 });
-                for level in 0..ATROUS_LEVELS {
-                    let last = level + 1 == ATROUS_LEVELS;
+                for (level, label) in ATROUS_LABELS.into_iter().enumerate() {
+                    let last = level + 1 == ATROUS_LEVELS as usize;
                     out.push(StepCost {
                         stage: "output",
-                        label: format!("mean atrous {level}"),
+                        label: label.into(),
                         // 25 taps: the weight (about 20 operations) and 8 multiply-adds
                         flops: 25 * 36 * (px / 16),
                         bytes_read: 3 * px,
@@ -716,30 +726,30 @@ impl Denoiser {
             .record(encoder, self.first, profiler.as_deref_mut(), granularity);
         // The output stage's dispatches, labelled as in `step_costs`: one timed pass for
         // the stage, or (per layer) one each.
-        let mut output: Vec<(String, &Dispatch)> = Vec::new();
-        if let (Some(d), Some(m)) = (&passes.mean, self.mean.as_mut()) {
-            // On a first frame any slot will do: that dispatch clears the others (tiles)
-            // or ignores the history (`"atrous"`).
-            let levels = passes.mean_filter.get(m.slot as usize % 2);
-            let label = if levels.is_some() {
-                "mean history"
-            } else {
-                "mean tiles"
-            };
-            output.push((
-                label.into(),
-                &d[(m.slot + if self.first { MEAN_RING } else { 0 }) as usize],
-            ));
-            // With `"atrous"`, the filter of the history pair that slot wrote.
-            for (level, d) in levels.into_iter().flatten().enumerate() {
-                output.push((format!("mean atrous {level}"), d));
+        let (mean, levels) = match (&passes.mean, self.mean.as_mut()) {
+            (Some(d), Some(m)) => {
+                // On a first frame any slot will do: that dispatch clears the others (tiles)
+                // or ignores the history (`"atrous"`). With `"atrous"`, the filter of the
+                // history pair that slot wrote.
+                let levels = passes.mean_filter.get(m.slot as usize % 2);
+                let label = if levels.is_some() {
+                    "mean history"
+                } else {
+                    "mean tiles"
+                };
+                let d = &d[(m.slot + if self.first { MEAN_RING } else { 0 }) as usize];
+                m.slot = (m.slot + 1) % MEAN_RING;
+                (Some((label, d)), levels)
             }
-            m.slot = (m.slot + 1) % MEAN_RING;
-        }
-        output.push(("store output".into(), &passes.store));
+            _ => (None, None),
+        };
+        let output = mean
+            .into_iter()
+            .chain(ATROUS_LABELS.into_iter().zip(levels.into_iter().flatten()))
+            .chain(std::iter::once(("store output", &passes.store)));
         if granularity == Granularity::Layer {
             for (label, d) in output {
-                d.record(&mut Profiler::pass(encoder, &label, profiler.as_deref_mut()));
+                d.record(&mut Profiler::pass(encoder, label, profiler.as_deref_mut()));
             }
         } else {
             let mut pass = Profiler::pass(encoder, "output", profiler);
