@@ -9,7 +9,7 @@ mod common;
 
 use common::twin::{
     assert_backgrounds_match, assert_references_agree, assert_same_seed_frames_match, cpu_frame,
-    gbuffer_ties, gpu_frame, packed, pooled_means, pooled_psnr, settings,
+    distinct_colours, gbuffer_ties, gpu_frame, packed, pooled_means, pooled_psnr, seam_rays, settings,
 };
 use common::{furnace, gpu};
 use subpixel::frame::HostFrame;
@@ -386,8 +386,9 @@ fn background_matches_the_gpu() {
         let mut s = settings(&scene, mode, 2, 7);
         s.background = n;
         let g = gpu_frame(&gs, w, h, &s).background.expect("GPU background");
-        let c = cpu_frame(&p, w, h, &s).background.expect("CPU background");
-        assert_backgrounds_match(&format!("{mode:?}"), &g, &c, n);
+        let frame = cpu_frame(&p, w, h, &s);
+        let c = frame.background.clone().expect("CPU background");
+        assert_backgrounds_match(&format!("{mode:?}"), &g, &c, n, &frame.albedo);
         let sky = c.coverage.data.iter().filter(|&&v| v == 1.0).count();
         assert!(
             sky > 20 && sky < (w * h) as usize - 20,
@@ -824,4 +825,49 @@ fn escaped_samples_are_the_camera_rays_that_meet_nothing() {
         differ * 50 <= (w * h / 4) as usize,
         "{differ} traced pixels escape on one backend only"
     );
+}
+
+/// The footprint albedo's seam rays ([`assert_backgrounds_match`]) on what an H200 gave
+/// (`tools/gpu_runs/2026-12-04-h200-b/test_cpu_twin.log`): builtin:cornell's quarter frame,
+/// 2 x 2 rays, pixels where one ray hit another wall than on the CPU twin; each is explained
+/// by the scene's base colours, a ray grazing a silhouette by a base colour and the sky's,
+/// and differences no pair of them makes are not.
+#[test]
+fn seam_rays_explain_a_wall_seam_and_nothing_else() {
+    let cornell = builtin::CornellOptions::default();
+    let palette = subpixel::nn::HostTensor::from_fn(3, 1, 3, |x, _, c| {
+        [cornell.white, cornell.left, cornell.right][x as usize][c as usize]
+    });
+    let colours = distinct_colours(&palette);
+    assert_eq!(colours.len(), 3);
+    let seen: [([f32; 3], [f32; 3]); 5] = [
+        ([0.70124996, 0.54875, 0.5225], [0.6775, 0.3875, 0.365]),
+        ([0.28625, 0.515, 0.23825002], [0.4325, 0.58, 0.38549998]),
+        ([0.6775, 0.3875, 0.365], [0.65375, 0.22625, 0.20750001]),
+        ([0.4325, 0.58, 0.38549998], [0.5787501, 0.645, 0.53275]),
+        ([0.6775, 0.3875, 0.365], [0.70124996, 0.54875, 0.52250004]),
+    ];
+    for (g, c) in seen {
+        assert!(seam_rays(&g, &c, 2, &colours), "{g:?} vs {c:?}");
+    }
+    // One ray of four grazing the box's silhouette: it meets the sky (albedo 1) on one
+    // backend and the white wall on the other.
+    let mut sky = colours.clone();
+    sky.push([1.0; 3]);
+    let wall = cornell.white;
+    let grazing: Vec<f32> = wall.iter().map(|w| w + (1.0 - w) / 4.0).collect();
+    assert!(seam_rays(&grazing, &wall, 2, &sky));
+    assert!(!seam_rays(&grazing, &wall, 2, &colours));
+    // Half a ray's worth, a difference of one channel alone, and the right difference
+    // between colours the frame does not hold are not seam rays.
+    let white = cornell.white;
+    let half: Vec<f32> = (0..3)
+        .map(|k| white[k] - (white[k] - cornell.left[k]) / 8.0)
+        .collect();
+    assert!(!seam_rays(&white, &half, 2, &colours));
+    assert!(!seam_rays(&[0.5, 0.5, 0.5], &[0.6, 0.5, 0.5], 2, &colours));
+    let two = distinct_colours(&subpixel::nn::HostTensor::from_fn(2, 1, 3, |x, _, c| {
+        [cornell.white, cornell.left][x as usize][c as usize]
+    }));
+    assert!(!seam_rays(&seen[1].0, &seen[1].1, 2, &two));
 }

@@ -1049,7 +1049,7 @@ fn check_mean_correction(option: &str, side: u32, tiles: (u32, u32)) {
         let per_pixel = HostTensor::from_fn(w, h, 3, |x, y, c| mean_factor_at(&factors, side, x, y, c));
         (per_pixel, factors.data)
     };
-    check_corrected_output(&weights, (w, h), 2e-5, frame, factors);
+    check_corrected_output(&weights, (w, h), 2e-5, Default::default(), frame, factors);
 }
 
 /// Runs seven frames (`frame(t)`, given a background on the odd ones) through a denoiser of
@@ -1060,11 +1060,13 @@ fn check_mean_correction(option: &str, side: u32, tiles: (u32, u32)) {
 /// and some between the clamps and away from 1), within `tol` relative to `1 + |expect|`.
 /// For weights of config escaped "background" every frame has a background, and a third of
 /// the traced pixels' samples escaped: the factors see the frame as the model is fed it
-/// (those pixels left out) and, as samples, the rest times `1 - coverage`.
+/// (those pixels left out) and, as samples, the rest times `1 - coverage`. `options` run
+/// the corrected denoiser (the uncorrected one runs on the defaults).
 fn check_corrected_output(
     weights: &Weights,
     (w, h): (u32, u32),
     tol: f32,
+    options: subpixel::nn::autotune::EngineOptions,
     mut frame: impl FnMut(u64) -> HostFrame,
     mut factors: impl FnMut(&HostFrame, &HostTensor, &HostTensor, bool) -> (HostTensor, Vec<f32>),
 ) {
@@ -1075,7 +1077,7 @@ fn check_corrected_output(
     let mut uncorrected = weights.clone();
     uncorrected.config.mean_correction = Some("none".into());
     let mut plain = Denoiser::with_gpu(&gpu, &uncorrected, w, h).unwrap();
-    let mut corrected = Denoiser::with_gpu(&gpu, weights, w, h).unwrap();
+    let mut corrected = Denoiser::with_options(&gpu, weights, w, h, options).unwrap();
     let (mut clamped, mut between) = (0, 0);
     for t in 0..7u64 {
         if t == 5 {
@@ -1159,10 +1161,20 @@ fn check_corrected_output(
 /// surfaces (left: facing the camera, near; right: turned away, farther) with samples
 /// brighter on the left, and noisy normals within each, and random motion (some of it off
 /// the frame); with a background only the reconstructed part is scaled; a reset forgets the
-/// earlier frames' sums.
+/// earlier frames' sums. The filter gives these factors at any number of pixels per
+/// invocation (`AtrousPixels`: the one chosen by default, 1, 4, and 5, which does not
+/// divide the frame's width at any level's step).
 #[test]
 fn mean_correction_atrous_follows_each_surfaces_samples() {
-    check_atrous_correction("network");
+    use subpixel::nn::autotune::AtrousPixels;
+    for px in [
+        AtrousPixels::FromEnv,
+        AtrousPixels::Fixed(1),
+        AtrousPixels::Fixed(4),
+        AtrousPixels::Fixed(5),
+    ] {
+        check_atrous_correction("network", px);
+    }
 }
 
 /// The same for a model of config escaped "background": the samples that escaped to the
@@ -1170,10 +1182,34 @@ fn mean_correction_atrous_follows_each_surfaces_samples() {
 /// `1 - coverage`, with the reconstruction's share of the output.
 #[test]
 fn mean_correction_atrous_leaves_escaped_samples_to_the_background() {
-    check_atrous_correction("background");
+    use subpixel::nn::autotune::{ATROUS_PIXELS_MAX, AtrousPixels};
+    for px in [AtrousPixels::FromEnv, AtrousPixels::Fixed(ATROUS_PIXELS_MAX)] {
+        check_atrous_correction("background", px);
+    }
 }
 
-fn check_atrous_correction(escaped: &str) {
+/// Pixels per invocation outside 1 to `ATROUS_PIXELS_MAX` are refused when the denoiser is
+/// made, naming the number.
+#[test]
+fn atrous_pixels_out_of_range_are_refused() {
+    use subpixel::nn::autotune::{ATROUS_PIXELS_MAX, AtrousPixels, EngineOptions};
+    let gpu = common::gpu();
+    let mut weights = Weights::load(golden_weights_path()).unwrap();
+    weights.config.mean_correction = Some("atrous".into());
+    for px in [0, ATROUS_PIXELS_MAX + 1] {
+        let options = EngineOptions {
+            atrous_pixels: AtrousPixels::Fixed(px),
+            ..Default::default()
+        };
+        let e = Denoiser::with_options(&gpu, &weights, 16, 8, options)
+            .err()
+            .expect("refused")
+            .to_string();
+        assert!(e.contains(&format!("{px} pixels per invocation")), "{e}");
+    }
+}
+
+fn check_atrous_correction(escaped: &str, atrous_pixels: subpixel::nn::autotune::AtrousPixels) {
     use subpixel::nn::reference::{mean_atrous_factors, mean_history_sums, mean_pixel_sums};
     use subpixel::ssr::{
         ATROUS_DECAY, ATROUS_DEPTH_SIGMA, ATROUS_EPS, ATROUS_LEVELS, ATROUS_NORMAL_SQUARINGS, MEAN_HI,
@@ -1230,7 +1266,11 @@ fn check_atrous_correction(escaped: &str) {
         let values = factors.data.clone();
         (factors, values)
     };
-    check_corrected_output(&weights, (w, h), 2e-5, frame, factors);
+    let options = subpixel::nn::autotune::EngineOptions {
+        atrous_pixels,
+        ..Default::default()
+    };
+    check_corrected_output(&weights, (w, h), 2e-5, options, frame, factors);
 }
 
 /// Config albedo "footprint": the whole pipeline runs on the frame's footprint albedo

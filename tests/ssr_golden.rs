@@ -122,6 +122,7 @@ fn options(precision: Precision, pooling: Pooling) -> EngineOptions {
         kernels,
         precision,
         pooling,
+        ..Default::default()
     }
 }
 

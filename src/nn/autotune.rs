@@ -39,6 +39,12 @@ pub const ENV_KERNEL: &str = "SUBPIXEL_CONV_KERNEL";
 pub const ENV_PRECISION: &str = "SUBPIXEL_PRECISION";
 /// The environment variable that chooses how the pooled levels are read ([`Pooling`]).
 pub const ENV_POOLING: &str = "SUBPIXEL_POOLING";
+/// The environment variable that sets the pixels per invocation of the mean correction's
+/// a-trous filter ([`AtrousPixels`]).
+pub const ENV_ATROUS_PIXELS: &str = "SUBPIXEL_ATROUS_PIXELS";
+/// The most pixels per invocation `ssr/mean_atrous` takes (each adds 3 vec4 accumulators
+/// and 5 tap columns).
+pub const ATROUS_PIXELS_MAX: u32 = 8;
 /// The environment variable that moves the cache folder.
 pub const ENV_CACHE_DIR: &str = "SUBPIXEL_CACHE_DIR";
 /// On a CPU driver, layers are tuned on at most this many pixels per side (a 1080p layer
@@ -207,6 +213,63 @@ pub struct EngineOptions {
     pub precision: Precision,
     /// How the pooled encoder levels are read.
     pub pooling: Pooling,
+    /// Pixels of a row per invocation of the mean correction's a-trous filter.
+    pub atrous_pixels: AtrousPixels,
+}
+
+/// How many pixels of a row each invocation of the mean correction's edge-aware a-trous
+/// filter (`ssr/mean_atrous`, config `mean_correction = "atrous"`) takes, their taps'
+/// shared columns fetched once for all; any number gives the same factors. Measured (the
+/// five levels' medians summed): on the 2-core CPU driver at 128x128, 7.6 ms with 2 and
+/// 6.3 ms with 4 (1 took about twice as long as 4); on an H200 at 1080p, 1.06 ms with 2,
+/// 1.20 with 4, 1.56 with 1 and 1.63 with 8 (README Performance).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub enum AtrousPixels {
+    /// `SUBPIXEL_ATROUS_PIXELS` if set (`auto` or 1 to [`ATROUS_PIXELS_MAX`]), else
+    /// [`AtrousPixels::Auto`].
+    #[default]
+    FromEnv,
+    /// This many, 1 to [`ATROUS_PIXELS_MAX`].
+    Fixed(u32),
+    /// The faster of [`AtrousPixels::CANDIDATES`], timed on this adapter at the frame's
+    /// size (once per process); with fixed convolution kernels ([`KernelChoice::Fixed`],
+    /// nothing timed), [`AtrousPixels::DEFAULT`].
+    Auto,
+}
+
+impl AtrousPixels {
+    /// The number when nothing is timed.
+    pub const DEFAULT: u32 = 4;
+    /// What [`AtrousPixels::Auto`] times.
+    pub const CANDIDATES: [u32; 2] = [2, 4];
+
+    /// Resolves [`AtrousPixels::FromEnv`] (an unparsable value is an error naming the
+    /// variable); the other choices come back as they are, a fixed number checked to be
+    /// within range.
+    pub fn resolve(self) -> Result<Self> {
+        match self {
+            AtrousPixels::FromEnv => from_env(ENV_ATROUS_PIXELS, AtrousPixels::Auto),
+            AtrousPixels::Fixed(px) if !(1..=ATROUS_PIXELS_MAX).contains(&px) => Err(Error::Invalid(
+                format!("a-trous filter: {px} pixels per invocation; expected 1 to {ATROUS_PIXELS_MAX}"),
+            )),
+            other => Ok(other),
+        }
+    }
+}
+
+impl std::str::FromStr for AtrousPixels {
+    type Err = Error;
+    fn from_str(s: &str) -> Result<Self> {
+        match s.trim() {
+            "auto" => Ok(AtrousPixels::Auto),
+            t => match t.parse::<u32>() {
+                Ok(px) if (1..=ATROUS_PIXELS_MAX).contains(&px) => Ok(AtrousPixels::Fixed(px)),
+                _ => Err(Error::Invalid(format!(
+                    "a-trous pixels '{t}': expected 1 to {ATROUS_PIXELS_MAX} or auto"
+                ))),
+            },
+        }
+    }
 }
 
 /// The storage of one layer's tensors: its inputs' (in concatenation order) and its
@@ -862,6 +925,22 @@ mod tests {
         let e = "fused".parse::<Pooling>().unwrap_err().to_string();
         assert!(e.contains("fused") && e.contains("load, pass or auto"), "{e}");
         assert_eq!(Pooling::Pass.resolve().unwrap(), Pooling::Pass);
+    }
+
+    #[test]
+    fn atrous_pixels_parse_and_bad_ones_are_named() {
+        assert_eq!(" 3".parse::<AtrousPixels>().unwrap(), AtrousPixels::Fixed(3));
+        assert_eq!("auto".parse::<AtrousPixels>().unwrap(), AtrousPixels::Auto);
+        for bad in ["0", "9", "four", ""] {
+            let e = bad.parse::<AtrousPixels>().unwrap_err().to_string();
+            assert!(
+                e.contains(&format!("'{bad}'")) && e.contains("1 to 8 or auto"),
+                "{e}"
+            );
+        }
+        let e = AtrousPixels::Fixed(9).resolve().unwrap_err().to_string();
+        assert!(e.contains("9 pixels per invocation"), "{e}");
+        assert_eq!(AtrousPixels::Auto.resolve().unwrap(), AtrousPixels::Auto);
     }
 
     #[test]

@@ -15,9 +15,10 @@ use super::weights::Weights;
 use crate::error::{Error, Result};
 pub use crate::frame::FrameInputs;
 use crate::frame::HostFrame;
+use crate::gpu::time_dispatch;
 use crate::gpu::{Bound, Dispatch, Gpu, Grid, Profiler, Specialisation};
 use crate::nn::HostTensor;
-use crate::nn::autotune::EngineOptions;
+use crate::nn::autotune::{self, AtrousPixels, EngineOptions, KernelChoice};
 
 #[repr(C)]
 #[derive(Clone, Copy, Pod, Zeroable)]
@@ -97,12 +98,6 @@ const ATROUS_LABELS: [&str; ATROUS_LEVELS as usize] = [
     "mean atrous 3",
     "mean atrous 4",
 ];
-
-/// Pixels of one row each `ssr/mean_atrous` invocation filters (template parameter `PX`):
-/// their taps share columns, each tap fetched once for all (on a CPU driver, 128x128 frame,
-/// the five levels took 8-10 ms of a 50-70 ms frame with one pixel per invocation, most of
-/// it in texel fetches).
-const ATROUS_PIXELS: u32 = 4;
 
 /// The parameters of `ssr/mean_atrous`: the frame size and the level's tap spacing.
 #[repr(C)]
@@ -301,6 +296,10 @@ impl Denoiser {
                     MeanCorrection::Tiles { side } => (side, false),
                     _ => (1, true),
                 };
+                if atrous {
+                    // A bad SUBPIXEL_ATROUS_PIXELS fails here rather than at the first frame.
+                    options.atrous_pixels.resolve()?;
+                }
                 let tiles = (width.div_ceil(side), height.div_ceil(side));
                 let n = tiles.0 as u64 * tiles.1 as u64;
                 let buffer = |label: &str, size: u64| {
@@ -511,14 +510,56 @@ impl Denoiser {
     /// the mean correction's filter: from the sums into the other history pair (which the
     /// next frame no longer reads), then alternating between it and the scratch pair, the
     /// last writing the factors, guided by the normals and depths `ssr/mean_history` left;
-    /// none otherwise.
+    /// none otherwise. Each invocation filters the pixels the options fix, or the faster
+    /// of the candidates timed here ([`AtrousPixels::Auto`]).
     fn mean_filter_dispatches(&self) -> Result<Vec<Vec<Dispatch>>> {
         let Some((m, ab)) = self.mean.as_ref().and_then(|m| m.filter.as_ref().map(|f| (m, f))) else {
             return Ok(Vec::new());
         };
+        let px = match self.options.atrous_pixels.resolve()? {
+            AtrousPixels::Fixed(px) => px,
+            _ if matches!(self.options.kernels.resolve()?, KernelChoice::Fixed(_)) => AtrousPixels::DEFAULT,
+            _ => self.fastest_atrous(ab, &m.factors)?,
+        };
         (0..2)
-            .map(|parity| self.mean_filter_levels(ab, parity, &m.factors))
+            .map(|parity| self.mean_filter_levels(ab, parity, &m.factors, px))
             .collect()
+    }
+
+    /// The faster of [`AtrousPixels::CANDIDATES`] for this frame size on this adapter, by
+    /// the sum of the filter's levels' median times (measured once per process).
+    fn fastest_atrous(&self, ab: &AtrousBuffers, factors: &wgpu::Buffer) -> Result<u32> {
+        let mut best: Option<(f64, u32)> = None;
+        let mut said = Vec::new();
+        for px in AtrousPixels::CANDIDATES {
+            let key = format!(
+                "{} mean atrous {px} px {}x{}",
+                self.gpu.describe(),
+                self.width,
+                self.height
+            );
+            let ms = autotune::timed_once(key, || {
+                let mut ms = 0.0;
+                for d in self.mean_filter_levels(ab, 0, factors, px)? {
+                    ms += time_dispatch(&self.gpu, &d, 1, autotune::TUNE_ITERATIONS)?
+                        .0
+                        .median_ms;
+                }
+                Ok(ms)
+            })?;
+            said.push(format!("{px} px {ms:.3} ms"));
+            if best.is_none_or(|(b, _)| ms < b) {
+                best = Some((ms, px));
+            }
+        }
+        let (_, px) = best.expect("there are candidates");
+        log::info!(
+            "mean correction's a-trous filter at {}x{}: {px} pixels per invocation ({})",
+            self.width,
+            self.height,
+            said.join(", ")
+        );
+        Ok(px)
     }
 
     fn mean_filter_levels(
@@ -526,6 +567,7 @@ impl Denoiser {
         ab: &AtrousBuffers,
         parity: usize,
         factors: &wgpu::Buffer,
+        px: u32,
     ) -> Result<Vec<Dispatch>> {
         let (sums, other, scratch) = (&ab.sums[parity], &ab.sums[1 - parity], &ab.scratch);
         let view = wgpu::BindingResource::TextureView;
@@ -550,14 +592,14 @@ impl Denoiser {
                 let dst = if level % 2 == 0 { other } else { scratch };
                 resources.extend([view(&dst.s), view(&dst.r)]);
             }
-            // ATROUS_PIXELS pixels a step apart per invocation: `step` invocations per
-            // ATROUS_PIXELS steps of a row.
+            // `px` pixels a step apart per invocation: `step` invocations per `px` steps of
+            // a row.
             let step = params.step;
-            let columns = self.width.div_ceil(ATROUS_PIXELS * step) * step;
+            let columns = self.width.div_ceil(px * step) * step;
             out.push(self.gpu.kernels.dispatch_with(
                 "ssr/mean_atrous",
                 &Specialisation(vec![
-                    ("PX", ATROUS_PIXELS as f64),
+                    ("PX", px as f64),
                     ("FINAL", last as u32 as f64),
                     ("SQUARINGS", ATROUS_NORMAL_SQUARINGS as f64),
                     ("DEPTH_SIGMA", ATROUS_DEPTH_SIGMA as f64),

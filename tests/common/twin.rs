@@ -250,15 +250,24 @@ fn sky_values() -> Vec<(&'static str, f32)> {
 /// The footprint albedo (both backends write it) is the mean first-hit base colour over the
 /// same rays: where the coverage agrees it agrees to the G-buffers' float tolerance except
 /// where a ray grazes the edge between two surfaces (the backends may then hit different
-/// ones, as the G-buffers' ties): at least 95 % of those pixels, and the mean absolute
-/// difference over all pixels below 1e-3.
-pub fn assert_backgrounds_match(what: &str, g: &Background, c: &Background, n: u32) {
+/// ones, as the G-buffers' ties): at least 95 % of those pixels. A pixel apart (of equal
+/// coverage or not) is explained by seam rays when its difference is that of j rays
+/// (1 <= j <= n, a straight edge's most) whose first hit has one base colour on one backend
+/// and another on the other, both among the colours of `palette` (the frame's G-buffer
+/// albedo: an untextured scene's colours, to 1e-3) and the sky's 1 (a ray that meets
+/// nothing): a ray on the seam between two surfaces, or grazing a silhouette. Seen on an
+/// H200: 9 of 476 pixels of builtin:cornell's quarter frame, each one ray of 4 on a wall
+/// seam (white against red or green), where lavapipe hits the other wall. The mean absolute
+/// difference over the pixels not so explained stays below 1e-3 of the whole frame.
+pub fn assert_backgrounds_match(what: &str, g: &Background, c: &Background, n: u32, palette: &HostTensor) {
     let all = c.coverage.data.len();
     let (ga, ca) = (
         g.albedo.as_ref().expect("GPU footprint albedo"),
         c.albedo.as_ref().expect("CPU footprint albedo"),
     );
-    let (mut same_coverage, mut albedo_close, mut albedo_diff) = (0, 0, 0f64);
+    let mut colours = distinct_colours(palette);
+    colours.push([1.0; 3]);
+    let (mut same_coverage, mut albedo_close, mut albedo_diff, mut seams) = (0, 0, 0f64, 0);
     // The pixels of equal coverage whose footprint albedo differs (index: GPU vs CPU), for
     // the failure message.
     let mut apart = Vec::new();
@@ -271,24 +280,30 @@ pub fn assert_backgrounds_match(what: &str, g: &Background, c: &Background, n: u
                 .all(|v| v.is_finite() && (0.0..=1.0).contains(v)),
             "{what} pixel {i}: footprint albedo {gcol:?} vs {ccol:?}"
         );
-        albedo_diff += gcol
+        let diff = gcol
             .iter()
             .zip(ccol)
             .map(|(a, b)| (a - b).abs() as f64)
             .sum::<f64>()
             / 3.0;
         let (gc, cc) = (g.coverage.data[i], c.coverage.data[i]);
+        let close = gcol
+            .iter()
+            .zip(ccol)
+            .all(|(a, b)| (a - b).abs() <= 1e-4 + 1e-4 * b.abs());
+        let seam = !close && seam_rays(gcol, ccol, n, &colours);
+        seams += seam as usize;
         if gc == cc {
             same_coverage += 1;
-            if gcol
-                .iter()
-                .zip(ccol)
-                .all(|(a, b)| (a - b).abs() <= 1e-4 + 1e-4 * b.abs())
-            {
+            if close {
                 albedo_close += 1;
             } else {
-                apart.push(format!("{i}: {gcol:?} vs {ccol:?} (coverage {gc})"));
+                let kind = if seam { "seam rays" } else { "unexplained" };
+                apart.push(format!("{i}: {gcol:?} vs {ccol:?} (coverage {gc}, {kind})"));
             }
+        }
+        if !seam {
+            albedo_diff += diff;
         }
         let (gr, cr) = (
             &g.radiance.data[3 * i..3 * i + 3],
@@ -319,11 +334,11 @@ pub fn assert_backgrounds_match(what: &str, g: &Background, c: &Background, n: u
     );
     let albedo_diff = albedo_diff / all as f64;
     eprintln!(
-        "{what}: footprint albedo close at {albedo_close} of {same_coverage}, mean difference {albedo_diff:.2e}"
+        "{what}: footprint albedo close at {albedo_close} of {same_coverage}, {seams} pixels of seam rays, mean difference elsewhere {albedo_diff:.2e}"
     );
     assert!(
         albedo_close * 100 >= same_coverage * 95 && albedo_diff < 1e-3,
-        "{what}: footprint albedo close at {albedo_close} of {same_coverage} pixels of equal coverage, mean absolute difference {albedo_diff:.2e}; apart (pixel index: GPU vs CPU): {}",
+        "{what}: footprint albedo close at {albedo_close} of {same_coverage} pixels of equal coverage, {seams} pixels of seam rays, mean absolute difference elsewhere {albedo_diff:.2e}; apart (pixel index: GPU vs CPU): {}",
         apart.join("; ")
     );
     // The footprint's first-hit emission: the same rays, so the same surfaces but where a
@@ -385,6 +400,7 @@ pub fn assert_same_seed_frames_match(scene: &Scene, w: u32, h: u32) {
             g.background.as_ref().unwrap(),
             c.background.as_ref().unwrap(),
             2,
+            &c.albedo,
         );
         let ties = gbuffer_ties(scene, &p, &s, &g, &c);
         let n = (w * h) as usize;
@@ -498,4 +514,37 @@ pub fn assert_references_agree(scene: &Scene, w: u32, h: u32, spp: u32) {
             mc[k]
         );
     }
+}
+
+/// The distinct colours of `albedo` (3 channels) to 1e-3, at most 64 (a textured frame's
+/// many colours give none: no pair of them explains a difference).
+pub fn distinct_colours(albedo: &HostTensor) -> Vec<[f32; 3]> {
+    let mut out: Vec<[f32; 3]> = Vec::new();
+    for px in albedo.data.chunks_exact(3) {
+        let c = [px[0], px[1], px[2]];
+        if !out
+            .iter()
+            .any(|o| o.iter().zip(&c).all(|(a, b)| (a - b).abs() <= 1e-3))
+        {
+            out.push(c);
+            if out.len() > 64 {
+                return Vec::new();
+            }
+        }
+    }
+    out
+}
+
+/// Whether footprint albedos `g` and `c` (means over `n x n` rays) differ by what j rays,
+/// 1 <= j <= n, hitting a surface of one colour of `colours` on one backend and another on
+/// the other would make: `n^2 (g - c) = j (a - b)` to 1e-3 per channel.
+pub fn seam_rays(g: &[f32], c: &[f32], n: u32, colours: &[[f32; 3]]) -> bool {
+    let d: Vec<f32> = g.iter().zip(c).map(|(a, b)| (n * n) as f32 * (a - b)).collect();
+    (1..=n).any(|j| {
+        colours.iter().any(|a| {
+            colours
+                .iter()
+                .any(|b| (0..3).all(|k| (d[k] - j as f32 * (a[k] - b[k])).abs() <= 1e-3 * (n * n) as f32))
+        })
+    })
 }
