@@ -7,7 +7,9 @@
 # which runs COMMAND with its output in OUT_DIR/NAME.log, within LIMIT seconds and what is
 # left of DEADLINE (default 500) seconds since sourcing, and appends its exit status and time
 # to OUT_DIR/summary.txt (a step with under 10 s left is skipped). Sets O (OUT_DIR), BIN, W
-# and H (default 1920x1080).
+# and H (default 1920x1080). With CACHE_FROM (an earlier call's OUT_DIR), its autotune
+# caches (cache/ and cache-coop/) are copied into OUT_DIR first, so nothing already tuned
+# is tuned again.
 O=$(realpath -m "${1:?OUT_DIR}")
 mkdir -p "$O"
 T0=$SECONDS
@@ -22,6 +24,11 @@ if [ ! -x "$BIN/subpixel" ]; then
 fi
 . tools/gpu_env.sh "$BIN"
 export RUST_LOG=${RUST_LOG:-warn} SUBPIXEL_CACHE_DIR="$O/cache"
+for c in cache cache-coop; do
+  if [ -n "${CACHE_FROM:-}" ] && [ -f "$CACHE_FROM/$c/autotune.json" ]; then
+    mkdir -p "$O/$c" && cp "$CACHE_FROM/$c/autotune.json" "$O/$c/"
+  fi
+done
 step() { # name limit command...
   local name=$1 limit=$2; shift 2
   local left=$((DEADLINE - (SECONDS - T0)))

@@ -12,11 +12,7 @@
 # The autotune caches were the fourth lease's, unchanged (in ../2026-12-04-h200/gc).
 set -u
 DEADLINE=${DEADLINE:-330}
-. tools/gpu_call.sh "${1:?OUT_DIR}"
-prev=tools/gpu_runs/2026-12-04-h200/gc
-mkdir -p "$O/cache" "$O/cache-coop"
-cp "$prev/cache/autotune.json" "$O/cache/"
-cp "$prev/cache-coop/autotune.json" "$O/cache-coop/"
+CACHE_FROM=tools/gpu_runs/2026-12-04-h200/gc . tools/gpu_call.sh "${1:?OUT_DIR}"
 step test_cpu_twin 40 "$BIN/cpu_twin" --test-threads 16
 for px in 4 1 2 8 4; do
   step "denoise_px$px" 60 env SUBPIXEL_ATROUS_PIXELS=$px "$BIN/subpixel" bench denoise \

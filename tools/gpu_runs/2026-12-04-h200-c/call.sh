@@ -13,11 +13,7 @@
 # The autotune caches were the fourth lease's, unchanged (in ../2026-12-04-h200/gc).
 set -u
 DEADLINE=${DEADLINE:-240}
-. tools/gpu_call.sh "${1:?OUT_DIR}"
-prev=tools/gpu_runs/2026-12-04-h200/gc
-mkdir -p "$O/cache" "$O/cache-coop"
-cp "$prev/cache/autotune.json" "$O/cache/"
-cp "$prev/cache-coop/autotune.json" "$O/cache-coop/"
+CACHE_FROM=tools/gpu_runs/2026-12-04-h200/gc . tools/gpu_call.sh "${1:?OUT_DIR}"
 step test_ssr_api_atrous 60 "$BIN/ssr_api" --test-threads 16 atrous
 step test_cpu_twin 40 "$BIN/cpu_twin" --test-threads 16
 for a in auto tiles rows4 tiles rows4; do

@@ -11,10 +11,8 @@
 # .devpack/before (git worktree), then this build's pack.
 set -u
 DEADLINE=${DEADLINE:-240}
-. tools/gpu_call.sh "${1:?OUT_DIR}"
-prev=tools/gpu_runs/2026-12-04-h200/gc
-mkdir -p "$O/cache" /tmp/before
-cp "$prev/cache/autotune.json" "$O/cache/"
+CACHE_FROM=tools/gpu_runs/2026-12-04-h200/gc . tools/gpu_call.sh "${1:?OUT_DIR}"
+mkdir -p /tmp/before
 python3 -c "import lzma, shutil; shutil.copyfileobj(lzma.open('.devpack/before/subpixel.xz'), open('/tmp/before/subpixel', 'wb'))"
 chmod +x /tmp/before/subpixel
 step test_cpu_twin 40 "$BIN/cpu_twin" --test-threads 16
