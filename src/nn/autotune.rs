@@ -217,6 +217,16 @@ pub struct EngineOptions {
     pub atrous_pixels: AtrousPixels,
 }
 
+impl EngineOptions {
+    /// Whether the engine measures its choices on the adapter: the convolutions' kernels
+    /// are autotuned, and so are the choices made by timing (`Pooling::Auto`,
+    /// `AtrousPixels::Auto`); with fixed kernels ([`KernelChoice::Fixed`]) nothing is timed
+    /// and those take their defaults, for reproducible runs.
+    pub fn measures(&self) -> Result<bool> {
+        Ok(!matches!(self.kernels.resolve()?, KernelChoice::Fixed(_)))
+    }
+}
+
 /// How many pixels of a row each invocation of the mean correction's edge-aware a-trous
 /// filter (`ssr/mean_atrous`, config `mean_correction = "atrous"`) takes, their taps'
 /// shared columns fetched once for all; any number gives the same factors. Measured (the
@@ -249,11 +259,16 @@ impl AtrousPixels {
     pub fn resolve(self) -> Result<Self> {
         match self {
             AtrousPixels::FromEnv => from_env(ENV_ATROUS_PIXELS, AtrousPixels::Auto),
-            AtrousPixels::Fixed(px) if !(1..=ATROUS_PIXELS_MAX).contains(&px) => Err(Error::Invalid(
-                format!("a-trous filter: {px} pixels per invocation; expected 1 to {ATROUS_PIXELS_MAX}"),
-            )),
+            AtrousPixels::Fixed(px) if !Self::in_range(px) => Err(Error::Invalid(format!(
+                "a-trous filter: {px} pixels per invocation; expected 1 to {ATROUS_PIXELS_MAX}"
+            ))),
             other => Ok(other),
         }
+    }
+
+    /// Whether `ssr/mean_atrous` takes `px` pixels per invocation.
+    fn in_range(px: u32) -> bool {
+        (1..=ATROUS_PIXELS_MAX).contains(&px)
     }
 }
 
@@ -263,7 +278,7 @@ impl std::str::FromStr for AtrousPixels {
         match s.trim() {
             "auto" => Ok(AtrousPixels::Auto),
             t => match t.parse::<u32>() {
-                Ok(px) if (1..=ATROUS_PIXELS_MAX).contains(&px) => Ok(AtrousPixels::Fixed(px)),
+                Ok(px) if Self::in_range(px) => Ok(AtrousPixels::Fixed(px)),
                 _ => Err(Error::Invalid(format!(
                     "a-trous pixels '{t}': expected 1 to {ATROUS_PIXELS_MAX} or auto"
                 ))),

@@ -18,7 +18,7 @@ use crate::frame::HostFrame;
 use crate::gpu::time_dispatch;
 use crate::gpu::{Bound, Dispatch, Gpu, Grid, Profiler, Specialisation};
 use crate::nn::HostTensor;
-use crate::nn::autotune::{self, AtrousPixels, EngineOptions, KernelChoice};
+use crate::nn::autotune::{self, AtrousPixels, EngineOptions};
 
 #[repr(C)]
 #[derive(Clone, Copy, Pod, Zeroable)]
@@ -518,7 +518,7 @@ impl Denoiser {
         };
         let px = match self.options.atrous_pixels.resolve()? {
             AtrousPixels::Fixed(px) => px,
-            _ if matches!(self.options.kernels.resolve()?, KernelChoice::Fixed(_)) => AtrousPixels::DEFAULT,
+            _ if !self.options.measures()? => AtrousPixels::DEFAULT,
             _ => self.fastest_atrous(ab, &m.factors)?,
         };
         (0..2)
@@ -527,10 +527,11 @@ impl Denoiser {
     }
 
     /// The faster of [`AtrousPixels::CANDIDATES`] for this frame size on this adapter, by
-    /// the sum of the filter's levels' median times (measured once per process).
+    /// the sum of the filter's levels' median times (measured once per process, and said
+    /// when measured: later calls, at each rebinding of the caller's buffers, reuse it).
     fn fastest_atrous(&self, ab: &AtrousBuffers, factors: &wgpu::Buffer) -> Result<u32> {
         let mut best: Option<(f64, u32)> = None;
-        let mut said = Vec::new();
+        let (mut said, mut measured) = (Vec::new(), false);
         for px in AtrousPixels::CANDIDATES {
             let key = format!(
                 "{} mean atrous {px} px {}x{}",
@@ -539,6 +540,7 @@ impl Denoiser {
                 self.height
             );
             let ms = autotune::timed_once(key, || {
+                measured = true;
                 let mut ms = 0.0;
                 for d in self.mean_filter_levels(ab, 0, factors, px)? {
                     ms += time_dispatch(&self.gpu, &d, 1, autotune::TUNE_ITERATIONS)?
@@ -553,12 +555,14 @@ impl Denoiser {
             }
         }
         let (_, px) = best.expect("there are candidates");
-        log::info!(
-            "mean correction's a-trous filter at {}x{}: {px} pixels per invocation ({})",
-            self.width,
-            self.height,
-            said.join(", ")
-        );
+        if measured {
+            log::info!(
+                "mean correction's a-trous filter at {}x{}: {px} pixels per invocation ({})",
+                self.width,
+                self.height,
+                said.join(", ")
+            );
+        }
         Ok(px)
     }
 

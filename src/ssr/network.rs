@@ -12,7 +12,7 @@ use super::shared_textures::{self, StepTextures, TextureSource};
 use super::weights::Weights;
 use crate::error::{Error, Result};
 use crate::gpu::{Dispatch, Gpu, Grid, Profiler, time_dispatch};
-use crate::nn::autotune::{self, EngineOptions, KernelChoice, LayerStorage, Pooling, Precision};
+use crate::nn::autotune::{self, EngineOptions, LayerStorage, Pooling, Precision};
 use crate::nn::conv::{self, ConvKernel, InputTexture, TextureIo};
 use crate::nn::ops::{self, Conv3x3, Fetch, TfaBlend};
 use crate::nn::{DType, HostTensor, Tensor};
@@ -205,7 +205,7 @@ fn pool_pass(
     match options.pooling.resolve()? {
         Pooling::OnLoad => return Ok(false),
         Pooling::Pass => return Ok(true),
-        _ if matches!(options.kernels.resolve()?, KernelChoice::Fixed(_)) => return Ok(false),
+        _ if !options.measures()? => return Ok(false),
         _ => {}
     }
     let (mut on_load, mut passes) = (0.0f64, 0.0f64);

@@ -84,7 +84,7 @@ def _frames(x: Frames, name: str) -> List[torch.Tensor]:
     else:
         frames = list(x)
     if not frames or any(f.dim() != 4 or f.shape != frames[0].shape for f in frames):
-        got = list(x.shape) if isinstance(x, torch.Tensor) else [list(f.shape) for f in x]
+        got = list(x.shape) if isinstance(x, torch.Tensor) else [list(f.shape) for f in frames]
         raise ValueError(f"{name}: expected [N, T, C, H, W] (or a list of [N, C, H, W]), got {got}")
     return frames
 
