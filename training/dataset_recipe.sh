@@ -14,6 +14,12 @@
 #            sequences of 8 frames = 1,200 frames over 66 scenes, then the sparse-light
 #            training seeds (TRAIN_SPARSE_SEEDS, 1 sequence each: 16 more sequences)
 #   test     test split of the 6 training scenes (1 sequence each)
+#   block    one block of a rolling training run (training/registered.sh F12, F13): with
+#            BLOCK=K, the 6 fixed scenes' train sequence K mod 5, the 4 sparse-light train
+#            seeds of group K mod 4 (TRAIN_SPARSE_SEEDS, 4 at a time) and the first
+#            sequences of the BLOCK_SEEDS (default 20) procedural train seeds from
+#            BLOCK_FIRST + K x BLOCK_SEEDS (BLOCK_FIRST default 280): every block brings
+#            new procedural scenes (about 35 minutes of both cores on a 2-core machine)
 #
 # Held-out scenes never enter train or val, neither as scenes nor as props. Procedural
 # seeds of the three splits are disjoint ranges; every sequence of every split flies its
@@ -45,7 +51,9 @@
 # SPP_MAX, default 16 x its base count: about 12x the samples on average for 40 dB on val,
 # training/README.md, so meant for a GPU), ONLY_EXISTING=1 (visit only the sequences already
 # complete in OUT, rendering nothing new: with BACKGROUND, adds the channels frames written
-# before lack, e.g. the samples' `escaped`). Finished frames are skipped, so re-running continues;
+# before lack, e.g. the samples' `escaped`), ONLY_LIST=1 (print the folder of each sequence
+# the phases hold, SPLIT/NAME a line, rendering nothing: what a training root of them
+# links). Finished frames are skipped, so re-running continues;
 # each frame is written atomically. A build for the machine's own CPU renders 5-8 % faster
 # still (CARGO_TARGET_DIR=~/work-data/target-native RUSTFLAGS="-C target-cpu=native" cargo
 # build --profile dist, then SUBPIXEL=~/work-data/target-native/dist/subpixel), but its
@@ -58,11 +66,12 @@
 set -euo pipefail
 here="$(cd "$(dirname "$0")" && pwd)"
 root="$(cd "$here/.." && pwd)"
-out="${1:?usage: dataset_recipe.sh OUT [heldout|val|train|test ...]}"
+out="${1:?usage: dataset_recipe.sh OUT [heldout|val|train|test|block ...]}"
 shift
 phases=("$@")
 [ ${#phases[@]} -eq 0 ] && phases=(heldout val train test)
-if [ -z "${SUBPIXEL:-}" ]; then
+only_list="${ONLY_LIST:-0}"
+if [ -z "${SUBPIXEL:-}" ] && [ "$only_list" != 1 ]; then
   (cd "$root" && cargo build --profile dist --bin subpixel --quiet)
 fi
 bin="${SUBPIXEL:-$root/target/dist/subpixel}"
@@ -82,8 +91,11 @@ shard_k="${shard%/*}"
 shard_n="${shard#*/}"
 procedural="${PROCEDURAL:-1}"
 seed_sequences="${SEED_SEQUENCES:-2}"
+block="${BLOCK:-}"
+block_seeds="${BLOCK_SEEDS:-20}"
+block_first="${BLOCK_FIRST:-280}"
 [[ "$seed_sequences" =~ ^[0-5]$ ]] || { echo "SEED_SEQUENCES must be 0-5, got '$seed_sequences'" >&2; exit 2; }
-[ -x "$bin" ] || { echo "no binary at $bin (SUBPIXEL)" >&2; exit 1; }
+[ -x "$bin" ] || [ "$only_list" = 1 ] || { echo "no binary at $bin (SUBPIXEL)" >&2; exit 1; }
 
 fixed=(builtin:cornell builtin:room "$scenes/cbox" "$scenes/cornell-box" "$scenes/dining-room" "$scenes/staircase2")
 held_out=("$scenes/living-room" "$scenes/flight-helmet" "$scenes/barn-lamp")
@@ -98,6 +110,12 @@ render() {
   local h
   h=$(printf '%s %s %s' "$scene" "$split" "$k" | cksum | cut -d' ' -f1)
   if [ $((h % shard_n)) -ne "$shard_k" ]; then
+    return 0
+  fi
+  if [ "$only_list" = 1 ]; then
+    local name_
+    name_="$(basename "${scene#builtin:}")"
+    echo "$split/${name_//:/_}_${split}_$(printf '%03d' "$k")"
     return 0
   fi
   if [ "${ONLY_EXISTING:-0}" = 1 ]; then
@@ -160,10 +178,31 @@ for phase in "${phases[@]}"; do
     test)
       for s in "${fixed[@]}"; do render "$spp" "$s" test 0; done
       ;;
+    block)
+      [[ "$block" =~ ^[0-9]+$ ]] || { echo "phase block needs BLOCK=K (a block number), got '$block'" >&2; exit 2; }
+      [[ "$block_seeds" =~ ^[1-9][0-9]*$ ]] && [[ "$block_first" =~ ^[0-9]+$ ]] ||
+        { echo "BLOCK_SEEDS must be a positive integer and BLOCK_FIRST a seed, got '$block_seeds', '$block_first'" >&2; exit 2; }
+      first=$((block_first + block * block_seeds))
+      last=$((first + block_seeds - 1))
+      # Procedural train seeds stay below the sparse-light range (300000) and the val and
+      # test ranges above it.
+      [ "$last" -lt 300000 ] || { echo "block $block: seeds $first-$last reach the sparse-light range (300000)" >&2; exit 2; }
+      for s in "${fixed[@]}"; do render "$train_spp" "$s" train $((block % 5)); done
+      if [ "$procedural" = 1 ]; then
+        read -r -a sparse <<< "$train_sparse_seeds"
+        group=$((block % 4))
+        for seed in "${sparse[@]:$((4 * group)):4}"; do
+          render "$train_spp" "$(proc "$seed")" train 0 "${props[@]}"
+        done
+        for seed in $(seq "$first" "$last"); do
+          render "$train_spp" "$(proc "$seed")" train 0 "${props[@]}"
+        done
+      fi
+      ;;
     *)
-      echo "unknown phase '$phase' (heldout, val, train, test)" >&2
+      echo "unknown phase '$phase' (heldout, val, train, test, block)" >&2
       exit 2
       ;;
   esac
 done
-echo "== $(date -u +%FT%TZ) done: $out"
+[ "$only_list" = 1 ] || echo "== $(date -u +%FT%TZ) done: $out"

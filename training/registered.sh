@@ -1,7 +1,8 @@
 #!/usr/bin/env bash
-# The pre-registered runs of issue 11 that are still open, as registered (weights/README:
-# "Thirtieth session" for F6 and F7, "Thirty-first session" for F8, "Thirty-fourth session"
-# for F9, "Thirty-ninth session" for F10 and F11), and the order in which a
+# The pre-registered runs of issue 11, as registered (weights/README: "Thirtieth session"
+# for F6 and F7, "Thirty-first session" for F8, "Thirty-fourth session" for F9,
+# "Thirty-ninth session" for F10 and F11, withdrawn in the "Forty-second session", which
+# registered F12, the rolling run), and the order in which a
 # new machine re-creates the data they need, so that neither has to be re-typed from prose.
 #
 #   training/registered.sh WORK setup       # a new machine: lavapipe and the training
@@ -36,8 +37,7 @@
 #                                           # and a new machine continues the run from it
 #   training/registered.sh WORK all         # everything below in the registered order,
 #                                           # unattended and resumable (re-running skips
-#                                           # what is done): setup, data train first (what
-#                                           # F10 and F11 need), root s39, F10 beside F11,
+#                                           # what is done): setup, rolling (F12, below),
 #                                           # data val, rules, data heldout rest (F6-F9,
 #                                           # finished and committed, are trained again
 #                                           # first only where their weights are missing:
@@ -50,6 +50,34 @@
 #   training/registered.sh WORK rules       # engine val of F5 and the finished runs, then the
 #                                           # registered rules in their order (ssr.registered)
 #
+# F12, the rolling run (weights/README "Forty-second session"; F10 and F11 are withdrawn and
+# no chain runs them), trains iterations 1,000K to 1,000(K+1) of its 30,000 on block K:
+#
+#   training/registered.sh WORK block K     # renders block K (dataset_recipe.sh phase block,
+#                                           # niced, resumable) and links its root
+#                                           # WORK/ds-block-K (refused until every sequence
+#                                           # of the block is complete)
+#   training/registered.sh WORK F12 K       # trains block K on one core (--stop-at
+#                                           # 1,000(K+1)); refused unless F12's checkpoint
+#                                           # (its own, else its newest kept one) is in
+#                                           # [1,000K, 1,000(K+1)); done when it is past
+#   training/registered.sh WORK prequential K
+#                                           # K >= 1: engine val over block K's 20 procedural
+#                                           # and 6 fixed sequences of the shipped model and
+#                                           # F12 at 1,000K (before it saw them), the
+#                                           # standing rule, recorded in LEDGER (default
+#                                           # weights/prequential-F12.json; ssr.prequential)
+#   training/registered.sh WORK rolling [LAST]
+#                                           # blocks from where F12 stands to LAST (default
+#                                           # 29), unattended: each block rendered, then F12
+#                                           # trains it on one core while the other scores it
+#                                           # (prequential, any block still unscored whose
+#                                           # weights exist) and renders the next; the
+#                                           # checkpoint kept every KEEP_EVERY seconds and at
+#                                           # every block's end (`keep F12` also keeps the
+#                                           # weights at the newest block boundary), with
+#                                           # COMMIT=1 committed with the ledger
+#
 # WORK is outside the repository (e.g. ~/work-data); RESTORE names the folder of whole
 # checkpoints (default weights/restore); SUBPIXEL names the renderer binary
 # (default WORK/subpixel-dist, a copy of `cargo build --profile dist`'s, so that rebuilding
@@ -60,7 +88,7 @@ set -euo pipefail
 {
 here="$(cd "$(dirname "$0")" && pwd)"
 root="$(cd "$here/.." && pwd)"
-usage="usage: registered.sh WORK all|setup|data|root|rules|keep|F6|F7|F8|F9|F10|F11"
+usage="usage: registered.sh WORK all|setup|data|root|rules|keep|block|prequential|rolling|F6|...|F12"
 work="$(realpath -m "${1:?$usage}")"
 what="${2:?$usage}"
 py="${PYTHON:-$HOME/.cache/subpixel/venv/bin/python}"
@@ -71,12 +99,77 @@ need_bin() {
   [ -x "$bin" ] || { echo "registered.sh: no renderer at $bin (registered.sh WORK setup builds it, or set SUBPIXEL)" >&2; exit 2; }
 }
 # run_of F6|...|F11: the run's folder name under WORK/runs.
-runs=(F6 F7 F8 F9 F10 F11)
+runs=(F6 F7 F8 F9 F10 F11 F12)
 run_of() {
   case "$1" in
     F6) echo ssr-s30-F6 ;; F7) echo ssr-s30-F7 ;; F8) echo ssr-s31-F8 ;; F9) echo ssr-s34-F9 ;;
-    F10) echo ssr-s39-F10 ;; F11) echo ssr-s39-F11 ;;
+    F10) echo ssr-s39-F10 ;; F11) echo ssr-s39-F11 ;; F12) echo ssr-s42-F12 ;;
   esac
+}
+# F12's schedule: 30,000 iterations in blocks of 1,000 (block K: 1,000K to 1,000(K+1)).
+f12_iters=30000
+block_iters=1000
+ledger="$(realpath -m "${LEDGER:-$root/weights/prequential-F12.json}")"
+# The options every registered run shares (F6's; each run adds its own).
+base='--thin 0.5 --thin-keep-min 0.02 --seed 17 --lambda ssim=10 --lambda m=0 --lr 1.25e-4 --background loss --mean-correction loss --min-reference-psnr 22 --window 8 --frame-weights 1,1,1,1,1,1,1,1'
+# The twenty-seventh session's data parameters (weights/README "Thirty-first session").
+common=(SUBPIXEL="$bin" SPP=1024 TRAIN_SPP=512 VAL_SEEDS=6 BACKGROUND=8 HELDOUT_SEQUENCES=1 TEST_SEEDS=20)
+# phase [VAR=VALUE ...] PHASE ...: one niced run of the recipe with extra settings.
+phase() {
+  local vars=()
+  while [[ "$1" == *=* ]]; do vars+=("$1"); shift; done
+  env "${common[@]}" "${vars[@]}" nice -n 10 "$here/dataset_recipe.sh" "$ds" "$@"
+}
+# block_check K: K is a block of F12's schedule.
+block_check() {
+  [[ "$1" =~ ^[0-9]+$ ]] && [ "$1" -lt $((f12_iters / block_iters)) ] ||
+    { echo "registered.sh: block must be 0-$((f12_iters / block_iters - 1)), got '$1'" >&2; exit 2; }
+}
+# block_list K: block K's sequences, SPLIT/NAME a line (the recipe's ONLY_LIST).
+block_list() {
+  env "${common[@]}" ONLY_LIST=1 BLOCK="$1" "$here/dataset_recipe.sh" "$ds" block
+}
+# link_complete DIR REL...: links each complete sequence WORK/ds/REL (sequence.json and
+# its 8 frames) into DIR/train; fails naming how many are not complete.
+link_complete() {
+  local dir="$1" rel missing=0
+  shift
+  rm -rf "$dir"
+  mkdir -p "$dir/train"
+  for rel in "$@"; do
+    if [ -f "$ds/$rel/sequence.json" ] && [ -f "$ds/$rel/frame_0007.exr" ]; then
+      ln -s "$ds/$rel" "$dir/train/$(basename "$rel")"
+    else
+      missing=$((missing + 1))
+    fi
+  done
+  [ "$missing" = 0 ] || { echo "registered.sh: $missing of the $# sequences for $dir are not rendered yet" >&2; return 1; }
+}
+# checkpoint_iteration FILE: the iteration a whole checkpoint was written at.
+checkpoint_iteration() {
+  (cd "$here" && "$py" -c "import sys, torch; print(int(torch.load(sys.argv[1], map_location='cpu', weights_only=False)['iteration']))" "$1")
+}
+# iteration_of R: where the run stands: its own checkpoint's iteration, else its newest kept
+# one's (named RUN-itN.pt), else 0.
+iteration_of() {
+  local run own kept n
+  run="$(run_of "$1")"
+  own="$work/runs/$run/checkpoint.pt"
+  if [ -f "$own" ]; then
+    checkpoint_iteration "$own" || { echo "registered.sh: cannot read the iteration of $own" >&2; return 1; }
+    return 0
+  fi
+  kept="$(newest "$restore/$run-it" .pt)"
+  if [ -n "$kept" ]; then n="$(basename "$kept" .pt)"; echo $((10#${n##*-it})); else echo 0; fi
+}
+# f12_weights N: F12's weights at iteration N (its snapshot, else the kept ones), or nothing.
+f12_weights() {
+  local nn w
+  nn=$(printf '%07d' "$1")
+  for w in "$work/runs/ssr-s42-F12/snapshots/it_$nn.safetensors" "$restore/ssr-s42-F12-it$nn.safetensors"; do
+    [ -f "$w" ] && { echo "$w"; return 0; }
+  done
+  return 0
 }
 # newest PREFIX SUFFIX: the last in sort order of the files PREFIX*SUFFIX, or nothing: the
 # highest iteration of checkpoints named with zero-padded iterations (snapshots/it_N.pt,
@@ -108,27 +201,46 @@ finished_all() {
   for r in "$@"; do [ -n "$(weights_of "$r")" ] || return 1; done
 }
 
+self="$here/registered.sh"
+stop_if_asked() {
+  if [ -e "$ds/STOP" ]; then echo "registered.sh: $ds/STOP exists: the chain stops here"; exit 0; fi
+}
+# keep_restore R...: the runs' newest checkpoints into the restore folder (and, with
+# COMMIT=1, into git: that folder and F12's ledger alone); a run without a checkpoint yet is
+# passed over.
+keep_restore() {
+  local r paths=()
+  for r in "$@"; do "$self" "$work" keep "$r" 2>/dev/null || true; done
+  if [ "${COMMIT:-0}" = 1 ]; then
+    [ -d "$restore" ] && paths+=("$restore")
+    [ -f "$ledger" ] && paths+=("$ledger")
+    [ ${#paths[@]} -gt 0 ] || return 0
+    git -C "$root" add -A -- "${paths[@]}" &&
+      git -C "$root" commit -q -m "weights/restore: the registered runs' newest whole checkpoints ($*)" -- "${paths[@]}" ||
+      true
+  fi
+}
+# keep_while_running R...: waits for this shell's background jobs, keeping the runs'
+# checkpoints every KEEP_EVERY seconds (default 1800) and once more at the end.
+keep_while_running() {
+  local waited=0
+  while [ -n "$(jobs -rp)" ]; do  # a job still going (exited ones are not listed)
+    sleep 30
+    waited=$((waited + 30))
+    if [ "$waited" -ge "${KEEP_EVERY:-1800}" ]; then
+      keep_restore "$@"
+      waited=0
+    fi
+  done
+  keep_restore "$@"
+}
+
 case "$what" in
   all)
-    self="$here/registered.sh"
     # step ARGS...: one step of the chain (printed instead with DRY_RUN=1).
     step() {
       echo "== registered.sh $(date -u +%FT%TZ) $*"
       [ "${DRY_RUN:-0}" = 1 ] || "$self" "$work" "$@"
-    }
-    stop_if_asked() {
-      if [ -e "$ds/STOP" ]; then echo "registered.sh: $ds/STOP exists: the chain stops here"; exit 0; fi
-    }
-    # keep_restore R...: the runs' newest checkpoints into the restore folder (and, with
-    # COMMIT=1, into git, that folder alone); a run without a checkpoint yet is passed over.
-    keep_restore() {
-      local r
-      for r in "$@"; do "$self" "$work" keep "$r" 2>/dev/null || true; done
-      if [ "${COMMIT:-0}" = 1 ] && [ -d "$restore" ]; then
-        git -C "$root" add -A -- "$restore" &&
-          git -C "$root" commit -q -m "weights/restore: the registered runs' newest whole checkpoints ($*)" -- "$restore" ||
-          true
-      fi
     }
     # pair R1 R2: the runs not yet finished, side by side (one core each), logs in
     # WORK/RUN.log, their checkpoints kept while they train and once more at the end.
@@ -148,28 +260,19 @@ case "$what" in
         names+=("$r")
       done
       [ ${#pids[@]} -gt 0 ] || return 0
-      local waited=0
-      while [ -n "$(jobs -rp)" ]; do  # a run still going (exited ones are not listed)
-        sleep 30
-        waited=$((waited + 30))
-        if [ "$waited" -ge "${KEEP_EVERY:-1800}" ]; then
-          keep_restore "${names[@]}"
-          waited=0
-        fi
-      done
+      keep_while_running "${names[@]}"
       for r in "${pids[@]}"; do wait "$r" || rc=$?; done
-      keep_restore "${names[@]}"
       [ "$rc" = 0 ] || { echo "registered.sh: ${names[*]}: a run failed (exit $rc); see their logs" >&2; exit "$rc"; }
     }
     step setup
     # F6-F9 finished in the thirty-sixth and thirty-eighth sessions and their rules were
-    # applied (F5 kept); their final weights are committed (finished_of), so a new machine
-    # renders first what the open runs need: the train split of ds-s30 and the first
-    # sequences of procedural seeds 110-279 (ds-s39), then F10 beside F11, then val and the
-    # rules, then the rest. The order of rendering changes no image and no registration.
-    step data train first
-    stop_if_asked
+    # applied (F5 kept); their final weights are committed (finished_of). F10 and F11 were
+    # withdrawn before they started (forty-second session); F12 rolls over blocks, each
+    # rendered beside the training of the one before, so that every session's training
+    # survives in git. Then val, the rules and the rest.
     if ! finished_all F6 F7 F8 F9; then
+      step data train
+      stop_if_asked
       step root
       pair F6 F7
       step data val
@@ -178,8 +281,8 @@ case "$what" in
       pair F8 F9
       step rules || true
     fi
-    step root s39
-    pair F10 F11
+    step rolling
+    stop_if_asked
     step data val
     stop_if_asked
     step rules || true
@@ -196,14 +299,6 @@ case "$what" in
     ;;
   data)
     need_bin
-    # The twenty-seventh session's parameters (weights/README "Thirty-first session").
-    common=(SUBPIXEL="$bin" SPP=1024 TRAIN_SPP=512 VAL_SEEDS=6 BACKGROUND=8 HELDOUT_SEQUENCES=1 TEST_SEEDS=20)
-    # phase [VAR=VALUE ...] PHASE ...: one run of the recipe with extra settings.
-    phase() {
-      local vars=()
-      while [[ "$1" == *=* ]]; do vars+=("$1"); shift; done
-      env "${common[@]}" "${vars[@]}" nice -n 10 "$here/dataset_recipe.sh" "$ds" "$@"
-    }
     parts=("${@:3}")
     [ ${#parts[@]} -gt 0 ] || parts=(train val heldout first rest)
     for part in "${parts[@]}"; do
@@ -264,7 +359,7 @@ print(len(SequenceDataset('$work/ds-$name', 'train', window=8, crop=64, min_refe
     fi
     ;;
   keep)
-    r="${3:?usage: registered.sh WORK keep F6|...|F11}"
+    r="${3:?usage: registered.sh WORK keep F6|...|F12}"
     run="$(run_of "$r")"
     [ -n "$run" ] || { echo "registered.sh: unknown run '$r' to keep (${runs[*]})" >&2; exit 2; }
     snap="$(newest "$work/runs/$run/snapshots/it_" .pt)"
@@ -274,7 +369,7 @@ print(len(SequenceDataset('$work/ds-$name', 'train', window=8, crop=64, min_refe
     # it is further on than its newest snapshot.
     own="$work/runs/$run/checkpoint.pt"
     if [ -f "$own" ]; then
-      at=$(cd "$here" && "$py" -c "import sys, torch; print(int(torch.load(sys.argv[1], map_location='cpu', weights_only=False)['iteration']))" "$own" 2>/dev/null || true)
+      at=$(checkpoint_iteration "$own" 2>/dev/null || true)
       if [[ "$at" =~ ^[0-9]+$ ]] && { [ -z "$n" ] || [ "$at" -gt "$((10#$n))" ]; }; then
         snap="$own"
         n=$(printf '%07d' "$at")
@@ -287,6 +382,98 @@ print(len(SequenceDataset('$work/ds-$name', 'train', window=8, crop=64, min_refe
       [ "$old" = "$restore/$run-it$n.pt" ] || rm -f "$old"
     done
     echo "registered.sh: kept $run at iteration $((10#$n)) as $restore/$run-it$n.pt"
+    if [ "$r" = F12 ]; then
+      # and the weights at the newest block boundary, what block K's prequential score
+      # reads (F12 at 1,000K) on a machine without the run's snapshots
+      w=""
+      for cand in $(ls "$work/runs/$run/snapshots/"it_*.safetensors 2>/dev/null | sort -r); do
+        m=$(basename "$cand" .safetensors); m=$((10#${m#it_}))
+        if [ $((m % block_iters)) = 0 ]; then w="$cand"; break; fi
+      done
+      if [ -n "$w" ]; then
+        m=$(basename "$w" .safetensors); m=${m#it_}
+        cp "$w" "$restore/$run-it$m.safetensors.tmp" && mv "$restore/$run-it$m.safetensors.tmp" "$restore/$run-it$m.safetensors"
+        for old in "$restore/$run-it"*.safetensors; do
+          [ "$old" = "$restore/$run-it$m.safetensors" ] || rm -f "$old"
+        done
+        echo "registered.sh: kept $run's weights at iteration $((10#$m)) as $restore/$run-it$m.safetensors"
+      fi
+    fi
+    ;;
+  block)
+    k="${3:?usage: registered.sh WORK block K}"
+    block_check "$k"
+    if [ "${DRY_RUN:-0}" != 1 ]; then
+      need_bin
+      phase BLOCK="$k" block
+    fi
+    mapfile -t rels < <(block_list "$k")
+    src="$work/ds-block-$k-src"
+    link_complete "$src" "${rels[@]}"
+    "$here/train_root.sh" "$src" "$work/ds-block-$k" 4
+    ;;
+  prequential)
+    k="${3:?usage: registered.sh WORK prequential K}"
+    block_check "$k"
+    [ "$k" -ge 1 ] || { echo "registered.sh: block 0 is not scored (F12 at iteration 0 is its start, F5)" >&2; exit 2; }
+    at=$((k * block_iters))
+    w="$(f12_weights "$at")"
+    [ -n "$w" ] || { echo "registered.sh: no weights of F12 at iteration $at (its snapshot, or kept in $restore): it trains block $((k - 1)) first" >&2; exit 1; }
+    # the block's sequences no model has seen: its procedural ones below the sparse-light
+    # range, and the fixed scenes' (the guard)
+    rels=()
+    while read -r rel; do
+      [[ "$(basename "$rel")" =~ ^procedural_3[0-9]{5}_ ]] || rels+=("$rel")
+    done < <(block_list "$k")
+    link_complete "$work/preq-$k" "${rels[@]}"
+    shipped="$root/weights/ssr.safetensors"
+    if [ "${DRY_RUN:-0}" = 1 ]; then
+      echo "prequential $k: shipped=$shipped F12=$w over ${#rels[@]} sequences"
+      exit 0
+    fi
+    need_bin
+    pred="$work/pred-preq-$k"
+    rm -rf "$pred"
+    # Any tiling gives the same figures to 1e-6 of the range; a fixed one skips the tuning.
+    SUBPIXEL_CONV_KERNEL="${SUBPIXEL_CONV_KERNEL:-px16-cob1-tex}" SUBPIXEL="$bin" SPLIT=train \
+      nice -n 10 "$here/engine_val.sh" "$work/preq-$k" "$pred" shipped="$shipped" F12="$w"
+    "$bin" eval --table --json --pred "$pred" --ref "$work/preq-$k" --split train > "$work/preq-$k.json"
+    (cd "$here" && "$py" -m ssr.prequential "$ledger" "$work/preq-$k.json" --block "$k" --iteration "$at" \
+      --shipped "sha256:$(sha256sum "$shipped" | cut -c1-16)")
+    ;;
+  rolling)
+    last="${3:-$((f12_iters / block_iters - 1))}"
+    block_check "$last"
+    while :; do
+      at="$(iteration_of F12)"
+      k=$((at / block_iters))
+      if [ "$at" -ge "$f12_iters" ] || [ "$k" -gt "$last" ]; then
+        echo "registered.sh: F12 at iteration $at: blocks up to $last trained"
+        break
+      fi
+      stop_if_asked
+      echo "== registered.sh $(date -u +%FT%TZ) block $k (F12 at iteration $at)"
+      "$self" "$work" block "$k"
+      stop_if_asked
+      # the other core: the blocks not yet scored whose weights exist (this one's first:
+      # F12 at 1,000k is where it stands), then the next block's render
+      scored=" $(cd "$here" && "$py" -c "import sys; from ssr.prequential import load; print(' '.join(str(e['block']) for e in load(sys.argv[1])))" "$ledger") "
+      (
+        for j in $(seq "$k" -1 1); do
+          [[ "$scored" == *" $j "* ]] && continue
+          if [ -n "$(f12_weights $((j * block_iters)))" ]; then "$self" "$work" prequential "$j" || true; fi
+        done
+        [ "$k" -ge "$last" ] || "$self" "$work" block $((k + 1))
+      ) >> "$work/lane.log" 2>&1 &
+      echo "== registered.sh F12 block $k (log $work/F12.log; scoring and the next render: $work/lane.log)"
+      rc=0
+      "$self" "$work" F12 "$k" >> "$work/F12.log" 2>&1 &
+      f12=$!
+      keep_while_running F12
+      wait "$f12" || rc=$?
+      [ "$rc" = 0 ] || { echo "registered.sh: F12 failed on block $k (exit $rc); see $work/F12.log" >&2; exit "$rc"; }
+      [ "$(iteration_of F12)" -ge $(((k + 1) * block_iters)) ] || { echo "registered.sh: F12 stopped inside block $k (a signal?)" >&2; exit 1; }
+    done
     ;;
   rules)
     # Engine val of F5 and of every registered run that has finished (WORK/runs/RUN/
@@ -309,10 +496,11 @@ print(len(SequenceDataset('$work/ds-$name', 'train', window=8, crop=64, min_refe
     "$bin" eval --table --json --pred "$work/pred-rules" --ref "$ds" --split val > "$work/rules-val.json"
     (cd "$here" && "$py" -m ssr.registered "$work/rules-val.json")
     ;;
-  F6 | F7 | F8 | F9 | F10 | F11)
+  F6 | F7 | F8 | F9 | F10 | F11 | F12)
     mkdir -p "$work"
     root_ds="$work/ds-s30"
-    base='--thin 0.5 --thin-keep-min 0.02 --seed 17 --lambda ssim=10 --lambda m=0 --lr 1.25e-4 --background loss --mean-correction loss --min-reference-psnr 22 --window 8 --frame-weights 1,1,1,1,1,1,1,1'
+    iters=6000
+    stop=""
     case "$what" in
       F6) init="$root/weights/baselines/ssr-s30-F6-it4500.safetensors"; at=4500
           mc='{"emission":"background"}' ;;
@@ -325,12 +513,30 @@ print(len(SequenceDataset('$work/ds-$name', 'train', window=8, crop=64, min_refe
           mc='{"emission":"background","escaped":"background","exposure":"shared"}' ;;
       F9) init="$root/weights/baselines/ssr-s29-F5.safetensors"; at=0
           mc='{"emission":"background"}'; base="$base --lambda mm=5" ;;
-      # F10 and F11: F6's and F9's settings from F5, on the root with procedural seeds
-      # 0-279 (ds-s39): the same runs over 170 more distinct scenes.
+      # F10 and F11 (withdrawn in the forty-second session, never started): F6's and F9's
+      # settings from F5, on the root with procedural seeds 0-279 (ds-s39).
       F10) init="$root/weights/baselines/ssr-s29-F5.safetensors"; at=0; root_ds="$work/ds-s39"
           mc='{"emission":"background"}' ;;
       F11) init="$root/weights/baselines/ssr-s29-F5.safetensors"; at=0; root_ds="$work/ds-s39"
           mc='{"emission":"background"}'; base="$base --lambda mm=5" ;;
+      # F12: F9's settings from F5 over 30,000 iterations, block K (1,000K to 1,000(K+1))
+      # on WORK/ds-block-K alone.
+      F12) init="$root/weights/baselines/ssr-s29-F5.safetensors"; at=0
+          mc='{"emission":"background"}'; base="$base --lambda mm=5"; iters=$f12_iters
+          k="${3:?usage: registered.sh WORK F12 K (the block to train)}"
+          block_check "$k"
+          now="$(iteration_of F12)"
+          if [ "$now" -ge $(((k + 1) * block_iters)) ]; then
+            echo "registered.sh: F12 is at iteration $now: block $k was trained before"
+            exit 0
+          fi
+          if [ "$now" -lt $((k * block_iters)) ]; then
+            echo "registered.sh: F12 is at iteration $now: block $((now / block_iters)) comes before block $k" >&2
+            exit 1
+          fi
+          root_ds="$work/ds-block-$k"
+          [ -d "$root_ds/train" ] || { echo "registered.sh: no $root_ds (registered.sh WORK block $k renders and links it)" >&2; exit 1; }
+          stop="--stop-at $(((k + 1) * block_iters))" ;;
     esac
     run="$(run_of "$what")"
     # A run begun part-way through its schedule keeps --init-at in its options, also when it
@@ -342,11 +548,11 @@ print(len(SequenceDataset('$work/ds-$name', 'train', window=8, crop=64, min_refe
     if [ ! -f "$work/runs/$run/checkpoint.pt" ] && [ -n "$kept" ]; then
       extra="$extra --resume-from $kept"
     fi
-    RUN=$run ITERS=6000 VAL_EVERY=0 THREADS=1 INIT="$init" DS="$root_ds" \
-      TRAIN_ARGS="$base --model-config $mc $extra" exec "$here/campaign.sh" "$work" train
+    RUN=$run ITERS=$iters VAL_EVERY=0 THREADS=1 INIT="$init" DS="$root_ds" \
+      TRAIN_ARGS="$base --model-config $mc $stop $extra" exec "$here/campaign.sh" "$work" train
     ;;
   *)
-    echo "registered.sh: unknown '$what' (all, setup, data, root, rules, keep, ${runs[*]})" >&2
+    echo "registered.sh: unknown '$what' (all, setup, data, root, rules, keep, block, prequential, rolling, ${runs[*]})" >&2
     exit 2
     ;;
 esac

@@ -1,6 +1,8 @@
 """The pre-registered runs as `training/registered.sh` starts them (weights/README: F6 and F7
-of the thirtieth session, F8 of the thirty-first, F9 of the thirty-fourth): their ssr.train
-arguments, printed by campaign.sh's DRY_RUN, parse and say what the registrations say."""
+of the thirtieth session, F8 of the thirty-first, F9 of the thirty-fourth, F10 and F11 of
+the thirty-ninth, F12 of the forty-second): their ssr.train arguments, printed by
+campaign.sh's DRY_RUN, parse and say what the registrations say; F12's blocks, their roots,
+kept checkpoints and prequential score as the registration orders them."""
 
 import json
 import os
@@ -215,21 +217,171 @@ def test_the_registered_chain_names_what_is_missing(tmp_path):
     assert main([str(path)]) == 2
 
 
-def test_the_whole_chain_runs_in_the_registered_order_and_skips_finished_runs(tmp_path):
-    """`all` (DRY_RUN: the steps printed, nothing run): F6-F9 finished and are committed, so
-    the chain renders what F10 and F11 need (the train split and the first sequences of
-    seeds 0-279), builds their root, trains F10 beside F11, then renders val, applies the
-    rules and renders the rest; a run whose final weights exist is not started again."""
+def test_the_whole_chain_runs_in_the_registered_order(tmp_path):
+    """`all` (DRY_RUN: the steps printed, nothing run): F6-F9 finished and are committed and
+    F10 and F11 were withdrawn, so the chain sets up, rolls F12 over its blocks, then
+    renders val, applies the rules and renders the rest."""
     for r in ("ssr-s30-F6", "ssr-s30-F7", "ssr-s31-F8", "ssr-s34-F9"):
         assert os.path.isfile(os.path.join(ROOT, "weights", "baselines", r + ".safetensors")), r
-    done = tmp_path / "runs" / "ssr-s39-F11"
-    done.mkdir(parents=True)
-    (done / "weights.safetensors").write_bytes(b"finished")
     out = subprocess.run([SCRIPT, str(tmp_path), "all"], env={**os.environ, "DRY_RUN": "1"},
                          capture_output=True, text=True, check=True).stdout
-    steps = [line.split(" ", 3)[3] if line.split(" ")[2].startswith("20") else line.split(" ", 2)[2]
-             for line in out.splitlines() if line.startswith("== registered.sh")]
-    assert steps == [
-        "setup", "data train first", "root s39", f"F10 (log {tmp_path}/F10.log)",
-        f"F11 finished before: {done}/weights.safetensors", "data val", "rules", "data heldout rest",
-    ], out
+    steps = [line.split(" ", 3)[3] for line in out.splitlines() if line.startswith("== registered.sh")]
+    assert steps == ["setup", "rolling", "data val", "rules", "data heldout rest"], out
+
+
+# F12, the rolling run (forty-second session)
+
+
+def run_script(work, *argv, restore=None, dry=True):
+    env = {**os.environ, "PYTHON": sys.executable, "RESTORE": str(restore or work / "no-restore")}
+    if dry:
+        env["DRY_RUN"] = "1"
+    return subprocess.run([SCRIPT, str(work), *argv], env=env, capture_output=True, text=True)
+
+
+def block_names(k):
+    """Block k's sequences as the recipe lists them (ONLY_LIST)."""
+    out = subprocess.run([os.path.join(HERE, "dataset_recipe.sh"), "/nonexistent", "block"],
+                         env={**os.environ, "ONLY_LIST": "1", "BLOCK": str(k)},
+                         capture_output=True, text=True, check=True).stdout
+    return out.split()
+
+
+def test_each_block_holds_new_procedural_seeds_and_rotates_the_rest():
+    """Block K: the six fixed scenes' train sequence K mod 5, four sparse-light seeds (group K
+    mod 4) and the first sequences of procedural seeds 280 + 20K to 299 + 20K, seeds no
+    earlier run rendered (ds-s30 and F5's roots: seeds 0-109; F10 and F11's: 0-279)."""
+    b0, b3, b7 = block_names(0), block_names(3), block_names(7)
+    assert len(b0) == len(b3) == 30 and all(n.startswith("train/") for n in b0)
+    fixed3 = [n for n in b3 if not n.startswith("train/procedural_")]
+    assert fixed3 == [f"train/{s}_train_003" for s in ("cornell", "room", "cbox", "cornell-box", "dining-room", "staircase2")]
+    seeds = lambda b: [int(n.split("_")[1]) for n in b if n.startswith("train/procedural_")]  # noqa: E731
+    assert [s for s in seeds(b3) if s < 300000] == list(range(340, 360))
+    assert all(n.endswith("_train_000") for n in b3 if n.startswith("train/procedural_"))
+    sparse = lambda b: [s for s in seeds(b) if s >= 300000]  # noqa: E731
+    assert len(sparse(b0)) == 4 and sparse(b7) == sparse(b3) and not set(sparse(b0)) & set(sparse(b3))
+    # every block's procedural seeds are new; none reaches the sparse-light range
+    allp = [s for k in range(30) for s in seeds(block_names(k)) if s < 300000]
+    assert len(allp) == len(set(allp)) == 600 and min(allp) == 280 and max(allp) == 879
+    r = subprocess.run([os.path.join(HERE, "dataset_recipe.sh"), "/nonexistent", "block"],
+                       env={**os.environ, "ONLY_LIST": "1", "BLOCK": "14986"}, capture_output=True, text=True)
+    assert r.returncode == 2 and "sparse-light range" in r.stderr, r.stderr
+    r = subprocess.run([os.path.join(HERE, "dataset_recipe.sh"), "/nonexistent", "block"],
+                       env={**os.environ, "ONLY_LIST": "1"}, capture_output=True, text=True)
+    assert r.returncode == 2 and "needs BLOCK=K" in r.stderr, r.stderr
+
+
+def fake_sequences(ds, names, incomplete=()):
+    for rel in names:
+        d = ds / rel
+        d.mkdir(parents=True, exist_ok=True)
+        (d / "sequence.json").write_text("{}")
+        if rel not in incomplete:
+            (d / "frame_0007.exr").write_bytes(b"")
+
+
+def test_a_block_root_links_the_whole_block_or_is_refused(tmp_path):
+    """`block K` (DRY_RUN: nothing rendered) links block K's sequences into WORK/ds-block-K,
+    the sparse-light ones four times, and refuses while one of them is incomplete; nothing
+    of another block enters."""
+    names = block_names(3)
+    ds = tmp_path / "ds"
+    fake_sequences(ds, names + ["train/procedural_360_train_000", "train/cbox_train_002"], incomplete=[names[-1]])
+    r = run_script(tmp_path, "block", "3")
+    assert r.returncode == 1 and "1 of the 30 sequences" in r.stderr, r.stderr
+    fake_sequences(ds, [names[-1]])
+    r = run_script(tmp_path, "block", "3")
+    assert r.returncode == 0, r.stderr
+    linked = sorted(p.name for p in (tmp_path / "ds-block-3" / "train").iterdir())
+    base = sorted(os.path.basename(n) for n in names)
+    sparse = [n for n in base if n.startswith("procedural_3") and len(n.split("_")[1]) == 6]
+    assert linked == sorted(base + [f"{n}_x{k}" for n in sparse for k in (1, 2, 3)])
+    r = run_script(tmp_path, "block", "30")
+    assert r.returncode == 2 and "block must be 0-29" in r.stderr, r.stderr
+
+
+def test_f12_is_f9_over_thirty_blocks_of_a_thousand_iterations(tmp_path):
+    """F12: F9's options from F5 (the same start file), 30,000 iterations, block K on
+    WORK/ds-block-K stopping at 1,000(K+1); nothing else differs from F9."""
+    (tmp_path / "ds-block-0" / "train").mkdir(parents=True)
+    r = run_script(tmp_path, "F12", "0")
+    assert r.returncode == 0, r.stderr
+    f12 = parse_args(r.stdout.splitlines())
+    f9 = dry_run(tmp_path, "F9")
+    differ = {k for k in vars(f12) if vars(f12)[k] != vars(f9)[k]}
+    assert differ == {"out", "data", "iters", "stop_at"}, differ
+    assert f12.iters == 30000 and f12.stop_at == 1000 and f12.data == str(tmp_path / "ds-block-0")
+    assert f12.out.endswith("ssr-s42-F12") and f12.lambdas["mm"] == 5 and f12.init_at == 0
+
+
+def test_f12_trains_only_the_block_where_its_checkpoint_stands(tmp_path):
+    """A block is trained from a checkpoint inside it only: one past it has trained it
+    (nothing to do), one before it must train the earlier block first; on a new machine the
+    newest kept checkpoint says where F12 stands and is resumed from."""
+    import torch
+
+    for k in (0, 1, 2):
+        (tmp_path / f"ds-block-{k}" / "train").mkdir(parents=True)
+    run = tmp_path / "runs" / "ssr-s42-F12"
+    run.mkdir(parents=True)
+    torch.save({"iteration": 1500, "model": {}}, run / "checkpoint.pt")
+    r = run_script(tmp_path, "F12", "1")
+    assert r.returncode == 0, r.stderr
+    a = parse_args(r.stdout.splitlines())
+    assert a.resume and a.stop_at == 2000 and a.data == str(tmp_path / "ds-block-1")
+    r = run_script(tmp_path, "F12", "0")
+    assert r.returncode == 0 and "block 0 was trained before" in r.stdout and "--data" not in r.stdout
+    r = run_script(tmp_path, "F12", "2")
+    assert r.returncode == 1 and "block 1 comes before block 2" in r.stderr, r.stderr
+    # a new machine: no run folder, the kept checkpoint at the end of block 1
+    fresh, restore = tmp_path / "fresh", tmp_path / "restore"
+    (fresh / "ds-block-2" / "train").mkdir(parents=True)
+    restore.mkdir()
+    (restore / "ssr-s42-F12-it0002000.pt").write_bytes(b"kept")
+    a = parse_args(run_script(fresh, "F12", "2", restore=restore).stdout.splitlines())
+    assert a.resume_from == str(restore / "ssr-s42-F12-it0002000.pt") and a.stop_at == 3000
+    r = run_script(fresh, "F12", "1", restore=restore)
+    assert "block 1 was trained before" in r.stdout, r.stdout + r.stderr
+    # a block without its root is refused, naming what renders it
+    r = run_script(fresh, "F12", "2", restore=restore)
+    assert r.returncode == 0
+    (restore / "ssr-s42-F12-it0003000.pt").write_bytes(b"kept")
+    (restore / "ssr-s42-F12-it0002000.pt").unlink()
+    r = run_script(fresh, "F12", "3", restore=restore)
+    assert r.returncode == 1 and "registered.sh WORK block 3" in r.stderr, r.stderr
+
+
+def test_keep_f12_keeps_the_weights_at_the_newest_block_boundary(tmp_path):
+    work, restore = tmp_path / "work", tmp_path / "restore"
+    snaps = work / "runs" / "ssr-s42-F12" / "snapshots"
+    snaps.mkdir(parents=True)
+    for it in (500, 1000, 1500):
+        (snaps / f"it_{it:07d}.pt").write_bytes(b"checkpoint %d" % it)
+        (snaps / f"it_{it:07d}.safetensors").write_bytes(b"weights %d" % it)
+    restore.mkdir()
+    (restore / "ssr-s42-F12-it0000000.safetensors").write_bytes(b"older")
+    r = run_script(work, "keep", "F12", restore=restore, dry=False)
+    assert r.returncode == 0, r.stderr
+    assert sorted(p.name for p in restore.iterdir()) == ["ssr-s42-F12-it0001000.safetensors", "ssr-s42-F12-it0001500.pt"]
+    assert (restore / "ssr-s42-F12-it0001000.safetensors").read_bytes() == b"weights 1000"
+
+
+def test_the_prequential_score_reads_f12_before_it_saw_the_block(tmp_path):
+    """`prequential K` scores F12 at 1,000K (its snapshot, else the kept weights) and the
+    shipped model on block K's procedural and fixed sequences (not the sparse-light ones,
+    which come back every four blocks); refused for block 0 and without those weights."""
+    names = block_names(2)
+    fake_sequences(tmp_path / "ds", names)
+    r = run_script(tmp_path, "prequential", "2")
+    assert r.returncode == 1 and "no weights of F12 at iteration 2000" in r.stderr, r.stderr
+    snaps = tmp_path / "runs" / "ssr-s42-F12" / "snapshots"
+    snaps.mkdir(parents=True)
+    (snaps / "it_0002000.safetensors").write_bytes(b"w")
+    r = run_script(tmp_path, "prequential", "2")
+    assert r.returncode == 0, r.stderr
+    assert f"F12={snaps}/it_0002000.safetensors over 26 sequences" in r.stdout, r.stdout
+    linked = sorted(p.name for p in (tmp_path / "preq-2" / "train").iterdir())
+    assert len(linked) == 26 and not [n for n in linked if n.startswith("procedural_3") and len(n.split("_")[1]) == 6]
+    assert "procedural_320_train_000" in linked and "staircase2_train_002" in linked
+    r = run_script(tmp_path, "prequential", "0")
+    assert r.returncode == 2 and "block 0 is not scored" in r.stderr, r.stderr
