@@ -32,6 +32,7 @@
 
 use crate::error::{Error, Result};
 use crate::gpu::{Gpu, Profiler};
+use crate::nn::autotune::EngineOptions;
 use crate::render::{FrameSettings, GpuScene, Tracer};
 use crate::ssr::{AlbedoSource, Denoiser, EmissionFold, EmissionSource, EscapedSource, Granularity, Weights};
 
@@ -60,6 +61,19 @@ impl FrameLoop {
     /// directly seen emission, or the samples that escaped, out of the colour they are fed,
     /// [`EmissionFold`]).
     pub fn new(gpu: &Gpu, weights: &Weights, width: u32, height: u32) -> Result<Self> {
+        Self::with_options(gpu, weights, width, height, EngineOptions::default())
+    }
+
+    /// [`FrameLoop::new`] with the denoiser's engine choices made by `options`, as
+    /// [`Denoiser::with_options`] takes them (e.g. `KernelChoice::Fixed(..)` for
+    /// reproducible runs that tune nothing).
+    pub fn with_options(
+        gpu: &Gpu,
+        weights: &Weights,
+        width: u32,
+        height: u32,
+        options: EngineOptions,
+    ) -> Result<Self> {
         let (emission, escaped) = (
             weights.config.emission_source()?,
             weights.config.escaped_source()?,
@@ -70,7 +84,7 @@ impl FrameLoop {
         };
         Ok(Self {
             tracer: Tracer::new(gpu, width, height)?,
-            denoiser: Denoiser::with_gpu(gpu, weights, width, height)?,
+            denoiser: Denoiser::with_options(gpu, weights, width, height, options)?,
             fold,
         })
     }

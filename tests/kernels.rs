@@ -9,6 +9,26 @@ use subpixel::nn::conv::{COOP_TOLERANCE, WINOGRAD_AT, WINOGRAD_BT, winograd_weig
 use subpixel::nn::ops::{self, Activation, Conv3x3, ConvKernel, PoolMode, TfaBlend, UpsampleMode};
 use subpixel::nn::{DType, HostTensor, Tensor, reference};
 
+/// The kernels a candidate test runs, out of `candidates`: all of them, except on the
+/// cooperative-matrix run (`SUBPIXEL_EXPECT_COOP=1`, set by `tools/lavapipe_coop.sh`), which
+/// repeats only the generic kernel and the cooperative-matrix tilings. The other tilings are
+/// the same code on both drivers and are tested by the default run; compiling every one of
+/// them again on Mesa 26's lavapipe took half an hour of CI.
+fn under_test(candidates: Vec<ConvKernel>) -> Vec<ConvKernel> {
+    if !coop_run() {
+        return candidates;
+    }
+    candidates
+        .into_iter()
+        .filter(|k| matches!(k, ConvKernel::Generic | ConvKernel::Coop { .. }))
+        .collect()
+}
+
+/// Whether this is the cooperative-matrix run (`SUBPIXEL_EXPECT_COOP=1`).
+fn coop_run() -> bool {
+    std::env::var("SUBPIXEL_EXPECT_COOP").as_deref() == Ok("1")
+}
+
 /// The tolerance of `kernel` against the f64 CPU reference `want`: `exact` for the f32
 /// kernels; for the cooperative-matrix kernel (f16 operands), [`COOP_TOLERANCE`] of the
 /// reference's largest magnitude.
@@ -113,22 +133,25 @@ fn conv3x3_concatenates_up_to_four_inputs() {
 /// Issue 14: every kernel the autotuner can pick for a layer (the generic kernel and every
 /// register-blocked tiling that fits) agrees with the CPU reference, on shapes that
 /// exercise partial pixel groups (odd widths), output blocks that do not divide the output
-/// (28 channels = 7 vec4s), concatenated inputs, padded channels and each activation.
+/// (28 channels = 7 vec4s, 17 = 5 with padding), concatenated inputs, padded channels and
+/// each activation. Each shape is a compile of every candidate (seconds each on a CPU
+/// driver), so each shape carries several of these cases.
 #[test]
 fn conv3x3_every_autotuner_candidate_matches_reference() {
     let g = gpu();
     // (input split, output channels, activation, size)
     type Shape = (&'static [u32], u32, Activation, (u32, u32));
     let shapes: &[Shape] = &[
-        (&[15, 4, 15, 3], 16, Activation::Relu, (33, 17)),
-        (&[32, 3], 28, Activation::Relu, (19, 9)),
-        (&[8], 8, Activation::None, (40, 7)),
-        (&[5], 17, Activation::LeakyRelu(0.1), (1, 3)),
+        // Four inputs, three of them padded; 7 vec4s of output; odd width.
+        (&[15, 4, 15, 3], 28, Activation::LeakyRelu(0.1), (33, 17)),
+        // One padded input, 17 outputs; a 1-pixel-wide image.
+        (&[5], 17, Activation::None, (1, 3)),
         // 64 -> 48: more weights than one uniform buffer holds: chunked dispatches.
         (&[64], 48, Activation::Relu, (9, 5)),
     ];
     let mut chunked = 0;
     let mut tried = 0;
+    let mut coop_shapes = 0;
     for (i, &(split, cout, act, (w, h))) in shapes.iter().enumerate() {
         let (inputs, weight, bias, conv) =
             random_layer("candidate", split, cout, act, (w, h), (300, 50), i as u64);
@@ -138,7 +161,9 @@ fn conv3x3_every_autotuner_candidate_matches_reference() {
         let want = reference::conv3x3(&hin, &weight, &bias, cout, act);
         let candidates = conv.candidates(&g);
         assert!(candidates.len() > 1, "{split:?}->{cout}: only {candidates:?}");
-        for kernel in candidates {
+        let kernels = under_test(candidates);
+        coop_shapes += kernels.iter().any(|k| matches!(k, ConvKernel::Coop { .. })) as u32;
+        for kernel in kernels {
             let out = Tensor::new(&g, "out", w, h, cout).unwrap();
             let d = conv.bind_with(&g, kernel, &refs, &out).unwrap();
             // A kernel reading textures first copies each input to a texture array (one
@@ -186,7 +211,13 @@ fn conv3x3_every_autotuner_candidate_matches_reference() {
             tried += 1;
         }
     }
-    assert!(tried >= 40, "{tried} kernel/shape pairs");
+    if coop_run() {
+        // The cooperative-matrix run tests only the generic kernel and the coop tilings:
+        // at least one coop tiling must apply to every shape.
+        assert_eq!(coop_shapes as usize, shapes.len(), "shapes with a coop tiling");
+    } else {
+        assert!(tried >= 40, "{tried} kernel/shape pairs");
+    }
     assert!(chunked >= 5, "{chunked} chunked dispatches");
 }
 
@@ -289,40 +320,63 @@ fn conv3x3_resamples_inputs_on_load() {
     let g = gpu();
     let (w, h) = (11u32, 6u32);
     let mut tried = 0;
-    for (i, fetch) in [
-        Fetch::Pool(PoolMode::Max),
-        Fetch::Pool(PoolMode::Average),
-        Fetch::Upsample(UpsampleMode::Nearest),
-        Fetch::Upsample(UpsampleMode::Bilinear),
+    // Each layer (a compile of every candidate) reads one input as stored, one pooled and
+    // one upsampled: the four resamplings over two layers.
+    for (i, resampled) in [
+        [Fetch::Pool(PoolMode::Max), Fetch::Upsample(UpsampleMode::Nearest)],
+        [
+            Fetch::Pool(PoolMode::Average),
+            Fetch::Upsample(UpsampleMode::Bilinear),
+        ],
     ]
     .into_iter()
     .enumerate()
     {
-        // The stored tensor: 21x11 (clipped windows at the edge) for pooling, 6x3 for
+        let seed = 700 + 10 * i as u64;
+        // The stored tensors: 21x11 (clipped windows at the edge) for pooling, 6x3 for
         // upsampling.
-        let (sw, sh) = match fetch {
-            Fetch::Pool(_) => (2 * w - 1, 2 * h - 1),
-            _ => (w.div_ceil(2), h.div_ceil(2)),
-        };
-        let stored = random(700 + i as u64, sw, sh, 6, -1.0, 1.0);
-        let direct = random(710 + i as u64, w, h, 3, -1.0, 1.0);
-        let read = match fetch {
-            Fetch::Pool(mode) => reference::pool2x2(&stored, mode),
-            Fetch::Upsample(mode) => reference::upsample2x(&stored, mode, w, h),
-            Fetch::Direct => unreachable!(),
-        };
-        let (split, cout) = ([3u32, 6], 12u32);
-        let weight = random_vec(720 + i as u64, (cout * 9 * 9) as usize, -0.5, 0.5);
-        let bias = random_vec(730 + i as u64, cout as usize, -0.5, 0.5);
+        let stored: Vec<HostTensor> = resampled
+            .iter()
+            .enumerate()
+            .map(|(k, fetch)| {
+                let (sw, sh) = match fetch {
+                    Fetch::Pool(_) => (2 * w - 1, 2 * h - 1),
+                    _ => (w.div_ceil(2), h.div_ceil(2)),
+                };
+                random(seed + k as u64, sw, sh, 6, -1.0, 1.0)
+            })
+            .collect();
+        let direct = random(seed + 5, w, h, 3, -1.0, 1.0);
+        let read: Vec<HostTensor> = resampled
+            .iter()
+            .zip(&stored)
+            .map(|(fetch, t)| match *fetch {
+                Fetch::Pool(mode) => reference::pool2x2(t, mode),
+                Fetch::Upsample(mode) => reference::upsample2x(t, mode, w, h),
+                Fetch::Direct => unreachable!(),
+            })
+            .collect();
+        let (split, cout) = ([3u32, 6, 6], 12u32);
+        let weight = random_vec(seed + 6, (cout * 15 * 9) as usize, -0.5, 0.5);
+        let bias = random_vec(seed + 7, cout as usize, -0.5, 0.5);
         let mut conv = Conv3x3::new(&g, "fused", &weight, &bias, &split, cout, Activation::Relu).unwrap();
-        conv.set_fetch(&[Fetch::Direct, fetch]).unwrap();
-        let want = reference::conv3x3(&[&direct, &read], &weight, &bias, cout, Activation::Relu);
-        let (gd, gs) = (up(&g, "direct", &direct), up(&g, "stored", &stored));
-        for kernel in conv.candidates(&g) {
+        conv.set_fetch(&[Fetch::Direct, resampled[0], resampled[1]])
+            .unwrap();
+        let want = reference::conv3x3(
+            &[&direct, &read[0], &read[1]],
+            &weight,
+            &bias,
+            cout,
+            Activation::Relu,
+        );
+        let gd = up(&g, "direct", &direct);
+        let gs: Vec<Tensor> = stored.iter().map(|t| up(&g, "stored", t)).collect();
+        let names = format!("{} and {}", resampled[0].name(), resampled[1].name());
+        for kernel in under_test(conv.candidates(&g)) {
             let out = Tensor::new(&g, "out", w, h, cout).unwrap();
-            let d = conv.bind_with(&g, kernel, &[&gd, &gs], &out).unwrap();
+            let d = conv.bind_with(&g, kernel, &[&gd, &gs[0], &gs[1]], &out).unwrap();
             ops::run(&g, &[&d]).unwrap();
-            let case = format!("conv3x3 {kernel} reading {}", fetch.name());
+            let case = format!("conv3x3 {kernel} reading {names}");
             assert_tensor(&case, &out, &want, kernel_tol(kernel, &want, REDUCTION));
             // The autotuner's output check (its own inputs, the CPU resampling) agrees.
             let e = conv.output_error(&g, kernel, 13, 7, &[]).unwrap();
@@ -334,17 +388,21 @@ fn conv3x3_resamples_inputs_on_load() {
             assert!(e <= bound, "{case}: output check error {e:e}");
             tried += 1;
         }
-        // The input at the layer's size instead of the stored size.
-        let out = Tensor::new(&g, "out", w, h, cout).unwrap();
+        // An input at the layer's size instead of its stored size.
         let same = up(&g, "same", &random(1, w, h, 6, -1.0, 1.0));
-        let e = conv.bind(&g, &[&gd, &same], &out).unwrap_err().to_string();
-        let expect = format!("input 1 is {w}x{h}, expected");
-        assert!(
-            e.contains("fused") && e.contains(&expect) && e.contains(fetch.name()),
-            "{e}"
-        );
+        for k in 0..2 {
+            let out = Tensor::new(&g, "out", w, h, cout).unwrap();
+            let mut inputs = vec![&gd, &gs[0], &gs[1]];
+            inputs[k + 1] = &same;
+            let e = conv.bind(&g, &inputs, &out).unwrap_err().to_string();
+            let expect = format!("input {} is {w}x{h}, expected", k + 1);
+            assert!(
+                e.contains("fused") && e.contains(&expect) && e.contains(resampled[k].name()),
+                "{e}"
+            );
+        }
     }
-    assert!(tried >= 4 * 10, "{tried} kernel/fetch pairs");
+    assert!(tried >= 2 * 10, "{tried} kernel/layer pairs");
     let mut conv = Conv3x3::new(&g, "fused", &[0.0; 27], &[0.0], &[3], 1, Activation::None).unwrap();
     let e = conv.set_fetch(&[]).unwrap_err().to_string();
     assert!(
@@ -486,7 +544,8 @@ fn conv3x3_and_pooling_with_f16_storage_match_reference() {
             + ConvKernel::texture_tilings().len()
             + coop
     );
-    for &kernel in &kernels {
+    let tested = under_test(kernels.clone());
+    for &kernel in &tested {
         let outputs: &[DType] = if kernel == ConvKernel::Generic || kernel.to_string() == "px4-cob2" {
             &[DType::F16, DType::F32]
         } else {
@@ -526,7 +585,11 @@ fn conv3x3_and_pooling_with_f16_storage_match_reference() {
             tried += 1;
         }
     }
-    assert_eq!(tried, kernels.len() + 2);
+    let both = tested
+        .iter()
+        .filter(|k| **k == ConvKernel::Generic || k.to_string() == "px4-cob2")
+        .count();
+    assert_eq!(tried, tested.len() + both);
     // An f16 output saturates at f16's largest finite value instead of overflowing.
     let big = Conv3x3::new(&g, "big", &[1.0e3; 9], &[0.0], &[1], 1, Activation::None).unwrap();
     let x = Tensor::from_host(&g, "x", &HostTensor::from_fn(4, 4, 1, |_, _, _| 100.0)).unwrap();

@@ -8,7 +8,7 @@
 mod common;
 
 use subpixel::render::{CameraPath, FrameSettings, GpuScene, Mode, Tracer, load_scene};
-use subpixel::ssr::{Denoiser, Weights};
+use subpixel::ssr::Weights;
 
 /// Resident set size of this process in bytes (Linux; 0 elsewhere).
 fn rss_bytes() -> u64 {
@@ -42,7 +42,7 @@ fn tracer_and_denoiser_run_2000_frames_in_flat_memory() {
     // filter passes, with their buffers alternating from frame to frame.
     weights.config.mean_correction = Some("atrous".into());
     let mut tracer = Tracer::new(&gpu, w, h).unwrap();
-    let mut den = Denoiser::with_gpu(&gpu, &weights, w, h).unwrap();
+    let mut den = common::denoiser(&gpu, &weights, w, h).unwrap();
     let mut samples: Vec<(u32, u64, Option<u64>)> = Vec::new();
     let t0 = std::time::Instant::now();
     for f in 0..frames {

@@ -128,7 +128,7 @@ fn transient_tensors_share_memory() {
     let gpu = common::gpu();
     let weights = Weights::load(golden_weights_path()).unwrap();
     let (w, h) = (32u32, 24u32);
-    let den = Denoiser::with_gpu(&gpu, &weights, w, h).unwrap();
+    let den = common::denoiser(&gpu, &weights, w, h).unwrap();
     let net = den.network();
     let bytes = |id: TensorId| {
         let (extent, c) = id.shape(&net.config);
@@ -163,7 +163,8 @@ fn transient_tensors_share_memory() {
 
 /// Issue 14: a fixed kernel runs every layer it can and the generic kernel the others; a
 /// tiling no layer can run (too many accumulators) leaves every layer on the generic one.
-/// Both give the autotuned denoiser's output to the parity tolerance.
+/// Both give the autotuned denoiser's output (tuned among `common::TUNED_AMONG`) to the
+/// parity tolerance.
 #[test]
 fn fixed_kernels_fall_back_to_generic_where_they_cannot_run() {
     use subpixel::nn::autotune::{EngineOptions, KernelChoice, Precision};
@@ -181,7 +182,7 @@ fn fixed_kernels_fall_back_to_generic_where_they_cannot_run() {
         let kernels: Vec<ConvKernel> = den.network().conv_kernels().into_iter().map(|(_, k)| k).collect();
         (kernels, den.denoise_host(&frame).unwrap())
     };
-    let (auto, want) = run(KernelChoice::Autotune);
+    let (auto, want) = run(common::tuned_kernels().kernels);
     assert!(!auto.is_empty());
     let too_big = ConvKernel::Blocked {
         px: 16,
@@ -266,7 +267,7 @@ fn odd_sizes_are_padded_internally() {
         let weights = Weights::load(&path).unwrap();
         assert_eq!(weights.config.pad_multiple(), m);
         for (w, h) in [(1, 1), (7, 5), (33, 17)] {
-            let mut den = Denoiser::with_gpu(&gpu, &weights, w, h).unwrap();
+            let mut den = common::denoiser(&gpu, &weights, w, h).unwrap();
             let net = den.network();
             assert_eq!((net.width, net.height), (w.div_ceil(m) * m, h.div_ceil(m) * m));
             for t in 0..2 {
@@ -282,7 +283,7 @@ fn odd_sizes_are_padded_internally() {
 fn nan_and_inf_inputs_are_sanitised_and_counted() {
     let gpu = common::gpu();
     let weights = Weights::load(golden_weights_path()).unwrap();
-    let mut den = Denoiser::with_gpu(&gpu, &weights, 12, 8).unwrap();
+    let mut den = common::denoiser(&gpu, &weights, 12, 8).unwrap();
     let clean = random_frame(12, 8, 1);
     let mut dirty = clean.clone();
     dirty.color.set(3, 2, 0, f32::NAN);
@@ -302,7 +303,7 @@ fn nan_and_inf_inputs_are_sanitised_and_counted() {
         zeroed.normal.set(5, 5, c, 0.0);
     }
     zeroed.motion.set(0, 0, 0, 0.0);
-    let mut fresh = Denoiser::with_gpu(&gpu, &weights, 12, 8).unwrap();
+    let mut fresh = common::denoiser(&gpu, &weights, 12, 8).unwrap();
     let want = fresh.denoise_host(&zeroed).unwrap();
     common::assert_close("sanitised == zeroed", &out, &want, common::EXACT);
 }
@@ -312,12 +313,12 @@ fn reset_and_resize_restart_the_history() {
     let gpu = common::gpu();
     let weights = Weights::load(golden_weights_path()).unwrap();
     let (f0, f1) = (random_frame(16, 12, 3), random_frame(16, 12, 4));
-    let mut den = Denoiser::with_gpu(&gpu, &weights, 16, 12).unwrap();
+    let mut den = common::denoiser(&gpu, &weights, 16, 12).unwrap();
     let first = den.denoise_host(&f0).unwrap();
     let with_history = den.denoise_host(&f1).unwrap();
     den.reset();
     let after_reset = den.denoise_host(&f1).unwrap();
-    let mut fresh = Denoiser::with_gpu(&gpu, &weights, 16, 12).unwrap();
+    let mut fresh = common::denoiser(&gpu, &weights, 16, 12).unwrap();
     let fresh_f1 = fresh.denoise_host(&f1).unwrap();
     common::assert_close("reset == fresh", &after_reset, &fresh_f1, common::EXACT);
     assert_ne!(with_history, after_reset, "history must matter");
@@ -362,8 +363,8 @@ fn exposure_scaled_inputs_scale_the_output() {
     let weights = Weights::load(golden_weights_path()).unwrap();
     assert_eq!(weights.config.version, 2);
     for k in [[7.0, 0.25, 40.0], [1e-3; 3], [300.0; 3]] {
-        let mut base = Denoiser::with_gpu(&gpu, &weights, 16, 12).unwrap();
-        let mut scaled = Denoiser::with_gpu(&gpu, &weights, 16, 12).unwrap();
+        let mut base = common::denoiser(&gpu, &weights, 16, 12).unwrap();
+        let mut scaled = common::denoiser(&gpu, &weights, 16, 12).unwrap();
         for t in 0..3 {
             let f = random_frame(16, 12, 10 + t);
             let want = base.denoise_host(&f).unwrap();
@@ -383,8 +384,8 @@ fn exposure_scaled_inputs_scale_the_output() {
     }
     // The shadow buffer holds the light's own radiance (an environment's sun: ~7e4, an area
     // light: ~20); it is normalised on its own, so its magnitude alone changes nothing.
-    let mut base = Denoiser::with_gpu(&gpu, &weights, 16, 12).unwrap();
-    let mut sun = Denoiser::with_gpu(&gpu, &weights, 16, 12).unwrap();
+    let mut base = common::denoiser(&gpu, &weights, 16, 12).unwrap();
+    let mut sun = common::denoiser(&gpu, &weights, 16, 12).unwrap();
     for t in 0..2 {
         let f = random_frame(16, 12, 30 + t);
         let want = base.denoise_host(&f).unwrap();
@@ -404,12 +405,12 @@ fn exposure_scaled_inputs_scale_the_output() {
     // The version-1 pipeline fails this: its output hardly follows the light.
     let v1 = Weights::load(golden_v1_weights_path()).unwrap();
     let f = random_frame(16, 12, 10);
-    let base = Denoiser::with_gpu(&gpu, &v1, 16, 12)
+    let base = common::denoiser(&gpu, &v1, 16, 12)
         .unwrap()
         .denoise_host(&f)
         .unwrap();
     let k = [7.0, 0.25, 40.0];
-    let scaled = Denoiser::with_gpu(&gpu, &v1, 16, 12)
+    let scaled = common::denoiser(&gpu, &v1, 16, 12)
         .unwrap()
         .denoise_host(&exposed(&f, k))
         .unwrap();
@@ -441,7 +442,7 @@ fn history_of_other_geometry_is_rejected_after_a_cut() {
     b.motion = HostTensor::from_fn(16, 12, 2, |_, _, _| 0.0);
     for (path, rejected) in [(golden_weights_path(), true), (golden_v1_weights_path(), false)] {
         let weights = Weights::load(&path).unwrap();
-        let mut den = Denoiser::with_gpu(&gpu, &weights, 16, 12).unwrap();
+        let mut den = common::denoiser(&gpu, &weights, 16, 12).unwrap();
         den.denoise_host(&a).unwrap();
         den.denoise_host(&a).unwrap();
         let after_cut = den.denoise_host(&b).unwrap();
@@ -450,7 +451,7 @@ fn history_of_other_geometry_is_rejected_after_a_cut() {
             .flat_map(|y| (0..16).map(move |x| (x, y)))
             .map(|(x, y)| alpha.at(x, y, 1))
             .fold(0f32, f32::max);
-        let mut fresh = Denoiser::with_gpu(&gpu, &weights, 16, 12).unwrap();
+        let mut fresh = common::denoiser(&gpu, &weights, 16, 12).unwrap();
         let reset = fresh.denoise_host(&b).unwrap();
         if rejected {
             assert_eq!(
@@ -523,12 +524,12 @@ fn out_of_range_inputs_are_clamped_and_counted() {
         fixed.normal.at(9, 5, 2),
     ];
     assert_eq!(n, [-1.0, 0.0, 0.0]);
-    let mut den = Denoiser::with_gpu(&gpu, &weights, 12, 8).unwrap();
+    let mut den = common::denoiser(&gpu, &weights, 12, 8).unwrap();
     let out = den.denoise_host(&dirty).unwrap();
     let bad = out.data.iter().filter(|v| !v.is_finite()).count();
     assert_eq!(bad, 0, "{bad} non-finite output values");
     assert_eq!(den.sanitized_count().unwrap(), 9, "one per value out of range");
-    let mut fresh = Denoiser::with_gpu(&gpu, &weights, 12, 8).unwrap();
+    let mut fresh = common::denoiser(&gpu, &weights, 12, 8).unwrap();
     let want = fresh.denoise_host(&fixed).unwrap();
     common::assert_close("clamped == in-range frame", &out, &want, common::EXACT);
 }
@@ -563,7 +564,7 @@ fn garbage_frames_give_finite_output() {
     for path in [golden_weights_path(), golden_v1_weights_path()] {
         let weights = Weights::load(&path).unwrap();
         for (w, h) in [(12, 8), (5, 3)] {
-            let mut den = Denoiser::with_gpu(&gpu, &weights, w, h).unwrap();
+            let mut den = common::denoiser(&gpu, &weights, w, h).unwrap();
             // Garbage with rising density (1 = every value), then clean frames.
             for (t, density) in [0.05, 0.3, 1.0, 0.5, 1.0, 0.0, 0.0].into_iter().enumerate() {
                 let mut f = random_frame(w, h, 50 + t as u64);
@@ -633,10 +634,9 @@ fn denoiser_runs_on_default_limits_and_refuses_lower_ones() {
         &reference,
         common::EXACT,
     );
-    // The API's own constructor on default limits, tuned there: the same output to the
-    // tolerance of kernels that sum in another order.
-    let mut den = Denoiser::new(&device, &queue, &weights, 12, 8).unwrap();
-    let out = den.denoise_host(&frame).unwrap();
+    // Tuned on default limits: the same output to the tolerance of kernels that sum in
+    // another order (the API's own constructor, `Denoiser::new`, is refused below).
+    let out = run(&on_default, common::tuned_kernels());
     common::assert_close("default limits, autotuned", &out, &reference, common::REDUCTION);
     // On lavapipe the parameters go in a storage buffer where the limits leave room for one
     // (gpu::ParamsBinding): with 8 storage buffers per stage, conv3x3 (7 + 1) does and
@@ -708,6 +708,58 @@ fn autotuning_stays_within_the_buffer_limits() {
     assert!(own.candidates.iter().any(|c| c.kernel == tuning.choice));
 }
 
+/// `KernelChoice::Among`: a tuning among a set of kernels times those of them the layer
+/// can run and the generic kernel, nothing else, picks one of them, and is cached apart
+/// from a full tuning of the same shape; a kernel the autotuner does not know is refused
+/// by name.
+#[test]
+fn tuning_among_a_set_times_only_its_kernels() {
+    use subpixel::nn::autotune::{self, KernelChoice, KernelSet, LayerStorage};
+    use subpixel::nn::conv::{Conv3x3, ConvKernel};
+    use subpixel::nn::ops::Activation;
+    let g = common::gpu();
+    // An unusual shape, so that no earlier tuning is cached for it.
+    let w: Vec<f32> = (0..7 * 9 * 9).map(|i| ((i % 7) as f32 - 3.0) * 0.02).collect();
+    let conv = Conv3x3::new(&g, "among", &w, &[0.0; 9], &[7], 9, Activation::Relu).unwrap();
+    let storage = LayerStorage::f32(&conv);
+    let set: KernelSet = "px2-cob1,wino-tx1-cob1".parse().unwrap();
+    assert_eq!(set.to_string(), "px2-cob1,wino-tx1-cob1");
+    let (t, cached) = autotune::tune_among(&g, &conv, 20, 12, &storage, Some(set)).unwrap();
+    let timed: Vec<ConvKernel> = t.candidates.iter().map(|c| c.kernel).collect();
+    let want: Vec<ConvKernel> = ["generic", "px2-cob1", "wino-tx1-cob1"]
+        .iter()
+        .map(|k| k.parse().unwrap())
+        .collect();
+    assert_eq!(timed, want);
+    assert!(!cached && want.contains(&t.choice), "{t:?}");
+    assert!(
+        autotune::tune_among(&g, &conv, 20, 12, &storage, Some(set))
+            .unwrap()
+            .1
+    );
+    let (tw, th) = autotune::tuning_size(&g, &conv, 20, 12, &storage);
+    let (full, among) = (
+        autotune::key(&g, &conv, tw, th, &storage, None),
+        autotune::key(&g, &conv, tw, th, &storage, Some(set)),
+    );
+    assert!(
+        among.ends_with(" among px2-cob1,wino-tx1-cob1") && among.starts_with(&full),
+        "{among}"
+    );
+    // The denoiser's choice of every layer is among them.
+    let weights = Weights::load(golden_weights_path()).unwrap();
+    let options = subpixel::nn::autotune::EngineOptions {
+        kernels: KernelChoice::Among(set),
+        ..Default::default()
+    };
+    let den = Denoiser::with_options(&g, &weights, 20, 12, options).unwrap();
+    for (layer, k) in den.network().conv_kernels() {
+        assert!(want.contains(&k), "{layer}: {k}");
+    }
+    let e = "px4-cob1,px3-cob1".parse::<KernelSet>().unwrap_err().to_string();
+    assert!(e.contains("px3-cob1"), "{e}");
+}
+
 /// A device on the test adapter created with exactly `limits`.
 fn device_with_limits(limits: wgpu::Limits) -> (wgpu::Device, wgpu::Queue) {
     let adapter = common::gpu()
@@ -749,7 +801,7 @@ fn denoise_host_never_writes_the_callers_buffers() {
         })
         .collect();
     let inputs = FrameInputs::from_slice(&caller).unwrap();
-    let mut den = Denoiser::with_gpu(&gpu, &weights, w, h).unwrap();
+    let mut den = common::denoiser(&gpu, &weights, w, h).unwrap();
     let mut enc = gpu.device.create_command_encoder(&Default::default());
     den.denoise(&mut enc, &inputs).unwrap();
     gpu.queue.submit([enc.finish()]);
@@ -762,7 +814,7 @@ fn denoise_host_never_writes_the_callers_buffers() {
     }
     let e = FrameInputs::from_slice(&caller[..5]).unwrap_err().to_string();
     assert!(e.contains("5 buffers, expected 6 (color_mask,"), "{e}");
-    let mut fresh = Denoiser::with_gpu(&gpu, &weights, w, h).unwrap();
+    let mut fresh = common::denoiser(&gpu, &weights, w, h).unwrap();
     common::assert_close("frame a", &out_a, &fresh.denoise_host(&a).unwrap(), common::EXACT);
     common::assert_close("frame b", &out_b, &fresh.denoise_host(&b).unwrap(), common::EXACT);
 }
@@ -780,9 +832,8 @@ fn precision_auto_and_f16_need_and_follow_the_device() {
     let (w, h) = (20, 12);
     let run = |precision| {
         let options = EngineOptions {
-            kernels: KernelChoice::Autotune,
             precision,
-            ..Default::default()
+            ..common::tuned_kernels()
         };
         let mut den = Denoiser::with_options(&gpu, &weights, w, h, options).unwrap();
         let out = (0..2)
@@ -848,7 +899,7 @@ fn output_never_exceeds_the_brightest_recent_sample() {
             CeilingMode::Max,
             "{path:?}"
         );
-        let mut den = Denoiser::with_gpu(&gpu, &weights, w, h).unwrap();
+        let mut den = common::denoiser(&gpu, &weights, w, h).unwrap();
         // The albedo the model demodulates with: the G-buffer's, or (config albedo
         // "footprint", the shipped model) the frame's footprint albedo, here another one.
         let footprint = weights.config.albedo_source().unwrap() == AlbedoSource::Footprint;
@@ -929,8 +980,8 @@ fn background_composites_by_coverage() {
     let gpu = common::gpu();
     let weights = Weights::load(golden_weights_path()).unwrap();
     let (w, h) = (16, 12);
-    let mut plain = Denoiser::with_gpu(&gpu, &weights, w, h).unwrap();
-    let mut with = Denoiser::with_gpu(&gpu, &weights, w, h).unwrap();
+    let mut plain = common::denoiser(&gpu, &weights, w, h).unwrap();
+    let mut with = common::denoiser(&gpu, &weights, w, h).unwrap();
     let mut coverage = HostTensor::from_fn(w, h, 1, |x, y, _| {
         [1.0, 0.75, 0.0, 1.0][((x + 3 * y) % 4) as usize]
     });
@@ -1049,7 +1100,7 @@ fn check_mean_correction(option: &str, side: u32, tiles: (u32, u32)) {
         let per_pixel = HostTensor::from_fn(w, h, 3, |x, y, c| mean_factor_at(&factors, side, x, y, c));
         (per_pixel, factors.data)
     };
-    check_corrected_output(&weights, (w, h), 2e-5, Default::default(), frame, factors);
+    check_corrected_output(&weights, (w, h), 2e-5, common::fixed_kernels(), frame, factors);
 }
 
 /// Runs seven frames (`frame(t)`, given a background on the odd ones) through a denoiser of
@@ -1061,7 +1112,7 @@ fn check_mean_correction(option: &str, side: u32, tiles: (u32, u32)) {
 /// For weights of config escaped "background" every frame has a background, and a third of
 /// the traced pixels' samples escaped: the factors see the frame as the model is fed it
 /// (those pixels left out) and, as samples, the rest times `1 - coverage`. `options` run
-/// the corrected denoiser (the uncorrected one runs on the defaults).
+/// both denoisers.
 fn check_corrected_output(
     weights: &Weights,
     (w, h): (u32, u32),
@@ -1076,7 +1127,7 @@ fn check_corrected_output(
     let gpu = common::gpu();
     let mut uncorrected = weights.clone();
     uncorrected.config.mean_correction = Some("none".into());
-    let mut plain = Denoiser::with_gpu(&gpu, &uncorrected, w, h).unwrap();
+    let mut plain = Denoiser::with_options(&gpu, &uncorrected, w, h, options).unwrap();
     let mut corrected = Denoiser::with_options(&gpu, weights, w, h, options).unwrap();
     let (mut clamped, mut between) = (0, 0);
     for t in 0..7u64 {
@@ -1210,6 +1261,7 @@ fn atrous_pixels_out_of_range_are_refused() {
 }
 
 fn check_atrous_correction(escaped: &str, atrous_pixels: subpixel::nn::autotune::AtrousPixels) {
+    use subpixel::nn::autotune::{AtrousPixels, EngineOptions};
     use subpixel::nn::reference::{mean_atrous_factors, mean_history_sums, mean_pixel_sums};
     use subpixel::ssr::{
         ATROUS_DECAY, ATROUS_DEPTH_SIGMA, ATROUS_EPS, ATROUS_LEVELS, ATROUS_NORMAL_SQUARINGS, MEAN_HI,
@@ -1266,9 +1318,15 @@ fn check_atrous_correction(escaped: &str, atrous_pixels: subpixel::nn::autotune:
         let values = factors.data.clone();
         (factors, values)
     };
-    let options = subpixel::nn::autotune::EngineOptions {
+    // The default (timed, FromEnv) on tuned kernels, as a user's denoiser chooses it; a
+    // fixed count on fixed kernels (nothing timed).
+    let options = match atrous_pixels {
+        AtrousPixels::FromEnv => common::tuned_kernels(),
+        _ => common::fixed_kernels(),
+    };
+    let options = EngineOptions {
         atrous_pixels,
-        ..Default::default()
+        ..options
     };
     check_corrected_output(&weights, (w, h), 2e-5, options, frame, factors);
 }
@@ -1286,9 +1344,9 @@ fn footprint_albedo_models_take_the_frames_footprint_albedo() {
     let mut footprint = centre.clone();
     footprint.config.albedo = Some("footprint".into());
     let (w, h) = (20u32, 12u32);
-    let mut a = Denoiser::with_gpu(&gpu, &footprint, w, h).unwrap();
-    let mut b = Denoiser::with_gpu(&gpu, &centre, w, h).unwrap();
-    let mut c = Denoiser::with_gpu(&gpu, &centre, w, h).unwrap();
+    let mut a = common::denoiser(&gpu, &footprint, w, h).unwrap();
+    let mut b = common::denoiser(&gpu, &centre, w, h).unwrap();
+    let mut c = common::denoiser(&gpu, &centre, w, h).unwrap();
     for t in 0..3 {
         let mut f = random_frame(w, h, 90 + t);
         let albedo = common::random(9_000 + t, w, h, 3, 0.0, 1.0);
@@ -1335,9 +1393,9 @@ fn emission_background_models_take_the_emission_from_the_background() {
     let mut em = network.clone();
     em.config.emission = Some("background".into());
     let (w, h) = (20u32, 12u32);
-    let mut a = Denoiser::with_gpu(&gpu, &em, w, h).unwrap();
-    let mut b = Denoiser::with_gpu(&gpu, &network, w, h).unwrap();
-    let mut c = Denoiser::with_gpu(&gpu, &network, w, h).unwrap();
+    let mut a = common::denoiser(&gpu, &em, w, h).unwrap();
+    let mut b = common::denoiser(&gpu, &network, w, h).unwrap();
+    let mut c = common::denoiser(&gpu, &network, w, h).unwrap();
     for t in 0..3 {
         let mut f = random_frame(w, h, 120 + t);
         // part of each traced sample is emission; an emitter's footprint spills around it
@@ -1406,8 +1464,8 @@ fn a_configs_input_names_are_the_buffers_its_denoiser_takes() {
     for (weights, n, seed) in [(&network, 6, 140u64), (&em, 8, 150)] {
         let names = weights.config.input_names().unwrap();
         assert_eq!(names, &FrameInputs::ALL_NAMES[..n]);
-        let mut host = Denoiser::with_gpu(&gpu, weights, w, h).unwrap();
-        let mut own = Denoiser::with_gpu(&gpu, weights, w, h).unwrap();
+        let mut host = common::denoiser(&gpu, weights, w, h).unwrap();
+        let mut own = common::denoiser(&gpu, weights, w, h).unwrap();
         for t in 0..2 {
             let mut f = random_frame(w, h, seed + t);
             let radiance = common::random(7_200 + seed + t, w, h, 3, 0.0, 1.0);
@@ -1447,7 +1505,7 @@ fn a_configs_input_names_are_the_buffers_its_denoiser_takes() {
             let want = host.denoise_host(&f).unwrap();
             assert_eq!(own.read_output().unwrap(), want, "{n} buffers, frame {t}");
             if n == 8 && t == 1 {
-                let mut fresh = Denoiser::with_gpu(&gpu, weights, w, h).unwrap();
+                let mut fresh = common::denoiser(&gpu, weights, w, h).unwrap();
                 let mut enc = gpu.device.create_command_encoder(&Default::default());
                 let six = FrameInputs::from_slice(&bufs[..6]).unwrap();
                 let e = fresh.denoise(&mut enc, &six).unwrap_err().to_string();
@@ -1475,8 +1533,8 @@ fn the_frame_loop_feeds_a_footprint_model_its_footprint_albedo() {
     let (path, far) = scene
         .camera_path(&CameraPathSpec::Static, 1, 3, 0, &gs.bvh)
         .unwrap();
-    let mut frames = FrameLoop::new(&gpu, &weights, w, h).unwrap();
-    let mut host = Denoiser::with_gpu(&gpu, &weights, w, h).unwrap();
+    let mut frames = FrameLoop::with_options(&gpu, &weights, w, h, common::fixed_kernels()).unwrap();
+    let mut host = common::denoiser(&gpu, &weights, w, h).unwrap();
     for f in 0..3 {
         let s = FrameSettings::along(&path, f, Mode::Quarter, 1, far);
         assert_eq!(s.background, 0);
@@ -1513,8 +1571,8 @@ fn the_mean_correction_sees_no_directly_seen_emission() {
     let mut em = network.clone();
     em.config.emission = Some("background".into());
     let (w, h) = (40u32, 24u32);
-    let mut a = Denoiser::with_gpu(&gpu, &em, w, h).unwrap();
-    let mut b = Denoiser::with_gpu(&gpu, &network, w, h).unwrap();
+    let mut a = common::denoiser(&gpu, &em, w, h).unwrap();
+    let mut b = common::denoiser(&gpu, &network, w, h).unwrap();
     for t in 0..3 {
         let mut f = random_frame(w, h, 140 + t);
         // a bright emitter over the left third, seen by some samples
@@ -1591,8 +1649,8 @@ fn check_frame_loop_fold(scene: &str, emission: &str, escaped: &str) {
     let (path, far) = scene
         .camera_path(&CameraPathSpec::Static, 1, 3, 0, &gs.bvh)
         .unwrap();
-    let mut frames = FrameLoop::new(&gpu, &weights, w, h).unwrap();
-    let mut host = Denoiser::with_gpu(&gpu, &weights, w, h).unwrap();
+    let mut frames = FrameLoop::with_options(&gpu, &weights, w, h, common::fixed_kernels()).unwrap();
+    let mut host = common::denoiser(&gpu, &weights, w, h).unwrap();
     let mut sampled = 0;
     for f in 0..4 {
         let s = FrameSettings::along(&path, f, Mode::Quarter, 1, far);
@@ -1697,7 +1755,7 @@ fn escaped_samples_are_left_out_or_the_frame_refused() {
     );
     let mut weights = Weights::load(golden_weights_path()).unwrap();
     weights.config.escaped = Some("background".into());
-    let mut den = Denoiser::with_gpu(&common::gpu(), &weights, w, h).unwrap();
+    let mut den = common::denoiser(&common::gpu(), &weights, w, h).unwrap();
     let e = den.denoise_host(&old).unwrap_err().to_string();
     assert!(e.contains("'escaped'"), "{e}");
     assert!(den.denoise_host(&f).is_ok());

@@ -112,11 +112,15 @@ fn f16_activations_match_pytorch_within_f16_tolerance() {
 
 /// Engine options of a golden run: `precision`, and for f16 one fixed tiling (every
 /// tiling's f16 storage is checked against the CPU reference in the kernel tests; this
-/// spares a fresh machine the tuning of f16 layer shapes).
+/// spares a fresh machine the tuning of f16 layer shapes); for f32 the kernels
+/// `SUBPIXEL_CONV_KERNEL` names (e.g. `auto` for a full tuning), else a tuning among
+/// `common::TUNED_AMONG` (every candidate's parity is tested in `tests/kernels.rs`; a full
+/// tuning compiles them all for every layer shape, tens of minutes on a fresh CPU driver).
 fn options(precision: Precision, pooling: Pooling) -> EngineOptions {
     let kernels = match precision {
         Precision::F16 => KernelChoice::Fixed("px4-cob2".parse().unwrap()),
-        _ => KernelChoice::FromEnv,
+        _ if std::env::var_os(subpixel::nn::autotune::ENV_KERNEL).is_some() => KernelChoice::FromEnv,
+        _ => common::tuned_kernels().kernels,
     };
     EngineOptions {
         kernels,

@@ -14,7 +14,10 @@
 //!
 //! For reproducibility the choice can be fixed: [`KernelChoice::Fixed`] through the API,
 //! or the environment variable `SUBPIXEL_CONV_KERNEL` (`auto`, `generic` or a tiling such
-//! as `px8-cob4`; a layer the tiling cannot run falls back to `generic`).
+//! as `px8-cob4`; a layer the tiling cannot run falls back to `generic`). A first tuning
+//! compiles every candidate for every layer shape, which on a CPU driver takes minutes;
+//! [`KernelChoice::Among`] (or a comma-separated list in `SUBPIXEL_CONV_KERNEL`, e.g.
+//! `px16-cob2-tex,px8-cob4`) tunes among a few kernels only.
 //!
 //! The storage of the network's interior activations is chosen alike ([`Precision`],
 //! `SUBPIXEL_PRECISION`): f32 by default (the trained model to float tolerance), f16
@@ -91,6 +94,62 @@ pub enum KernelChoice {
     Autotune,
     /// This kernel wherever it can run the layer, [`ConvKernel::Generic`] elsewhere.
     Fixed(ConvKernel),
+    /// Time these kernels (those a layer can run, and always the generic kernel) and keep
+    /// the fastest, cached apart from full tunings.
+    Among(KernelSet),
+}
+
+/// A set of convolution kernels from [`ConvKernel::catalogue`] ([`KernelChoice::Among`]);
+/// written and parsed as the kernels' names separated by commas.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
+pub struct KernelSet(u64);
+
+impl KernelSet {
+    /// The set of `kernels`; an error names a kernel the autotuner does not know.
+    pub fn of(kernels: &[ConvKernel]) -> Result<Self> {
+        let all = ConvKernel::catalogue();
+        let mut bits = 0u64;
+        for k in kernels {
+            let i = all.iter().position(|c| c == k).ok_or_else(|| {
+                Error::Invalid(format!(
+                    "conv kernel '{k}' is not one the autotuner tries (ConvKernel::catalogue)"
+                ))
+            })?;
+            bits |= 1 << i;
+        }
+        Ok(KernelSet(bits))
+    }
+
+    /// Whether the set holds `kernel`.
+    pub fn contains(&self, kernel: ConvKernel) -> bool {
+        ConvKernel::catalogue()
+            .iter()
+            .position(|&c| c == kernel)
+            .is_some_and(|i| self.0 & (1 << i) != 0)
+    }
+
+    /// The kernels of the set, in the catalogue's order.
+    pub fn kernels(&self) -> Vec<ConvKernel> {
+        ConvKernel::catalogue()
+            .into_iter()
+            .filter(|&k| self.contains(k))
+            .collect()
+    }
+}
+
+impl std::fmt::Display for KernelSet {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        let names: Vec<String> = self.kernels().iter().map(|k| k.to_string()).collect();
+        write!(f, "{}", names.join(","))
+    }
+}
+
+impl std::str::FromStr for KernelSet {
+    type Err = Error;
+    fn from_str(s: &str) -> Result<Self> {
+        let kernels: Vec<ConvKernel> = s.split(',').map(|k| k.trim().parse()).collect::<Result<_>>()?;
+        KernelSet::of(&kernels)
+    }
 }
 
 impl KernelChoice {
@@ -103,11 +162,23 @@ impl KernelChoice {
         match std::env::var(ENV_KERNEL) {
             Err(_) => Ok(KernelChoice::Autotune),
             Ok(v) if v.trim().is_empty() || v.trim() == "auto" => Ok(KernelChoice::Autotune),
-            Ok(v) => v
-                .trim()
+            Ok(v) if v.contains(',') => v
                 .parse()
-                .map(KernelChoice::Fixed)
-                .map_err(|e| Error::Invalid(format!("{ENV_KERNEL}: {e} (or 'auto')"))),
+                .map(KernelChoice::Among)
+                .map_err(|e| Error::Invalid(format!("{ENV_KERNEL}: {e}"))),
+            Ok(v) => v.trim().parse().map(KernelChoice::Fixed).map_err(|e| {
+                Error::Invalid(format!(
+                    "{ENV_KERNEL}: {e} (or 'auto', or kernels separated by commas)"
+                ))
+            }),
+        }
+    }
+
+    /// The kernels a tuning under this (resolved) choice times: `None` for all of them.
+    pub fn among(self) -> Option<KernelSet> {
+        match self {
+            KernelChoice::Among(set) => Some(set),
+            _ => None,
         }
     }
 }
@@ -417,7 +488,16 @@ fn kernels_hash() -> String {
 /// The cache key of `conv` tuned at `w x h` with `storage` on `gpu`: adapter, driver, the
 /// kernels' sources (a change of either kernel invalidates old choices), the layer's shape
 /// and its tensors' storage (all-f32 keys are those of earlier versions).
-pub fn key(gpu: &Gpu, conv: &Conv3x3, w: u32, h: u32, storage: &LayerStorage) -> String {
+pub fn key(
+    gpu: &Gpu,
+    conv: &Conv3x3,
+    w: u32,
+    h: u32,
+    storage: &LayerStorage,
+    among: Option<KernelSet>,
+) -> String {
+    // A tuning among a few kernels is kept apart from the full one.
+    let among = among.map(|set| format!(" among {set}")).unwrap_or_default();
     let storage = match storage.describe().as_str() {
         "f32" => String::new(),
         s => format!(" {s}"),
@@ -433,7 +513,7 @@ pub fn key(gpu: &Gpu, conv: &Conv3x3, w: u32, h: u32, storage: &LayerStorage) ->
     // earlier versions).
     let coop = gpu.coop_tile.map(|t| format!(" coop{t}")).unwrap_or_default();
     format!(
-        "{} | {:?} | {} {} | {} | conv3x3 {:?}->{} {:?} at {w}x{h}{storage}{fetch}{coop}",
+        "{} | {:?} | {} {} | {} | conv3x3 {:?}->{} {:?} at {w}x{h}{storage}{fetch}{coop}{among}",
         gpu.info.name,
         gpu.info.backend,
         gpu.info.driver,
@@ -492,6 +572,22 @@ pub fn measure(
     warmup: u32,
     iterations: u32,
 ) -> Result<Tuning> {
+    measure_among(gpu, conv, w, h, storage, None, warmup, iterations)
+}
+
+/// [`measure`] of the candidates in `among` only (all of them for `None`; the generic
+/// kernel always).
+#[allow(clippy::too_many_arguments)]
+pub fn measure_among(
+    gpu: &Gpu,
+    conv: &Conv3x3,
+    w: u32,
+    h: u32,
+    storage: &LayerStorage,
+    among: Option<KernelSet>,
+    warmup: u32,
+    iterations: u32,
+) -> Result<Tuning> {
     let inputs: Vec<Tensor> = conv
         .input_channels
         .iter()
@@ -513,6 +609,9 @@ pub fn measure(
     let bound: Vec<(ConvKernel, Result<Dispatch>)> = {
         use rayon::prelude::*;
         conv.candidates(gpu)
+            .into_iter()
+            .filter(|&k| k == ConvKernel::Generic || among.is_none_or(|set| set.contains(k)))
+            .collect::<Vec<_>>()
             .into_par_iter()
             .map(|kernel| (kernel, conv.bind_with(gpu, kernel, &refs, &out)))
             .collect()
@@ -689,8 +788,20 @@ fn confirm(
 /// else the disk cache, else measured now (at [`tuning_size`]) and cached. Returns it and
 /// whether it came from a cache.
 pub fn tune(gpu: &Gpu, conv: &Conv3x3, w: u32, h: u32, storage: &LayerStorage) -> Result<(Tuning, bool)> {
+    tune_among(gpu, conv, w, h, storage, None)
+}
+
+/// [`tune`] among the kernels of `among` only (all of them for `None`), cached apart.
+pub fn tune_among(
+    gpu: &Gpu,
+    conv: &Conv3x3,
+    w: u32,
+    h: u32,
+    storage: &LayerStorage,
+    among: Option<KernelSet>,
+) -> Result<(Tuning, bool)> {
     let (tw, th) = tuning_size(gpu, conv, w, h, storage);
-    let key = key(gpu, conv, tw, th, storage);
+    let key = key(gpu, conv, tw, th, storage, among);
     if let Some(t) = memory().lock().unwrap().get(&key) {
         // A cached choice this build cannot run (an edited cache) is re-measured.
         if conv.unsupported(gpu, t.choice).is_none() {
@@ -699,7 +810,7 @@ pub fn tune(gpu: &Gpu, conv: &Conv3x3, w: u32, h: u32, storage: &LayerStorage) -
     }
     announce_first_tuning(gpu);
     let started = std::time::Instant::now();
-    let t = measure(gpu, conv, tw, th, storage, 1, TUNE_ITERATIONS)?;
+    let t = measure_among(gpu, conv, tw, th, storage, among, 1, TUNE_ITERATIONS)?;
     log::info!(
         "autotuned conv3x3 {:?}->{} ({}) at {tw}x{th}: {} of {} kernels in {:.1} s (once per adapter; cached in {})",
         conv.input_channels,
@@ -802,14 +913,21 @@ pub fn choose(
     match choice.resolve()? {
         KernelChoice::Fixed(k) if conv.unsupported(gpu, k).is_none() => Ok(k),
         KernelChoice::Fixed(_) => Ok(ConvKernel::Generic),
-        _ => Ok(tune(gpu, conv, w, h, storage)?.0.choice),
+        choice => Ok(tune_among(gpu, conv, w, h, storage, choice.among())?.0.choice),
     }
 }
 
 /// The tuned time of `conv`'s fastest kernel for a `w x h` layer with `storage`, in ms,
 /// scaled from the tuning size to the layer's pixels (what [`Precision::Auto`] compares).
-pub fn tuned_ms(gpu: &Gpu, conv: &Conv3x3, w: u32, h: u32, storage: &LayerStorage) -> Result<f64> {
-    let (t, _) = tune(gpu, conv, w, h, storage)?;
+pub fn tuned_ms(
+    gpu: &Gpu,
+    conv: &Conv3x3,
+    w: u32,
+    h: u32,
+    storage: &LayerStorage,
+    among: Option<KernelSet>,
+) -> Result<f64> {
+    let (t, _) = tune_among(gpu, conv, w, h, storage, among)?;
     let best = t
         .candidates
         .iter()
@@ -930,6 +1048,37 @@ mod tests {
             assert_eq!(tune_size(gpu, 3840, 2160), (2048, 2048));
             assert_eq!(tune_size(gpu, 16, 20), (32, 32));
         }
+    }
+
+    #[test]
+    fn kernel_sets_parse_print_and_name_unknown_kernels() {
+        let set: KernelSet = " px16-cob1 , generic,wino-tx2-cob2-tex".parse().unwrap();
+        // Printed in the catalogue's order, whatever order they were given in.
+        assert_eq!(set.to_string(), "generic,px16-cob1,wino-tx2-cob2-tex");
+        assert!(set.contains(ConvKernel::Generic));
+        assert!(!set.contains("px4-cob1".parse().unwrap()));
+        assert_eq!(set.to_string().parse::<KernelSet>().unwrap(), set);
+        assert_eq!(
+            KernelSet::of(&ConvKernel::catalogue()).unwrap().kernels(),
+            ConvKernel::catalogue()
+        );
+        assert!(
+            ConvKernel::catalogue().len() <= 64,
+            "a KernelSet holds 64 kernels"
+        );
+        let e = "px4-cob1,px3-cob1".parse::<KernelSet>().unwrap_err().to_string();
+        assert!(e.contains("px3-cob1"), "{e}");
+        let e = "px4-cob1,fast".parse::<KernelSet>().unwrap_err().to_string();
+        assert!(e.contains("fast"), "{e}");
+        let among = KernelChoice::Among(set);
+        assert_eq!(among.resolve().unwrap(), among);
+        assert_eq!(among.among(), Some(set));
+        assert_eq!(KernelChoice::Autotune.among(), None);
+        let options = EngineOptions {
+            kernels: among,
+            ..Default::default()
+        };
+        assert!(options.measures().unwrap(), "a tuning among a set measures");
     }
 
     #[test]

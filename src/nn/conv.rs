@@ -401,6 +401,17 @@ impl ConvKernel {
         blocked.into_iter().chain(winograd).collect()
     }
 
+    /// Every kernel the autotuner knows, in its order: the generic kernel, then the
+    /// register-blocked, Winograd, texture-reading and cooperative-matrix tilings.
+    pub fn catalogue() -> Vec<ConvKernel> {
+        std::iter::once(ConvKernel::Generic)
+            .chain(ConvKernel::blocked_tilings())
+            .chain(ConvKernel::winograd_tilings())
+            .chain(ConvKernel::texture_tilings())
+            .chain(ConvKernel::coop_tilings())
+            .collect()
+    }
+
     /// Whether the kernel reads its inputs as textures.
     pub fn reads_textures(&self) -> bool {
         self.uniform_layout().is_some_and(|l| l.tex)
@@ -883,11 +894,8 @@ impl Conv3x3 {
     /// [`ConvKernel::winograd_tilings`] and [`ConvKernel::texture_tilings`]), and the
     /// cooperative-matrix tilings where the device has them.
     pub fn candidates(&self, gpu: &Gpu) -> Vec<ConvKernel> {
-        std::iter::once(ConvKernel::Generic)
-            .chain(ConvKernel::blocked_tilings())
-            .chain(ConvKernel::winograd_tilings())
-            .chain(ConvKernel::texture_tilings())
-            .chain(ConvKernel::coop_tilings())
+        ConvKernel::catalogue()
+            .into_iter()
             .filter(|&k| self.unsupported(gpu, k).is_none())
             .collect()
     }

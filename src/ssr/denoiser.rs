@@ -279,6 +279,12 @@ impl Denoiser {
             ));
         }
         gpu.kernels.check_limits("the denoiser", KERNELS_USED)?;
+        let mean_correction = weights.config.mean_correction()?;
+        if mean_correction == MeanCorrection::Atrous {
+            // A bad SUBPIXEL_ATROUS_PIXELS fails here, before the network is built (and
+            // tuned), rather than at the first frame.
+            options.atrous_pixels.resolve()?;
+        }
         // The engine pads frames internally (4 for a 3-level U-Net, 8 for 4 levels).
         let pad = weights.config.pad_multiple();
         let net = Network::new(
@@ -289,17 +295,13 @@ impl Denoiser {
             options,
         )?;
         let output = Self::make_output(gpu, width, height);
-        let mean = match weights.config.mean_correction()? {
+        let mean = match mean_correction {
             MeanCorrection::None => None,
             kind => {
                 let (side, atrous) = match kind {
                     MeanCorrection::Tiles { side } => (side, false),
                     _ => (1, true),
                 };
-                if atrous {
-                    // A bad SUBPIXEL_ATROUS_PIXELS fails here rather than at the first frame.
-                    options.atrous_pixels.resolve()?;
-                }
                 let tiles = (width.div_ceil(side), height.div_ceil(side));
                 let n = tiles.0 as u64 * tiles.1 as u64;
                 let buffer = |label: &str, size: u64| {

@@ -120,16 +120,18 @@ fn layer_storage(specs: &[StepSpec], name: &str, dtype: DType) -> LayerStorage {
 
 /// The interior activations' storage under `precision`: for [`Precision::Auto`], f16 when
 /// the device has SHADER_F16 and the tuned times of a frame's layer runs (each layer at
-/// its `size`) are lower with it.
+/// its `size`) are lower with it (the layers tuned as `options.kernels` says: among its
+/// kernels for `KernelChoice::Among`, else among all).
 fn activation_storage(
     gpu: &Gpu,
     specs: &[StepSpec],
     layers: &[LayerSpec],
     convs: &BTreeMap<String, Conv3x3>,
-    precision: Precision,
+    options: EngineOptions,
     size: impl Fn(&LayerSpec) -> (u32, u32),
 ) -> Result<DType> {
-    Ok(match precision.resolve()? {
+    let among = options.kernels.resolve()?.among();
+    Ok(match options.precision.resolve()? {
         Precision::F16 => {
             gpu.require(wgpu::Features::SHADER_F16, "f16 activations")?;
             DType::F16
@@ -140,7 +142,8 @@ fn activation_storage(
                 for l in layers {
                     let (lw, lh) = size(l);
                     let storage = layer_storage(specs, &l.name, dtype);
-                    total[i] += autotune::tuned_ms(gpu, &convs[&l.name], lw, lh, &storage)? * l.runs as f64;
+                    total[i] +=
+                        autotune::tuned_ms(gpu, &convs[&l.name], lw, lh, &storage, among)? * l.runs as f64;
                 }
             }
             log::info!(
@@ -208,6 +211,7 @@ fn pool_pass(
         _ if !options.measures()? => return Ok(false),
         _ => {}
     }
+    let among = options.kernels.resolve()?.among();
     let (mut on_load, mut passes) = (0.0f64, 0.0f64);
     for l in layers {
         let conv = convs.get_mut(&l.name).expect("every layer is built");
@@ -217,7 +221,7 @@ fn pool_pass(
         }
         let (lw, lh) = size(l);
         let storage = layer_storage(specs, &l.name, dtype);
-        on_load += autotune::tuned_ms(gpu, conv, lw, lh, &storage)? * l.runs as f64;
+        on_load += autotune::tuned_ms(gpu, conv, lw, lh, &storage, among)? * l.runs as f64;
         let direct: Vec<Fetch> = fetch
             .iter()
             .map(|&f| {
@@ -229,7 +233,7 @@ fn pool_pass(
             })
             .collect();
         conv.set_fetch(&direct)?;
-        let tuned = autotune::tuned_ms(gpu, conv, lw, lh, &storage);
+        let tuned = autotune::tuned_ms(gpu, conv, lw, lh, &storage, among);
         conv.set_fetch(&fetch)?;
         passes += tuned? * l.runs as f64;
         for (i, f) in fetch.iter().enumerate() {
@@ -289,7 +293,7 @@ impl Network {
         // pooling are chosen from it, then the graph is built as chosen.
         let (specs, stored) = graph_with(&config, false, &mut convs)?;
         let size = |l: &LayerSpec| (width >> l.level, height >> l.level);
-        let activations = activation_storage(gpu, &specs, &layers, &convs, options.precision, size)?;
+        let activations = activation_storage(gpu, &specs, &layers, &convs, options, size)?;
         let pool_pass = pool_pass(gpu, &specs, &layers, &mut convs, options, activations, size)?;
         let (specs, stored) = if pool_pass {
             graph_with(&config, true, &mut convs)?

@@ -6,6 +6,8 @@ pub mod twin;
 use rand::{Rng, SeedableRng, rngs::StdRng};
 use subpixel::gpu::Gpu;
 use subpixel::nn::HostTensor;
+use subpixel::nn::autotune::{EngineOptions, KernelChoice};
+use subpixel::ssr::{Denoiser, Weights};
 
 /// The tolerances of every parity test, in one place. A GPU value `g` matches the CPU
 /// reference `c` when `|g - c| <= abs + rel * |c|`.
@@ -34,6 +36,41 @@ pub fn gpu() -> Gpu {
     static GPU: std::sync::OnceLock<Gpu> = std::sync::OnceLock::new();
     GPU.get_or_init(|| Gpu::new().expect("a GPU adapter (the CPU Vulkan driver is enough)"))
         .clone()
+}
+
+/// The one convolution tiling the denoiser tests run unless they test the engine's own
+/// choices: autotuning compiles every candidate kernel of every layer shape at every frame
+/// size, which on a fresh CPU driver takes tens of minutes, while each tiling's parity with
+/// the CPU reference is tested on its own (`tests/kernels.rs`) and the autotuned network's
+/// in `tests/ssr_golden.rs`; the tests of the engine's timed choices tune among a few
+/// kernels ([`tuned_kernels`]).
+pub const FIXED_KERNEL: &str = "px16-cob1";
+
+/// Engine options that tune and time nothing: [`FIXED_KERNEL`] wherever it can run a layer
+/// (the generic kernel elsewhere), pooling and the a-trous filter at their defaults.
+pub fn fixed_kernels() -> EngineOptions {
+    EngineOptions {
+        kernels: KernelChoice::Fixed(FIXED_KERNEL.parse().expect("a tiling name")),
+        ..Default::default()
+    }
+}
+
+/// The kernels the tests of the engine's measured choices (the autotuner, `Precision::Auto`,
+/// `Pooling::Auto`, `AtrousPixels::Auto`) tune among (`KernelChoice::Among`, the generic
+/// kernel always with them): the same choices made by timing, at a few compiles per layer.
+pub const TUNED_AMONG: &str = "px4-cob1,px16-cob1";
+
+/// Engine options that tune among [`TUNED_AMONG`].
+pub fn tuned_kernels() -> EngineOptions {
+    EngineOptions {
+        kernels: KernelChoice::Among(TUNED_AMONG.parse().expect("kernel names")),
+        ..Default::default()
+    }
+}
+
+/// A denoiser for `w x h` frames on [`fixed_kernels`].
+pub fn denoiser(gpu: &Gpu, weights: &Weights, w: u32, h: u32) -> subpixel::Result<Denoiser> {
+    Denoiser::with_options(gpu, weights, w, h, fixed_kernels())
 }
 
 /// Uniform random tensor in `[lo, hi)`.
