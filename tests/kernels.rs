@@ -217,8 +217,9 @@ fn conv3x3_every_autotuner_candidate_matches_reference() {
         assert_eq!(coop_shapes as usize, shapes.len(), "shapes with a coop tiling");
     } else {
         assert!(tried >= 40, "{tried} kernel/shape pairs");
+        // (chunked dispatches are the uniform-weight kernels', which that run leaves out)
+        assert!(chunked >= 5, "{chunked} chunked dispatches");
     }
-    assert!(chunked >= 5, "{chunked} chunked dispatches");
 }
 
 /// Issue 14, fewer copies: a kernel with uniform weights given a texture for its output
