@@ -700,11 +700,11 @@ fn autotuning_stays_within_the_buffer_limits() {
     assert_eq!(autotune::tuning_size(&big, &cb, 40, 40, &storage), (64, 64));
     assert_eq!(autotune::tuning_size(&small, &cs, 40, 40, &storage), (40, 40));
     // At its own size every candidate runs; at 64x64 none could.
-    let own = autotune::measure(&small, &cs, 40, 40, &storage, 1, 1).unwrap();
+    let own = autotune::measure(&small, &cs, 40, 40, &storage, None, 1, 1).unwrap();
     assert!(own.candidates.iter().all(|c| c.median_ms.is_some()), "{own:?}");
-    let e = autotune::measure(&small, &cs, 64, 64, &storage, 1, 1).unwrap_err();
+    let e = autotune::measure(&small, &cs, 64, 64, &storage, None, 1, 1).unwrap_err();
     assert!(e.to_string().contains("no candidate"), "{e}");
-    let (tuning, _) = autotune::tune(&small, &cs, 40, 40, &storage).unwrap();
+    let (tuning, _) = autotune::tune(&small, &cs, 40, 40, &storage, None).unwrap();
     assert!(own.candidates.iter().any(|c| c.kernel == tuning.choice));
 }
 
@@ -724,7 +724,7 @@ fn tuning_among_a_set_times_only_its_kernels() {
     let storage = LayerStorage::f32(&conv);
     let set: KernelSet = "px2-cob1,wino-tx1-cob1".parse().unwrap();
     assert_eq!(set.to_string(), "px2-cob1,wino-tx1-cob1");
-    let (t, cached) = autotune::tune_among(&g, &conv, 20, 12, &storage, Some(set)).unwrap();
+    let (t, cached) = autotune::tune(&g, &conv, 20, 12, &storage, Some(set)).unwrap();
     let timed: Vec<ConvKernel> = t.candidates.iter().map(|c| c.kernel).collect();
     let want: Vec<ConvKernel> = ["generic", "px2-cob1", "wino-tx1-cob1"]
         .iter()
@@ -732,11 +732,7 @@ fn tuning_among_a_set_times_only_its_kernels() {
         .collect();
     assert_eq!(timed, want);
     assert!(!cached && want.contains(&t.choice), "{t:?}");
-    assert!(
-        autotune::tune_among(&g, &conv, 20, 12, &storage, Some(set))
-            .unwrap()
-            .1
-    );
+    assert!(autotune::tune(&g, &conv, 20, 12, &storage, Some(set)).unwrap().1);
     let (tw, th) = autotune::tuning_size(&g, &conv, 20, 12, &storage);
     let (full, among) = (
         autotune::key(&g, &conv, tw, th, &storage, None),

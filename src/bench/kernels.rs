@@ -225,7 +225,7 @@ pub fn bench_kernels(gpu: &Gpu, o: &KernelBenchOptions) -> Result<Vec<KernelTimi
 pub fn conv_choice(gpu: &Gpu, o: &KernelBenchOptions) -> Result<(ConvKernel, bool, (u32, u32))> {
     let conv = bench_conv(gpu, o.channels)?;
     let storage = autotune::LayerStorage::f32(&conv);
-    let (t, cached) = autotune::tune(gpu, &conv, o.width, o.height, &storage)?;
+    let (t, cached) = autotune::tune(gpu, &conv, o.width, o.height, &storage, None)?;
     let size = autotune::tuning_size(gpu, &conv, o.width, o.height, &storage);
     Ok((t.choice, cached, size))
 }

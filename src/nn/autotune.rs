@@ -132,7 +132,9 @@ impl KernelSet {
     pub fn kernels(&self) -> Vec<ConvKernel> {
         ConvKernel::catalogue()
             .into_iter()
-            .filter(|&k| self.contains(k))
+            .enumerate()
+            .filter(|&(i, _)| self.0 & (1 << i) != 0)
+            .map(|(_, k)| k)
             .collect()
     }
 }
@@ -560,25 +562,12 @@ pub fn tuning_size(gpu: &Gpu, conv: &Conv3x3, w: u32, h: u32, storage: &LayerSto
     }
 }
 
-/// Times every candidate of `conv` at `w x h` on scratch tensors stored as `storage` says
-/// (deterministic pseudo-random inputs). A candidate that fails to build or run is recorded
-/// with its error and skipped (logged), never fatal; the generic kernel always runs.
-pub fn measure(
-    gpu: &Gpu,
-    conv: &Conv3x3,
-    w: u32,
-    h: u32,
-    storage: &LayerStorage,
-    warmup: u32,
-    iterations: u32,
-) -> Result<Tuning> {
-    measure_among(gpu, conv, w, h, storage, None, warmup, iterations)
-}
-
-/// [`measure`] of the candidates in `among` only (all of them for `None`; the generic
-/// kernel always).
+/// Times the candidates of `conv` at `w x h` on scratch tensors stored as `storage` says
+/// (deterministic pseudo-random inputs): those in `among`, all of them for `None`; the
+/// generic kernel always. A candidate that fails to build or run is recorded with its
+/// error and skipped (logged), never fatal.
 #[allow(clippy::too_many_arguments)]
-pub fn measure_among(
+pub fn measure(
     gpu: &Gpu,
     conv: &Conv3x3,
     w: u32,
@@ -784,15 +773,11 @@ fn confirm(
     Some((medians, chosen.map_or(fastest_first, |(_, i)| i)))
 }
 
-/// The tuning of `conv` for a `w x h` layer with `storage`: from the process's memory,
-/// else the disk cache, else measured now (at [`tuning_size`]) and cached. Returns it and
-/// whether it came from a cache.
-pub fn tune(gpu: &Gpu, conv: &Conv3x3, w: u32, h: u32, storage: &LayerStorage) -> Result<(Tuning, bool)> {
-    tune_among(gpu, conv, w, h, storage, None)
-}
-
-/// [`tune`] among the kernels of `among` only (all of them for `None`), cached apart.
-pub fn tune_among(
+/// The tuning of `conv` for a `w x h` layer with `storage` among the kernels of `among`
+/// (all of them for `None`; a tuning among a set is cached apart): from the process's
+/// memory, else the disk cache, else measured now (at [`tuning_size`]) and cached. Returns
+/// it and whether it came from a cache.
+pub fn tune(
     gpu: &Gpu,
     conv: &Conv3x3,
     w: u32,
@@ -810,7 +795,7 @@ pub fn tune_among(
     }
     announce_first_tuning(gpu);
     let started = std::time::Instant::now();
-    let t = measure_among(gpu, conv, tw, th, storage, among, 1, TUNE_ITERATIONS)?;
+    let t = measure(gpu, conv, tw, th, storage, among, 1, TUNE_ITERATIONS)?;
     log::info!(
         "autotuned conv3x3 {:?}->{} ({}) at {tw}x{th}: {} of {} kernels in {:.1} s (once per adapter; cached in {})",
         conv.input_channels,
@@ -913,7 +898,7 @@ pub fn choose(
     match choice.resolve()? {
         KernelChoice::Fixed(k) if conv.unsupported(gpu, k).is_none() => Ok(k),
         KernelChoice::Fixed(_) => Ok(ConvKernel::Generic),
-        choice => Ok(tune_among(gpu, conv, w, h, storage, choice.among())?.0.choice),
+        choice => Ok(tune(gpu, conv, w, h, storage, choice.among())?.0.choice),
     }
 }
 
@@ -927,7 +912,7 @@ pub fn tuned_ms(
     storage: &LayerStorage,
     among: Option<KernelSet>,
 ) -> Result<f64> {
-    let (t, _) = tune_among(gpu, conv, w, h, storage, among)?;
+    let (t, _) = tune(gpu, conv, w, h, storage, among)?;
     let best = t
         .candidates
         .iter()
