@@ -37,7 +37,7 @@
 #                                           # and a new machine continues the run from it
 #   training/registered.sh WORK all         # everything below in the registered order,
 #                                           # unattended and resumable (re-running skips
-#                                           # what is done): setup, rolling (F12, below),
+#                                           # what is done): setup, rolling (F13, below),
 #                                           # data val, rules, data heldout rest (F6-F9,
 #                                           # finished and committed, are trained again
 #                                           # first only where their weights are missing:
@@ -50,31 +50,38 @@
 #   training/registered.sh WORK rules       # engine val of F5 and the finished runs, then the
 #                                           # registered rules in their order (ssr.registered)
 #
-# F12, the rolling run (weights/README "Forty-second session"; F10 and F11 are withdrawn and
-# no chain runs them), trains iterations 1,000K to 1,000(K+1) of its 30,000 on block K:
+# F13, the rolling run (weights/README "Forty-sixth session"), starts at iteration 8,000
+# from P46 (weights/baselines/ssr-s46-P46.safetensors) and trains iterations 1,000K to
+# 1,000(K+1) of its 30,000 on blocks 1 to K at once (WORK/ds-upto-K); its ledger
+# (weights/prequential-F13.json) scores blocks 9 on. F12 (weights/README "Forty-second
+# session", withdrawn at 12,000 in the forty-sixth; F10 and F11 were withdrawn before and
+# no chain runs them) trained iterations 1,000K to 1,000(K+1) on block K alone. ROLL=F12
+# makes `prequential` and `rolling` drive F12 again (default F13). In what follows RUN is
+# the rolling run:
 #
 #   training/registered.sh WORK block K     # renders block K (dataset_recipe.sh phase block,
 #                                           # niced, resumable) and links its root
 #                                           # WORK/ds-block-K (refused until every sequence
 #                                           # of the block is complete)
-#   training/registered.sh WORK F12 K       # trains block K on one core (--stop-at
-#                                           # 1,000(K+1)); refused unless F12's checkpoint
+#   training/registered.sh WORK F12|F13 K   # trains block K on one core (--stop-at
+#                                           # 1,000(K+1)); refused unless RUN's checkpoint
 #                                           # (its own, else its newest kept one) is in
 #                                           # [1,000K, 1,000(K+1)); done when it is past
 #   training/registered.sh WORK prequential K
-#                                           # K >= 1: engine val over block K's 20 procedural
-#                                           # and 6 fixed sequences of the shipped model and
-#                                           # F12 at 1,000K (before it saw them), the
-#                                           # standing rule, recorded in LEDGER (default
-#                                           # weights/prequential-F12.json; ssr.prequential)
+#                                           # K >= 9 (F12: 1): engine val over block K's 20
+#                                           # procedural and 6 fixed sequences of the shipped
+#                                           # model and RUN at 1,000K (before it saw them),
+#                                           # the standing rule, recorded in LEDGER (default
+#                                           # weights/prequential-RUN.json; ssr.prequential)
 #   training/registered.sh WORK rolling [LAST]
-#                                           # blocks from where F12 stands to LAST (default
-#                                           # 29), unattended: each block rendered, then F12
+#                                           # blocks from where RUN stands to LAST (default
+#                                           # 29), unattended: each block rendered (for F13
+#                                           # first the earlier ones a new machine lacks), RUN
 #                                           # trains it on one core while the other scores it
 #                                           # (prequential, any block still unscored whose
 #                                           # weights exist) and renders the next; the
 #                                           # checkpoint kept every KEEP_EVERY seconds and at
-#                                           # every block's end (`keep F12` also keeps the
+#                                           # every block's end (`keep RUN` also keeps the
 #                                           # weights at the newest block boundary), with
 #                                           # COMMIT=1 committed with the ledger
 #
@@ -88,7 +95,7 @@ set -euo pipefail
 {
 here="$(cd "$(dirname "$0")" && pwd)"
 root="$(cd "$here/.." && pwd)"
-usage="usage: registered.sh WORK all|setup|data|root|rules|keep|block|prequential|rolling|F6|...|F12"
+usage="usage: registered.sh WORK all|setup|data|root|rules|keep|block|prequential|rolling|F6|...|F13"
 work="$(realpath -m "${1:?$usage}")"
 what="${2:?$usage}"
 py="${PYTHON:-$HOME/.cache/subpixel/venv/bin/python}"
@@ -99,17 +106,29 @@ need_bin() {
   [ -x "$bin" ] || { echo "registered.sh: no renderer at $bin (registered.sh WORK setup builds it, or set SUBPIXEL)" >&2; exit 2; }
 }
 # run_of F6|...|F11: the run's folder name under WORK/runs.
-runs=(F6 F7 F8 F9 F10 F11 F12)
+runs=(F6 F7 F8 F9 F10 F11 F12 F13)
 run_of() {
   case "$1" in
     F6) echo ssr-s30-F6 ;; F7) echo ssr-s30-F7 ;; F8) echo ssr-s31-F8 ;; F9) echo ssr-s34-F9 ;;
     F10) echo ssr-s39-F10 ;; F11) echo ssr-s39-F11 ;; F12) echo ssr-s42-F12 ;;
+    F13) echo ssr-s46-F13 ;;
   esac
 }
-# F12's schedule: 30,000 iterations in blocks of 1,000 (block K: 1,000K to 1,000(K+1)).
+# The rolling runs' schedule: 30,000 iterations in blocks of 1,000 (block K: 1,000K to
+# 1,000(K+1)). ROLL (default F13) names the rolling run that `prequential` and `rolling`
+# (and so `all`) drive: F12 (withdrawn at 12,000 in the forty-sixth session) or F13.
 f12_iters=30000
 block_iters=1000
-ledger="$(realpath -m "${LEDGER:-$root/weights/prequential-F12.json}")"
+roll="${ROLL:-F13}"
+case "$roll" in
+  F12) roll_first=1 ;;  # F12 at 0 is its start, F5
+  F13) roll_first=9 ;;  # F13 starts at 8,000 from P46, whose block-8 score was seen
+  *) echo "registered.sh: ROLL must be F12 or F13, got '$roll'" >&2; exit 2 ;;
+esac
+ledger="$(realpath -m "${LEDGER:-$root/weights/prequential-$roll.json}")"
+# F13's start: P46 (weights/README "Forty-sixth session") is F13 at iteration 8,000.
+f13_init="$root/weights/baselines/ssr-s46-P46.safetensors"
+f13_at=8000
 # The options every registered run shares (F6's; each run adds its own).
 base='--thin 0.5 --thin-keep-min 0.02 --seed 17 --lambda ssim=10 --lambda m=0 --lr 1.25e-4 --background loss --mean-correction loss --min-reference-psnr 22 --window 8 --frame-weights 1,1,1,1,1,1,1,1'
 # The twenty-seventh session's data parameters (weights/README "Thirty-first session").
@@ -150,7 +169,7 @@ checkpoint_iteration() {
   (cd "$here" && "$py" -c "import sys, torch; print(int(torch.load(sys.argv[1], map_location='cpu', weights_only=False)['iteration']))" "$1")
 }
 # iteration_of R: where the run stands: its own checkpoint's iteration, else its newest kept
-# one's (named RUN-itN.pt), else 0.
+# one's (named RUN-itN.pt), else where it starts (0; F13: 8,000).
 iteration_of() {
   local run own kept n
   run="$(run_of "$1")"
@@ -160,16 +179,35 @@ iteration_of() {
     return 0
   fi
   kept="$(newest "$restore/$run-it" .pt)"
-  if [ -n "$kept" ]; then n="$(basename "$kept" .pt)"; echo $((10#${n##*-it})); else echo 0; fi
+  if [ -n "$kept" ]; then n="$(basename "$kept" .pt)"; echo $((10#${n##*-it}));
+  elif [ "$1" = F13 ]; then echo "$f13_at"; else echo 0; fi
 }
-# f12_weights N: F12's weights at iteration N (its snapshot, else the kept ones), or nothing.
-f12_weights() {
-  local nn w
+# roll_weights N: the rolling run's weights at iteration N (its snapshot, else the kept
+# ones, else F13's start file at 8,000), or nothing.
+roll_weights() {
+  local nn w run
   nn=$(printf '%07d' "$1")
-  for w in "$work/runs/ssr-s42-F12/snapshots/it_$nn.safetensors" "$restore/ssr-s42-F12-it$nn.safetensors"; do
+  run="$(run_of "$roll")"
+  for w in "$work/runs/$run/snapshots/it_$nn.safetensors" "$restore/$run-it$nn.safetensors"; do
     [ -f "$w" ] && { echo "$w"; return 0; }
   done
+  if [ "$roll" = F13 ] && [ "$1" = "$f13_at" ] && [ -f "$f13_init" ]; then echo "$f13_init"; fi
   return 0
+}
+# upto_root K: WORK/ds-upto-K, the links to every sequence of blocks 1 to K's roots (what
+# F13 trains block K on); fails naming the first block whose root is missing.
+upto_root() {
+  local k="$1" j s dir="$work/ds-upto-$1"
+  for j in $(seq 1 "$k"); do
+    [ -d "$work/ds-block-$j/train" ] || { echo "registered.sh: no $work/ds-block-$j (registered.sh WORK block $j renders and links it): F13's block $k trains on blocks 1-$k" >&2; return 1; }
+  done
+  rm -rf "$dir"
+  mkdir -p "$dir/train"
+  for j in $(seq 1 "$k"); do
+    for s in "$work/ds-block-$j/train/"*; do
+      [ -e "$s" ] && ln -sfn "$(readlink -f "$s")" "$dir/train/$(basename "$s")"
+    done
+  done
 }
 # newest PREFIX SUFFIX: the last in sort order of the files PREFIX*SUFFIX, or nothing: the
 # highest iteration of checkpoints named with zero-padded iterations (snapshots/it_N.pt,
@@ -206,7 +244,7 @@ stop_if_asked() {
   if [ -e "$ds/STOP" ]; then echo "registered.sh: $ds/STOP exists: the chain stops here"; exit 0; fi
 }
 # keep_restore R...: the runs' newest checkpoints into the restore folder (and, with
-# COMMIT=1, into git: that folder and F12's ledger alone); a run without a checkpoint yet is
+# COMMIT=1, into git: that folder and the rolling run's ledger alone); a run without a checkpoint yet is
 # passed over.
 keep_restore() {
   local r paths=()
@@ -359,7 +397,7 @@ print(len(SequenceDataset('$work/ds-$name', 'train', window=8, crop=64, min_refe
     fi
     ;;
   keep)
-    r="${3:?usage: registered.sh WORK keep F6|...|F12}"
+    r="${3:?usage: registered.sh WORK keep F6|...|F13}"
     run="$(run_of "$r")"
     [ -n "$run" ] || { echo "registered.sh: unknown run '$r' to keep (${runs[*]})" >&2; exit 2; }
     snap="$(newest "$work/runs/$run/snapshots/it_" .pt)"
@@ -382,7 +420,7 @@ print(len(SequenceDataset('$work/ds-$name', 'train', window=8, crop=64, min_refe
       [ "$old" = "$restore/$run-it$n.pt" ] || rm -f "$old"
     done
     echo "registered.sh: kept $run at iteration $((10#$n)) as $restore/$run-it$n.pt"
-    if [ "$r" = F12 ]; then
+    if [ "$r" = F12 ] || [ "$r" = F13 ]; then
       # and the weights at the newest block boundary, what block K's prequential score
       # reads (F12 at 1,000K) on a machine without the run's snapshots
       w=""
@@ -415,10 +453,10 @@ print(len(SequenceDataset('$work/ds-$name', 'train', window=8, crop=64, min_refe
   prequential)
     k="${3:?usage: registered.sh WORK prequential K}"
     block_check "$k"
-    [ "$k" -ge 1 ] || { echo "registered.sh: block 0 is not scored (F12 at iteration 0 is its start, F5)" >&2; exit 2; }
+    [ "$k" -ge "$roll_first" ] || { echo "registered.sh: block $k is not scored ($roll's ledger starts at block $roll_first)" >&2; exit 2; }
     at=$((k * block_iters))
-    w="$(f12_weights "$at")"
-    [ -n "$w" ] || { echo "registered.sh: no weights of F12 at iteration $at (its snapshot, or kept in $restore): it trains block $((k - 1)) first" >&2; exit 1; }
+    w="$(roll_weights "$at")"
+    [ -n "$w" ] || { echo "registered.sh: no weights of $roll at iteration $at (its snapshot, or kept in $restore): it trains block $((k - 1)) first" >&2; exit 1; }
     # the block's sequences no model has seen: its procedural ones below the sparse-light
     # range, and the fixed scenes' (the guard)
     rels=()
@@ -428,7 +466,7 @@ print(len(SequenceDataset('$work/ds-$name', 'train', window=8, crop=64, min_refe
     link_complete "$work/preq-$k" "${rels[@]}"
     shipped="$root/weights/ssr.safetensors"
     if [ "${DRY_RUN:-0}" = 1 ]; then
-      echo "prequential $k: shipped=$shipped F12=$w over ${#rels[@]} sequences"
+      echo "prequential $k: shipped=$shipped $roll=$w over ${#rels[@]} sequences"
       exit 0
     fi
     need_bin
@@ -436,43 +474,49 @@ print(len(SequenceDataset('$work/ds-$name', 'train', window=8, crop=64, min_refe
     rm -rf "$pred"
     # Any tiling gives the same figures to 1e-6 of the range; a fixed one skips the tuning.
     SUBPIXEL_CONV_KERNEL="${SUBPIXEL_CONV_KERNEL:-px16-cob1-tex}" SUBPIXEL="$bin" SPLIT=train \
-      nice -n 10 "$here/engine_val.sh" "$work/preq-$k" "$pred" shipped="$shipped" F12="$w"
+      nice -n 10 "$here/engine_val.sh" "$work/preq-$k" "$pred" shipped="$shipped" "$roll=$w"
     "$bin" eval --table --json --pred "$pred" --ref "$work/preq-$k" --split train > "$work/preq-$k.json"
-    (cd "$here" && "$py" -m ssr.prequential "$ledger" "$work/preq-$k.json" --block "$k" --iteration "$at" \
+    (cd "$here" && "$py" -m ssr.prequential "$ledger" "$work/preq-$k.json" --block "$k" --iteration "$at" --challenger "$roll" \
       --shipped "sha256:$(sha256sum "$shipped" | cut -c1-16)")
     ;;
   rolling)
     last="${3:-$((f12_iters / block_iters - 1))}"
     block_check "$last"
     while :; do
-      at="$(iteration_of F12)"
+      at="$(iteration_of "$roll")"
       k=$((at / block_iters))
       if [ "$at" -ge "$f12_iters" ] || [ "$k" -gt "$last" ]; then
-        echo "registered.sh: F12 at iteration $at: blocks up to $last trained"
+        echo "registered.sh: $roll at iteration $at: blocks up to $last trained"
         break
       fi
       stop_if_asked
-      echo "== registered.sh $(date -u +%FT%TZ) block $k (F12 at iteration $at)"
+      echo "== registered.sh $(date -u +%FT%TZ) block $k ($roll at iteration $at)"
+      if [ "$roll" = F13 ]; then
+        # F13's block K trains on blocks 1 to K: a new machine renders the missing ones
+        for j in $(seq 1 $((k - 1))); do
+          [ -d "$work/ds-block-$j/train" ] || { "$self" "$work" block "$j"; stop_if_asked; }
+        done
+      fi
       "$self" "$work" block "$k"
       stop_if_asked
       # the other core: the blocks not yet scored whose weights exist (this one's first:
-      # F12 at 1,000k is where it stands), then the next block's render
+      # the run at 1,000k is where it stands), then the next block's render
       scored=" $(cd "$here" && "$py" -c "import sys; from ssr.prequential import load; print(' '.join(str(e['block']) for e in load(sys.argv[1])))" "$ledger") "
       (
-        for j in $(seq "$k" -1 1); do
+        for j in $(seq "$k" -1 "$roll_first"); do
           [[ "$scored" == *" $j "* ]] && continue
-          if [ -n "$(f12_weights $((j * block_iters)))" ]; then "$self" "$work" prequential "$j" || true; fi
+          if [ -n "$(roll_weights $((j * block_iters)))" ]; then "$self" "$work" prequential "$j" || true; fi
         done
         [ "$k" -ge "$last" ] || "$self" "$work" block $((k + 1))
       ) >> "$work/lane.log" 2>&1 &
-      echo "== registered.sh F12 block $k (log $work/F12.log; scoring and the next render: $work/lane.log)"
+      echo "== registered.sh $roll block $k (log $work/$roll.log; scoring and the next render: $work/lane.log)"
       rc=0
-      "$self" "$work" F12 "$k" >> "$work/F12.log" 2>&1 &
-      f12=$!
-      keep_while_running F12
-      wait "$f12" || rc=$?
-      [ "$rc" = 0 ] || { echo "registered.sh: F12 failed on block $k (exit $rc); see $work/F12.log" >&2; exit "$rc"; }
-      [ "$(iteration_of F12)" -ge $(((k + 1) * block_iters)) ] || { echo "registered.sh: F12 stopped inside block $k (a signal?)" >&2; exit 1; }
+      "$self" "$work" "$roll" "$k" >> "$work/$roll.log" 2>&1 &
+      pid=$!
+      keep_while_running "$roll"
+      wait "$pid" || rc=$?
+      [ "$rc" = 0 ] || { echo "registered.sh: $roll failed on block $k (exit $rc); see $work/$roll.log" >&2; exit "$rc"; }
+      [ "$(iteration_of "$roll")" -ge $(((k + 1) * block_iters)) ] || { echo "registered.sh: $roll stopped inside block $k (a signal?)" >&2; exit 1; }
     done
     ;;
   rules)
@@ -496,7 +540,7 @@ print(len(SequenceDataset('$work/ds-$name', 'train', window=8, crop=64, min_refe
     "$bin" eval --table --json --pred "$work/pred-rules" --ref "$ds" --split val > "$work/rules-val.json"
     (cd "$here" && "$py" -m ssr.registered "$work/rules-val.json")
     ;;
-  F6 | F7 | F8 | F9 | F10 | F11 | F12)
+  F6 | F7 | F8 | F9 | F10 | F11 | F12 | F13)
     mkdir -p "$work"
     root_ds="$work/ds-s30"
     iters=6000
@@ -520,22 +564,34 @@ print(len(SequenceDataset('$work/ds-$name', 'train', window=8, crop=64, min_refe
       F11) init="$root/weights/baselines/ssr-s29-F5.safetensors"; at=0; root_ds="$work/ds-s39"
           mc='{"emission":"background"}'; base="$base --lambda mm=5" ;;
       # F12: F9's settings from F5 over 30,000 iterations, block K (1,000K to 1,000(K+1))
-      # on WORK/ds-block-K alone.
-      F12) init="$root/weights/baselines/ssr-s29-F5.safetensors"; at=0
-          mc='{"emission":"background"}'; base="$base --lambda mm=5"; iters=$f12_iters
-          k="${3:?usage: registered.sh WORK F12 K (the block to train)}"
+      # on WORK/ds-block-K alone (withdrawn at 12,000). F13: P46's settings (F5's loss
+      # weights at F5's final rate) from P46 at 8,000, block K >= 8 on blocks 1 to K at
+      # once (WORK/ds-upto-K).
+      F12 | F13)
+          if [ "$what" = F12 ]; then
+            init="$root/weights/baselines/ssr-s29-F5.safetensors"; at=0; base="$base --lambda mm=5"
+          else
+            init="$f13_init"; at="$f13_at"; base="$base --lr 3.125e-5"
+          fi
+          mc='{"emission":"background"}'; iters=$f12_iters
+          k="${3:?usage: registered.sh WORK $what K (the block to train)}"
           block_check "$k"
-          now="$(iteration_of F12)"
+          now="$(iteration_of "$what")"
           if [ "$now" -ge $(((k + 1) * block_iters)) ]; then
-            echo "registered.sh: F12 is at iteration $now: block $k was trained before"
+            echo "registered.sh: $what is at iteration $now: block $k was trained before"
             exit 0
           fi
           if [ "$now" -lt $((k * block_iters)) ]; then
-            echo "registered.sh: F12 is at iteration $now: block $((now / block_iters)) comes before block $k" >&2
+            echo "registered.sh: $what is at iteration $now: block $((now / block_iters)) comes before block $k" >&2
             exit 1
           fi
-          root_ds="$work/ds-block-$k"
-          [ -d "$root_ds/train" ] || { echo "registered.sh: no $root_ds (registered.sh WORK block $k renders and links it)" >&2; exit 1; }
+          if [ "$what" = F12 ]; then
+            root_ds="$work/ds-block-$k"
+            [ -d "$root_ds/train" ] || { echo "registered.sh: no $root_ds (registered.sh WORK block $k renders and links it)" >&2; exit 1; }
+          else
+            upto_root "$k"
+            root_ds="$work/ds-upto-$k"
+          fi
           stop="--stop-at $(((k + 1) * block_iters))" ;;
     esac
     run="$(run_of "$what")"

@@ -1,16 +1,18 @@
-"""The prequential ledger of the rolling run F12 (weights/README: "Forty-second session"):
-before F12 trains on block K it is scored on that block's sequences, which no model has
-seen, against the shipped model, and the standing rule (`ssr.rule`, with the columns and
-guard of `ssr.registered`) decides between the two. The ledger (a JSON file committed as
-`weights/prequential-F12.json`) holds one entry a block; F12 ships when the rule picks it
-on two consecutive blocks, at the later block's iteration:
+"""The prequential ledger of a rolling run (weights/README: F12 of the "Forty-second
+session", withdrawn in the forty-sixth; F13 of the "Forty-sixth session"): before the run
+trains on block K it is scored on that block's sequences, which no model has seen, against
+the shipped model, and the standing rule (`ssr.rule`, with the columns and guard of
+`ssr.registered`) decides between the two. The ledger (a JSON file committed as
+`weights/prequential-RUN.json`) holds one entry a block; the run ships when the rule picks
+it on two consecutive blocks, at the later block's iteration:
 
-    python -m ssr.prequential LEDGER --block K --iteration N TABLE [--json]
+    python -m ssr.prequential LEDGER --block K --iteration N TABLE [--challenger F13] [--json]
 
 TABLE is `subpixel eval --table --json --split train` over the block's scoring root with
-the rows `shipped` and `F12` (`training/registered.sh WORK prequential K` makes it). The
-entry for K is written (replacing an earlier one for K, e.g. a rerun); the decision and
-whether F12 now ships are printed. Exit status 2 on a table or ledger that cannot decide.
+the rows `shipped` and the run's (`training/registered.sh WORK prequential K` makes it).
+The entry for K is written (replacing an earlier one for K, e.g. a rerun); the decision and
+whether the run now ships are printed. Exit status 2 on a table or ledger that cannot
+decide.
 """
 
 from __future__ import annotations
@@ -26,24 +28,43 @@ from .rule import RuleError, column_means, judge
 
 INCUMBENT = "shipped"
 CHALLENGER = "F12"
+"""The default challenger (the ledger's first run)."""
+ROLLING = {
+    "F12": {"run": "ssr-s42-F12", "registered": "weights/README.md, Forty-second session", "first_block": 1},
+    "F13": {"run": "ssr-s46-F13", "registered": "weights/README.md, Forty-sixth session", "first_block": 9},
+}
+"""The rolling runs: run folder, registration, and the first block their ledger scores (F12
+at block 0 is its start, F5; F13's block 8 is where P46's score was seen before it was
+registered)."""
 BLOCK_ITERATIONS = 1000
-"""Iterations of F12 a block trains (block K: iterations 1,000K to 1,000(K+1))."""
+"""Iterations a block trains (block K: iterations 1,000K to 1,000(K+1))."""
 
 
-def entry(table: Sequence[dict], block: int, iteration: int, shipped: Optional[str] = None) -> dict:
-    """Block `block`'s ledger entry: both rows' figures and the rule's decision, F12 at
-    `iteration` (which must be the block's first, 1,000K: the weights before the block);
-    `shipped` names the incumbent's weights (e.g. their SHA-256), recorded as given."""
-    if block < 1:
-        raise RuleError(f"block {block}: scoring starts at block 1 (at block 0 F12 is its start, F5)")
+def rolling(challenger: str) -> dict:
+    """The registration of rolling run `challenger`, or RuleError naming the known ones."""
+    if challenger not in ROLLING:
+        raise RuleError(f"unknown rolling run {challenger!r} (expected one of {', '.join(ROLLING)})")
+    return ROLLING[challenger]
+
+
+def entry(
+    table: Sequence[dict], block: int, iteration: int, shipped: Optional[str] = None, challenger: str = CHALLENGER
+) -> dict:
+    """Block `block`'s ledger entry: both rows' figures and the rule's decision, the rolling
+    run `challenger` at `iteration` (which must be the block's first, 1,000K: the weights
+    before the block); `shipped` names the incumbent's weights (e.g. their SHA-256),
+    recorded as given."""
+    first = rolling(challenger)["first_block"]
+    if block < first:
+        raise RuleError(f"block {block}: {challenger}'s scoring starts at block {first}")
     if iteration != BLOCK_ITERATIONS * block:
         raise RuleError(
-            f"block {block} scores F12 at iteration {BLOCK_ITERATIONS * block} (before it trains on the block), "
+            f"block {block} scores {challenger} at iteration {BLOCK_ITERATIONS * block} (before it trains on the block), "
             f"not {iteration}"
         )
-    winner, reason, inc, cha = judge(table, INCUMBENT, CHALLENGER, COLUMNS, GUARD_COLUMNS, GUARD_DB)
+    winner, reason, inc, cha = judge(table, INCUMBENT, challenger, COLUMNS, GUARD_COLUMNS, GUARD_DB)
     figures = {}
-    for method, (psnr, ssim) in ((INCUMBENT, inc), (CHALLENGER, cha)):
+    for method, (psnr, ssim) in ((INCUMBENT, inc), (challenger, cha)):
         figures[method] = {
             "psnr": round(psnr, 4),
             "ssim": round(ssim, 5),
@@ -53,10 +74,11 @@ def entry(table: Sequence[dict], block: int, iteration: int, shipped: Optional[s
     return {"block": block, "iteration": iteration, **named, "winner": winner, "reason": reason, **figures}
 
 
-def ships(entries: Sequence[dict]) -> Optional[int]:
-    """The iteration of F12 that ships by the registration: the later of the latest two
-    consecutive blocks the rule gave to F12, or None. Entries are read in block order."""
-    won = {e["block"]: e for e in entries if e.get("winner") == CHALLENGER}
+def ships(entries: Sequence[dict], challenger: str = CHALLENGER) -> Optional[int]:
+    """The iteration of the rolling run that ships by the registration: the later of the
+    latest two consecutive blocks the rule gave to it, or None. Entries are read in block
+    order."""
+    won = {e["block"]: e for e in entries if e.get("winner") == challenger}
     best = None
     for k in sorted(won):
         if k - 1 in won:
@@ -76,16 +98,17 @@ def load(path: str) -> List[dict]:
     return entries
 
 
-def record(path: str, new: dict) -> List[dict]:
-    """Writes `new` into the ledger at `path` (atomically; an entry for the same block is
-    replaced) and returns the entries in block order."""
+def record(path: str, new: dict, challenger: str = CHALLENGER) -> List[dict]:
+    """Writes `new` into the ledger at `path` of rolling run `challenger` (atomically; an
+    entry for the same block is replaced) and returns the entries in block order."""
+    reg = rolling(challenger)
     entries = [e for e in load(path) if e["block"] != new["block"]] + [new]
     entries.sort(key=lambda e: e["block"])
     doc = {
-        "run": "ssr-s42-F12",
-        "registered": "weights/README.md, Forty-second session",
+        "run": reg["run"],
+        "registered": reg["registered"],
         "incumbent": INCUMBENT,
-        "ships_at": ships(entries),
+        "ships_at": ships(entries, challenger),
         "blocks": entries,
     }
     tmp = path + ".tmp"
@@ -99,9 +122,10 @@ def record(path: str, new: dict) -> List[dict]:
 def main(argv: Optional[List[str]] = None) -> int:
     ap = argparse.ArgumentParser(prog="python -m ssr.prequential", description=__doc__.split("\n\n")[0])
     ap.add_argument("ledger", help="the ledger JSON (created when absent)")
-    ap.add_argument("table", help="JSON of `subpixel eval --table --json --split train` with rows shipped and F12")
+    ap.add_argument("table", help="JSON of `subpixel eval --table --json --split train` with rows shipped and the run's")
     ap.add_argument("--block", type=int, required=True, help="the block K the table scores")
-    ap.add_argument("--iteration", type=int, required=True, help="F12's iteration in the table (1,000K)")
+    ap.add_argument("--iteration", type=int, required=True, help="the run's iteration in the table (1,000K)")
+    ap.add_argument("--challenger", default=CHALLENGER, help=f"the rolling run (its row; default {CHALLENGER})")
     ap.add_argument("--shipped", default=None, help="what the shipped row was (recorded in the entry)")
     ap.add_argument("--json", action="store_true", help="print the entry as JSON")
     args = ap.parse_args(argv)
@@ -110,22 +134,23 @@ def main(argv: Optional[List[str]] = None) -> int:
             table = json.load(f)
         if not isinstance(table, list):
             raise RuleError("expected the JSON list `subpixel eval --table --json` prints")
-        new = entry(table, args.block, args.iteration, args.shipped)
-        entries = record(args.ledger, new)
+        new = entry(table, args.block, args.iteration, args.shipped, args.challenger)
+        entries = record(args.ledger, new, args.challenger)
     except (OSError, json.JSONDecodeError, RuleError, KeyError, TypeError) as err:
         print(f"error: {err}", file=sys.stderr)
         return 2
-    at = ships(entries)
+    at = ships(entries, args.challenger)
     if args.json:
         print(json.dumps({**new, "ships_at": at}, indent=2))
     else:
-        s, c = new[INCUMBENT], new[CHALLENGER]
+        name = args.challenger
+        s, c = new[INCUMBENT], new[name]
         print(
             f"block {new['block']}: {INCUMBENT} {s['psnr']:.2f} / {s['ssim']:.4f} (guard {s['guard_psnr']:.2f}), "
-            f"F12 at {new['iteration']} {c['psnr']:.2f} / {c['ssim']:.4f} (guard {c['guard_psnr']:.2f})"
+            f"{name} at {new['iteration']} {c['psnr']:.2f} / {c['ssim']:.4f} (guard {c['guard_psnr']:.2f})"
         )
         print(f"winner: {new['winner']} ({new['reason']})")
-        print(f"F12 ships at iteration {at}" if at is not None else "F12 does not ship yet (two consecutive blocks needed)")
+        print(f"{name} ships at iteration {at}" if at is not None else f"{name} does not ship yet (two consecutive blocks needed)")
     return 0
 
 

@@ -73,3 +73,26 @@ def test_the_command_line_records_and_names_bad_input(tmp_path, capsys):
     assert main([str(ledger), str(t), "--block", "2", "--iteration", "1000"]) == 2
     assert "not 1000" in capsys.readouterr().err
     assert main([str(ledger), str(tmp_path / "missing.json"), "--block", "2", "--iteration", "2000"]) == 2
+
+
+def test_f13_has_its_own_row_ledger_and_first_block(tmp_path, capsys):
+    """The challenger names the row, the run recorded in the ledger and the first block it
+    may score (F13: 9); an unknown rolling run is refused by name."""
+    t = table((25.0, 0.700, 27.0), (25.2, 0.710, 27.0))
+    for row in t:
+        if row["method"] == "F12":
+            row["method"] = "F13"
+    with pytest.raises(RuleError, match="starts at block 9"):
+        entry(t, 8, 8000, challenger="F13")
+    path = str(tmp_path / "ledger.json")
+    record(path, entry(t, 9, 9000, challenger="F13"), challenger="F13")
+    record(path, entry(t, 10, 10000, challenger="F13"), challenger="F13")
+    doc = json.load(open(path))
+    assert doc["run"] == "ssr-s46-F13" and "Forty-sixth" in doc["registered"] and doc["ships_at"] == 10000
+    with pytest.raises(RuleError, match="unknown rolling run 'F14'"):
+        entry(t, 9, 9000, challenger="F14")
+    tp = tmp_path / "t.json"
+    tp.write_text(json.dumps(t))
+    assert main([str(tmp_path / "l2.json"), str(tp), "--block", "9", "--iteration", "9000", "--challenger", "F13"]) == 0
+    out = capsys.readouterr().out
+    assert "F13 at 9000" in out and "winner: F13" in out

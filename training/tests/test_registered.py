@@ -1,11 +1,13 @@
 """The pre-registered runs as `training/registered.sh` starts them (weights/README: F6 and F7
 of the thirtieth session, F8 of the thirty-first, F9 of the thirty-fourth, F10 and F11 of
-the thirty-ninth, F12 of the forty-second): their ssr.train arguments, printed by
-campaign.sh's DRY_RUN, parse and say what the registrations say; F12's blocks, their roots,
-kept checkpoints and prequential score as the registration orders them."""
+the thirty-ninth, F12 of the forty-second, F13 of the forty-sixth): their ssr.train
+arguments, printed by campaign.sh's DRY_RUN, parse and say what the registrations say; the
+rolling runs' blocks, their roots, kept checkpoints and prequential score as the
+registrations order them."""
 
 import json
 import os
+import shutil
 import subprocess
 import sys
 
@@ -232,8 +234,10 @@ def test_the_whole_chain_runs_in_the_registered_order(tmp_path):
 # F12, the rolling run (forty-second session)
 
 
-def run_script(work, *argv, restore=None, dry=True):
+def run_script(work, *argv, restore=None, dry=True, roll=None):
     env = {**os.environ, "PYTHON": sys.executable, "RESTORE": str(restore or work / "no-restore")}
+    if roll:
+        env["ROLL"] = roll
     if dry:
         env["DRY_RUN"] = "1"
     return subprocess.run([SCRIPT, str(work), *argv], env=env, capture_output=True, text=True)
@@ -372,16 +376,66 @@ def test_the_prequential_score_reads_f12_before_it_saw_the_block(tmp_path):
     which come back every four blocks); refused for block 0 and without those weights."""
     names = block_names(2)
     fake_sequences(tmp_path / "ds", names)
-    r = run_script(tmp_path, "prequential", "2")
+    r = run_script(tmp_path, "prequential", "2", roll="F12")
     assert r.returncode == 1 and "no weights of F12 at iteration 2000" in r.stderr, r.stderr
     snaps = tmp_path / "runs" / "ssr-s42-F12" / "snapshots"
     snaps.mkdir(parents=True)
     (snaps / "it_0002000.safetensors").write_bytes(b"w")
-    r = run_script(tmp_path, "prequential", "2")
+    r = run_script(tmp_path, "prequential", "2", roll="F12")
     assert r.returncode == 0, r.stderr
     assert f"F12={snaps}/it_0002000.safetensors over 26 sequences" in r.stdout, r.stdout
     linked = sorted(p.name for p in (tmp_path / "preq-2" / "train").iterdir())
     assert len(linked) == 26 and not [n for n in linked if n.startswith("procedural_3") and len(n.split("_")[1]) == 6]
     assert "procedural_320_train_000" in linked and "staircase2_train_002" in linked
-    r = run_script(tmp_path, "prequential", "0")
+    r = run_script(tmp_path, "prequential", "0", roll="F12")
     assert r.returncode == 2 and "block 0 is not scored" in r.stderr, r.stderr
+
+
+# F13, the rolling run that replaced F12 (forty-sixth session)
+
+
+def test_f13_trains_every_block_so_far_from_p46(tmp_path):
+    """F13: from P46 (its committed start, at iteration 8,000), block K >= 8 on the links of
+    blocks 1 to K's roots at once, P46's options (no mm, lr 3.125e-5) over F12's schedule;
+    a missing block root is named, and blocks out of order are refused."""
+    for j in range(1, 10):
+        seq = tmp_path / f"ds-block-{j}-src" / "train" / f"procedural_{280 + 20 * j}_train_000"
+        seq.mkdir(parents=True)
+        (tmp_path / f"ds-block-{j}" / "train").mkdir(parents=True)
+        os.symlink(seq, tmp_path / f"ds-block-{j}" / "train" / seq.name)
+    r = run_script(tmp_path, "F13", "9")
+    assert r.returncode == 1 and "block 8 comes before block 9" in r.stderr, r.stderr
+    r = run_script(tmp_path, "F13", "8")
+    assert r.returncode == 0, r.stderr
+    f13 = parse_args(r.stdout.splitlines())
+    assert f13.init == os.path.join(ROOT, "weights", "baselines", "ssr-s46-P46.safetensors")
+    assert os.path.isfile(f13.init) and f13.init_at == 8000 and f13.stop_at == 9000 and f13.iters == 30000
+    assert f13.lr == 3.125e-5 and f13.lambdas["mm"] == 0 and f13.out.endswith("ssr-s46-F13")
+    assert f13.data == str(tmp_path / "ds-upto-8")
+    linked = sorted(p.name for p in (tmp_path / "ds-upto-8" / "train").iterdir())
+    assert linked == sorted(f"procedural_{280 + 20 * j}_train_000" for j in range(1, 9))
+    (tmp_path / "ds-block-0" / "train").mkdir(parents=True)
+    f12 = parse_args(run_script(tmp_path, "F12", "0").stdout.splitlines())
+    differ = {k for k in vars(f13) if vars(f13)[k] != vars(f12)[k]}
+    assert differ == {"out", "data", "init", "init_at", "stop_at", "lr", "lambdas"}, differ
+    shutil.rmtree(tmp_path / "ds-block-5")
+    r = run_script(tmp_path, "F13", "8")
+    assert r.returncode == 1 and "registered.sh WORK block 5" in r.stderr, r.stderr
+
+
+def test_the_prequential_score_of_f13_starts_at_block_9(tmp_path):
+    """`prequential K` (ROLL defaults to F13) scores F13 at 1,000K from block 9 on (block 8,
+    where P46's score was seen before F13 was registered, is refused)."""
+    names = block_names(9)
+    fake_sequences(tmp_path / "ds", names)
+    r = run_script(tmp_path, "prequential", "8")
+    assert r.returncode == 2 and "F13's ledger starts at block 9" in r.stderr, r.stderr
+    r = run_script(tmp_path, "prequential", "9")
+    assert r.returncode == 1 and "no weights of F13 at iteration 9000" in r.stderr, r.stderr
+    snaps = tmp_path / "runs" / "ssr-s46-F13" / "snapshots"
+    snaps.mkdir(parents=True)
+    (snaps / "it_0009000.safetensors").write_bytes(b"w")
+    r = run_script(tmp_path, "prequential", "9")
+    assert r.returncode == 0 and f"F13={snaps}/it_0009000.safetensors over 26 sequences" in r.stdout, r.stdout
+    r = run_script(tmp_path, "prequential", "9", roll="F14")
+    assert r.returncode == 2 and "ROLL must be F12 or F13" in r.stderr, r.stderr
