@@ -117,14 +117,18 @@ run_of() {
 # The rolling runs' schedule: 30,000 iterations in blocks of 1,000 (block K: 1,000K to
 # 1,000(K+1)). ROLL (default F13) names the rolling run that `prequential` and `rolling`
 # (and so `all`) drive: F12 (withdrawn at 12,000 in the forty-sixth session) or F13.
-f12_iters=30000
+roll_iters=30000
 block_iters=1000
 roll="${ROLL:-F13}"
 case "$roll" in
-  F12) roll_first=1 ;;  # F12 at 0 is its start, F5
-  F13) roll_first=9 ;;  # F13 starts at 8,000 from P46, whose block-8 score was seen
+  F12 | F13) ;;
   *) echo "registered.sh: ROLL must be F12 or F13, got '$roll'" >&2; exit 2 ;;
 esac
+# first_block: the first block the rolling run's ledger scores, as ssr.prequential registers
+# it (read when needed: `setup` runs before the virtualenv exists).
+first_block() {
+  (cd "$here" && "$py" -c "import sys; from ssr.prequential import rolling; print(rolling(sys.argv[1])['first_block'])" "$roll")
+}
 ledger="$(realpath -m "${LEDGER:-$root/weights/prequential-$roll.json}")"
 # F13's start: P46 (weights/README "Forty-sixth session") is F13 at iteration 8,000.
 f13_init="$root/weights/baselines/ssr-s46-P46.safetensors"
@@ -141,8 +145,8 @@ phase() {
 }
 # block_check K: K is a block of F12's schedule.
 block_check() {
-  [[ "$1" =~ ^[0-9]+$ ]] && [ "$1" -lt $((f12_iters / block_iters)) ] ||
-    { echo "registered.sh: block must be 0-$((f12_iters / block_iters - 1)), got '$1'" >&2; exit 2; }
+  [[ "$1" =~ ^[0-9]+$ ]] && [ "$1" -lt $((roll_iters / block_iters)) ] ||
+    { echo "registered.sh: block must be 0-$((roll_iters / block_iters - 1)), got '$1'" >&2; exit 2; }
 }
 # block_list K: block K's sequences, SPLIT/NAME a line (the recipe's ONLY_LIST).
 block_list() {
@@ -244,8 +248,8 @@ stop_if_asked() {
   if [ -e "$ds/STOP" ]; then echo "registered.sh: $ds/STOP exists: the chain stops here"; exit 0; fi
 }
 # keep_restore R...: the runs' newest checkpoints into the restore folder (and, with
-# COMMIT=1, into git: that folder and the rolling run's ledger alone); a run without a checkpoint yet is
-# passed over.
+# COMMIT=1, into git: that folder and the rolling run's ledger alone); a run without a
+# checkpoint yet is passed over.
 keep_restore() {
   local r paths=()
   for r in "$@"; do "$self" "$work" keep "$r" 2>/dev/null || true; done
@@ -422,7 +426,7 @@ print(len(SequenceDataset('$work/ds-$name', 'train', window=8, crop=64, min_refe
     echo "registered.sh: kept $run at iteration $((10#$n)) as $restore/$run-it$n.pt"
     if [ "$r" = F12 ] || [ "$r" = F13 ]; then
       # and the weights at the newest block boundary, what block K's prequential score
-      # reads (F12 at 1,000K) on a machine without the run's snapshots
+      # reads (the run at 1,000K) on a machine without the run's snapshots
       w=""
       for cand in $(ls "$work/runs/$run/snapshots/"it_*.safetensors 2>/dev/null | sort -r); do
         m=$(basename "$cand" .safetensors); m=$((10#${m#it_}))
@@ -453,7 +457,8 @@ print(len(SequenceDataset('$work/ds-$name', 'train', window=8, crop=64, min_refe
   prequential)
     k="${3:?usage: registered.sh WORK prequential K}"
     block_check "$k"
-    [ "$k" -ge "$roll_first" ] || { echo "registered.sh: block $k is not scored ($roll's ledger starts at block $roll_first)" >&2; exit 2; }
+    first="$(first_block)"
+    [ "$k" -ge "$first" ] || { echo "registered.sh: block $k is not scored ($roll's ledger starts at block $first)" >&2; exit 2; }
     at=$((k * block_iters))
     w="$(roll_weights "$at")"
     [ -n "$w" ] || { echo "registered.sh: no weights of $roll at iteration $at (its snapshot, or kept in $restore): it trains block $((k - 1)) first" >&2; exit 1; }
@@ -480,12 +485,12 @@ print(len(SequenceDataset('$work/ds-$name', 'train', window=8, crop=64, min_refe
       --shipped "sha256:$(sha256sum "$shipped" | cut -c1-16)")
     ;;
   rolling)
-    last="${3:-$((f12_iters / block_iters - 1))}"
+    last="${3:-$((roll_iters / block_iters - 1))}"
     block_check "$last"
     while :; do
       at="$(iteration_of "$roll")"
       k=$((at / block_iters))
-      if [ "$at" -ge "$f12_iters" ] || [ "$k" -gt "$last" ]; then
+      if [ "$at" -ge "$roll_iters" ] || [ "$k" -gt "$last" ]; then
         echo "registered.sh: $roll at iteration $at: blocks up to $last trained"
         break
       fi
@@ -503,7 +508,7 @@ print(len(SequenceDataset('$work/ds-$name', 'train', window=8, crop=64, min_refe
       # the run at 1,000k is where it stands), then the next block's render
       scored=" $(cd "$here" && "$py" -c "import sys; from ssr.prequential import load; print(' '.join(str(e['block']) for e in load(sys.argv[1])))" "$ledger") "
       (
-        for j in $(seq "$k" -1 "$roll_first"); do
+        for j in $(seq "$k" -1 "$(first_block)"); do
           [[ "$scored" == *" $j "* ]] && continue
           if [ -n "$(roll_weights $((j * block_iters)))" ]; then "$self" "$work" prequential "$j" || true; fi
         done
@@ -573,7 +578,7 @@ print(len(SequenceDataset('$work/ds-$name', 'train', window=8, crop=64, min_refe
           else
             init="$f13_init"; at="$f13_at"; base="$base --lr 3.125e-5"
           fi
-          mc='{"emission":"background"}'; iters=$f12_iters
+          mc='{"emission":"background"}'; iters=$roll_iters
           k="${3:?usage: registered.sh WORK $what K (the block to train)}"
           block_check "$k"
           now="$(iteration_of "$what")"
