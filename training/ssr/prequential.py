@@ -29,13 +29,35 @@ from .rule import RuleError, column_means, judge
 INCUMBENT = "shipped"
 CHALLENGER = "F12"
 """The default challenger (the ledger's first run)."""
+F5 = "weights/baselines/ssr-s29-F5.safetensors"
 ROLLING = {
-    "F12": {"run": "ssr-s42-F12", "registered": "weights/README.md, Forty-second session", "first_block": 1},
-    "F13": {"run": "ssr-s46-F13", "registered": "weights/README.md, Forty-sixth session", "first_block": 9},
+    "F12": {
+        "run": "ssr-s42-F12",
+        "registered": "weights/README.md, Forty-second session",
+        "first_block": 1,
+        "start": {"weights": F5, "iteration": 0, "what": "F5 as shipped from the twenty-ninth session",
+                  "base": F5, "base_iterations": 0},
+        "recipe": "block K trains iterations 1,000K to 1,000(K+1) of 30,000 on block K alone (ds-block-K), "
+                  "F9's options (F6's with --lambda mm=5), lr 1.25e-4 halved at 10,000 and 20,000, "
+                  "one core (training/registered.sh WORK F12 K)",
+    },
+    "F13": {
+        "run": "ssr-s46-F13",
+        "registered": "weights/README.md, Forty-sixth session",
+        "first_block": 9,
+        "start": {"weights": "weights/baselines/ssr-s46-P46.safetensors", "iteration": 8000,
+                  "what": "P46: F5 continued 1,000 iterations on blocks 1-7 at once (ds-upto-7), lr 3.125e-5",
+                  "base": F5, "base_iterations": 1000},
+        "recipe": "block K trains iterations 1,000K to 1,000(K+1) of 30,000 on blocks 1 to K at once "
+                  "(ds-upto-K), F6's options with lr 3.125e-5 halved at 10,000 and 20,000, "
+                  "model config emission background, one core (training/registered.sh WORK F13 K)",
+    },
 }
-"""The rolling runs: run folder, registration, and the first block their ledger scores (F12
+"""The rolling runs: run folder, registration, the first block their ledger scores (F12
 at block 0 is its start, F5; F13's block 8 is where P46's score was seen before it was
-registered)."""
+registered), their start (its weights, the run's iteration there, and the shipped model it
+was trained from with the iterations between) and their recipe, which `ssr.ship` writes
+into the provenance of weights it ships."""
 BLOCK_ITERATIONS = 1000
 """Iterations a block trains (block K: iterations 1,000K to 1,000(K+1))."""
 
