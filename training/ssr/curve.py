@@ -3,7 +3,7 @@
 
     python -m ssr.curve --run RUN_DIR [RUN_DIR ...] --data ROOT [--split test] \\
         [--scenes S ...] [--frames 8] --out weights/ssr-training.png [--json curve.json] \\
-        [--previous weights/ssr-training.json]
+        [--previous weights/ssr-training.json] [--point ITERATION=WEIGHTS ...]
 
 Each run folder is one `ssr.train` run: its `log.jsonl` gives the training loss and the
 validation PSNR (the val split, what the trainer sees), and its `snapshots/` (written with
@@ -15,7 +15,10 @@ Scores are cached per snapshot in `RUN_DIR/curve_cache.json` (keyed by split, fr
 split's sequences and the snapshot's size and modification time: a split that gains
 sequences is scored again), so re-plotting is cheap. A run started with
 `--init` from an earlier session's weights continues its iteration count (the trainer logs
-where it starts), and `--previous` draws that session's curve JSON in front.
+where it starts), and `--previous` draws that session's curve JSON in front. `--point`
+scores a weights file at a campaign iteration as one more monitored point: the committed
+weights of a run whose folder an earlier machine held (e.g. a rolling run's shipped
+snapshots); `--run` may then be left out.
 
 The monitored scores are for reporting only: nothing here feeds back into training or into
 which weights are kept (held-out scenes never enter model selection).
@@ -28,12 +31,12 @@ import hashlib
 import json
 import os
 import sys
-from typing import Dict, List, Optional
+from typing import Dict, List, Optional, Sequence
 
 import torch
 
 from .data import DatasetError, SequenceDataset
-from .export import load_weights
+from .export import WeightsError, load_weights
 from .validation import validate
 
 
@@ -82,7 +85,26 @@ def group_of(scene: str) -> str:
     return "procedural (mean)" if scene.startswith("procedural_") else scene
 
 
-def curve(runs: List[str], data: str, split: str, scenes: Optional[List[str]], frames: int, say=print) -> dict:
+def monitored_point(iteration: int, s: dict) -> dict:
+    """A monitored point from a snapshot's scores: the split's mean and each group's."""
+    groups: Dict[str, List[float]] = {}
+    for scene, m in s["scenes"].items():
+        groups.setdefault(group_of(scene), []).append(m["psnr"])
+    return {"iteration": iteration, "psnr": s["psnr"], "groups": {g: sum(v) / len(v) for g, v in sorted(groups.items())}}
+
+
+def parse_point(spec: str) -> tuple:
+    """`ITERATION=WEIGHTS` as (iteration, path), or ValueError naming the spec."""
+    it, sep, path = spec.partition("=")
+    if not sep or not it.strip().isdigit() or not path:
+        raise ValueError(f"--point {spec!r}: expected ITERATION=WEIGHTS, e.g. 87500=weights/ssr.safetensors")
+    return int(it), path
+
+
+def curve(
+    runs: List[str], data: str, split: str, scenes: Optional[List[str]], frames: int, say=print,
+    points: Sequence[tuple] = (),
+) -> dict:
     ds = SequenceDataset(data, split, window=1, crop=None, flips=False, scenes=scenes, cache="none")
     # the scored sequences belong to the cache key: a split that has grown is scored afresh
     seq_key = hashlib.sha256("\n".join(sorted(s.id for s in ds.sequences)).encode()).hexdigest()[:16]
@@ -115,18 +137,12 @@ def curve(runs: List[str], data: str, split: str, scenes: Optional[List[str]], f
                 with open(tmp, "w") as f:
                     json.dump(cache, f)
                 os.replace(tmp, cache_path)
-            s = cache[key]
-            groups: Dict[str, List[float]] = {}
-            for scene, m in s["scenes"].items():
-                groups.setdefault(group_of(scene), []).append(m["psnr"])
-            monitored.append(
-                {
-                    "iteration": offset + snapshot_iteration(snap),
-                    "psnr": s["psnr"],
-                    "groups": {g: sum(v) / len(v) for g, v in sorted(groups.items())},
-                }
-            )
+            monitored.append(monitored_point(offset + snapshot_iteration(snap), cache[key]))
         offset += last
+    for it, path in points:
+        say(f"scoring {path} (iteration {it}) on {split} ({len(ds.sequences)} sequences)")
+        monitored.append({**monitored_point(it, score_snapshot(path, ds, frames)), "weights": os.path.basename(path)})
+    monitored.sort(key=lambda r: r["iteration"])
     return {"split": split, "frames": frames, "runs": runs, "train": train, "val": val, "monitored": monitored}
 
 
@@ -194,7 +210,11 @@ def plot(c: dict, out: str, title: str) -> None:
 
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(prog="python -m ssr.curve", description=__doc__.split("\n\n")[0])
-    ap.add_argument("--run", nargs="+", required=True, help="ssr.train run folder(s), in training order")
+    ap.add_argument("--run", nargs="+", default=[], help="ssr.train run folder(s), in training order")
+    ap.add_argument(
+        "--point", action="append", default=[], metavar="ITERATION=WEIGHTS",
+        help="also score this weights file as the campaign's point at ITERATION (repeatable)",
+    )
     ap.add_argument("--data", required=True, help="dataset root")
     ap.add_argument("--split", default="test", help="the monitored split (default test)")
     ap.add_argument("--scenes", nargs="+", default=None, help="monitor only these scenes")
@@ -210,11 +230,21 @@ def main(argv=None) -> int:
     a = ap.parse_args(argv)
     if a.frames <= 0:
         ap.error("--frames must be positive")
+    try:
+        points = [parse_point(p) for p in a.point]
+    except ValueError as err:
+        ap.error(str(err))
+    if not a.run and not points:
+        ap.error("--run or --point: nothing to plot")
+    for it, path in points:
+        if not os.path.isfile(path):
+            print(f"error: --point {it}={path}: no such weights file", file=sys.stderr)
+            return 1
     if a.threads:
         torch.set_num_threads(a.threads)
     try:
-        c = curve(a.run, a.data, a.split, a.scenes, a.frames)
-    except DatasetError as err:
+        c = curve(a.run, a.data, a.split, a.scenes, a.frames, points=points)
+    except (DatasetError, WeightsError) as err:
         print(f"error: {err}", file=sys.stderr)
         return 1
     if a.previous and os.path.isfile(a.previous):

@@ -78,3 +78,33 @@ def test_curve_scores_a_model_that_composites_the_emission(tmp_path, capsys):
     assert C.main(["--run", run, "--data", data, "--split", "test", "--frames", "2", "--out", png, "--json", js]) == 0
     c = json.load(open(js))
     assert len(c["monitored"]) == 1 and c["monitored"][0]["psnr"] > 0
+
+
+def test_curve_scores_committed_weights_as_points(dataset, tmp_path, capsys):
+    """`--point ITERATION=WEIGHTS`: weights whose run folder is gone (a rolling run's committed
+    snapshots) join the campaign's curve after an earlier session's, each scored exactly as
+    a snapshot of a run folder is."""
+    common = ["--data", dataset, "--iters", "2", "--batch", "2", "--crop", "16", "--workers", "0", "--log-every", "1",
+              "--val-frames", "2", "--val-every", "0", "--device", "cpu", "--snapshot-every", "2"]  # fmt: skip
+    a = str(tmp_path / "a")
+    res = T.train(["--out", a, *common])
+    ja, jp, png = str(tmp_path / "a.json"), str(tmp_path / "p.json"), str(tmp_path / "c.png")
+    base = ["--data", dataset, "--split", "val", "--frames", "2", "--out", png]
+    assert C.main(["--run", a, *base, "--json", ja]) == 0
+    run_point = json.load(open(ja))["monitored"][-1]
+    assert C.main([*base, "--json", jp, "--previous", ja, "--point", f"7={res['weights']}"]) == 0
+    c = json.load(open(jp))
+    assert [r["iteration"] for r in c["monitored"]] == [2, 7] and [r["iteration"] for r in c["train"]] == [1, 2]
+    # the same weights score the same, whether a snapshot of a run or a point
+    assert abs(c["monitored"][1]["psnr"] - run_point["psnr"]) < 1e-9
+    assert c["monitored"][1]["weights"] == os.path.basename(res["weights"])
+    capsys.readouterr()
+    # bad specs and files are clear errors
+    for bad in ("x=w.safetensors", "7"):
+        try:
+            C.main([*base, "--point", bad])
+        except SystemExit as e:
+            assert e.code == 2
+        assert "expected ITERATION=WEIGHTS" in capsys.readouterr().err
+    assert C.main([*base, "--point", f"7={tmp_path / 'missing.safetensors'}"]) == 1
+    assert "missing.safetensors" in capsys.readouterr().err
