@@ -130,9 +130,12 @@ first_block() {
   (cd "$here" && "$py" -c "import sys; from ssr.prequential import rolling; print(rolling(sys.argv[1])['first_block'])" "$roll")
 }
 ledger="$(realpath -m "${LEDGER:-$root/weights/prequential-$roll.json}")"
-# F13's start: P46 (weights/README "Forty-sixth session") is F13 at iteration 8,000.
-f13_init="$root/weights/baselines/ssr-s46-P46.safetensors"
-f13_at=8000
+# start_of RUN weights|iteration: where rolling run RUN starts (its weights, under the
+# repository, and its iteration there: F12 from F5 at 0, F13 from P46 at 8,000), as
+# ssr.prequential registers it.
+start_of() {
+  (cd "$here" && "$py" -c "import sys; from ssr.prequential import rolling; s = rolling(sys.argv[1])['start']; print(s[sys.argv[2]])" "$1" "$2")
+}
 # The options every registered run shares (F6's; each run adds its own).
 base='--thin 0.5 --thin-keep-min 0.02 --seed 17 --lambda ssim=10 --lambda m=0 --lr 1.25e-4 --background loss --mean-correction loss --min-reference-psnr 22 --window 8 --frame-weights 1,1,1,1,1,1,1,1'
 # The twenty-seventh session's data parameters (weights/README "Thirty-first session").
@@ -184,10 +187,10 @@ iteration_of() {
   fi
   kept="$(newest "$restore/$run-it" .pt)"
   if [ -n "$kept" ]; then n="$(basename "$kept" .pt)"; echo $((10#${n##*-it}));
-  elif [ "$1" = F13 ]; then echo "$f13_at"; else echo 0; fi
+  elif [ "$1" = F12 ] || [ "$1" = F13 ]; then start_of "$1" iteration; else echo 0; fi
 }
 # roll_weights N: the rolling run's weights at iteration N (its snapshot, else the kept
-# ones, else F13's start file at 8,000), or nothing.
+# ones, else its start file at its start iteration), or nothing.
 roll_weights() {
   local nn w run
   nn=$(printf '%07d' "$1")
@@ -195,7 +198,8 @@ roll_weights() {
   for w in "$work/runs/$run/snapshots/it_$nn.safetensors" "$restore/$run-it$nn.safetensors"; do
     [ -f "$w" ] && { echo "$w"; return 0; }
   done
-  if [ "$roll" = F13 ] && [ "$1" = "$f13_at" ] && [ -f "$f13_init" ]; then echo "$f13_init"; fi
+  w="$root/$(start_of "$roll" weights)"
+  if [ "$1" = "$(start_of "$roll" iteration)" ] && [ -f "$w" ]; then echo "$w"; fi
   return 0
 }
 # upto_root K: WORK/ds-upto-K, the links to every sequence of blocks 1 to K's roots (what
@@ -573,11 +577,8 @@ print(len(SequenceDataset('$work/ds-$name', 'train', window=8, crop=64, min_refe
       # weights at F5's final rate) from P46 at 8,000, block K >= 8 on blocks 1 to K at
       # once (WORK/ds-upto-K).
       F12 | F13)
-          if [ "$what" = F12 ]; then
-            init="$root/weights/baselines/ssr-s29-F5.safetensors"; at=0; base="$base --lambda mm=5"
-          else
-            init="$f13_init"; at="$f13_at"; base="$base --lr 3.125e-5"
-          fi
+          init="$root/$(start_of "$what" weights)"; at="$(start_of "$what" iteration)"
+          if [ "$what" = F12 ]; then base="$base --lambda mm=5"; else base="$base --lr 3.125e-5"; fi
           mc='{"emission":"background"}'; iters=$roll_iters
           k="${3:?usage: registered.sh WORK $what K (the block to train)}"
           block_check "$k"

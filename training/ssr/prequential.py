@@ -108,16 +108,25 @@ def ships(entries: Sequence[dict], challenger: str = CHALLENGER) -> Optional[int
     return best
 
 
-def load(path: str) -> List[dict]:
-    """The ledger's entries (none when the file does not exist yet)."""
+def load_ledger(path: str) -> dict:
+    """The whole ledger at `path` (its run, `ships_at` and entries), or RuleError naming the
+    file; a file that does not exist yet is an empty ledger."""
     if not os.path.exists(path):
-        return []
-    with open(path) as f:
-        data = json.load(f)
+        return {"blocks": []}
+    try:
+        with open(path) as f:
+            data = json.load(f)
+    except (OSError, json.JSONDecodeError) as err:
+        raise RuleError(f"{path}: cannot read the ledger ({err})") from None
     entries = data.get("blocks") if isinstance(data, dict) else None
     if not isinstance(entries, list) or not all(isinstance(e, dict) and isinstance(e.get("block"), int) for e in entries):
         raise RuleError(f"{path}: expected {{\"blocks\": [{{\"block\": K, ...}}, ...]}}")
-    return entries
+    return data
+
+
+def load(path: str) -> List[dict]:
+    """The ledger's entries (none when the file does not exist yet)."""
+    return load_ledger(path)["blocks"]
 
 
 def record(path: str, new: dict, challenger: str = CHALLENGER) -> List[dict]:

@@ -15,32 +15,22 @@ does not ship the run, or the snapshot is another run's or another iteration's.
 from __future__ import annotations
 
 import argparse
-import json
 import os
 import sys
 from typing import List, Optional
 
 from .export import WeightsError, export_weights, load_weights
-from .prequential import BLOCK_ITERATIONS, ROLLING, ships
+from .prequential import BLOCK_ITERATIONS, ROLLING, load_ledger, ships
 from .rule import RuleError
-
-
-def _read_ledger(path: str) -> dict:
-    try:
-        with open(path) as f:
-            doc = json.load(f)
-    except (OSError, json.JSONDecodeError) as err:
-        raise RuleError(f"{path}: cannot read the ledger ({err})") from None
-    if not isinstance(doc, dict) or not isinstance(doc.get("blocks"), list):
-        raise RuleError(f"{path}: expected a ledger {{\"run\": ..., \"blocks\": [...]}}")
-    return doc
 
 
 def provenance_of(ledger_path: str, snapshot: str, root: str) -> tuple:
     """(model, provenance, metrics) of `snapshot` shipped by the ledger at `ledger_path` (the
     rolling run is the ledger's); `root` is the repository (the registration's paths are
     relative to it)."""
-    doc = _read_ledger(ledger_path)
+    if not os.path.isfile(ledger_path):
+        raise RuleError(f"{ledger_path}: no such ledger")
+    doc = load_ledger(ledger_path)
     named = [name for name, r in ROLLING.items() if r["run"] == doc.get("run")]
     if not named:
         known = ", ".join(r["run"] for r in ROLLING.values())
@@ -104,9 +94,7 @@ def main(argv: Optional[List[str]] = None) -> int:
     root = args.root or os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
     try:
         model, provenance, metrics = provenance_of(args.ledger, args.snapshot, root)
-        tmp = args.out + ".tmp"
-        size = export_weights(model, tmp, provenance, metrics)
-        os.replace(tmp, args.out)
+        size = export_weights(model, args.out, provenance, metrics)  # atomic
     except (RuleError, WeightsError, OSError, KeyError) as err:
         print(f"error: {err}", file=sys.stderr)
         return 2
