@@ -39,9 +39,17 @@ Sequences are T = 5 frames. `preds` and `refs` are radiance (linear HDR, the rem
           It supervises o directly, including where remodulation clamps exp(o) - 1 < 0 and
           radiance losses give no gradient, and it weighs dark-albedo regions fairly.
 
+    l_n2n  mean-seeking relative L2 (Lehtinen et al. 2018, "Noise2Noise", their HDR loss):
+          sum_t w_t mean((p_t - r_t)^2 / (sg(max(p_t, 0)) + N2N_EPS)^2), sg: no gradient
+          through the denominator. Its expected gradient over a reference's Monte Carlo noise
+          is its gradient at the noise-free reference (the noise is zero-mean and the
+          denominator does not depend on it), so it can train on cheap noisy references
+          where the relative L1 terms above, which seek a median, cannot. Weight 0 by
+          default (not computed); `--lambda n2n=W` turns it on.
+
 The frame-weighted terms are plain weighted sums sum_t w_t * l(t) (not normalised by
 sum w_t). total = 0.7 l_s + 0.1 l_t + 0.2 l_e + 0.4 l_wt + 5.0 l_a + 5.0 l_m + 0 l_ssim
-+ 0 l_mm (LAMBDAS).
++ 0 l_mm + 0 l_n2n (LAMBDAS).
 """
 
 from __future__ import annotations
@@ -56,10 +64,10 @@ from .metrics import EXPOSURE, GAMMA, HABLE, WHITE, hable_curve, ssim_mean
 from .model import demodulate, warp
 
 FRAME_WEIGHTS: Tuple[float, ...] = (0.05, 0.25, 0.5, 0.75, 1.0)
-LAMBDAS: Dict[str, float] = {"s": 0.7, "t": 0.1, "e": 0.2, "wt": 0.4, "a": 5.0, "m": 5.0, "ssim": 0.0, "mm": 0.0}
+LAMBDAS: Dict[str, float] = {"s": 0.7, "t": 0.1, "e": 0.2, "wt": 0.4, "a": 5.0, "m": 5.0, "ssim": 0.0, "mm": 0.0, "n2n": 0.0}
 # Terms computed only where their weight is not 0 (their defaults are 0, so a run config
 # written before one of them existed means it at 0: train.normalised_config).
-OPTIONAL_TERMS: Tuple[str, ...] = ("ssim", "mm")
+OPTIONAL_TERMS: Tuple[str, ...] = ("ssim", "mm", "n2n")
 # Metal pixels for l_mm: metallic at least this (ssr.brightness's `metal` region).
 METAL_THRESHOLD = 0.5
 # Below this the tonemap's gamma 1/2.2 has an unbounded slope: l_ssim clamps its input there.
@@ -67,6 +75,7 @@ TONEMAP_FLOOR = 1e-4
 MEAN_BLOCK = 16
 SMAPE_EPS = 1e-2
 HFEN_EPS = 1e-2
+N2N_EPS = 1e-2
 LOG_SIZE = 9
 LOG_SIGMA = 1.5
 
@@ -208,6 +217,17 @@ def ssim_loss(preds: Frames, refs: Frames, frame_weights: Optional[Sequence[floa
     return sum(wt * (1.0 - ssim_mean(tonemap(p[t]), tonemap(r[t]), 1.0)) for t, wt in enumerate(w))
 
 
+def n2n_loss(preds: Frames, refs: Frames, frame_weights: Optional[Sequence[float]] = None) -> torch.Tensor:
+    """l_n2n = sum_t w_t mean((p_t - r_t)^2 / (sg(max(p_t, 0)) + N2N_EPS)^2)."""
+    p, r = _frames(preds, "preds"), _frames(refs, "refs")
+    w = _weights(len(p), frame_weights)
+    total = p[0].new_zeros(())
+    for t, wt in enumerate(w):
+        scale = torch.clamp(p[t].detach(), min=0.0) + N2N_EPS
+        total = total + wt * (((p[t] - r[t]) / scale) ** 2).mean()
+    return total
+
+
 def warped_temporal_loss(preds: Frames, refs: Frames, motion: Frames) -> torch.Tensor:
     """l_wt on the last two frames, masked by the warp validity, on log1p(max(x, 0)).
 
@@ -241,7 +261,7 @@ def total_loss(
     lambdas: Optional[Dict[str, float]] = None,
 ) -> Tuple[torch.Tensor, Dict[str, torch.Tensor]]:
     """Combined loss of a sequence. Returns (total, {"l_s", "l_t", "l_e", "l_wt", "l_a", "l_m"}, and
-    "l_ssim" and "l_mm" where their weights are not 0).
+    "l_ssim", "l_mm" and "l_n2n" where their weights are not 0).
 
     preds, refs: radiance [N, T, 3, H, W] (or lists). aux:
         motion      [N, T, 2, H, W] (or list): each frame's motion
@@ -271,6 +291,8 @@ def total_loss(
         if "metallic" not in aux:
             raise KeyError("total_loss: the metal brightness term (lambda mm) needs aux `metallic`")
         parts["l_mm"] = metal_mean_loss(p, r, aux["metallic"], frame_weights)
+    if lam.get("n2n", 0.0) != 0.0:
+        parts["l_n2n"] = n2n_loss(p, r, frame_weights)
     unknown = set(lam) - set(LAMBDAS)
     if unknown:
         raise KeyError(f"total_loss: unknown loss weight(s) {sorted(unknown)}, expected {sorted(LAMBDAS)}")

@@ -23,7 +23,7 @@ def _aux(refs, motion, albedo):
 
 def test_constants():
     assert L.FRAME_WEIGHTS == (0.05, 0.25, 0.5, 0.75, 1.0)
-    assert L.LAMBDAS == {"s": 0.7, "t": 0.1, "e": 0.2, "wt": 0.4, "a": 5.0, "m": 5.0, "ssim": 0.0, "mm": 0.0}
+    assert L.LAMBDAS == {"s": 0.7, "t": 0.1, "e": 0.2, "wt": 0.4, "a": 5.0, "m": 5.0, "ssim": 0.0, "mm": 0.0, "n2n": 0.0}
 
 
 def test_zero_for_identical_inputs():
@@ -310,3 +310,48 @@ def test_total_loss_adds_the_metal_term_only_when_weighted():
     total_mm, parts_mm = L.total_loss(preds, refs, aux, lambdas={**L.LAMBDAS, "mm": 5.0})
     torch.testing.assert_close(parts_mm["l_mm"], L.metal_mean_loss(preds, refs, metallic))
     torch.testing.assert_close(total_mm, total + 5.0 * parts_mm["l_mm"])
+
+
+def _grad(loss_fn, p0, r):
+    p = p0.clone().requires_grad_(True)
+    loss_fn(p, r).backward()
+    return p.grad
+
+
+def test_n2n_expected_gradient_is_the_clean_references():
+    """The analytic property the term exists for: over zero-mean, heavy-tailed Monte Carlo
+    noise (a reference that is the mean of a few exponential samples: rarely bright, mostly
+    dark), the mean gradient of l_n2n is its gradient at the noise-free reference, while
+    SMAPE's (the spatial term's) is not."""
+    g = torch.Generator().manual_seed(3)
+    shape = (1, 3, 8, 8)
+    clean = torch.exp(torch.randn(shape, generator=g))
+    pred = clean * torch.exp(0.4 * torch.randn(shape, generator=g))
+    n2n = lambda p, r: L.n2n_loss([p], [r], [1.0])  # noqa: E731
+    smape = lambda p, r: L.smape(p, r)  # noqa: E731
+    draws = 4000
+    # 4 exponential samples a pixel, scaled to the clean mean: unbiased, skewed
+    noisy = clean * torch.distributions.Gamma(4.0, 4.0).sample((draws,) + shape[1:]).unsqueeze(1)
+    want_n2n, want_smape = _grad(n2n, pred, clean), _grad(smape, pred, clean)
+    got_n2n = sum(_grad(n2n, pred, noisy[k]) for k in range(draws)) / draws
+    got_smape = sum(_grad(smape, pred, noisy[k]) for k in range(draws)) / draws
+    err = lambda got, want: ((got - want).norm() / want.norm()).item()  # noqa: E731
+    # The n2n gradient's Monte Carlo error: var of (p - r) per draw is clean^2 / 4
+    assert err(got_n2n, want_n2n) < 0.05
+    assert err(got_smape, want_smape) > 0.2
+
+
+def test_n2n_term_only_when_weighted_and_zero_at_the_reference():
+    refs, motion, albedo = _seq()
+    _, parts = L.total_loss(refs, refs, _aux(refs, motion, albedo))
+    assert "l_n2n" not in parts
+    lam = dict(L.LAMBDAS, n2n=2.0)
+    _, parts = L.total_loss(refs, refs, _aux(refs, motion, albedo), lambdas=lam)
+    assert parts["l_n2n"].item() == 0.0
+    preds = refs * 1.1
+    total, parts = L.total_loss(preds, refs, _aux(refs, motion, albedo), lambdas=lam)
+    # (1.1 r - r)^2 / (1.1 r + eps)^2 per pixel, summed over the frame weights
+    want = sum(w * (((0.1 * refs[:, t]) / (1.1 * refs[:, t] + L.N2N_EPS)) ** 2).mean() for t, w in enumerate(L.FRAME_WEIGHTS))
+    assert parts["l_n2n"].item() == pytest.approx(want.item(), rel=1e-5)
+    base = sum(L.LAMBDAS[k[2:]] * v for k, v in parts.items() if k != "l_n2n")
+    assert total.item() == pytest.approx(base.item() + 2.0 * parts["l_n2n"].item(), rel=1e-6)
