@@ -221,11 +221,7 @@ def n2n_loss(preds: Frames, refs: Frames, frame_weights: Optional[Sequence[float
     """l_n2n = sum_t w_t mean((p_t - r_t)^2 / (sg(max(p_t, 0)) + N2N_EPS)^2)."""
     p, r = _frames(preds, "preds"), _frames(refs, "refs")
     w = _weights(len(p), frame_weights)
-    total = p[0].new_zeros(())
-    for t, wt in enumerate(w):
-        scale = torch.clamp(p[t].detach(), min=0.0) + N2N_EPS
-        total = total + wt * (((p[t] - r[t]) / scale) ** 2).mean()
-    return total
+    return sum(wt * (((p[t] - r[t]) / (torch.clamp(p[t].detach(), min=0.0) + N2N_EPS)) ** 2).mean() for t, wt in enumerate(w))
 
 
 def warped_temporal_loss(preds: Frames, refs: Frames, motion: Frames) -> torch.Tensor:
