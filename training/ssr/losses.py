@@ -47,9 +47,19 @@ Sequences are T = 5 frames. `preds` and `refs` are radiance (linear HDR, the rem
           where the relative L1 terms above, which seek a median, cannot. Weight 0 by
           default (not computed); `--lambda n2n=W` turns it on.
 
+    l_tml2 mean-seeking L2 weighted as the metric weighs each pixel: the first-order
+          expansion of the tonemapped L2 (DESIGN §7's tonemap, `tonemap_slope`) around the
+          prediction, sum_t w_t mean((tm'(clamp(sg(p_t), TML2_LO, TML2_HI)) (p_t - r_t))^2).
+          TML2_LO is where l_ssim's TONEMAP_FLOOR clamps the curve (darker, the gamma's
+          slope grows without bound, and the weight is held at that value's); TML2_HI is
+          just below the white point (brighter, the tonemap's slope is 0). Its weight does not depend on
+          the reference, so like l_n2n it seeks the mean under a reference's noise, but
+          it does not let the darkest pixels dominate. Weight 0 by default (not
+          computed); `--lambda tml2=W` turns it on.
+
 The frame-weighted terms are plain weighted sums sum_t w_t * l(t) (not normalised by
 sum w_t). total = 0.7 l_s + 0.1 l_t + 0.2 l_e + 0.4 l_wt + 5.0 l_a + 5.0 l_m + 0 l_ssim
-+ 0 l_mm + 0 l_n2n (LAMBDAS).
++ 0 l_mm + 0 l_n2n + 0 l_tml2 (LAMBDAS).
 """
 
 from __future__ import annotations
@@ -64,10 +74,10 @@ from .metrics import EXPOSURE, GAMMA, HABLE, WHITE, hable_curve, ssim_mean
 from .model import demodulate, warp
 
 FRAME_WEIGHTS: Tuple[float, ...] = (0.05, 0.25, 0.5, 0.75, 1.0)
-LAMBDAS: Dict[str, float] = {"s": 0.7, "t": 0.1, "e": 0.2, "wt": 0.4, "a": 5.0, "m": 5.0, "ssim": 0.0, "mm": 0.0, "n2n": 0.0}
+LAMBDAS: Dict[str, float] = {"s": 0.7, "t": 0.1, "e": 0.2, "wt": 0.4, "a": 5.0, "m": 5.0, "ssim": 0.0, "mm": 0.0, "n2n": 0.0, "tml2": 0.0}
 # Terms computed only where their weight is not 0 (their defaults are 0, so a run config
 # written before one of them existed means it at 0: train.normalised_config).
-OPTIONAL_TERMS: Tuple[str, ...] = ("ssim", "mm", "n2n")
+OPTIONAL_TERMS: Tuple[str, ...] = ("ssim", "mm", "n2n", "tml2")
 # Metal pixels for l_mm: metallic at least this (ssr.brightness's `metal` region).
 METAL_THRESHOLD = 0.5
 # Below this the tonemap's gamma 1/2.2 has an unbounded slope: l_ssim clamps its input there.
@@ -76,6 +86,29 @@ MEAN_BLOCK = 16
 SMAPE_EPS = 1e-2
 HFEN_EPS = 1e-2
 N2N_EPS = 1e-2
+
+
+def _tonemap_value(x: float) -> float:
+    """The metric's tonemap of one value (metrics.tonemap, in float64)."""
+    h = hable_curve(EXPOSURE * x, *HABLE) / hable_curve(WHITE, *HABLE)
+    return min(max(h, 0.0), 1.0) ** (1.0 / GAMMA)
+
+
+def _tonemap_inverse(t: float) -> float:
+    """The radiance the metric's tonemap maps to t in (0, 1) (bisection; the curve rises)."""
+    lo, hi = 0.0, WHITE / EXPOSURE
+    for _ in range(200):
+        mid = 0.5 * (lo + hi)
+        lo, hi = (mid, hi) if _tonemap_value(mid) < t else (lo, mid)
+    return 0.5 * (lo + hi)
+
+
+TML2_LO = _tonemap_inverse(TONEMAP_FLOOR ** (1.0 / GAMMA))
+"""l_tml2's slope is held below this radiance (about 1.3e-4, which the tonemap maps to
+about 3.9 of 255): where l_ssim's TONEMAP_FLOOR clamps the curve, whose gamma slope is
+unbounded at 0."""
+TML2_HI = 0.99 * WHITE / EXPOSURE
+"""l_tml2's slope is held above this radiance: just below the white point, where it is 0."""
 LOG_SIZE = 9
 LOG_SIGMA = 1.5
 
@@ -224,6 +257,26 @@ def n2n_loss(preds: Frames, refs: Frames, frame_weights: Optional[Sequence[float
     return sum(wt * (((p[t] - r[t]) / (torch.clamp(p[t].detach(), min=0.0) + N2N_EPS)) ** 2).mean() for t, wt in enumerate(w))
 
 
+def tonemap_slope(x: torch.Tensor) -> torch.Tensor:
+    """d tonemap / d x of the metric's tonemap (metrics.tonemap: Hable's curve at EXPOSURE,
+    over its value at WHITE, to the power 1 / GAMMA), analytic, for x in (0, WHITE /
+    EXPOSURE); no gradient."""
+    a, b, c, d, e, f = HABLE
+    x = x.detach()
+    u = EXPOSURE * x
+    num, den = u * (a * u + c * b) + d * e, u * (a * u + b) + d * f
+    dh = EXPOSURE * ((2 * a * u + c * b) * den - num * (2 * a * u + b)) / (den * den) / hable_curve(WHITE, *HABLE)
+    h = hable_curve(u, *HABLE) / hable_curve(WHITE, *HABLE)
+    return dh * h ** (1.0 / GAMMA - 1.0) / GAMMA
+
+
+def tml2_loss(preds: Frames, refs: Frames, frame_weights: Optional[Sequence[float]] = None) -> torch.Tensor:
+    """l_tml2 = sum_t w_t mean((tm'(clamp(sg(p_t), TML2_LO, TML2_HI)) (p_t - r_t))^2)."""
+    p, r = _frames(preds, "preds"), _frames(refs, "refs")
+    w = _weights(len(p), frame_weights)
+    return sum(wt * ((tonemap_slope(p[t].clamp(TML2_LO, TML2_HI)) * (p[t] - r[t])) ** 2).mean() for t, wt in enumerate(w))
+
+
 def warped_temporal_loss(preds: Frames, refs: Frames, motion: Frames) -> torch.Tensor:
     """l_wt on the last two frames, masked by the warp validity, on log1p(max(x, 0)).
 
@@ -257,7 +310,7 @@ def total_loss(
     lambdas: Optional[Dict[str, float]] = None,
 ) -> Tuple[torch.Tensor, Dict[str, torch.Tensor]]:
     """Combined loss of a sequence. Returns (total, {"l_s", "l_t", "l_e", "l_wt", "l_a", "l_m"}, and
-    "l_ssim", "l_mm" and "l_n2n" where their weights are not 0).
+    "l_ssim", "l_mm", "l_n2n" and "l_tml2" where their weights are not 0).
 
     preds, refs: radiance [N, T, 3, H, W] (or lists). aux:
         motion      [N, T, 2, H, W] (or list): each frame's motion
@@ -289,6 +342,8 @@ def total_loss(
         parts["l_mm"] = metal_mean_loss(p, r, aux["metallic"], frame_weights)
     if lam.get("n2n", 0.0) != 0.0:
         parts["l_n2n"] = n2n_loss(p, r, frame_weights)
+    if lam.get("tml2", 0.0) != 0.0:
+        parts["l_tml2"] = tml2_loss(p, r, frame_weights)
     unknown = set(lam) - set(LAMBDAS)
     if unknown:
         raise KeyError(f"total_loss: unknown loss weight(s) {sorted(unknown)}, expected {sorted(LAMBDAS)}")

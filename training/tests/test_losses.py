@@ -23,7 +23,7 @@ def _aux(refs, motion, albedo):
 
 def test_constants():
     assert L.FRAME_WEIGHTS == (0.05, 0.25, 0.5, 0.75, 1.0)
-    assert L.LAMBDAS == {"s": 0.7, "t": 0.1, "e": 0.2, "wt": 0.4, "a": 5.0, "m": 5.0, "ssim": 0.0, "mm": 0.0, "n2n": 0.0}
+    assert L.LAMBDAS == {"s": 0.7, "t": 0.1, "e": 0.2, "wt": 0.4, "a": 5.0, "m": 5.0, "ssim": 0.0, "mm": 0.0, "n2n": 0.0, "tml2": 0.0}
 
 
 def test_zero_for_identical_inputs():
@@ -355,3 +355,65 @@ def test_n2n_term_only_when_weighted_and_zero_at_the_reference():
     assert parts["l_n2n"].item() == pytest.approx(want.item(), rel=1e-5)
     base = sum(L.LAMBDAS[k[2:]] * v for k, v in parts.items() if k != "l_n2n")
     assert total.item() == pytest.approx(base.item() + 2.0 * parts["l_n2n"].item(), rel=1e-6)
+
+
+def test_tonemap_slope_is_the_metrics_tonemaps_derivative():
+    """tonemap_slope against central differences of the metric's tonemap curve (float64
+    numpy through metrics.hable_curve, independent of the analytic quotient rule), over the
+    range the term uses."""
+    import numpy as np
+
+    from ssr import metrics
+
+    def tm(x):
+        h = metrics.hable_curve(metrics.EXPOSURE * x, *metrics.HABLE) / metrics.hable_curve(metrics.WHITE, *metrics.HABLE)
+        t = np.clip(h, 0.0, 1.0)
+        return t ** (1.0 / metrics.GAMMA)
+
+    xs = np.geomspace(L.TML2_LO, L.TML2_HI, 40)
+    got = L.tonemap_slope(torch.tensor(xs, dtype=torch.float64)).numpy()
+    h = xs * 1e-5
+    want = (tm(xs + h) - tm(xs - h)) / (2 * h)
+    assert np.allclose(got, want, rtol=1e-4)
+    # the bounds: the floor l_ssim clamps at, and just below the white point
+    assert tm(np.array(L.TML2_LO)) ** metrics.GAMMA == pytest.approx(L.TONEMAP_FLOOR, rel=1e-6)
+    assert tm(np.array(L.TML2_HI)) < 1.0 and tm(np.array(L.WHITE / L.EXPOSURE)) == pytest.approx(1.0)
+
+
+def test_tml2_expected_gradient_is_the_clean_references():
+    """Like l_n2n (test above), l_tml2 seeks the mean: over zero-mean, heavy-tailed noise in
+    the reference its mean gradient is its gradient at the noise-free reference."""
+    g = torch.Generator().manual_seed(5)
+    shape = (1, 3, 8, 8)
+    clean = torch.exp(torch.randn(shape, generator=g)) * 0.3
+    pred = clean * torch.exp(0.4 * torch.randn(shape, generator=g))
+    tml2 = lambda p, r: L.tml2_loss([p], [r], [1.0])  # noqa: E731
+    draws = 4000
+    noisy = clean * torch.distributions.Gamma(4.0, 4.0).sample((draws,) + shape[1:]).unsqueeze(1)
+    want = _grad(tml2, pred, clean)
+    got = sum(_grad(tml2, pred, noisy[k]) for k in range(draws)) / draws
+    assert ((got - want).norm() / want.norm()).item() < 0.05
+
+
+def test_tml2_weighs_pixels_by_the_tonemaps_slope_held_at_its_bounds():
+    refs, motion, albedo = _seq()
+    _, parts = L.total_loss(refs, refs, _aux(refs, motion, albedo))
+    assert "l_tml2" not in parts
+    lam = dict(L.LAMBDAS, tml2=3.0)
+    _, parts = L.total_loss(refs, refs, _aux(refs, motion, albedo), lambdas=lam)
+    assert parts["l_tml2"].item() == 0.0
+    preds = refs * 1.1
+    total, parts = L.total_loss(preds, refs, _aux(refs, motion, albedo), lambdas=lam)
+    slope = lambda x: L.tonemap_slope(x.clamp(L.TML2_LO, L.TML2_HI))  # noqa: E731
+    want = sum(w * ((slope(1.1 * refs[:, t]) * 0.1 * refs[:, t]) ** 2).mean() for t, w in enumerate(L.FRAME_WEIGHTS))
+    assert parts["l_tml2"].item() == pytest.approx(want.item(), rel=1e-5)
+    base = sum(L.LAMBDAS[k[2:]] * v for k, v in parts.items() if k != "l_tml2")
+    assert total.item() == pytest.approx(base.item() + 3.0 * parts["l_tml2"].item(), rel=1e-6)
+    # outside [TML2_LO, TML2_HI] the weight is the bound's: a black and a very bright
+    # prediction weigh their errors as at the bounds (and a negative one as black)
+    p = torch.tensor([[[[-1.0, 0.0, 1e-9, 50.0]]]])
+    r = torch.zeros_like(p) + 0.5
+    got = L.tml2_loss([p], [r], [1.0])
+    lo, hi = L.tonemap_slope(torch.tensor(L.TML2_LO)), L.tonemap_slope(torch.tensor(L.TML2_HI))
+    want = ((lo * 1.5) ** 2 + (lo * 0.5) ** 2 + (lo * 0.5) ** 2 + (hi * 49.5) ** 2) / 4
+    assert got.item() == pytest.approx(want.item(), rel=1e-5)
