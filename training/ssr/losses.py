@@ -52,9 +52,9 @@ Sequences are T = 5 frames. `preds` and `refs` are radiance (linear HDR, the rem
           prediction, sum_t w_t mean((tm'(clamp(sg(p_t), TML2_LO, TML2_HI)) (p_t - r_t))^2).
           TML2_LO is where l_ssim's TONEMAP_FLOOR clamps the curve (darker, the gamma's
           slope grows without bound, and the weight is held at that value's); TML2_HI is
-          just below the white point (brighter, the tonemap's slope is 0). Its weight does not depend on
-          the reference, so like l_n2n it seeks the mean under a reference's noise, but
-          it does not let the darkest pixels dominate. Weight 0 by default (not
+          just below the white point (brighter, the tonemap's slope is 0). Its weight does
+          not depend on the reference, so like l_n2n it seeks the mean under a reference's
+          noise, but it does not let the darkest pixels dominate. Weight 0 by default (not
           computed); `--lambda tml2=W` turns it on.
 
 The frame-weighted terms are plain weighted sums sum_t w_t * l(t) (not normalised by
@@ -86,6 +86,8 @@ MEAN_BLOCK = 16
 SMAPE_EPS = 1e-2
 HFEN_EPS = 1e-2
 N2N_EPS = 1e-2
+LOG_SIZE = 9
+LOG_SIGMA = 1.5
 
 
 def _tonemap_value(x: float) -> float:
@@ -109,8 +111,6 @@ about 3.9 of 255): where l_ssim's TONEMAP_FLOOR clamps the curve, whose gamma sl
 unbounded at 0."""
 TML2_HI = 0.99 * WHITE / EXPOSURE
 """l_tml2's slope is held above this radiance: just below the white point, where it is 0."""
-LOG_SIZE = 9
-LOG_SIGMA = 1.5
 
 Frames = Union[torch.Tensor, Sequence[torch.Tensor]]
 
