@@ -90,22 +90,17 @@ LOG_SIZE = 9
 LOG_SIGMA = 1.5
 
 
-def _tonemap_value(x: float) -> float:
-    """The metric's tonemap of one value (metrics.tonemap, in float64)."""
-    h = hable_curve(EXPOSURE * x, *HABLE) / hable_curve(WHITE, *HABLE)
-    return min(max(h, 0.0), 1.0) ** (1.0 / GAMMA)
-
-
-def _tonemap_inverse(t: float) -> float:
-    """The radiance the metric's tonemap maps to t in (0, 1) (bisection; the curve rises)."""
-    lo, hi = 0.0, WHITE / EXPOSURE
+def _hable_inverse(h: float) -> float:
+    """The radiance x with hable(EXPOSURE x) / hable(WHITE) = h in (0, 1), the metric's
+    tonemap before its gamma (bisection; the curve rises)."""
+    lo, hi, white = 0.0, WHITE / EXPOSURE, hable_curve(WHITE, *HABLE)
     for _ in range(200):
         mid = 0.5 * (lo + hi)
-        lo, hi = (mid, hi) if _tonemap_value(mid) < t else (lo, mid)
+        lo, hi = (mid, hi) if hable_curve(EXPOSURE * mid, *HABLE) / white < h else (lo, mid)
     return 0.5 * (lo + hi)
 
 
-TML2_LO = _tonemap_inverse(TONEMAP_FLOOR ** (1.0 / GAMMA))
+TML2_LO = _hable_inverse(TONEMAP_FLOOR)
 """l_tml2's slope is held below this radiance (about 1.3e-4, which the tonemap maps to
 about 3.9 of 255): where l_ssim's TONEMAP_FLOOR clamps the curve, whose gamma slope is
 unbounded at 0."""

@@ -318,6 +318,17 @@ def _grad(loss_fn, p0, r):
     return p.grad
 
 
+def _noisy_refs(clean, draws=4000):
+    """`draws` noisy references of `clean` [1, C, H, W]: each pixel the mean of 4 exponential
+    samples scaled to the clean value (unbiased, skewed: rarely bright, mostly dark)."""
+    return clean * torch.distributions.Gamma(4.0, 4.0).sample((draws,) + clean.shape[1:]).unsqueeze(1)
+
+
+def _mean_grad(loss_fn, p0, noisy):
+    """The mean over the noisy references of loss_fn's gradient at p0."""
+    return sum(_grad(loss_fn, p0, r) for r in noisy) / len(noisy)
+
+
 def test_n2n_expected_gradient_is_the_clean_references():
     """The analytic property the term exists for: over zero-mean, heavy-tailed Monte Carlo
     noise (a reference that is the mean of a few exponential samples: rarely bright, mostly
@@ -329,32 +340,35 @@ def test_n2n_expected_gradient_is_the_clean_references():
     pred = clean * torch.exp(0.4 * torch.randn(shape, generator=g))
     n2n = lambda p, r: L.n2n_loss([p], [r], [1.0])  # noqa: E731
     smape = lambda p, r: L.smape(p, r)  # noqa: E731
-    draws = 4000
-    # 4 exponential samples a pixel, scaled to the clean mean: unbiased, skewed
-    noisy = clean * torch.distributions.Gamma(4.0, 4.0).sample((draws,) + shape[1:]).unsqueeze(1)
+    noisy = _noisy_refs(clean)
     want_n2n, want_smape = _grad(n2n, pred, clean), _grad(smape, pred, clean)
-    got_n2n = sum(_grad(n2n, pred, noisy[k]) for k in range(draws)) / draws
-    got_smape = sum(_grad(smape, pred, noisy[k]) for k in range(draws)) / draws
+    got_n2n, got_smape = _mean_grad(n2n, pred, noisy), _mean_grad(smape, pred, noisy)
     err = lambda got, want: ((got - want).norm() / want.norm()).item()  # noqa: E731
     # The n2n gradient's Monte Carlo error: var of (p - r) per draw is clean^2 / 4
     assert err(got_n2n, want_n2n) < 0.05
     assert err(got_smape, want_smape) > 0.2
 
 
-def test_n2n_term_only_when_weighted_and_zero_at_the_reference():
+def _check_optional_term(term, weight, per_pixel):
+    """An optional loss term: absent at weight 0, 0 at the reference, and at preds = 1.1 refs
+    the frame-weighted sum of the means of per_pixel(refs[:, t]) and weighted into the total."""
     refs, motion, albedo = _seq()
+    key = "l_" + term
     _, parts = L.total_loss(refs, refs, _aux(refs, motion, albedo))
-    assert "l_n2n" not in parts
-    lam = dict(L.LAMBDAS, n2n=2.0)
+    assert key not in parts
+    lam = dict(L.LAMBDAS, **{term: weight})
     _, parts = L.total_loss(refs, refs, _aux(refs, motion, albedo), lambdas=lam)
-    assert parts["l_n2n"].item() == 0.0
-    preds = refs * 1.1
-    total, parts = L.total_loss(preds, refs, _aux(refs, motion, albedo), lambdas=lam)
-    # (1.1 r - r)^2 / (1.1 r + eps)^2 per pixel, summed over the frame weights
-    want = sum(w * (((0.1 * refs[:, t]) / (1.1 * refs[:, t] + L.N2N_EPS)) ** 2).mean() for t, w in enumerate(L.FRAME_WEIGHTS))
-    assert parts["l_n2n"].item() == pytest.approx(want.item(), rel=1e-5)
-    base = sum(L.LAMBDAS[k[2:]] * v for k, v in parts.items() if k != "l_n2n")
-    assert total.item() == pytest.approx(base.item() + 2.0 * parts["l_n2n"].item(), rel=1e-6)
+    assert parts[key].item() == 0.0
+    total, parts = L.total_loss(refs * 1.1, refs, _aux(refs, motion, albedo), lambdas=lam)
+    want = sum(w * per_pixel(refs[:, t]).mean() for t, w in enumerate(L.FRAME_WEIGHTS))
+    assert parts[key].item() == pytest.approx(want.item(), rel=1e-5)
+    base = sum(L.LAMBDAS[k[2:]] * v for k, v in parts.items() if k != key)
+    assert total.item() == pytest.approx(base.item() + weight * parts[key].item(), rel=1e-6)
+
+
+def test_n2n_term_only_when_weighted_and_zero_at_the_reference():
+    # (1.1 r - r)^2 / (1.1 r + eps)^2 per pixel
+    _check_optional_term("n2n", 2.0, lambda r: ((0.1 * r) / (1.1 * r + L.N2N_EPS)) ** 2)
 
 
 def test_tonemap_slope_is_the_metrics_tonemaps_derivative():
@@ -388,27 +402,13 @@ def test_tml2_expected_gradient_is_the_clean_references():
     clean = torch.exp(torch.randn(shape, generator=g)) * 0.3
     pred = clean * torch.exp(0.4 * torch.randn(shape, generator=g))
     tml2 = lambda p, r: L.tml2_loss([p], [r], [1.0])  # noqa: E731
-    draws = 4000
-    noisy = clean * torch.distributions.Gamma(4.0, 4.0).sample((draws,) + shape[1:]).unsqueeze(1)
-    want = _grad(tml2, pred, clean)
-    got = sum(_grad(tml2, pred, noisy[k]) for k in range(draws)) / draws
+    want, got = _grad(tml2, pred, clean), _mean_grad(tml2, pred, _noisy_refs(clean))
     assert ((got - want).norm() / want.norm()).item() < 0.05
 
 
 def test_tml2_weighs_pixels_by_the_tonemaps_slope_held_at_its_bounds():
-    refs, motion, albedo = _seq()
-    _, parts = L.total_loss(refs, refs, _aux(refs, motion, albedo))
-    assert "l_tml2" not in parts
-    lam = dict(L.LAMBDAS, tml2=3.0)
-    _, parts = L.total_loss(refs, refs, _aux(refs, motion, albedo), lambdas=lam)
-    assert parts["l_tml2"].item() == 0.0
-    preds = refs * 1.1
-    total, parts = L.total_loss(preds, refs, _aux(refs, motion, albedo), lambdas=lam)
     slope = lambda x: L.tonemap_slope(x.clamp(L.TML2_LO, L.TML2_HI))  # noqa: E731
-    want = sum(w * ((slope(1.1 * refs[:, t]) * 0.1 * refs[:, t]) ** 2).mean() for t, w in enumerate(L.FRAME_WEIGHTS))
-    assert parts["l_tml2"].item() == pytest.approx(want.item(), rel=1e-5)
-    base = sum(L.LAMBDAS[k[2:]] * v for k, v in parts.items() if k != "l_tml2")
-    assert total.item() == pytest.approx(base.item() + 3.0 * parts["l_tml2"].item(), rel=1e-6)
+    _check_optional_term("tml2", 3.0, lambda r: (slope(1.1 * r) * 0.1 * r) ** 2)
     # outside [TML2_LO, TML2_HI] the weight is the bound's: a black and a very bright
     # prediction weigh their errors as at the bounds (and a negative one as black)
     p = torch.tensor([[[[-1.0, 0.0, 1e-9, 50.0]]]])
