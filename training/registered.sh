@@ -2,7 +2,8 @@
 # The pre-registered runs of issue 11, as registered (weights/README: "Thirtieth session"
 # for F6 and F7, "Thirty-first session" for F8, "Thirty-fourth session" for F9,
 # "Thirty-ninth session" for F10 and F11, withdrawn in the "Forty-second session", which
-# registered F12, the rolling run), and the order in which a
+# registered F12, the rolling run; F13 in the "Forty-sixth session", F14 in the "Fiftieth
+# session"), and the order in which a
 # new machine re-creates the data they need, so that neither has to be re-typed from prose.
 #
 #   training/registered.sh WORK setup       # a new machine: lavapipe and the training
@@ -55,14 +56,20 @@
 # 1,000(K+1) of its 30,000 on blocks 1 to K at once (WORK/ds-upto-K); its ledger
 # (weights/prequential-F13.json) scores blocks 9 on. F12 (weights/README "Forty-second
 # session", withdrawn at 12,000 in the forty-sixth; F10 and F11 were withdrawn before and
-# no chain runs them) trained iterations 1,000K to 1,000(K+1) on block K alone. ROLL=F12
-# makes `prequential` and `rolling` drive F12 again (default F13). In what follows RUN is
-# the rolling run:
+# no chain runs them) trained iterations 1,000K to 1,000(K+1) on block K alone. F14
+# (weights/README "Fiftieth session") is F13 continued from its whole checkpoint at 11,250
+# (committed as F14's own) on blocks rendered at 32 spp (WORK/ds-spp32-upto-K), scored on
+# the 512-spp ones from block 12 (weights/prequential-F14.json); F13 is paused at 11,250.
+# ROLL=F12 or F13 makes `prequential` and `rolling` drive that run (default F14). In what
+# follows RUN is the rolling run:
 #
-#   training/registered.sh WORK block K     # renders block K (dataset_recipe.sh phase block,
-#                                           # niced, resumable) and links its root
-#                                           # WORK/ds-block-K (refused until every sequence
-#                                           # of the block is complete)
+#   training/registered.sh WORK block K [SPP]
+#                                           # renders block K (dataset_recipe.sh phase block,
+#                                           # niced, resumable) with references of SPP
+#                                           # samples (default 512; others in WORK/ds-sppN)
+#                                           # and links its root WORK/ds-block-K
+#                                           # (WORK/ds-sppN-block-K; refused until every
+#                                           # sequence of the block is complete)
 #   training/registered.sh WORK F12|F13 K   # trains block K on one core (--stop-at
 #                                           # 1,000(K+1)); refused unless RUN's checkpoint
 #                                           # (its own, else its newest kept one) is in
@@ -75,11 +82,13 @@
 #                                           # weights/prequential-RUN.json; ssr.prequential)
 #   training/registered.sh WORK rolling [LAST]
 #                                           # blocks from where RUN stands to LAST (default
-#                                           # 29), unattended: each block rendered (for F13
-#                                           # first the earlier ones a new machine lacks), RUN
-#                                           # trains it on one core while the other scores it
-#                                           # (prequential, any block still unscored whose
-#                                           # weights exist) and renders the next; the
+#                                           # 29), unattended: each block rendered at RUN's
+#                                           # samples (for F13 and F14 first the earlier ones
+#                                           # a new machine lacks), RUN trains it on one core
+#                                           # while the other scores it (prequential, any
+#                                           # block still unscored whose weights exist; F14
+#                                           # renders that block at 512 spp first) and
+#                                           # renders the next; the
 #                                           # checkpoint kept every KEEP_EVERY seconds and at
 #                                           # every block's end (`keep RUN` also keeps the
 #                                           # weights at the newest block boundary), with
@@ -95,7 +104,7 @@ set -euo pipefail
 {
 here="$(cd "$(dirname "$0")" && pwd)"
 root="$(cd "$here/.." && pwd)"
-usage="usage: registered.sh WORK all|setup|data|root|rules|keep|block|prequential|rolling|F6|...|F13"
+usage="usage: registered.sh WORK all|setup|data|root|rules|keep|block|prequential|rolling|F6|...|F14"
 work="$(realpath -m "${1:?$usage}")"
 what="${2:?$usage}"
 py="${PYTHON:-$HOME/.cache/subpixel/venv/bin/python}"
@@ -106,24 +115,43 @@ need_bin() {
   [ -x "$bin" ] || { echo "registered.sh: no renderer at $bin (registered.sh WORK setup builds it, or set SUBPIXEL)" >&2; exit 2; }
 }
 # run_of F6|...|F11: the run's folder name under WORK/runs.
-runs=(F6 F7 F8 F9 F10 F11 F12 F13)
+runs=(F6 F7 F8 F9 F10 F11 F12 F13 F14)
 run_of() {
   case "$1" in
     F6) echo ssr-s30-F6 ;; F7) echo ssr-s30-F7 ;; F8) echo ssr-s31-F8 ;; F9) echo ssr-s34-F9 ;;
     F10) echo ssr-s39-F10 ;; F11) echo ssr-s39-F11 ;; F12) echo ssr-s42-F12 ;;
-    F13) echo ssr-s46-F13 ;;
+    F13) echo ssr-s46-F13 ;; F14) echo ssr-s50-F14 ;;
   esac
 }
 # The rolling runs' schedule: 30,000 iterations in blocks of 1,000 (block K: 1,000K to
-# 1,000(K+1)). ROLL (default F13) names the rolling run that `prequential` and `rolling`
-# (and so `all`) drive: F12 (withdrawn at 12,000 in the forty-sixth session) or F13.
+# 1,000(K+1)). ROLL (default F14) names the rolling run that `prequential` and `rolling`
+# (and so `all`) drive: F12 (withdrawn at 12,000 in the forty-sixth session), F13 (paused
+# at 11,250 in the fiftieth) or F14.
 roll_iters=30000
 block_iters=1000
-roll="${ROLL:-F13}"
+roll="${ROLL:-F14}"
 case "$roll" in
-  F12 | F13) ;;
-  *) echo "registered.sh: ROLL must be F12 or F13, got '$roll'" >&2; exit 2 ;;
+  F12 | F13 | F14) ;;
+  *) echo "registered.sh: ROLL must be F12, F13 or F14, got '$roll'" >&2; exit 2 ;;
 esac
+# The reference samples of the blocks a rolling run trains on (train_spp_of RUN): 512 (the
+# registered data settings', `common` below) for F12 and F13, 32 for F14. Blocks are
+# rendered a folder for each count (ds_of SPP: WORK/ds at 512, else WORK/ds-sppN) with the
+# same inputs to the bit; the prequential scores always read the 512-spp ones.
+train_spp_of() {
+  if [ "$1" = F14 ]; then echo 32; else echo 512; fi
+}
+ds_of() {
+  if [ "$1" = 512 ]; then echo "$work/ds"; else echo "$work/ds-spp$1"; fi
+}
+# block_root K [SPP]: WORK/ds-block-K (512 spp), else WORK/ds-sppN-block-K; upto_dir K
+# [SPP]: the same with -upto-K, blocks 1 to K at once.
+block_root() {
+  if [ "${2:-512}" = 512 ]; then echo "$work/ds-block-$1"; else echo "$work/ds-spp$2-block-$1"; fi
+}
+upto_dir() {
+  if [ "${2:-512}" = 512 ]; then echo "$work/ds-upto-$1"; else echo "$work/ds-spp$2-upto-$1"; fi
+}
 # first_block: the first block the rolling run's ledger scores, as ssr.prequential registers
 # it (read when needed: `setup` runs before the virtualenv exists).
 first_block() {
@@ -202,17 +230,20 @@ roll_weights() {
   if [ "$1" = "$(start_of "$roll" iteration)" ] && [ -f "$w" ]; then echo "$w"; fi
   return 0
 }
-# upto_root K: WORK/ds-upto-K, the links to every sequence of blocks 1 to K's roots (what
-# F13 trains block K on); fails naming the first block whose root is missing.
+# upto_root K [SPP]: WORK/ds-upto-K (WORK/ds-sppN-upto-K), the links to every sequence of
+# blocks 1 to K's roots at SPP (what F13 and F14 train block K on); fails naming the first
+# block whose root is missing.
 upto_root() {
-  local k="$1" j s dir="$work/ds-upto-$1"
+  local k="$1" spp="${2:-512}" j s b dir
+  dir="$(upto_dir "$k" "$spp")"
   for j in $(seq 1 "$k"); do
-    [ -d "$work/ds-block-$j/train" ] || { echo "registered.sh: no $work/ds-block-$j (registered.sh WORK block $j renders and links it): F13's block $k trains on blocks 1-$k" >&2; return 1; }
+    b="$(block_root "$j" "$spp")"
+    [ -d "$b/train" ] || { echo "registered.sh: no $b (registered.sh WORK block $j $spp renders and links it): block $k trains on blocks 1-$k" >&2; return 1; }
   done
   rm -rf "$dir"
   mkdir -p "$dir/train"
   for j in $(seq 1 "$k"); do
-    for s in "$work/ds-block-$j/train/"*; do
+    for s in "$(block_root "$j" "$spp")/train/"*; do
       [ -e "$s" ] && ln -sfn "$(readlink -f "$s")" "$dir/train/$(basename "$s")"
     done
   done
@@ -428,7 +459,7 @@ print(len(SequenceDataset('$work/ds-$name', 'train', window=8, crop=64, min_refe
       [ "$old" = "$restore/$run-it$n.pt" ] || rm -f "$old"
     done
     echo "registered.sh: kept $run at iteration $((10#$n)) as $restore/$run-it$n.pt"
-    if [ "$r" = F12 ] || [ "$r" = F13 ]; then
+    if [ "$r" = F12 ] || [ "$r" = F13 ] || [ "$r" = F14 ]; then
       # and the weights at the newest block boundary, what block K's prequential score
       # reads (the run at 1,000K) on a machine without the run's snapshots
       w=""
@@ -447,16 +478,20 @@ print(len(SequenceDataset('$work/ds-$name', 'train', window=8, crop=64, min_refe
     fi
     ;;
   block)
-    k="${3:?usage: registered.sh WORK block K}"
+    # block K [SPP]: block K with references of SPP samples (default 512) into ds_of SPP.
+    k="${3:?usage: registered.sh WORK block K [SPP]}"
+    spp="${4:-512}"
     block_check "$k"
+    [[ "$spp" =~ ^[1-9][0-9]*$ ]] || { echo "registered.sh: reference samples must be a positive count, got '$spp'" >&2; exit 2; }
+    ds="$(ds_of "$spp")"
     if [ "${DRY_RUN:-0}" != 1 ]; then
       need_bin
-      phase BLOCK="$k" block
+      phase BLOCK="$k" TRAIN_SPP="$spp" block
     fi
     mapfile -t rels < <(block_list "$k")
-    src="$work/ds-block-$k-src"
-    link_complete "$src" "${rels[@]}"
-    "$here/train_root.sh" "$src" "$work/ds-block-$k" 4
+    dst="$(block_root "$k" "$spp")"
+    link_complete "$dst-src" "${rels[@]}"
+    "$here/train_root.sh" "$dst-src" "$dst" 4
     ;;
   prequential)
     k="${3:?usage: registered.sh WORK prequential K}"
@@ -500,23 +535,29 @@ print(len(SequenceDataset('$work/ds-$name', 'train', window=8, crop=64, min_refe
       fi
       stop_if_asked
       echo "== registered.sh $(date -u +%FT%TZ) block $k ($roll at iteration $at)"
-      if [ "$roll" = F13 ]; then
-        # F13's block K trains on blocks 1 to K: a new machine renders the missing ones
+      spp="$(train_spp_of "$roll")"
+      if [ "$roll" != F12 ]; then
+        # F13's and F14's block K trains on blocks 1 to K: a new machine renders the
+        # missing ones
         for j in $(seq 1 $((k - 1))); do
-          [ -d "$work/ds-block-$j/train" ] || { "$self" "$work" block "$j"; stop_if_asked; }
+          [ -d "$(block_root "$j" "$spp")/train" ] || { "$self" "$work" block "$j" "$spp"; stop_if_asked; }
         done
       fi
-      "$self" "$work" block "$k"
+      "$self" "$work" block "$k" "$spp"
       stop_if_asked
       # the other core: the blocks not yet scored whose weights exist (this one's first:
-      # the run at 1,000k is where it stands), then the next block's render
+      # the run at 1,000k is where it stands; a run training on fewer samples renders the
+      # 512-spp block it is scored on first), then the next block's render
       scored=" $(cd "$here" && "$py" -c "import sys; from ssr.prequential import load; print(' '.join(str(e['block']) for e in load(sys.argv[1])))" "$ledger") "
       (
         for j in $(seq "$k" -1 "$(first_block)"); do
           [[ "$scored" == *" $j "* ]] && continue
-          if [ -n "$(roll_weights $((j * block_iters)))" ]; then "$self" "$work" prequential "$j" || true; fi
+          [ -n "$(roll_weights $((j * block_iters)))" ] || continue
+          if [ "$spp" = 512 ] || [ -d "$(block_root "$j")/train" ] || "$self" "$work" block "$j"; then
+            "$self" "$work" prequential "$j" || true
+          fi
         done
-        [ "$k" -ge "$last" ] || "$self" "$work" block $((k + 1))
+        [ "$k" -ge "$last" ] || "$self" "$work" block $((k + 1)) "$spp"
       ) >> "$work/lane.log" 2>&1 &
       echo "== registered.sh $roll block $k (log $work/$roll.log; scoring and the next render: $work/lane.log)"
       rc=0
@@ -549,7 +590,7 @@ print(len(SequenceDataset('$work/ds-$name', 'train', window=8, crop=64, min_refe
     "$bin" eval --table --json --pred "$work/pred-rules" --ref "$ds" --split val > "$work/rules-val.json"
     (cd "$here" && "$py" -m ssr.registered "$work/rules-val.json")
     ;;
-  F6 | F7 | F8 | F9 | F10 | F11 | F12 | F13)
+  F6 | F7 | F8 | F9 | F10 | F11 | F12 | F13 | F14)
     mkdir -p "$work"
     root_ds="$work/ds-s30"
     iters=6000
@@ -575,10 +616,16 @@ print(len(SequenceDataset('$work/ds-$name', 'train', window=8, crop=64, min_refe
       # F12: F9's settings from F5 over 30,000 iterations, block K (1,000K to 1,000(K+1))
       # on WORK/ds-block-K alone (withdrawn at 12,000). F13: P46's settings (F5's loss
       # weights at F5's final rate) from P46 at 8,000, block K >= 8 on blocks 1 to K at
-      # once (WORK/ds-upto-K).
-      F12 | F13)
+      # once (WORK/ds-upto-K). F14: F13's settings and start (it resumes F13's whole
+      # checkpoint at 11,250, committed as its own), its blocks at 32 spp
+      # (WORK/ds-spp32-upto-K) with no sequence left out for its references' noise.
+      F12 | F13 | F14)
           init="$root/$(start_of "$what" weights)"; at="$(start_of "$what" iteration)"
-          if [ "$what" = F12 ]; then base="$base --lambda mm=5"; else base="$base --lr 3.125e-5"; fi
+          case "$what" in
+            F12) base="$base --lambda mm=5" ;;
+            F13) base="$base --lr 3.125e-5" ;;
+            F14) base="$base --lr 3.125e-5 --min-reference-psnr 0" ;;
+          esac
           mc='{"emission":"background"}'; iters=$roll_iters
           k="${3:?usage: registered.sh WORK $what K (the block to train)}"
           block_check "$k"
@@ -595,8 +642,9 @@ print(len(SequenceDataset('$work/ds-$name', 'train', window=8, crop=64, min_refe
             root_ds="$work/ds-block-$k"
             [ -d "$root_ds/train" ] || { echo "registered.sh: no $root_ds (registered.sh WORK block $k renders and links it)" >&2; exit 1; }
           else
-            upto_root "$k"
-            root_ds="$work/ds-upto-$k"
+            spp="$(train_spp_of "$what")"
+            upto_root "$k" "$spp"
+            root_ds="$(upto_dir "$k" "$spp")"
           fi
           stop="--stop-at $(((k + 1) * block_iters))" ;;
     esac

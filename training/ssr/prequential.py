@@ -1,5 +1,6 @@
 """The prequential ledger of a rolling run (weights/README: F12 of the "Forty-second
-session", withdrawn in the forty-sixth; F13 of the "Forty-sixth session"): before the run
+session", withdrawn in the forty-sixth; F13 of the "Forty-sixth session", paused in the
+fiftieth; F14 of the "Fiftieth session"): before the run
 trains on block K it is scored on that block's sequences, which no model has seen, against
 the shipped model, and the standing rule (`ssr.rule`, with the columns and guard of
 `ssr.registered`) decides between the two. The ledger (a JSON file committed as
@@ -52,12 +53,28 @@ ROLLING = {
                   "(ds-upto-K), F6's options with lr 3.125e-5 halved at 10,000 and 20,000, "
                   "model config emission background, one core (training/registered.sh WORK F13 K)",
     },
+    "F14": {
+        "run": "ssr-s50-F14",
+        "registered": "weights/README.md, Fiftieth session",
+        "first_block": 12,
+        "start": {"weights": "weights/baselines/ssr-s46-P46.safetensors", "iteration": 8000,
+                  "what": "P46 (F5 continued 1,000 iterations on blocks 1-7 at once), then F13's iterations 8,000 "
+                          "to 11,250 on 512-spp blocks (its whole checkpoint at 11,250, committed as "
+                          "weights/restore/ssr-s50-F14-it0011250.pt, is where F14 begins)",
+                  "base": F5, "base_iterations": 1000},
+        "recipe": "F13's from 11,250 with the blocks it trains on rendered at 32 spp: block K trains iterations "
+                  "1,000K to 1,000(K+1) of 30,000 on blocks 1 to K at once at 32 spp (ds-spp32-upto-K), "
+                  "--min-reference-psnr 0, F6's options with lr 3.125e-5 halved at 10,000 and 20,000, model "
+                  "config emission background, one core (training/registered.sh WORK F14 K); scored on the "
+                  "512-spp blocks",
+    },
 }
 """The rolling runs: run folder, registration, the first block their ledger scores (F12
 at block 0 is its start, F5; F13's block 8 is where P46's score was seen before it was
-registered), their start (its weights, the run's iteration there, and the shipped model it
-was trained from with the iterations between) and their recipe, which `ssr.ship` writes
-into the provenance of weights it ships."""
+registered; F14's first is the first block F13 has not scored), their start (its weights,
+the run's iteration there, and the shipped model it was trained from with the iterations
+between) and their recipe, which `ssr.ship` writes into the provenance of weights it
+ships."""
 BLOCK_ITERATIONS = 1000
 """Iterations a block trains (block K: iterations 1,000K to 1,000(K+1))."""
 

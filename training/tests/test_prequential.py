@@ -89,10 +89,27 @@ def test_f13_has_its_own_row_ledger_and_first_block(tmp_path, capsys):
     record(path, entry(t, 10, 10000, challenger="F13"), challenger="F13")
     doc = json.load(open(path))
     assert doc["run"] == "ssr-s46-F13" and "Forty-sixth" in doc["registered"] and doc["ships_at"] == 10000
-    with pytest.raises(RuleError, match="unknown rolling run 'F14'"):
-        entry(t, 9, 9000, challenger="F14")
+    with pytest.raises(RuleError, match="unknown rolling run 'F15'"):
+        entry(t, 9, 9000, challenger="F15")
     tp = tmp_path / "t.json"
     tp.write_text(json.dumps(t))
     assert main([str(tmp_path / "l2.json"), str(tp), "--block", "9", "--iteration", "9000", "--challenger", "F13"]) == 0
     out = capsys.readouterr().out
     assert "F13 at 9000" in out and "winner: F13" in out
+
+
+def test_f14_scores_from_block_12_in_its_own_ledger(tmp_path):
+    """F14 (fiftieth session) may score from block 12, the first block F13's ledger has not
+    scored; its ledger names its run and registration and ships on blocks 12 and 13."""
+    t = table((25.0, 0.700, 27.0), (25.2, 0.710, 27.0))
+    for row in t:
+        if row["method"] == "F12":
+            row["method"] = "F14"
+    with pytest.raises(RuleError, match="starts at block 12"):
+        entry(t, 11, 11000, challenger="F14")
+    path = str(tmp_path / "ledger.json")
+    record(path, entry(t, 12, 12000, challenger="F14"), challenger="F14")
+    assert json.load(open(path))["ships_at"] is None
+    record(path, entry(t, 13, 13000, challenger="F14"), challenger="F14")
+    doc = json.load(open(path))
+    assert doc["run"] == "ssr-s50-F14" and "Fiftieth" in doc["registered"] and doc["ships_at"] == 13000

@@ -1,9 +1,9 @@
 """The pre-registered runs as `training/registered.sh` starts them (weights/README: F6 and F7
 of the thirtieth session, F8 of the thirty-first, F9 of the thirty-fourth, F10 and F11 of
-the thirty-ninth, F12 of the forty-second, F13 of the forty-sixth): their ssr.train
-arguments, printed by campaign.sh's DRY_RUN, parse and say what the registrations say; the
-rolling runs' blocks, their roots, kept checkpoints and prequential score as the
-registrations order them."""
+the thirty-ninth, F12 of the forty-second, F13 of the forty-sixth, F14 of the fiftieth):
+their ssr.train arguments, printed by campaign.sh's DRY_RUN, parse and say what the
+registrations say; the rolling runs' blocks, their roots, kept checkpoints and prequential
+score as the registrations order them."""
 
 import json
 import os
@@ -428,14 +428,84 @@ def test_the_prequential_score_of_f13_starts_at_block_9(tmp_path):
     where P46's score was seen before F13 was registered, is refused)."""
     names = block_names(9)
     fake_sequences(tmp_path / "ds", names)
-    r = run_script(tmp_path, "prequential", "8")
+    r = run_script(tmp_path, "prequential", "8", roll="F13")
     assert r.returncode == 2 and "F13's ledger starts at block 9" in r.stderr, r.stderr
-    r = run_script(tmp_path, "prequential", "9")
+    r = run_script(tmp_path, "prequential", "9", roll="F13")
     assert r.returncode == 1 and "no weights of F13 at iteration 9000" in r.stderr, r.stderr
     snaps = tmp_path / "runs" / "ssr-s46-F13" / "snapshots"
     snaps.mkdir(parents=True)
     (snaps / "it_0009000.safetensors").write_bytes(b"w")
-    r = run_script(tmp_path, "prequential", "9")
+    r = run_script(tmp_path, "prequential", "9", roll="F13")
     assert r.returncode == 0 and f"F13={snaps}/it_0009000.safetensors over 26 sequences" in r.stdout, r.stdout
-    r = run_script(tmp_path, "prequential", "9", roll="F14")
-    assert r.returncode == 2 and "ROLL must be F12 or F13" in r.stderr, r.stderr
+    r = run_script(tmp_path, "prequential", "9", roll="F15")
+    assert r.returncode == 2 and "ROLL must be F12, F13 or F14" in r.stderr, r.stderr
+
+
+# F14, F13 continued on blocks at 32 spp (fiftieth session)
+
+def test_f14_is_f13_on_blocks_at_32_spp(tmp_path):
+    """F14's block K: F13's options, start and schedule, resumed from its kept checkpoint,
+    on the links of blocks 1 to K rendered at 32 spp (WORK/ds-spp32-block-J), no sequence
+    left out for its references' noise; nothing else differs from F13's block K."""
+    for spp_root in ("ds-spp32-block", "ds-block"):
+        for j in range(1, 12):
+            seq = tmp_path / f"{spp_root}-{j}-src" / "train" / f"procedural_{280 + 20 * j}_train_000"
+            seq.mkdir(parents=True)
+            (tmp_path / f"{spp_root}-{j}" / "train").mkdir(parents=True)
+            os.symlink(seq, tmp_path / f"{spp_root}-{j}" / "train" / seq.name)
+    # where F14 began: F13's whole checkpoint at 11,250, kept under F14's name
+    restore = tmp_path / "restore"
+    restore.mkdir()
+    for run in ("ssr-s46-F13", "ssr-s50-F14"):
+        (restore / f"{run}-it0011250.pt").write_bytes(b"F13 at 11250")
+    r = run_script(tmp_path, "F14", "11", restore=restore)
+    assert r.returncode == 0, r.stderr
+    f14 = parse_args(r.stdout.splitlines())
+    assert f14.resume_from == str(restore / "ssr-s50-F14-it0011250.pt") and f14.init_at == 8000
+    assert f14.stop_at == 12000 and f14.min_reference_psnr == 0 and f14.out.endswith("ssr-s50-F14")
+    assert f14.data == str(tmp_path / "ds-spp32-upto-11")
+    linked = {p.name: os.path.realpath(p) for p in (tmp_path / "ds-spp32-upto-11" / "train").iterdir()}
+    assert sorted(linked) == sorted(f"procedural_{280 + 20 * j}_train_000" for j in range(1, 12))
+    assert all("/ds-spp32-block-" in t for t in linked.values()), linked
+    f13 = parse_args(run_script(tmp_path, "F13", "11", restore=restore).stdout.splitlines())
+    differ = {k for k in vars(f14) if vars(f14)[k] != vars(f13)[k]}
+    assert differ == {"out", "data", "resume_from", "min_reference_psnr"}, differ
+    assert f13.min_reference_psnr == 22 and f13.data == str(tmp_path / "ds-upto-11")
+    r = run_script(tmp_path, "F14", "12", restore=restore)
+    assert r.returncode == 1 and "block 11 comes before block 12" in r.stderr, r.stderr
+    shutil.rmtree(tmp_path / "ds-spp32-block-4")
+    r = run_script(tmp_path, "F14", "11", restore=restore)
+    assert r.returncode == 1 and "registered.sh WORK block 4 32" in r.stderr, r.stderr
+
+
+def test_a_block_at_32_spp_has_its_own_folder_and_root(tmp_path):
+    """`block K 32` links block K's sequences from WORK/ds-spp32 into WORK/ds-spp32-block-K,
+    never the 512-spp ones of WORK/ds; a count that is not one is refused."""
+    names = block_names(3)
+    fake_sequences(tmp_path / "ds", names)
+    r = run_script(tmp_path, "block", "3", "32")
+    assert r.returncode == 1 and "30 of the 30 sequences" in r.stderr, r.stderr
+    fake_sequences(tmp_path / "ds-spp32", names)
+    r = run_script(tmp_path, "block", "3", "32")
+    assert r.returncode == 0, r.stderr
+    targets = [os.path.realpath(p) for p in (tmp_path / "ds-spp32-block-3" / "train").iterdir()]
+    assert len(targets) == 30 + 4 * 3 and all(t.startswith(str(tmp_path / "ds-spp32") + "/") for t in targets)
+    assert not (tmp_path / "ds-block-3").exists()
+    r = run_script(tmp_path, "block", "3", "0")
+    assert r.returncode == 2 and "positive count" in r.stderr, r.stderr
+
+
+def test_the_prequential_score_of_f14_reads_the_512_spp_blocks_from_block_12(tmp_path):
+    """`prequential K` (ROLL defaults to F14) scores F14 at 1,000K from block 12 on, the
+    first block F13's ledger has not scored, over block K's 512-spp sequences."""
+    names = block_names(12)
+    fake_sequences(tmp_path / "ds", names)
+    r = run_script(tmp_path, "prequential", "11")
+    assert r.returncode == 2 and "F14's ledger starts at block 12" in r.stderr, r.stderr
+    snaps = tmp_path / "runs" / "ssr-s50-F14" / "snapshots"
+    snaps.mkdir(parents=True)
+    (snaps / "it_0012000.safetensors").write_bytes(b"w")
+    r = run_script(tmp_path, "prequential", "12")
+    assert r.returncode == 0 and f"F14={snaps}/it_0012000.safetensors over 26 sequences" in r.stdout, r.stdout
+    targets = [os.path.realpath(p) for p in (tmp_path / "preq-12" / "train").iterdir()]
+    assert all(t.startswith(str(tmp_path / "ds") + "/") for t in targets), targets
