@@ -547,7 +547,8 @@ print(len(SequenceDataset('$work/ds-$name', 'train', window=8, crop=64, min_refe
       stop_if_asked
       # the other core: the blocks not yet scored whose weights exist (this one's first:
       # the run at 1,000k is where it stands; a run training on fewer samples renders the
-      # 512-spp block it is scored on first), then the next block's render
+      # 512-spp block it is scored on first, where the lane before has not), then the next
+      # block's render (for such a run also the 512-spp one it will be scored on)
       scored=" $(cd "$here" && "$py" -c "import sys; from ssr.prequential import load; print(' '.join(str(e['block']) for e in load(sys.argv[1])))" "$ledger") "
       (
         for j in $(seq "$k" -1 "$(first_block)"); do
@@ -557,7 +558,10 @@ print(len(SequenceDataset('$work/ds-$name', 'train', window=8, crop=64, min_refe
             "$self" "$work" prequential "$j" || true
           fi
         done
-        [ "$k" -ge "$last" ] || "$self" "$work" block $((k + 1)) "$spp"
+        if [ "$k" -lt "$last" ]; then
+          "$self" "$work" block $((k + 1)) "$spp"
+          if [ "$spp" != 512 ] && [ $((k + 1)) -ge "$(first_block)" ]; then "$self" "$work" block $((k + 1)); fi
+        fi
       ) >> "$work/lane.log" 2>&1 &
       echo "== registered.sh $roll block $k (log $work/$roll.log; scoring and the next render: $work/lane.log)"
       rc=0
