@@ -70,7 +70,8 @@
 #                                           # and links its root WORK/ds-block-K
 #                                           # (WORK/ds-sppN-block-K; refused until every
 #                                           # sequence of the block is complete)
-#   training/registered.sh WORK F12|F13 K   # trains block K on one core (--stop-at
+#   training/registered.sh WORK F12|F13|F14 K
+#                                           # trains block K on one core (--stop-at
 #                                           # 1,000(K+1)); refused unless RUN's checkpoint
 #                                           # (its own, else its newest kept one) is in
 #                                           # [1,000K, 1,000(K+1)); done when it is past
