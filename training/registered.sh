@@ -245,7 +245,7 @@ upto_root() {
   mkdir -p "$dir/train"
   for j in $(seq 1 "$k"); do
     for s in "$(block_root "$j" "$spp")/train/"*; do
-      [ -e "$s" ] && ln -sfn "$(readlink -f "$s")" "$dir/train/$(basename "$s")"
+      if [ -e "$s" ]; then ln -sfn "$(readlink -f "$s")" "$dir/train/$(basename "$s")"; fi
     done
   done
 }

@@ -260,8 +260,8 @@ def run_config(args: argparse.Namespace) -> dict:
         **({"thin_keep_min": args.thin_keep_min} if args.thin > 0 and args.thin_keep_min != THIN_KEEP_MIN else {}),
         # Only present when colour permutation is on (older checkpoints have no such key).
         **({"color_permute": True} if args.color_permute else {}),
-        # Only present when noisy training sequences are left out (older checkpoints have no such key).
-        **({"min_reference_psnr": args.min_reference_psnr} if args.min_reference_psnr is not None else {}),
+        # Not the reference-noise threshold (--min-reference-psnr): like --data, it chooses the
+        # training sequences, which a run may change where it resumes (normalised_config).
     }
 
 
@@ -540,7 +540,10 @@ def load_checkpoint(path: str, config: dict) -> dict:
 def normalised_config(saved: dict) -> dict:
     """A checkpoint's run config as this code writes it: SSR model options added since the
     checkpoint was written (model.LATE_OPTIONS) take the value their absence means, and so do
-    loss terms (losses.OPTIONAL_TERMS, weight 0), so a run begun before them resumes."""
+    loss terms (losses.OPTIONAL_TERMS, weight 0), so a run begun before them resumes; the
+    reference-noise threshold, which checkpoints held until the fiftieth session, is dropped
+    (it chooses data, as --data does, and the provenance records it)."""
+    saved = {k: v for k, v in saved.items() if k != "min_reference_psnr"}
     lam = saved.get("lambdas")
     if isinstance(lam, dict):
         saved = {**saved, "lambdas": {**{t: 0.0 for t in losses.OPTIONAL_TERMS if t not in lam}, **lam}}

@@ -478,6 +478,28 @@ def test_f14_is_f13_on_blocks_at_32_spp(tmp_path):
     assert r.returncode == 1 and "registered.sh WORK block 4 32" in r.stderr, r.stderr
 
 
+def test_f14_resumes_f13s_kept_checkpoint_under_its_own_options(tmp_path):
+    """F13's newest kept whole checkpoint, where F14 begins, loads under the options F14's
+    block trains with (the trainer's resume check: model, schedule, start, losses)."""
+    import glob
+
+    from ssr import train as T
+
+    kept = sorted(glob.glob(os.path.join(ROOT, "weights", "restore", "ssr-s46-F13-it*.pt")))[-1]
+    restore = tmp_path / "restore"
+    restore.mkdir()
+    n = os.path.basename(kept).split("-it")[1]
+    os.symlink(kept, restore / f"ssr-s50-F14-it{n}")
+    k = int(n.split(".")[0]) // 1000
+    for j in range(1, k + 1):
+        (tmp_path / f"ds-spp32-block-{j}" / "train").mkdir(parents=True)
+    r = run_script(tmp_path, "F14", str(k), restore=restore)
+    assert r.returncode == 0, r.stderr
+    f14 = parse_args(r.stdout.splitlines())
+    ck = T.load_checkpoint(f14.resume_from, T.run_config(f14))
+    assert ck["iteration"] == int(n.split(".")[0])
+
+
 def test_a_block_at_32_spp_has_its_own_folder_and_root(tmp_path):
     """`block K 32` links block K's sequences from WORK/ds-spp32 into WORK/ds-spp32-block-K,
     never the 512-spp ones of WORK/ds; a count that is not one is refused."""

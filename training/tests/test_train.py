@@ -493,3 +493,19 @@ def test_a_restore_point_resumes_the_run_exactly_in_a_new_folder(dataset, tmp_pa
     with pytest.raises(SystemExit):
         T.train(args(dataset, str(tmp_path / "e"), "--resume-from", str(tmp_path / "none.pt"), iters=6))
     assert "no such file" in capsys.readouterr().err
+
+
+def test_the_reference_noise_threshold_is_not_part_of_the_resume_config(tmp_path):
+    # --min-reference-psnr chooses training sequences, as --data does: a run may resume with
+    # another threshold (F14 resumes F13's checkpoint, written with 22 dB, with 0), and a
+    # checkpoint that still holds the key compares as one without it; other keys still count.
+    base = args(str(tmp_path / "data"), str(tmp_path / "out"))
+    cfg = T.run_config(T.parse_args(base))
+    assert T.run_config(T.parse_args(base + ["--min-reference-psnr", "22"])) == cfg
+    assert "min_reference_psnr" not in cfg
+    path = str(tmp_path / "checkpoint.pt")
+    old = {**cfg, "min_reference_psnr": 22.0}
+    T.save_checkpoint(path, {"format": T.CHECKPOINT_FORMAT, "version": T.CHECKPOINT_VERSION, "config": old, "iteration": 3})
+    assert T.load_checkpoint(path, cfg)["iteration"] == 3
+    with pytest.raises(T.CheckpointError, match="differing keys: crop: 16 in the checkpoint, 32 now$"):
+        T.load_checkpoint(path, {**cfg, "crop": 32})
