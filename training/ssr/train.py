@@ -114,7 +114,8 @@ def parse_args(argv=None) -> argparse.Namespace:
     ap.add_argument(
         "--min-reference-psnr", type=float, default=None,
         help="leave out training sequences whose references are noisier than this: the mean PSNR (dB) between "
-        "their two halves, as sequence.json records it (default: keep every sequence; validation is never filtered)",
+        "their two halves, as sequence.json records it (default: keep every sequence; validation is never filtered). "
+        "Like --data it chooses data: a run may resume with another threshold",
     )
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--resume", action="store_true", help="continue from RUN_DIR/checkpoint.pt")
