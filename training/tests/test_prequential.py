@@ -75,20 +75,36 @@ def test_the_command_line_records_and_names_bad_input(tmp_path, capsys):
     assert main([str(ledger), str(tmp_path / "missing.json"), "--block", "2", "--iteration", "2000"]) == 2
 
 
-def test_f13_has_its_own_row_ledger_and_first_block(tmp_path, capsys):
-    """The challenger names the row, the run recorded in the ledger and the first block it
-    may score (F13: 9); an unknown rolling run is refused by name."""
+def challenger_table(challenger):
+    """The test table with the challenger's row named `challenger`."""
     t = table((25.0, 0.700, 27.0), (25.2, 0.710, 27.0))
     for row in t:
         if row["method"] == "F12":
-            row["method"] = "F13"
-    with pytest.raises(RuleError, match="starts at block 9"):
-        entry(t, 8, 8000, challenger="F13")
+            row["method"] = challenger
+    return t
+
+
+@pytest.mark.parametrize(
+    "challenger,first,run,registered",
+    [("F13", 9, "ssr-s46-F13", "Forty-sixth"), ("F14", 12, "ssr-s50-F14", "Fiftieth")],
+)
+def test_a_rolling_run_has_its_own_row_ledger_and_first_block(tmp_path, challenger, first, run, registered):
+    """The challenger names the row, the run recorded in the ledger and the first block it
+    may score (F13: 9; F14: 12, the first block F13's ledger has not scored); it ships on
+    two consecutive blocks."""
+    t = challenger_table(challenger)
+    with pytest.raises(RuleError, match=f"starts at block {first}"):
+        entry(t, first - 1, 1000 * (first - 1), challenger=challenger)
     path = str(tmp_path / "ledger.json")
-    record(path, entry(t, 9, 9000, challenger="F13"), challenger="F13")
-    record(path, entry(t, 10, 10000, challenger="F13"), challenger="F13")
+    record(path, entry(t, first, 1000 * first, challenger=challenger), challenger=challenger)
+    assert json.load(open(path))["ships_at"] is None
+    record(path, entry(t, first + 1, 1000 * (first + 1), challenger=challenger), challenger=challenger)
     doc = json.load(open(path))
-    assert doc["run"] == "ssr-s46-F13" and "Forty-sixth" in doc["registered"] and doc["ships_at"] == 10000
+    assert doc["run"] == run and registered in doc["registered"] and doc["ships_at"] == 1000 * (first + 1)
+
+
+def test_the_command_names_its_challenger_and_refuses_an_unknown_one(tmp_path, capsys):
+    t = challenger_table("F13")
     with pytest.raises(RuleError, match="unknown rolling run 'F15'"):
         entry(t, 9, 9000, challenger="F15")
     tp = tmp_path / "t.json"
@@ -96,20 +112,3 @@ def test_f13_has_its_own_row_ledger_and_first_block(tmp_path, capsys):
     assert main([str(tmp_path / "l2.json"), str(tp), "--block", "9", "--iteration", "9000", "--challenger", "F13"]) == 0
     out = capsys.readouterr().out
     assert "F13 at 9000" in out and "winner: F13" in out
-
-
-def test_f14_scores_from_block_12_in_its_own_ledger(tmp_path):
-    """F14 (fiftieth session) may score from block 12, the first block F13's ledger has not
-    scored; its ledger names its run and registration and ships on blocks 12 and 13."""
-    t = table((25.0, 0.700, 27.0), (25.2, 0.710, 27.0))
-    for row in t:
-        if row["method"] == "F12":
-            row["method"] = "F14"
-    with pytest.raises(RuleError, match="starts at block 12"):
-        entry(t, 11, 11000, challenger="F14")
-    path = str(tmp_path / "ledger.json")
-    record(path, entry(t, 12, 12000, challenger="F14"), challenger="F14")
-    assert json.load(open(path))["ships_at"] is None
-    record(path, entry(t, 13, 13000, challenger="F14"), challenger="F14")
-    doc = json.load(open(path))
-    assert doc["run"] == "ssr-s50-F14" and "Fiftieth" in doc["registered"] and doc["ships_at"] == 13000
