@@ -145,13 +145,13 @@ train_spp_of() {
 ds_of() {
   if [ "$1" = 512 ]; then echo "$work/ds"; else echo "$work/ds-spp$1"; fi
 }
-# block_root K [SPP]: WORK/ds-block-K (512 spp), else WORK/ds-sppN-block-K; upto_dir K
-# [SPP]: the same with -upto-K, blocks 1 to K at once.
+# block_root K [SPP]: the root of block K at SPP (default 512), ds_of SPP with -block-K
+# (WORK/ds-block-K, WORK/ds-sppN-block-K); upto_dir K [SPP]: with -upto-K, blocks 1 to K.
 block_root() {
-  if [ "${2:-512}" = 512 ]; then echo "$work/ds-block-$1"; else echo "$work/ds-spp$2-block-$1"; fi
+  echo "$(ds_of "${2:-512}")-block-$1"
 }
 upto_dir() {
-  if [ "${2:-512}" = 512 ]; then echo "$work/ds-upto-$1"; else echo "$work/ds-spp$2-upto-$1"; fi
+  echo "$(ds_of "${2:-512}")-upto-$1"
 }
 # first_block: the first block the rolling run's ledger scores, as ssr.prequential registers
 # it (read when needed: `setup` runs before the virtualenv exists).

@@ -59,8 +59,8 @@ ROLLING = {
         "first_block": 12,
         "start": {"weights": "weights/baselines/ssr-s46-P46.safetensors", "iteration": 8000,
                   "what": "P46 (F5 continued 1,000 iterations on blocks 1-7 at once), then F13's iterations 8,000 "
-                          "to 11,250 on 512-spp blocks (its whole checkpoint at 11,250, committed as "
-                          "weights/restore/ssr-s50-F14-it0011250.pt, is where F14 begins)",
+                          "to 11,250 on 512-spp blocks (F14 begins from F13's whole checkpoint at 11,250, "
+                          "weights/restore/ssr-s46-F13-it0011250.pt)",
                   "base": F5, "base_iterations": 1000},
         "recipe": "F13's from 11,250 with the blocks it trains on rendered at 32 spp: block K trains iterations "
                   "1,000K to 1,000(K+1) of 30,000 on blocks 1 to K at once at 32 spp (ds-spp32-upto-K), "

@@ -490,14 +490,15 @@ def test_f14_resumes_f13s_kept_checkpoint_under_its_own_options(tmp_path):
     restore.mkdir()
     n = os.path.basename(kept).split("-it")[1]
     os.symlink(kept, restore / f"ssr-s50-F14-it{n}")
-    k = int(n.split(".")[0]) // 1000
+    at = int(n.split(".")[0])
+    k = at // 1000
     for j in range(1, k + 1):
         (tmp_path / f"ds-spp32-block-{j}" / "train").mkdir(parents=True)
     r = run_script(tmp_path, "F14", str(k), restore=restore)
     assert r.returncode == 0, r.stderr
     f14 = parse_args(r.stdout.splitlines())
     ck = T.load_checkpoint(f14.resume_from, T.run_config(f14))
-    assert ck["iteration"] == int(n.split(".")[0])
+    assert ck["iteration"] == at
 
 
 def test_a_block_at_32_spp_has_its_own_folder_and_root(tmp_path):
